@@ -1,0 +1,129 @@
+"""Containers that flow between the stages. Plain data with shapes in their docstrings; no algorithms.
+
+T is the number of frames, K = 33 MediaPipe landmarks, J the number of named points of the body model.
+"""
+
+from __future__ import annotations
+
+import os
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+from .io.atomic import save_npz
+from .landmarks import NUM_LANDMARKS
+
+
+@dataclass
+class Observations:
+    """What a detector saw, independent of the detector.
+
+    keypoints_2d: (T, K, 3) x, y in pixels of the native image, confidence in 0..1 (0 where not seen).
+    landmarks_3d: (T, K, 3) metres, relative to the midpoint of the hips, axes aligned with the camera
+        (x right, y down, z away from the camera).
+    fps: frames per second of the source.
+    image_size: (width, height) in pixels.
+    camera_K: (3, 3) intrinsics if the source knows them, else None.
+    valid: (T,) False where no person was found or the track seems to have jumped to someone else.
+    invalid_reason: (T,) short text per frame, "" where valid.
+    source: where the observations came from (a path or a detector name).
+    """
+
+    keypoints_2d: np.ndarray
+    landmarks_3d: np.ndarray
+    fps: float
+    image_size: tuple[int, int]
+    camera_K: np.ndarray | None = None
+    valid: np.ndarray | None = None
+    invalid_reason: np.ndarray | None = None
+    source: str = ""
+    seconds_per_frame: float = field(default=0.0, compare=False)
+
+    def __post_init__(self) -> None:
+        self.keypoints_2d = np.asarray(self.keypoints_2d, dtype=np.float64)
+        self.landmarks_3d = np.asarray(self.landmarks_3d, dtype=np.float64)
+        T = len(self.keypoints_2d)
+        if self.valid is None:
+            self.valid = np.ones(T, dtype=bool)
+        self.valid = np.asarray(self.valid, dtype=bool)
+        if self.invalid_reason is None:
+            self.invalid_reason = np.where(self.valid, "", "invalid").astype(object)
+        self.invalid_reason = np.asarray(self.invalid_reason, dtype=object)
+        self.image_size = (int(self.image_size[0]), int(self.image_size[1]))
+        self.fps = float(self.fps)
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.keypoints_2d)
+
+    def save(self, path: str | os.PathLike) -> None:
+        arrays = dict(
+            keypoints_2d=self.keypoints_2d.astype(np.float32),
+            landmarks_3d=self.landmarks_3d.astype(np.float32),
+            fps=np.float64(self.fps),
+            image_size=np.asarray(self.image_size, dtype=np.int64),
+            valid=self.valid,
+            invalid_reason=self.invalid_reason.astype(str),
+            source=np.str_(self.source),
+            seconds_per_frame=np.float64(self.seconds_per_frame),
+        )
+        if self.camera_K is not None:
+            arrays["camera_K"] = np.asarray(self.camera_K, dtype=np.float64)
+        save_npz(path, **arrays)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "Observations":
+        """Read and check an observations file; any problem raises InputError naming the file."""
+        path = Path(path)
+        if not path.is_file():
+            raise InputError(f"{path}: no such observations file.")
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                contents = {key: data[key] for key in data.files}
+        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+            raise InputError(f"{path}: not a readable .npz observations file ({exc}).") from None
+        for key in ("keypoints_2d", "landmarks_3d", "fps", "image_size"):
+            if key not in contents:
+                raise InputError(f"{path}: observations file has no '{key}' array.")
+        k2, k3 = contents["keypoints_2d"], contents["landmarks_3d"]
+        if k2.ndim != 3 or k2.shape[1:] != (NUM_LANDMARKS, 3):
+            raise InputError(f"{path}: keypoints_2d has shape {k2.shape}, expected (T, {NUM_LANDMARKS}, 3).")
+        if k3.shape != k2.shape:
+            raise InputError(f"{path}: landmarks_3d has shape {k3.shape}, expected {k2.shape} like keypoints_2d.")
+        if len(k2) == 0:
+            raise InputError(f"{path}: observations file holds no frames.")
+        fps = float(np.asarray(contents["fps"]).reshape(-1)[0])
+        if not np.isfinite(fps) or fps <= 0:
+            raise InputError(f"{path}: fps is {fps}, expected a positive number.")
+        size = np.asarray(contents["image_size"]).reshape(-1)
+        if size.shape != (2,) or np.any(size <= 0):
+            raise InputError(f"{path}: image_size is {size.tolist()}, expected (width, height) in pixels.")
+        K = contents.get("camera_K")
+        if K is not None and np.asarray(K).shape != (3, 3):
+            raise InputError(f"{path}: camera_K has shape {np.asarray(K).shape}, expected (3, 3).")
+        valid = contents.get("valid")
+        if valid is not None and valid.shape != (len(k2),):
+            raise InputError(f"{path}: valid has shape {valid.shape}, expected ({len(k2)},).")
+        # Non-finite values mark missing detections: make them explicit zero-confidence points.
+        k2 = np.array(k2, dtype=np.float64)
+        k3 = np.array(k3, dtype=np.float64)
+        missing = ~np.isfinite(k2).all(axis=2) | ~np.isfinite(k3).all(axis=2)
+        k2[missing] = 0.0
+        k3[missing] = 0.0
+        if valid is None:
+            valid = k2[:, :, 2].max(axis=1) > 0
+        reason = contents.get("invalid_reason")
+        return cls(
+            keypoints_2d=k2,
+            landmarks_3d=k3,
+            fps=fps,
+            image_size=(int(size[0]), int(size[1])),
+            camera_K=None if K is None else np.asarray(K, dtype=np.float64),
+            valid=np.asarray(valid, dtype=bool),
+            invalid_reason=None if reason is None else reason.astype(object),
+            source=str(contents.get("source", path)),
+            seconds_per_frame=float(contents.get("seconds_per_frame", 0.0)),
+        )
