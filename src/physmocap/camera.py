@@ -1,0 +1,152 @@
+"""Pinhole camera (OpenCV axes: x right, y down, z forward), its projection Jacobian, and the floor plane.
+
+Extrinsics map world to camera: x_cam = R x_world + t. The world is Z up with the floor at z = 0 once the floor
+is known; before that, a provisional world has the camera at the origin looking along +y with its x axis as x.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+# Provisional world: camera at the origin, level, looking along +y (x_cam = x, y_cam = -z, z_cam = y).
+PROVISIONAL_R = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+DEFAULT_FOV_DEGREES = 60.0  # across the longer image side; typical of phones and webcams
+
+
+@dataclass(frozen=True)
+class Camera:
+    """K (3, 3) intrinsics in pixels; R (3, 3), t (3,) world -> camera; image size (width, height)."""
+
+    K: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    image_size: tuple[int, int]
+
+    @staticmethod
+    def from_settings(image_size: tuple[int, int], focal: float | None = None, fov: float | None = None,
+                      K: np.ndarray | None = None) -> "Camera":
+        """Intrinsics from an explicit K, a focal length (pixels) or a field of view (degrees across the
+        longer image side); the principal point is the image centre. Default: DEFAULT_FOV_DEGREES."""
+        w, h = image_size
+        if K is None:
+            if focal is None:
+                fov = DEFAULT_FOV_DEGREES if fov is None else fov
+                focal = 0.5 * max(w, h) / np.tan(np.radians(fov) / 2)
+            K = np.array([[focal, 0.0, w / 2], [0.0, focal, h / 2], [0.0, 0.0, 1.0]])
+        return Camera(np.asarray(K, float), PROVISIONAL_R.copy(), np.zeros(3), (int(w), int(h)))
+
+    @property
+    def focal(self) -> float:
+        return float(0.5 * (self.K[0, 0] + self.K[1, 1]))
+
+    @property
+    def center(self) -> np.ndarray:
+        """Camera position in the world."""
+        return -self.R.T @ self.t
+
+    def to_camera(self, points: np.ndarray) -> np.ndarray:
+        """(..., 3) world -> camera frame."""
+        return points @ self.R.T + self.t
+
+    def project(self, points: np.ndarray) -> np.ndarray:
+        """(..., 3) world points -> (..., 2) pixels."""
+        return project_camera_points(self.K, self.to_camera(points))
+
+    def projection_jacobian(self, points: np.ndarray) -> np.ndarray:
+        """(..., 3) world points -> (..., 2, 3) d pixels / d world position."""
+        pc = self.to_camera(points)
+        return projection_jacobian_camera(self.K, pc) @ self.R
+
+    def with_extrinsics(self, R: np.ndarray, t: np.ndarray) -> "Camera":
+        return Camera(self.K, np.asarray(R, float), np.asarray(t, float), self.image_size)
+
+
+def project_camera_points(K: np.ndarray, pc: np.ndarray) -> np.ndarray:
+    """(..., 3) camera-frame points -> (..., 2) pixels."""
+    z = np.maximum(pc[..., 2:3], 1e-6)
+    uv = pc[..., :2] / z
+    return uv @ K[:2, :2].T + K[:2, 2]
+
+
+def projection_jacobian_camera(K: np.ndarray, pc: np.ndarray) -> np.ndarray:
+    """(..., 3) camera-frame points -> (..., 2, 3) d pixels / d camera-frame position."""
+    z = np.maximum(pc[..., 2], 1e-6)
+    out = np.zeros(pc.shape[:-1] + (2, 3))
+    out[..., 0, 0] = K[0, 0] / z
+    out[..., 0, 1] = K[0, 1] / z
+    out[..., 0, 2] = -(K[0, 0] * pc[..., 0] + K[0, 1] * pc[..., 1]) / z**2
+    out[..., 1, 1] = K[1, 1] / z
+    out[..., 1, 2] = -K[1, 1] * pc[..., 1] / z**2
+    return out
+
+
+@dataclass(frozen=True)
+class Floor:
+    """Plane n . x + d = 0 in the camera frame, n a unit vector pointing up (away from the ground)."""
+
+    normal: np.ndarray
+    offset: float
+    inlier_fraction: float = 1.0
+
+    @property
+    def plane(self) -> np.ndarray:
+        return np.append(self.normal, self.offset)
+
+    @staticmethod
+    def from_plane(plane) -> "Floor":
+        plane = np.asarray(plane, float)
+        norm = np.linalg.norm(plane[:3])
+        return Floor(plane[:3] / norm, float(plane[3] / norm))
+
+    def height(self, points_camera: np.ndarray) -> np.ndarray:
+        return points_camera @ self.normal + self.offset
+
+
+def fit_floor(points_camera: np.ndarray, up_prior: np.ndarray, prior_weight: float = 0.05,
+              huber_scale: float = 0.02, outlier_distance: float = 0.10) -> tuple[Floor, np.ndarray]:
+    """Robust (Huber) plane fit to foot points believed to touch the floor (Rempe et al. B.4).
+
+    points_camera: (N, 3) candidate points; up_prior: (3,) rough up direction (e.g. the body's mean vertical
+    axis), which also regularises the tilt when the points are clustered (a person standing still).
+    prior_weight: strength of that regulariser relative to one point at 1 m. Returns the floor and a (N,)
+    mask of inliers (points within `outlier_distance` of the plane).
+    """
+    up = up_prior / np.linalg.norm(up_prior)
+    # Basis around the prior: the normal is up rotated by two small angles.
+    a = np.cross(up, [1.0, 0.0, 0.0])
+    if np.linalg.norm(a) < 0.1:
+        a = np.cross(up, [0.0, 0.0, 1.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(up, a)
+
+    def normal_of(x):
+        n = up + x[0] * a + x[1] * b
+        return n / np.linalg.norm(n)
+
+    def residuals(x):
+        n = normal_of(x)
+        dist = points_camera @ n + x[2]
+        return np.concatenate([dist, np.sqrt(prior_weight * len(points_camera)) * x[:2]])
+
+    d0 = -np.median(points_camera @ up)
+    sol = least_squares(residuals, np.array([0.0, 0.0, d0]), loss="huber", f_scale=huber_scale)
+    n = normal_of(sol.x)
+    dist = np.abs(points_camera @ n + sol.x[2])
+    inliers = dist < outlier_distance
+    return Floor(n, float(sol.x[2]), float(inliers.mean())), inliers
+
+
+def world_from_floor(floor: Floor, anchor_camera: np.ndarray, camera_x=np.array([1.0, 0.0, 0.0])):
+    """Extrinsics (R, t), world -> camera, of the world whose z = 0 plane is the floor, z up, origin on the
+    floor below `anchor_camera` (camera-frame point, e.g. the first pelvis), x along the camera's x axis."""
+    z = floor.normal
+    x = camera_x - np.dot(camera_x, z) * z
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z], axis=1)  # columns: the world axes in camera coordinates
+    origin = anchor_camera - floor.height(anchor_camera) * z
+    return R, origin

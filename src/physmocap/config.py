@@ -1,0 +1,141 @@
+"""Typed settings. Every field states its unit and sensible range; defaults are the papers' values where they
+give one. Override from a TOML file (`--config`) with the same section and field names, e.g.
+
+    [fit]
+    weight_depth = 0.5
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .errors import InputError
+
+
+@dataclass(frozen=True)
+class BodySettings:
+    height: float = 1.70  # m, the person's standing height; 1.0 .. 2.3
+    mass: float = 70.0  # kg, the person's mass; 20 .. 250
+    calibration_frames: int = 30  # frames whose 3D landmarks set the bone lengths (0: all); 1 .. 10000
+
+    def check(self) -> None:
+        _within("body.height", self.height, 1.0, 2.3, "m")
+        _within("body.mass", self.mass, 20.0, 250.0, "kg")
+        _within("body.calibration_frames", self.calibration_frames, 0, 100000, "frames")
+
+
+@dataclass(frozen=True)
+class CameraSettings:
+    focal: float | None = None  # px, focal length; overrides fov
+    fov: float | None = None  # degrees across the longer image side; 10 .. 160 (default 60 when neither given)
+    floor: tuple[float, float, float, float] | None = None  # plane n.x + d = 0 in the camera frame, metres
+
+    def check(self) -> None:
+        if self.focal is not None:
+            _within("camera.focal", self.focal, 1.0, 1e6, "pixels")
+        if self.fov is not None:
+            _within("camera.fov", self.fov, 10.0, 160.0, "degrees")
+        if self.floor is not None and (len(self.floor) != 4 or sum(x * x for x in self.floor[:3]) < 1e-12):
+            raise InputError(f"camera.floor must be four numbers nx,ny,nz,d with a non-zero normal, got {self.floor}.")
+
+
+@dataclass(frozen=True)
+class DetectSettings:
+    max_width: int = 640  # px, frames are downscaled to this width for the detector; 160 .. 4096
+    person_box: tuple[float, float, float, float] | None = None  # px x0,y0,x1,y1: follow the person inside
+
+    def check(self) -> None:
+        _within("detect.max_width", self.max_width, 160, 4096, "pixels")
+        if self.person_box is not None:
+            x0, y0, x1, y1 = self.person_box
+            if not (x1 > x0 and y1 > y0):
+                raise InputError(f"detect.person_box must be x0,y0,x1,y1 with x1 > x0 and y1 > y0, got {self.person_box}.")
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    """Kinematic fit, PhysCap eq. (3). Residuals are in metres (2D errors are scaled to the person's depth),
+    so the weights compare directly. Temporal terms are stated at 30 fps and rescaled to the clip's rate."""
+
+    weight_2d: float = 1.0  # E_proj: reprojection; 0 .. 100
+    weight_3d: float = 0.3  # E_IK: root-relative 3D landmarks; 0 .. 100
+    weight_smooth: float = 0.5  # E_smooth: acceleration of the joints; 0 .. 100
+    weight_depth: float = 0.3  # E_depth: change of the joints' depth along the camera axis; 0 .. 100
+    weight_prior: float = 0.02  # pull of ball joints towards rest, resolves twist ambiguity; 0 .. 1
+    weight_limits: float = 10.0  # hinge joint limits; 0 .. 1000
+    min_confidence: float = 0.1  # keypoints below this confidence are ignored; 0 .. 1
+    offline_iterations: int = 12  # Levenberg-Marquardt iterations over the whole clip; 1 .. 200
+    online_iterations: int = 4  # Levenberg-Marquardt iterations per frame when causal; 1 .. 50
+    one_euro: bool = False  # One-Euro filter on the fitted pose (Casiez et al. 2012)
+    one_euro_min_cutoff: float = 1.5  # Hz; 0.01 .. 30
+    one_euro_beta: float = 0.3  # speed coefficient; 0 .. 10
+
+    def check(self) -> None:
+        for name in ("weight_2d", "weight_3d", "weight_smooth", "weight_depth", "weight_prior", "weight_limits"):
+            _within(f"fit.{name}", getattr(self, name), 0.0, 1000.0, "")
+        _within("fit.min_confidence", self.min_confidence, 0.0, 1.0, "")
+        _within("fit.offline_iterations", self.offline_iterations, 1, 200, "")
+        _within("fit.online_iterations", self.online_iterations, 1, 50, "")
+        _within("fit.one_euro_min_cutoff", self.one_euro_min_cutoff, 0.01, 30.0, "Hz")
+        _within("fit.one_euro_beta", self.one_euro_beta, 0.0, 10.0, "")
+
+
+@dataclass(frozen=True)
+class Settings:
+    body: BodySettings = field(default_factory=BodySettings)
+    camera: CameraSettings = field(default_factory=CameraSettings)
+    detect: DetectSettings = field(default_factory=DetectSettings)
+    fit: FitSettings = field(default_factory=FitSettings)
+    online: bool = False  # causal per-frame fit (live use) instead of the whole clip at once
+
+    def check(self) -> "Settings":
+        for section in (self.body, self.camera, self.detect, self.fit):
+            section.check()
+        return self
+
+    def replace(self, section: str | None = None, **values) -> "Settings":
+        """A copy with fields changed; `section` names the sub-settings, None the top level."""
+        if section is None:
+            return dataclasses.replace(self, **values)
+        return dataclasses.replace(self, **{section: dataclasses.replace(getattr(self, section), **values)})
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def _within(name: str, value, low, high, unit: str) -> None:
+    if value is None or not (low <= value <= high):
+        raise InputError(f"{name} = {value} is out of range: expected {low} to {high} {unit}".rstrip() + ".")
+
+
+def load_settings(path: str | Path | None = None) -> Settings:
+    """Defaults, overridden by a TOML file if given."""
+    settings = Settings()
+    if path is None:
+        return settings
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such settings file.") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not a valid TOML settings file ({exc}).") from None
+    for key, value in data.items():
+        if isinstance(value, dict):
+            if key not in {f.name for f in dataclasses.fields(Settings)} or not dataclasses.is_dataclass(
+                    getattr(settings, key)):
+                raise InputError(f"{path}: unknown settings section [{key}].")
+            known = {f.name for f in dataclasses.fields(getattr(settings, key))}
+            unknown = set(value) - known
+            if unknown:
+                raise InputError(f"{path}: unknown setting {key}.{sorted(unknown)[0]}.")
+            value = {k: tuple(v) if isinstance(v, list) else v for k, v in value.items()}
+            settings = settings.replace(key, **value)
+        elif key == "online":
+            settings = settings.replace(None, online=bool(value))
+        else:
+            raise InputError(f"{path}: unknown setting '{key}'.")
+    return settings.check()

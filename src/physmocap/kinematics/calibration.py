@@ -1,0 +1,125 @@
+"""Skeleton calibration: bone lengths from the detector's 3D landmarks, scaled to the person's stated height."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..body.model import SkeletonLengths, TEMPLATE_RATIOS, template_lengths
+from ..landmarks import LANDMARK_INDEX as LM
+from ..motion import Observations
+
+# A measured length further than this factor from the template's is taken as a detector failure.
+PLAUSIBLE_RATIO = (0.7, 1.45)
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """lengths: the person's skeleton in metres; landmark_scale: factor that brings the detector's 3D
+    landmarks to the same metric size; frames_used: how many frames the medians came from;
+    replaced: lengths that were implausible and fell back to the template."""
+
+    lengths: SkeletonLengths
+    landmark_scale: float
+    frames_used: int
+    replaced: tuple[str, ...]
+
+
+def _distance(points: np.ndarray, a: str, b: str) -> np.ndarray:
+    return np.linalg.norm(points[:, LM[a]] - points[:, LM[b]], axis=-1)
+
+
+def _mid(points: np.ndarray, a: str, b: str) -> np.ndarray:
+    return 0.5 * (points[:, LM[a]] + points[:, LM[b]])
+
+
+def _both_sides(points: np.ndarray, a: str, b: str) -> np.ndarray:
+    return 0.5 * (_distance(points, f"left_{a}", f"left_{b}") + _distance(points, f"right_{a}", f"right_{b}"))
+
+
+def measure_lengths(landmarks: np.ndarray) -> dict[str, float]:
+    """Median lengths (detector units) of every SkeletonLengths field except head_top, from (T, 33, 3)."""
+    P = landmarks
+    heel = _both_sides(P, "ankle", "heel")
+    toe = _both_sides(P, "ankle", "foot_index")
+    foot = _both_sides(P, "heel", "foot_index")
+    # Ankle, heel and toe form a triangle whose base (heel-toe) lies on the sole.
+    heel_back = 0.5 * (foot + (heel**2 - toe**2) / np.maximum(foot, 1e-6))
+    ankle_height = np.sqrt(np.maximum(heel**2 - heel_back**2, 1e-6))
+    hips, shoulders = _mid(P, "left_hip", "right_hip"), _mid(P, "left_shoulder", "right_shoulder")
+    ears = _mid(P, "left_ear", "right_ear")
+    torso = np.linalg.norm(shoulders - hips, axis=-1)
+    head_up = ears - shoulders
+    head_height = np.linalg.norm(head_up, axis=-1)
+    up = head_up / np.maximum(head_height, 1e-6)[:, None]
+    nose = P[:, LM["nose"]] - ears
+    nose_down = -np.einsum("ti,ti->t", nose, up)
+    eyes = _mid(P, "left_eye", "right_eye") - ears
+    eye_up = np.einsum("ti,ti->t", eyes, up)
+    ear_axis = P[:, LM["left_ear"]] - P[:, LM["right_ear"]]
+    ear_axis /= np.maximum(np.linalg.norm(ear_axis, axis=-1), 1e-6)[:, None]
+
+    def forward_part(v, along_up):
+        side = np.einsum("ti,ti->t", v, ear_axis)
+        return np.sqrt(np.maximum(np.einsum("ti,ti->t", v, v) - along_up**2 - side**2, 0.0))
+
+    hand_mid = lambda side: 0.5 * (P[:, LM[f"{side}_index"]] + P[:, LM[f"{side}_pinky"]])  # noqa: E731
+    hand = 0.5 * (np.linalg.norm(hand_mid("left") - P[:, LM["left_wrist"]], axis=-1)
+                  + np.linalg.norm(hand_mid("right") - P[:, LM["right_wrist"]], axis=-1))
+    raw = dict(
+        hip_width=_distance(P, "left_hip", "right_hip"),
+        thigh=_both_sides(P, "hip", "knee"),
+        shank=_both_sides(P, "knee", "ankle"),
+        ankle_height=ankle_height,
+        heel_back=heel_back,
+        toe_front=foot - heel_back,
+        spine_low=0.2 * torso,
+        spine_up=0.8 * torso,
+        shoulder_width=_distance(P, "left_shoulder", "right_shoulder"),
+        upper_arm=_both_sides(P, "shoulder", "elbow"),
+        forearm=_both_sides(P, "elbow", "wrist"),
+        hand_length=hand,
+        hand_width=_both_sides(P, "index", "pinky"),
+        head_height=head_height,
+        ear_width=_distance(P, "left_ear", "right_ear"),
+        nose_forward=forward_part(nose, -nose_down),
+        nose_down=nose_down,
+        eye_forward=forward_part(eyes, eye_up),
+        eye_up=eye_up,
+        eye_width=_distance(P, "left_eye", "right_eye"),
+    )
+    return {k: float(np.median(v)) for k, v in raw.items()}
+
+
+def calibrate(obs: Observations, height: float, frames: int = 30, min_confidence: float = 0.5) -> Calibration:
+    """Bone lengths from the median over the first `frames` usable frames (0: all), scaled to `height` metres.
+
+    A frame is usable when it is valid and its body landmarks are confidently seen."""
+    body = [LM[n] for n in ("left_shoulder", "right_shoulder", "left_hip", "right_hip", "left_knee",
+                            "right_knee", "left_ankle", "right_ankle")]
+    usable = np.flatnonzero(obs.valid & (obs.keypoints_2d[:, body, 2].min(axis=1) >= min_confidence))
+    if len(usable) == 0:
+        usable = np.flatnonzero(obs.valid)
+    if frames > 0:
+        usable = usable[:frames]
+    measured = measure_lengths(obs.landmarks_3d[usable]) if len(usable) else {}
+    template = template_lengths(1.0)  # ratios of height
+    # Everything measured is in detector units; find their scale to ratios of height using the leg and
+    # trunk, which detectors measure best, then reject outliers against the template.
+    core = ("thigh", "shank", "spine_up", "upper_arm", "forearm", "shoulder_width")
+    unit = np.median([measured[k] / getattr(template, k) for k in core]) if measured else 1.0
+    values, replaced = {}, []
+    for name in TEMPLATE_RATIOS:
+        if name == "head_top":  # not observable: the template's share of the height
+            continue
+        ratio = measured.get(name, np.nan) / unit / getattr(template, name)
+        if np.isfinite(ratio) and PLAUSIBLE_RATIO[0] <= ratio <= PLAUSIBLE_RATIO[1]:
+            values[name] = measured[name] / unit
+        else:
+            values[name] = getattr(template, name)
+            replaced.append(name)
+    values["head_top"] = template.head_top
+    unscaled = SkeletonLengths(**values)
+    factor = height / unscaled.standing_height
+    return Calibration(unscaled.scaled(factor), factor / unit, len(usable), tuple(replaced))

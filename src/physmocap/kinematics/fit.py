@@ -1,0 +1,301 @@
+"""Fixed-bone-length inverse kinematics over time: PhysCap eq. (3), solved by Levenberg-Marquardt.
+
+Energy terms (each a small named piece with its residual and analytic Jacobian, in metres):
+- reprojection (E_proj): detected 2D keypoints against projected model points, weighted by confidence and
+  scaled by the person's depth over the focal length, so a pixel error reads as metres at the person;
+- 3D data (E_IK): root-relative model points against the detector's 3D landmarks;
+- smoothness (E_smooth): acceleration of the joints in the world;
+- depth (E_depth): change of the joints' distance along the camera axis between frames;
+- pose prior and hinge limits, which keep unobservable twists at rest and knees/elbows bending one way.
+
+Two solvers share these terms: offline over the whole clip (block-banded normal equations, LAPACK banded
+Cholesky), and online, causal, one frame at a time with the previous two frames fixed (constant cost per frame).
+Variables are steps in MuJoCo's velocity space applied on the manifold.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+from scipy.linalg import LinAlgError, solveh_banded
+
+from ..body import kinematics as kin
+from ..body.model import JOINT_NAMES, BodyModel
+from ..body.rotations import matrix_to_quat, so3_right_jacobian_inverse
+from ..camera import Camera, projection_jacobian_camera, project_camera_points
+from ..config import FitSettings
+from ..landmarks import LANDMARK_INDEX
+
+# Detector landmarks fitted, and the model point each one observes.
+MARKERS: tuple[tuple[str, str], ...] = (
+    ("nose", "nose"), ("left_eye", "left_eye"), ("right_eye", "right_eye"), ("left_ear", "left_ear"),
+    ("right_ear", "right_ear"), ("left_shoulder", "left_shoulder"), ("right_shoulder", "right_shoulder"),
+    ("left_elbow", "left_elbow"), ("right_elbow", "right_elbow"), ("left_wrist", "left_wrist"),
+    ("right_wrist", "right_wrist"), ("left_pinky", "left_pinky"), ("right_pinky", "right_pinky"),
+    ("left_index", "left_index"), ("right_index", "right_index"), ("left_hip", "left_hip"),
+    ("right_hip", "right_hip"), ("left_knee", "left_knee"), ("right_knee", "right_knee"),
+    ("left_ankle", "left_ankle"), ("right_ankle", "right_ankle"), ("left_heel", "left_heel"),
+    ("right_heel", "right_heel"), ("left_foot_index", "left_toe"), ("right_foot_index", "right_toe"),
+)
+MARKER_LANDMARKS = np.array([LANDMARK_INDEX[a] for a, _ in MARKERS])
+
+
+@dataclass
+class FitTargets:
+    """Per-frame data the fit pulls towards. M markers.
+
+    keypoints: (T, M, 2) pixels; weight_2d: (T, M) sqrt of weight times confidence (0 = unseen);
+    targets_3d: (T, M, 3) root-relative positions in the world frame, metres; weight_3d: (T, M);
+    depth: (T,) the person's distance along the camera axis, metres, used to express pixels as metres.
+    """
+
+    keypoints: np.ndarray
+    weight_2d: np.ndarray
+    targets_3d: np.ndarray
+    weight_3d: np.ndarray
+    depth: np.ndarray
+
+    def frames(self, sl: slice) -> "FitTargets":
+        return FitTargets(self.keypoints[sl], self.weight_2d[sl], self.targets_3d[sl], self.weight_3d[sl],
+                          self.depth[sl])
+
+
+@dataclass
+class FitResult:
+    qpos: np.ndarray  # (T, nq)
+    iterations: int
+    cost: float
+
+
+class KinematicFitter:
+    """Evaluates the energy of eq. (3) and minimises it. Holds preallocated MuJoCo data; one per thread."""
+
+    def __init__(self, body: BodyModel, camera: Camera, settings: FitSettings, fps: float):
+        self.body, self.camera, self.settings = body, camera, settings
+        self.model = body.mujoco_model()
+        self.data = mujoco.MjData(self.model)
+        self.site_ids = np.array([self.model.site(n).id for n in body.point_names])
+        self.marker_points = body.point_index([b for _, b in MARKERS])
+        self.joint_points = body.point_index(JOINT_NAMES)
+        self.pelvis_point = body.point_index(["pelvis"])[0]
+        tab = kin.tables(body)
+        self.ball_vadr = tab.vadr[tab.ball_bodies]
+        self.hinge_qadr, self.hinge_vadr = tab.qadr[tab.hinge_bodies], tab.vadr[tab.hinge_bodies]
+        self.hinge_limits = np.array([body.bodies[b].limit for b in tab.hinge_bodies])
+        # Temporal terms are stated at 30 fps: rescale finite differences to keep their meaning per second.
+        self.accel_scale = (fps / 30.0) ** 2
+        self.velocity_scale = fps / 30.0
+        self._jac = np.zeros((len(self.site_ids), 3, body.nv))
+
+    # ---- kinematics through MuJoCo's C functions --------------------------------------------------------
+    def evaluate(self, qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """qpos (T, nq) -> points (T, P, 3) and their Jacobians (T, P, 3, nv)."""
+        m, d = self.model, self.data
+        T, P = len(qpos), len(self.site_ids)
+        points = np.empty((T, P, 3))
+        jac = np.empty((T, P, 3, self.body.nv))
+        for t in range(T):
+            d.qpos[:] = qpos[t]
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            for k, site in enumerate(self.site_ids):
+                mujoco.mj_jacSite(m, d, jac[t, k], None, site)
+            points[t] = d.site_xpos[self.site_ids]
+        return points, jac
+
+    # ---- per-frame terms ----------------------------------------------------------------------------------
+    def frame_terms(self, qpos, points, jac, targets: FitTargets) -> tuple[np.ndarray, np.ndarray]:
+        """Residuals (T, m) and Jacobians (T, m, nv) of the terms that involve one frame only."""
+        cam = self.camera
+        mp, mj = points[:, self.marker_points], jac[:, self.marker_points]
+        # Reprojection, in metres at the person's depth.
+        pc = cam.to_camera(mp)
+        scale = (targets.weight_2d * (targets.depth[:, None] / cam.focal))[..., None]
+        r2 = scale * (project_camera_points(cam.K, pc) - targets.keypoints)
+        J2 = scale[..., None] * (projection_jacobian_camera(cam.K, pc) @ cam.R @ mj)
+        # Root-relative 3D landmarks.
+        w3 = targets.weight_3d[..., None]
+        rel = mp - points[:, self.pelvis_point][:, None]
+        r3 = w3 * (rel - targets.targets_3d)
+        J3 = w3[..., None] * (mj - jac[:, self.pelvis_point][:, None])
+        # Ball joints towards rest: residual log(q), Jacobian the inverse right Jacobian of SO(3).
+        T, nv = len(qpos), self.body.nv
+        rotvec = kin.ball_rotation_vectors(self.body, qpos)
+        wp = np.sqrt(self.settings.weight_prior)
+        rp = wp * rotvec.reshape(T, -1)
+        Jp = np.zeros((T, rp.shape[1], nv))
+        blocks = wp * so3_right_jacobian_inverse(rotvec)  # (T, n_ball, 3, 3)
+        for k, a in enumerate(self.ball_vadr):
+            Jp[:, 3 * k:3 * k + 3, a:a + 3] = blocks[:, k]
+        # Hinge limits, one-sided.
+        angles = qpos[:, self.hinge_qadr]
+        wl = np.sqrt(self.settings.weight_limits)
+        excess = angles - np.clip(angles, self.hinge_limits[:, 0], self.hinge_limits[:, 1])
+        rl = wl * excess
+        Jl = np.zeros((T, len(self.hinge_qadr), nv))
+        Jl[:, np.arange(len(self.hinge_qadr)), self.hinge_vadr] = wl * (excess != 0)
+        r = np.concatenate([r2.reshape(T, -1), r3.reshape(T, -1), rp, rl], axis=1)
+        J = np.concatenate([J2.reshape(T, -1, nv), J3.reshape(T, -1, nv), Jp, Jl], axis=1)
+        return r, J
+
+    def temporal_signals(self, points, jac) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """The quantities whose finite differences are penalised: (values (T, n), Jacobians (T, n, nv),
+        coefficients of the difference). Acceleration of joint positions and velocity of their depth."""
+        jp, jj = points[:, self.joint_points], jac[:, self.joint_points]
+        T, nv = len(points), self.body.nv
+        ws = np.sqrt(self.settings.weight_smooth) * self.accel_scale
+        wd = np.sqrt(self.settings.weight_depth) * self.velocity_scale
+        axis = self.camera.R[2]
+        depth = jp @ axis
+        depth_jac = np.einsum("i,tpiv->tpv", axis, jj)
+        return [
+            (ws * jp.reshape(T, -1), ws * jj.reshape(T, -1, nv), np.array([1.0, -2.0, 1.0])),
+            (wd * depth, wd * depth_jac, np.array([-1.0, 1.0])),
+        ]
+
+    # ---- offline: the whole clip -------------------------------------------------------------------------
+    def _offline_system(self, qpos, targets):
+        """Cost, gradient g (T, nv) and upper block bands H (3, T, nv, nv) of the Gauss-Newton system."""
+        points, jac = self.evaluate(qpos)
+        r, J = self.frame_terms(qpos, points, jac, targets)
+        T, nv = len(qpos), self.body.nv
+        H = np.zeros((3, T, nv, nv))
+        H[0] = np.einsum("tmi,tmj->tij", J, J)
+        g = np.einsum("tmi,tm->ti", J, r)
+        cost = float(np.sum(r * r))
+        for values, jacobians, coeffs in self.temporal_signals(points, jac):
+            K = len(coeffs)
+            n = T - K + 1
+            if n <= 0:
+                continue
+            rho = sum(c * values[k:k + n] for k, c in enumerate(coeffs))
+            cost += float(np.sum(rho * rho))
+            for a in range(K):
+                g[a:a + n] += coeffs[a] * np.einsum("tmi,tm->ti", jacobians[a:a + n], rho)
+                for b in range(a, K):
+                    block = coeffs[a] * coeffs[b] * np.einsum("tmi,tmj->tij", jacobians[a:a + n],
+                                                              jacobians[b:b + n])
+                    if a == b:
+                        H[0, a:a + n] += block
+                    else:
+                        H[b - a, a:a + n] += block
+        return cost, g, H
+
+    @staticmethod
+    def _solve_banded(g, H, damping):
+        """Solve (H + damping * diag(H)) dx = -g with H stored as upper block bands; dx (T, nv)."""
+        T, nv = g.shape
+        u = 3 * nv - 1
+        N = T * nv
+        ab = np.zeros((u + 1, N))
+        i, j = np.meshgrid(np.arange(nv), np.arange(nv), indexing="ij")
+        for k in range(3):
+            blocks = H[k, :T - k] if k else H[0]
+            if len(blocks) == 0:
+                continue
+            mask = (i <= j) if k == 0 else np.ones_like(i, dtype=bool)
+            rows = (u + i - j - k * nv)[mask]
+            cols = ((np.arange(len(blocks)) + k)[:, None] * nv + j[mask][None, :])
+            ab[np.broadcast_to(rows, cols.shape), cols] = blocks[:, mask]
+        diag = ab[u].copy()
+        ab[u] += damping * diag + 1e-9
+        return solveh_banded(ab, -g.ravel(), lower=False, check_finite=False).reshape(T, nv)
+
+    def fit_offline(self, qpos_init: np.ndarray, targets: FitTargets) -> FitResult:
+        """Minimise the energy over all frames jointly, starting from qpos_init (T, nq)."""
+        return _levenberg_marquardt(
+            lambda q: self._offline_system(q, targets),
+            lambda system, damping: self._solve_banded(system[1], system[2], damping),
+            lambda q, dx: kin.integrate(self.body, q, dx),
+            qpos_init, self.settings.offline_iterations)
+
+    # ---- online: one frame, the past fixed ---------------------------------------------------------------
+    def _online_system(self, qpos, targets, history):
+        points, jac = self.evaluate(qpos)
+        r, J = self.frame_terms(qpos, points, jac, targets)
+        r, J = r[0], J[0]
+        H = J.T @ J
+        g = J.T @ r
+        cost = float(r @ r)
+        for (values, jacobians, coeffs), past in zip(self.temporal_signals(points, jac), history):
+            if past is None or len(past) < len(coeffs) - 1:
+                continue
+            rho = coeffs[-1] * values[0] + sum(c * v for c, v in zip(coeffs[:-1], past[-(len(coeffs) - 1):]))
+            Jc = coeffs[-1] * jacobians[0]
+            H += Jc.T @ Jc
+            g += Jc.T @ rho
+            cost += float(rho @ rho)
+        return cost, g, H
+
+    def fit_frame(self, qpos_init: np.ndarray, targets: FitTargets, history, iterations: int) -> FitResult:
+        """One frame (qpos_init (1, nq), targets for one frame); history: for each temporal signal the values
+        of the previous frames (k, n) already fitted, or None."""
+
+        def solve(system, damping):
+            _, g, H = system
+            A = H + damping * np.diag(np.diag(H)) + 1e-9 * np.eye(len(g))
+            return np.linalg.solve(A, -g)[None]
+
+        return _levenberg_marquardt(lambda q: self._online_system(q, targets, history), solve,
+                                    lambda q, dx: kin.integrate(self.body, q, dx), qpos_init, iterations)
+
+    def signal_values(self, qpos: np.ndarray) -> list[np.ndarray]:
+        """The temporal signals' values at fitted frames (for the online history)."""
+        points, jac = self.evaluate(qpos)
+        return [values for values, _, _ in self.temporal_signals(points, jac)]
+
+
+def _levenberg_marquardt(system_at, solve, integrate, q0, iterations, damping=1e-3):
+    """Generic LM on a manifold: system_at(q) -> (cost, ...); solve(system, damping) -> step."""
+    q = q0
+    system = system_at(q)
+    done = 0
+    for done in range(1, iterations + 1):
+        improved = False
+        while damping < 1e8:
+            try:
+                step = solve(system, damping)
+            except (LinAlgError, np.linalg.LinAlgError):
+                damping *= 10
+                continue
+            q_new = integrate(q, step)
+            system_new = system_at(q_new)
+            if system_new[0] < system[0]:
+                decrease = (system[0] - system_new[0]) / max(system[0], 1e-12)
+                q, system, improved = q_new, system_new, True
+                damping = max(damping / 3, 1e-7)
+                break
+            damping *= 4
+        if not improved or decrease < 1e-5:
+            break
+    return FitResult(q, done, float(system[0]))
+
+
+def root_orientation(targets_3d: np.ndarray) -> np.ndarray:
+    """(M, 3) root-relative marker targets -> (3, 3) pelvis orientation (x forward, y left, z up)."""
+    idx = {b: i for i, (_, b) in enumerate(MARKERS)}
+    left = (targets_3d[idx["left_hip"]] - targets_3d[idx["right_hip"]]
+            + targets_3d[idx["left_shoulder"]] - targets_3d[idx["right_shoulder"]])
+    up = 0.5 * (targets_3d[idx["left_shoulder"]] + targets_3d[idx["right_shoulder"]])
+    y = left / max(np.linalg.norm(left), 1e-9)
+    z = up - np.dot(up, y) * y
+    z /= max(np.linalg.norm(z), 1e-9)
+    return np.stack([np.cross(y, z), y, z], axis=1)
+
+
+def initial_qpos(body: BodyModel, camera: Camera, targets: FitTargets, frame: int) -> np.ndarray:
+    """A starting pose for one frame: arms down, pelvis oriented from hips and shoulders, placed on the
+    camera ray of the hip midpoint at the estimated depth. (1, nq)"""
+    q = body.rest_qpos.copy()
+    for side, sign in (("left", 1.0), ("right", -1.0)):  # arms hanging, 80 degrees down from the T-pose
+        a = body.qpos_address[body.joint_index[f"{side}_shoulder"]]
+        angle = np.radians(80) * sign
+        q[a:a + 4] = [np.cos(angle / 2), np.sin(angle / 2), 0.0, 0.0]
+    idx = {b: i for i, (_, b) in enumerate(MARKERS)}
+    q[3:7] = matrix_to_quat(root_orientation(targets.targets_3d[frame]))
+    hips = 0.5 * (targets.keypoints[frame, idx["left_hip"]] + targets.keypoints[frame, idx["right_hip"]])
+    ray = np.linalg.solve(camera.K, np.append(hips, 1.0))
+    q[0:3] = camera.R.T @ (ray * targets.depth[frame] - camera.t)
+    return q[None]
