@@ -54,12 +54,14 @@ class SkeletonLengths:
         return SkeletonLengths(**{k: v * factor for k, v in self.__dict__.items()})
 
 
-# Proportions of body height (Drillis & Contini 1966 segment ratios, joint-centre based).
+# Proportions of body height: long bones after Drillis & Contini (1966); hip width, foot, face and hand
+# offsets as MediaPipe's landmarks place them (measured on the shared videos: its hip landmarks sit wider than
+# the anatomical joint centres, its heel point lies under the ankle and its ears below the nose).
 TEMPLATE_RATIOS = dict(
-    hip_width=0.100, thigh=0.245, shank=0.246, ankle_height=0.039, heel_back=0.035, toe_front=0.117,
-    spine_low=0.058, spine_up=0.230, shoulder_width=0.200, upper_arm=0.186, forearm=0.146, hand_length=0.055,
-    hand_width=0.040, head_height=0.102, head_top=0.080, ear_width=0.082, nose_forward=0.060, nose_down=0.012,
-    eye_forward=0.047, eye_up=0.012, eye_width=0.037,
+    hip_width=0.140, thigh=0.245, shank=0.246, ankle_height=0.028, heel_back=0.000, toe_front=0.100,
+    spine_low=0.058, spine_up=0.230, shoulder_width=0.200, upper_arm=0.170, forearm=0.146, hand_length=0.055,
+    hand_width=0.023, head_height=0.115, head_top=0.080, ear_width=0.085, nose_forward=0.073, nose_down=-0.012,
+    eye_forward=0.057, eye_up=0.031, eye_width=0.017,
 )
 
 

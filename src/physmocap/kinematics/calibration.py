@@ -10,8 +10,10 @@ from ..body.model import SkeletonLengths, TEMPLATE_RATIOS, template_lengths
 from ..landmarks import LANDMARK_INDEX as LM
 from ..motion import Observations
 
-# A measured length further than this factor from the template's is taken as a detector failure.
-PLAUSIBLE_RATIO = (0.7, 1.45)
+# A measured length further than this factor from the template's is taken as a detector failure; small
+# offsets (under 5% of the height) are instead checked against an absolute margin, in fractions of height.
+PLAUSIBLE_RATIO = (0.6, 1.6)
+PLAUSIBLE_MARGIN = 0.03
 
 
 @dataclass(frozen=True)
@@ -113,8 +115,12 @@ def calibrate(obs: Observations, height: float, frames: int = 30, min_confidence
     for name in TEMPLATE_RATIOS:
         if name == "head_top":  # not observable: the template's share of the height
             continue
-        ratio = measured.get(name, np.nan) / unit / getattr(template, name)
-        if np.isfinite(ratio) and PLAUSIBLE_RATIO[0] <= ratio <= PLAUSIBLE_RATIO[1]:
+        value, expected = measured.get(name, np.nan) / unit, getattr(template, name)
+        if abs(expected) >= 0.05:
+            plausible = PLAUSIBLE_RATIO[0] <= value / expected <= PLAUSIBLE_RATIO[1]
+        else:
+            plausible = abs(value - expected) <= PLAUSIBLE_MARGIN
+        if np.isfinite(value) and plausible:
             values[name] = measured[name] / unit
         else:
             values[name] = getattr(template, name)

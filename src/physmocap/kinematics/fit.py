@@ -19,11 +19,11 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
-from scipy.linalg import LinAlgError, solveh_banded
+from scipy.linalg import LinAlgError, cholesky, solve_triangular
 
 from ..body import kinematics as kin
 from ..body.model import JOINT_NAMES, BodyModel
-from ..body.rotations import matrix_to_quat, so3_right_jacobian_inverse
+from ..body.rotations import matrix_to_quat
 from ..camera import Camera, projection_jacobian_camera, project_camera_points
 from ..config import FitSettings
 from ..landmarks import LANDMARK_INDEX
@@ -81,7 +81,7 @@ class KinematicFitter:
         self.joint_points = body.point_index(JOINT_NAMES)
         self.pelvis_point = body.point_index(["pelvis"])[0]
         tab = kin.tables(body)
-        self.ball_vadr = tab.vadr[tab.ball_bodies]
+        self.ball_qadr, self.ball_vadr = tab.qadr[tab.ball_bodies], tab.vadr[tab.ball_bodies]
         self.hinge_qadr, self.hinge_vadr = tab.qadr[tab.hinge_bodies], tab.vadr[tab.hinge_bodies]
         self.hinge_limits = np.array([body.bodies[b].limit for b in tab.hinge_bodies])
         # Temporal terms are stated at 30 fps: rescale finite differences to keep their meaning per second.
@@ -105,39 +105,54 @@ class KinematicFitter:
             points[t] = d.site_xpos[self.site_ids]
         return points, jac
 
+    def integrate(self, qpos: np.ndarray, step: np.ndarray) -> np.ndarray:
+        """qpos (T, nq) moved by step (T, nv) on the manifold, with MuJoCo's mj_integratePos."""
+        out = np.array(qpos, dtype=float)
+        for t in range(len(out)):
+            mujoco.mj_integratePos(self.model, out[t], step[t], 1.0)
+        return out
+
     # ---- per-frame terms ----------------------------------------------------------------------------------
     def frame_terms(self, qpos, points, jac, targets: FitTargets) -> tuple[np.ndarray, np.ndarray]:
         """Residuals (T, m) and Jacobians (T, m, nv) of the terms that involve one frame only."""
         cam = self.camera
+        T, nv, M = len(qpos), self.body.nv, len(self.marker_points)
+        n_ball, n_hinge = len(self.ball_vadr), len(self.hinge_qadr)
+        r = np.empty((T, 5 * M + 3 * n_ball + n_hinge))
+        J = np.zeros((T, r.shape[1], nv))
         mp, mj = points[:, self.marker_points], jac[:, self.marker_points]
         # Reprojection, in metres at the person's depth.
         pc = cam.to_camera(mp)
         scale = (targets.weight_2d * (targets.depth[:, None] / cam.focal))[..., None]
-        r2 = scale * (project_camera_points(cam.K, pc) - targets.keypoints)
-        J2 = scale[..., None] * (projection_jacobian_camera(cam.K, pc) @ cam.R @ mj)
+        r[:, :2 * M] = (scale * (project_camera_points(cam.K, pc) - targets.keypoints)).reshape(T, -1)
+        J[:, :2 * M] = (scale[..., None] * (projection_jacobian_camera(cam.K, pc) @ (cam.R @ mj))).reshape(T, -1, nv)
         # Root-relative 3D landmarks.
         w3 = targets.weight_3d[..., None]
         rel = mp - points[:, self.pelvis_point][:, None]
-        r3 = w3 * (rel - targets.targets_3d)
-        J3 = w3[..., None] * (mj - jac[:, self.pelvis_point][:, None])
-        # Ball joints towards rest: residual log(q), Jacobian the inverse right Jacobian of SO(3).
-        T, nv = len(qpos), self.body.nv
-        rotvec = kin.ball_rotation_vectors(self.body, qpos)
+        r[:, 2 * M:5 * M] = (w3 * (rel - targets.targets_3d)).reshape(T, -1)
+        J[:, 2 * M:5 * M] = (w3[..., None] * (mj - jac[:, self.pelvis_point][:, None])).reshape(T, -1, nv)
+        # Ball joints towards rest: residual 2 vec(q) (the rotation vector to first order, sign-fixed so that
+        # q and -q agree); its derivative along a local step is q_w I + [q_v]x.
         wp = np.sqrt(self.settings.weight_prior)
-        rp = wp * rotvec.reshape(T, -1)
-        Jp = np.zeros((T, rp.shape[1], nv))
-        blocks = wp * so3_right_jacobian_inverse(rotvec)  # (T, n_ball, 3, 3)
+        quats = qpos[:, self.ball_qadr[:, None] + np.arange(4)]  # (T, n_ball, 4)
+        sign = np.where(quats[..., :1] < 0, -1.0, 1.0)
+        q = quats * sign
+        row = 5 * M
+        r[:, row:row + 3 * n_ball] = (2 * wp * q[..., 1:]).reshape(T, -1)
+        w, x, y, z = np.moveaxis(q, -1, 0)
+        block = np.empty((T, n_ball, 3, 3))
+        block[..., 0, 0] = block[..., 1, 1] = block[..., 2, 2] = w
+        block[..., 0, 1], block[..., 0, 2], block[..., 1, 0] = -z, y, z
+        block[..., 1, 2], block[..., 2, 0], block[..., 2, 1] = -x, -y, x
         for k, a in enumerate(self.ball_vadr):
-            Jp[:, 3 * k:3 * k + 3, a:a + 3] = blocks[:, k]
+            J[:, row + 3 * k:row + 3 * k + 3, a:a + 3] = wp * block[:, k]
         # Hinge limits, one-sided.
+        row += 3 * n_ball
         angles = qpos[:, self.hinge_qadr]
         wl = np.sqrt(self.settings.weight_limits)
         excess = angles - np.clip(angles, self.hinge_limits[:, 0], self.hinge_limits[:, 1])
-        rl = wl * excess
-        Jl = np.zeros((T, len(self.hinge_qadr), nv))
-        Jl[:, np.arange(len(self.hinge_qadr)), self.hinge_vadr] = wl * (excess != 0)
-        r = np.concatenate([r2.reshape(T, -1), r3.reshape(T, -1), rp, rl], axis=1)
-        J = np.concatenate([J2.reshape(T, -1, nv), J3.reshape(T, -1, nv), Jp, Jl], axis=1)
+        r[:, row:] = wl * excess
+        J[:, row + np.arange(n_hinge), self.hinge_vadr] = wl * (excess != 0)
         return r, J
 
     def temporal_signals(self, points, jac) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -148,11 +163,9 @@ class KinematicFitter:
         ws = np.sqrt(self.settings.weight_smooth) * self.accel_scale
         wd = np.sqrt(self.settings.weight_depth) * self.velocity_scale
         axis = self.camera.R[2]
-        depth = jp @ axis
-        depth_jac = np.einsum("i,tpiv->tpv", axis, jj)
         return [
             (ws * jp.reshape(T, -1), ws * jj.reshape(T, -1, nv), np.array([1.0, -2.0, 1.0])),
-            (wd * depth, wd * depth_jac, np.array([-1.0, 1.0])),
+            (wd * (jp @ axis), wd * (axis @ jj), np.array([-1.0, 1.0])),
         ]
 
     # ---- offline: the whole clip -------------------------------------------------------------------------
@@ -162,8 +175,9 @@ class KinematicFitter:
         r, J = self.frame_terms(qpos, points, jac, targets)
         T, nv = len(qpos), self.body.nv
         H = np.zeros((3, T, nv, nv))
-        H[0] = np.einsum("tmi,tmj->tij", J, J)
-        g = np.einsum("tmi,tm->ti", J, r)
+        Jt = J.transpose(0, 2, 1)
+        H[0] = Jt @ J
+        g = (Jt @ r[..., None])[..., 0]
         cost = float(np.sum(r * r))
         for values, jacobians, coeffs in self.temporal_signals(points, jac):
             K = len(coeffs)
@@ -172,11 +186,11 @@ class KinematicFitter:
                 continue
             rho = sum(c * values[k:k + n] for k, c in enumerate(coeffs))
             cost += float(np.sum(rho * rho))
+            Jt = jacobians.transpose(0, 2, 1)
             for a in range(K):
-                g[a:a + n] += coeffs[a] * np.einsum("tmi,tm->ti", jacobians[a:a + n], rho)
+                g[a:a + n] += coeffs[a] * (Jt[a:a + n] @ rho[..., None])[..., 0]
                 for b in range(a, K):
-                    block = coeffs[a] * coeffs[b] * np.einsum("tmi,tmj->tij", jacobians[a:a + n],
-                                                              jacobians[b:b + n])
+                    block = coeffs[a] * coeffs[b] * (Jt[a:a + n] @ jacobians[b:b + n])
                     if a == b:
                         H[0, a:a + n] += block
                     else:
@@ -185,31 +199,54 @@ class KinematicFitter:
 
     @staticmethod
     def _solve_banded(g, H, damping):
-        """Solve (H + damping * diag(H)) dx = -g with H stored as upper block bands; dx (T, nv)."""
+        """Solve (H + damping * diag(H)) dx = -g; H holds the upper block bands (3, T, nv, nv).
+
+        Pairs of frames make the system block-tridiagonal, solved by block Cholesky in O(T)."""
         T, nv = g.shape
-        u = 3 * nv - 1
-        N = T * nv
-        ab = np.zeros((u + 1, N))
-        i, j = np.meshgrid(np.arange(nv), np.arange(nv), indexing="ij")
-        for k in range(3):
-            blocks = H[k, :T - k] if k else H[0]
-            if len(blocks) == 0:
-                continue
-            mask = (i <= j) if k == 0 else np.ones_like(i, dtype=bool)
-            rows = (u + i - j - k * nv)[mask]
-            cols = ((np.arange(len(blocks)) + k)[:, None] * nv + j[mask][None, :])
-            ab[np.broadcast_to(rows, cols.shape), cols] = blocks[:, mask]
-        diag = ab[u].copy()
-        ab[u] += damping * diag + 1e-9
-        return solveh_banded(ab, -g.ravel(), lower=False, check_finite=False).reshape(T, nv)
+        pairs = (T + 1) // 2
+        n = 2 * nv
+        D = np.zeros((pairs, n, n))
+        C = np.zeros((pairs, n, n))  # coupling of pair s to pair s + 1
+        full = np.zeros((2 * pairs + 2, 3, nv, nv))
+        full[:T] = H.transpose(1, 0, 2, 3)
+        for a in range(2):  # frames 2s + a
+            D[:, a * nv:(a + 1) * nv, a * nv:(a + 1) * nv] = full[a:2 * pairs:2, 0]
+        D[:, :nv, nv:] = full[0:2 * pairs:2, 1]
+        D[:, nv:, :nv] = D[:, :nv, nv:].transpose(0, 2, 1)
+        C[:, :nv, :nv] = full[0:2 * pairs:2, 2]  # frame 2s to 2s + 2
+        C[:, nv:, :nv] = full[1:2 * pairs:2, 1]  # frame 2s + 1 to 2s + 2
+        C[:, nv:, nv:] = full[1:2 * pairs:2, 2]  # frame 2s + 1 to 2s + 3
+        if T % 2:  # the padding frame is decoupled with unit diagonal
+            D[-1, nv:, nv:] = np.eye(nv)
+        idx = np.arange(n)
+        D[:, idx, idx] += damping * D[:, idx, idx] + 1e-9
+        b = np.zeros(2 * pairs * nv)
+        b[:T * nv] = -g.ravel()
+        b = b.reshape(pairs, n)
+        L = np.empty_like(D)
+        W = np.empty_like(C)
+        y = np.empty_like(b)
+        for s_ in range(pairs):
+            if s_:
+                W[s_] = solve_triangular(L[s_ - 1], C[s_ - 1], lower=True, check_finite=False)
+                D[s_] -= W[s_].T @ W[s_]
+                rhs = b[s_] - W[s_].T @ y[s_ - 1]
+            else:
+                rhs = b[0]
+            L[s_] = cholesky(D[s_], lower=True, check_finite=False)
+            y[s_] = solve_triangular(L[s_], rhs, lower=True, check_finite=False)
+        x = np.empty_like(b)
+        for s_ in range(pairs - 1, -1, -1):
+            rhs = y[s_] - (W[s_ + 1] @ x[s_ + 1] if s_ + 1 < pairs else 0.0)
+            x[s_] = solve_triangular(L[s_], rhs, lower=True, trans="T", check_finite=False)
+        return x.ravel()[:T * nv].reshape(T, nv)
 
     def fit_offline(self, qpos_init: np.ndarray, targets: FitTargets) -> FitResult:
         """Minimise the energy over all frames jointly, starting from qpos_init (T, nq)."""
         return _levenberg_marquardt(
             lambda q: self._offline_system(q, targets),
             lambda system, damping: self._solve_banded(system[1], system[2], damping),
-            lambda q, dx: kin.integrate(self.body, q, dx),
-            qpos_init, self.settings.offline_iterations)
+            self.integrate, qpos_init, self.settings.offline_iterations)
 
     # ---- online: one frame, the past fixed ---------------------------------------------------------------
     def _online_system(self, qpos, targets, history):
@@ -239,7 +276,7 @@ class KinematicFitter:
             return np.linalg.solve(A, -g)[None]
 
         return _levenberg_marquardt(lambda q: self._online_system(q, targets, history), solve,
-                                    lambda q, dx: kin.integrate(self.body, q, dx), qpos_init, iterations)
+                                    self.integrate, qpos_init, iterations)
 
     def signal_values(self, qpos: np.ndarray) -> list[np.ndarray]:
         """The temporal signals' values at fitted frames (for the online history)."""
