@@ -9,7 +9,7 @@ from .model import CONTACT_POINTS, BodyModel
 
 
 def _vec(v) -> str:
-    return " ".join(f"{x:.6g}" for x in v)
+    return " ".join(f"{x:.17g}" for x in v)
 
 
 def mjcf_xml(model: BodyModel, timestep: float = 0.01) -> str:
@@ -29,11 +29,11 @@ def mjcf_xml(model: BodyModel, timestep: float = 0.01) -> str:
         if b.joint_type == "free":
             lines.append(f'{pad}  <freejoint name="{b.joint}"/>')
         elif b.joint_type == "ball":
-            lines.append(f'{pad}  <joint name="{b.joint}" type="ball" limited="true" range="0 {b.limit[1]:.6g}"/>')
+            lines.append(f'{pad}  <joint name="{b.joint}" type="ball" limited="true" range="0 {b.limit[1]:.17g}"/>')
         else:
             lines.append(f'{pad}  <joint name="{b.joint}" type="hinge" axis="{_vec(b.axis)}" limited="true" '
-                         f'range="{b.limit[0]:.6g} {b.limit[1]:.6g}"/>')
-        lines.append(f'{pad}  <inertial pos="{_vec(b.com)}" mass="{b.mass:.6g}" diaginertia="{_vec(b.inertia)}"/>')
+                         f'range="{b.limit[0]:.17g} {b.limit[1]:.17g}"/>')
+        lines.append(f'{pad}  <inertial pos="{_vec(b.com)}" mass="{b.mass:.17g}" diaginertia="{_vec(b.inertia)}"/>')
         for c in children.get(i, []):  # a bone to each child joint
             end = model.bodies[c].offset
             if np.linalg.norm(end) > 1e-6:
@@ -42,7 +42,7 @@ def mjcf_xml(model: BodyModel, timestep: float = 0.01) -> str:
             p = model.points[k]
             lines.append(f'{pad}  <site name="{p.name}" pos="{_vec(p.offset)}" size="0.01"/>')
             if p.name in CONTACT_POINTS:  # the sphere touches the floor exactly at the site
-                lines.append(f'{pad}  <geom name="{p.name}_collision" class="foot" type="sphere" size="{r:.6g}" '
+                lines.append(f'{pad}  <geom name="{p.name}_collision" class="foot" type="sphere" size="{r:.17g}" '
                              f'pos="{_vec(p.offset + np.array([0.0, 0.0, r]))}"/>')
         for c in children.get(i, []):
             lines.append(body_xml(c, depth + 1))
@@ -51,7 +51,7 @@ def mjcf_xml(model: BodyModel, timestep: float = 0.01) -> str:
 
     return f"""<mujoco model="physmocap_body">
   <compiler angle="radian" inertiafromgeom="false" balanceinertia="true"/>
-  <option timestep="{timestep:.6g}" gravity="0 0 -9.81"/>
+  <option timestep="{timestep:.17g}" gravity="0 0 -9.81"/>
   <default>
     <default class="bone"><geom size="0.03" contype="0" conaffinity="0" group="1" mass="0" rgba="0.7 0.7 0.9 1"/></default>
     <default class="foot"><geom contype="1" conaffinity="0" condim="3" friction="0.8" mass="0" rgba="0.9 0.4 0.3 1"/></default>

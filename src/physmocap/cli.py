@@ -1,0 +1,196 @@
+"""The command line: `physmocap --help` teaches it."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+import physmocap  # noqa: F401 - sets single-threaded BLAS before numpy loads
+
+EXAMPLES = """\
+examples:
+  physmocap capture video.mp4 -o runs/walk               # offline: whole clip at once (best quality)
+  physmocap capture video.mp4 -o runs/walk --online      # causal, frame by frame (live use)
+  physmocap capture video.mp4 --height 1.82 --mass 80 --fov 70
+  physmocap capture video.mp4 --person-box 100,50,400,700   # follow the person inside this box
+  physmocap detect video.mp4 -o obs.npz                  # only the detector; any other detector can
+  physmocap capture --observations obs.npz -o runs/x     # ...write this file format and be fitted
+
+outputs of capture (in the -o folder):
+  result.npz    joints, generalised coordinates, camera, floor, flags (see README "Result file")
+  motion.bvh    Mixamo-named skeleton, Y up, metres; imports into Blender upright and to scale
+  overlay.mp4   the fitted skeleton drawn on the input video (H.264, plays in browsers)
+  summary.json  frames, valid frames, time per stage, median reprojection error
+Re-running with the same folder reuses the finished stages (cache/) whose inputs and settings are unchanged.
+"""
+
+
+def _floats(count: int, name: str):
+    def parse(text: str) -> tuple[float, ...]:
+        try:
+            values = tuple(float(x) for x in text.split(","))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be {count} comma-separated numbers, got '{text}'")
+        if len(values) != count:
+            raise argparse.ArgumentTypeError(f"{name} must be {count} comma-separated numbers, got '{text}'")
+        return values
+    return parse
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="physmocap",
+        description="Physics-based monocular 3D human motion capture: one person, one static camera, "
+                    "global 3D motion out.",
+        formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EXAMPLES)
+    parser.add_argument("--version", action="version", version=f"physmocap {physmocap.__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    cap = sub.add_parser("capture", help="video (or observations file) -> 3D motion, BVH, overlay",
+                         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                         description="Capture the 3D motion of one person in a video.")
+    cap.add_argument("video", nargs="?", type=Path, help="input video file (mp4, mov, webm, ...)")
+    cap.add_argument("-o", "--output", type=Path, default=None,
+                     help="run folder (default: runs/<video name>)")
+    cap.add_argument("--observations", type=Path, help="fit this observations .npz instead of detecting")
+    cap.add_argument("--online", action="store_true", help="causal frame-by-frame fit (live use)")
+    _add_settings_arguments(cap)
+    cap.add_argument("--no-overlay", action="store_true", help="skip rendering overlay.mp4")
+
+    det = sub.add_parser("detect", help="run only the 2D/3D keypoint detector and write an observations file",
+                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    det.add_argument("video", type=Path)
+    det.add_argument("-o", "--output", type=Path, required=True, help="observations .npz to write")
+    det.add_argument("--person-box", type=_floats(4, "--person-box"), metavar="X0,Y0,X1,Y1",
+                     help="follow the person inside this box (pixels)")
+    det.add_argument("--max-width", type=int, default=640, help="detector input width, pixels")
+    return parser
+
+
+def _add_settings_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--height", type=float, default=None, help="person's height in metres (default 1.70)")
+    p.add_argument("--mass", type=float, default=None, help="person's mass in kg (default 70)")
+    p.add_argument("--focal", type=float, default=None, help="focal length in pixels")
+    p.add_argument("--fov", type=float, default=None,
+                   help="field of view in degrees across the longer image side (default 60)")
+    p.add_argument("--floor", type=_floats(4, "--floor"), metavar="NX,NY,NZ,D",
+                   help="floor plane n.x + d = 0 in camera coordinates, metres (default: estimated from the feet)")
+    p.add_argument("--person-box", type=_floats(4, "--person-box"), metavar="X0,Y0,X1,Y1",
+                   help="follow the person inside this box (pixels)")
+    p.add_argument("--one-euro", action="store_true", help="One-Euro filter the fitted pose")
+    p.add_argument("--config", type=Path, help="TOML settings file (see README)")
+
+
+def settings_from_args(args):
+    from .config import load_settings
+
+    s = load_settings(args.config)
+    body = {k: v for k, v in (("height", args.height), ("mass", args.mass)) if v is not None}
+    camera = {k: v for k, v in (("focal", args.focal), ("fov", args.fov), ("floor", args.floor)) if v is not None}
+    if body:
+        s = s.replace("body", **body)
+    if camera:
+        s = s.replace("camera", **camera)
+    if args.person_box is not None:
+        s = s.replace("detect", person_box=args.person_box)
+    if args.one_euro:
+        s = s.replace("fit", one_euro=True)
+    if args.online:
+        s = s.replace(None, online=True)
+    return s.check()
+
+
+def _progress_factory(enabled: bool):
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    bars = []
+
+    def factory(name: str, total: int):
+        bar = tqdm(total=total or None, desc=f"{name:>8}", unit="frame", leave=True, file=sys.stderr,
+                   dynamic_ncols=True)
+        bars.append(bar)
+
+        def update(done: int, total_now: int):
+            if total_now and bar.total != total_now:
+                bar.total = total_now
+            bar.update(done - bar.n)
+            if total_now and done >= total_now:
+                bar.close()
+        return update
+    return factory
+
+
+def cmd_capture(args) -> int:
+    from .errors import InputError
+    from .io.video import probe_video
+    from .pipeline import run_capture
+
+    if args.video is None and args.observations is None:
+        raise InputError("capture needs a video file or --observations FILE.")
+    settings = settings_from_args(args)
+    if args.video is not None:
+        probe_video(args.video)  # fail fast, before any folder is made
+    name = (args.video or args.observations).stem
+    out = args.output or Path("runs") / name
+    summary = run_capture(out, settings, video=args.video, observations=args.observations,
+                          overlay=not args.no_overlay, progress=_progress_factory(sys.stderr.isatty()))
+    invalid = summary.frames - summary.valid_frames
+    print(f"captured {summary.valid_frames}/{summary.frames} frames at {summary.fps:.1f} fps "
+          f"({'online' if summary.online else 'offline'} fit)")
+    if invalid:
+        details = "; ".join(f"{reason}: frames {', '.join(r[:6])}{' ...' if len(r) > 6 else ''}"
+                            for reason, r in summary.invalid_frames.items())
+        print(f"warning: {invalid} frames could not be reconstructed and are flagged invalid ({details})")
+    if summary.skeleton_scale_replaced:
+        print("note: implausible detector lengths replaced by template proportions: "
+              + ", ".join(summary.skeleton_scale_replaced))
+    print(f"median reprojection error {summary.median_reprojection_error_px:.1f} px "
+          f"({summary.median_reprojection_error_percent_of_height:.2f}% of the person's height)")
+    times = ", ".join(f"{k} {v:.1f} s" for k, v in summary.stage_seconds.items())
+    print(f"time: {times}" + (f" (cached: {', '.join(summary.cached_stages)})" if summary.cached_stages else ""))
+    print(f"results in {out}/: " + ", ".join(Path(p).name for p in summary.files.values()))
+    return 0
+
+
+def cmd_detect(args) -> int:
+    from .config import DetectSettings
+    from .detect.mediapipe_pose import detect_video
+
+    DetectSettings(max_width=args.max_width, person_box=args.person_box).check()
+    factory = _progress_factory(sys.stderr.isatty())
+    obs = detect_video(args.video, person_box=args.person_box, max_width=args.max_width,
+                       progress=factory("detect", 0) if factory else None)
+    obs.save(args.output)
+    print(f"{int(obs.valid.sum())}/{obs.num_frames} frames with a person; observations in {args.output}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    from .errors import InputError, ReconstructionError
+
+    logging.basicConfig(level=logging.WARNING, format="physmocap: %(message)s")
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    try:
+        return {"capture": cmd_capture, "detect": cmd_detect}[args.command](args)
+    except InputError as exc:
+        print(f"physmocap: error: {exc}", file=sys.stderr)
+        return 2
+    except ReconstructionError as exc:
+        print(f"physmocap: could not reconstruct: {exc}", file=sys.stderr)
+        return 3
+    except KeyboardInterrupt:
+        print("physmocap: interrupted; finished stages are cached and a re-run resumes from them.",
+              file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,211 @@
+"""Wiring of the stages into a run folder with cached outputs.
+
+    OUT/
+      cache/observations.npz  detection (skipped on re-run while the video and detect settings are unchanged)
+      cache/kinematics.npz    calibrated skeleton, camera, floor and fitted motion
+      result.npz              the contract of DESIGN.md
+      motion.bvh              Mixamo-named skeleton, Y up, metres
+      overlay.mp4             the fit drawn on the input video (H.264)
+      summary.json            frames, valid frames, time per stage, reprojection error
+
+Every file is written atomically, so an interrupted run leaves only complete files and resumes from them.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from .body.model import SkeletonLengths, build_body_model
+from .camera import Camera, Floor
+from .config import Settings
+from .io.atomic import save_npz, write_text
+from .kinematics.calibration import Calibration
+from .kinematics.stage import KinematicMotion, fit_motion
+from .motion import Observations
+from .result import RESULT_POINTS, build_result, save_result
+
+log = logging.getLogger("physmocap")
+
+ProgressFactory = Callable[[str, int], Callable[[int, int], None]]
+
+
+def _digest(*parts) -> str:
+    text = json.dumps(parts, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _file_fingerprint(path: Path) -> dict:
+    stat = path.stat()
+    return {"path": str(path.resolve()), "size": stat.st_size, "mtime_ns": stat.st_mtime_ns}
+
+
+@dataclass
+class RunSummary:
+    """What a run did; also written as summary.json."""
+
+    input: str
+    output_dir: str
+    frames: int
+    valid_frames: int
+    invalid_frames: dict[str, list[str]]
+    fps: float
+    online: bool
+    stage_seconds: dict[str, float]
+    cached_stages: list[str]
+    median_reprojection_error_px: float
+    median_reprojection_error_percent_of_height: float
+    skeleton_scale_replaced: list[str]
+    files: dict[str, str] = field(default_factory=dict)
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), indent=2)
+
+
+def _frame_ranges(frames: np.ndarray) -> list[str]:
+    """[3, 4, 5, 9] -> ['3-5', '9']"""
+    out, start = [], None
+    for i, f in enumerate(frames):
+        if start is None:
+            start = f
+        if i + 1 == len(frames) or frames[i + 1] != f + 1:
+            out.append(str(start) if start == f else f"{start}-{f}")
+            start = None
+    return out
+
+
+def detect_stage(video: Path, out_dir: Path, settings: Settings,
+                 progress: ProgressFactory | None = None) -> tuple[Observations, bool]:
+    """Observations of the video, from the cache when the video and detect settings are unchanged."""
+    from .detect.mediapipe_pose import detect_video
+
+    cache, key_file = out_dir / "cache" / "observations.npz", out_dir / "cache" / "observations.key"
+    key = _digest("detect", 1, _file_fingerprint(video), asdict(settings.detect))
+    if cache.is_file() and key_file.is_file() and key_file.read_text() == key:
+        return Observations.load(cache), True
+    bar = progress("detect", 0) if progress else None
+    obs = detect_video(video, person_box=settings.detect.person_box, max_width=settings.detect.max_width,
+                       progress=bar)
+    obs.save(cache)
+    write_text(key_file, key)
+    return obs, False
+
+
+def _observations_key(obs: Observations) -> str:
+    return _digest(hashlib.sha256(obs.keypoints_2d.tobytes() + obs.landmarks_3d.tobytes()
+                                  + obs.valid.tobytes()).hexdigest(), obs.fps, obs.image_size,
+                   None if obs.camera_K is None else obs.camera_K.tolist())
+
+
+def kinematics_stage(obs: Observations, out_dir: Path, settings: Settings,
+                     progress: ProgressFactory | None = None) -> tuple[KinematicMotion, bool]:
+    """The fitted kinematic motion, from the cache when observations and settings are unchanged."""
+    cache = out_dir / "cache" / "kinematics.npz"
+    key = _digest("kinematics", 1, _observations_key(obs), asdict(settings.body), asdict(settings.camera),
+                  asdict(settings.fit), settings.online)
+    if cache.is_file():
+        try:
+            with np.load(cache, allow_pickle=False) as data:
+                if str(data["key"]) == key:
+                    return _motion_from_cache(data), True
+        except (OSError, ValueError, KeyError):
+            pass  # a stale or foreign cache file is simply recomputed
+    bar = progress("fit", obs.num_frames) if progress else None
+    motion = fit_motion(obs, settings, bar)
+    save_npz(cache, key=np.str_(key), qpos=motion.qpos, lengths=np.str_(json.dumps(motion.body.lengths.__dict__)),
+             mass=motion.body.mass, camera_K=motion.camera.K, camera_R=motion.camera.R, camera_t=motion.camera.t,
+             image_size=np.array(motion.camera.image_size), floor=motion.floor.plane,
+             floor_inliers=motion.floor.inlier_fraction, reprojection_error=motion.reprojection_error,
+             valid=motion.valid, seconds=motion.seconds, online=motion.online,
+             landmark_scale=motion.calibration.landmark_scale, frames_used=motion.calibration.frames_used,
+             replaced=np.array(motion.calibration.replaced, dtype=str))
+    return motion, False
+
+
+def _motion_from_cache(data) -> KinematicMotion:
+    lengths = SkeletonLengths(**json.loads(str(data["lengths"])))
+    body = build_body_model(lengths, float(data["mass"]))
+    size = data["image_size"]
+    camera = Camera(data["camera_K"], data["camera_R"], data["camera_t"], (int(size[0]), int(size[1])))
+    floor = Floor.from_plane(data["floor"])
+    calibration = Calibration(lengths, float(data["landmark_scale"]), int(data["frames_used"]),
+                              tuple(str(x) for x in data["replaced"]))
+    return KinematicMotion(body, calibration, camera, Floor(floor.normal, floor.offset, float(data["floor_inliers"])),
+                           data["qpos"], data["reprojection_error"], data["valid"], float(data["seconds"]),
+                           bool(data["online"]))
+
+
+def run_capture(out_dir: str | os.PathLike, settings: Settings, *, video: str | os.PathLike | None = None,
+                observations: str | os.PathLike | None = None, overlay: bool = True,
+                progress: ProgressFactory | None = None) -> RunSummary:
+    """Video (or observations file) -> run folder with result.npz, motion.bvh, overlay.mp4, summary.json."""
+    from .io.bvh_export import write_bvh
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    seconds: dict[str, float] = {}
+    cached: list[str] = []
+    video = None if video is None else Path(video)
+
+    started = time.perf_counter()
+    if observations is not None:
+        obs = Observations.load(observations)
+        source = str(observations)
+    else:
+        obs, was_cached = detect_stage(video, out_dir, settings, progress)
+        source = str(video)
+        if was_cached:
+            cached.append("detect")
+    seconds["detect"] = (obs.seconds_per_frame * obs.num_frames) if "detect" in cached or observations \
+        else time.perf_counter() - started
+
+    started = time.perf_counter()
+    motion, was_cached = kinematics_stage(obs, out_dir, settings, progress)
+    if was_cached:
+        cached.append("kinematics")
+    seconds["kinematics"] = motion.seconds if was_cached else time.perf_counter() - started
+
+    started = time.perf_counter()
+    result = build_result(obs, motion, seconds, settings.as_dict())
+    files = {"result": str(out_dir / "result.npz"), "bvh": str(out_dir / "motion.bvh")}
+    save_result(files["result"], result)
+    write_bvh(files["bvh"], motion.body, motion.qpos, obs.fps)
+    if overlay and video is not None:
+        from .viz.overlay import render_overlay, skeleton_edges
+
+        files["overlay"] = str(out_dir / "overlay.mp4")
+        names = list(RESULT_POINTS)
+        points_2d = motion.camera.project(result["joints_world"])
+        bar = progress("overlay", obs.num_frames) if progress else None
+        render_overlay(video, files["overlay"], points_2d, skeleton_edges(names), motion.valid,
+                       keypoints=obs.keypoints_2d, progress=bar)
+    seconds["outputs"] = time.perf_counter() - started
+
+    error = motion.reprojection_error
+    relative = 100 * error / result["person_height_px"]
+    invalid = np.flatnonzero(~motion.valid)
+    reasons: dict[str, list[str]] = {}
+    for reason in sorted(set(obs.invalid_reason[invalid].tolist())):
+        reasons[reason or "invalid"] = _frame_ranges(invalid[obs.invalid_reason[invalid] == reason])
+    summary = RunSummary(
+        input=source, output_dir=str(out_dir), frames=obs.num_frames, valid_frames=int(motion.valid.sum()),
+        invalid_frames=reasons, fps=obs.fps, online=settings.online, stage_seconds=seconds, cached_stages=cached,
+        median_reprojection_error_px=_nanmedian(error),
+        median_reprojection_error_percent_of_height=_nanmedian(relative),
+        skeleton_scale_replaced=list(motion.calibration.replaced), files=files)
+    files["summary"] = str(out_dir / "summary.json")
+    write_text(files["summary"], summary.to_json())
+    return summary
+
+
+def _nanmedian(x: np.ndarray) -> float:
+    x = x[np.isfinite(x)]
+    return float(np.median(x)) if len(x) else float("nan")

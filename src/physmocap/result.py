@@ -1,0 +1,89 @@
+"""The `result.npz` contract (DESIGN.md "The result file"): assembling, saving and loading it."""
+
+from __future__ import annotations
+
+import json
+import os
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from .body import kinematics as kin
+from .body.model import CONTACT_POINTS, JOINT_NAMES, LANDMARK_POINTS
+from .errors import InputError
+from .io.atomic import save_npz
+from .kinematics.stage import KinematicMotion
+from .motion import Observations
+
+RESULT_POINTS: tuple[str, ...] = JOINT_NAMES + LANDMARK_POINTS
+
+REQUIRED_KEYS = (
+    "fps", "joint_names", "joints_world", "joints_world_kinematic", "qpos", "contacts", "stationary", "grf",
+    "residual_root_force", "camera_K", "camera_R", "camera_t", "floor", "keypoints_2d", "valid", "body_mass",
+    "body_height", "stage_seconds", "settings",
+)
+
+
+def person_height_pixels(motion: KinematicMotion) -> np.ndarray:
+    """(T,) the person's standing height as it would appear in the image at their distance, pixels."""
+    pelvis_depth = motion.camera.to_camera(motion.qpos[:, 0:3])[:, 2]
+    return motion.camera.focal * motion.body.height / np.maximum(pelvis_depth, 1e-6)
+
+
+def build_result(obs: Observations, motion: KinematicMotion, stage_seconds: dict[str, float],
+                 settings: dict, contacts: np.ndarray | None = None,
+                 stationary: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """All arrays of result.npz for a kinematic motion (physics keys are zeros until a physics stage runs)."""
+    body, T = motion.body, len(motion.qpos)
+    pose = kin.forward_kinematics(body, motion.qpos)
+    joints = pose.points[:, body.point_index(RESULT_POINTS)]
+    return dict(
+        fps=np.float64(obs.fps),
+        joint_names=np.array(RESULT_POINTS),
+        joints_world=joints,
+        joints_world_kinematic=joints.copy(),
+        qpos=motion.qpos,
+        qpos_kinematic=motion.qpos.copy(),
+        contact_names=np.array(CONTACT_POINTS),
+        contacts=np.zeros((T, 4), bool) if contacts is None else contacts,
+        stationary=np.zeros(T, bool) if stationary is None else stationary,
+        grf=np.zeros((T, 4, 3)),
+        residual_root_force=np.zeros((T, 6)),
+        physics=np.str_("none"),
+        camera_K=motion.camera.K,
+        camera_R=motion.camera.R,
+        camera_t=motion.camera.t,
+        image_size=np.array(obs.image_size),
+        floor=motion.floor.plane,
+        keypoints_2d=obs.keypoints_2d,
+        valid=motion.valid,
+        invalid_reason=np.asarray(obs.invalid_reason, dtype=str),
+        reprojection_error=motion.reprojection_error,
+        person_height_px=person_height_pixels(motion),
+        body_mass=np.float64(body.mass),
+        body_height=np.float64(body.height),
+        body_lengths=np.str_(json.dumps(body.lengths.__dict__)),
+        stage_seconds=np.str_(json.dumps(stage_seconds)),
+        settings=np.str_(json.dumps(settings)),
+    )
+
+
+def save_result(path: str | os.PathLike, result: dict[str, np.ndarray]) -> None:
+    save_npz(path, **result)
+
+
+def load_result(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Read a result file; InputError naming the file if it is missing, unreadable or incomplete."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such result file.")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            result = {k: data[k] for k in data.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise InputError(f"{path}: not a readable result .npz file ({exc}).") from None
+    missing = [k for k in REQUIRED_KEYS if k not in result]
+    if missing:
+        raise InputError(f"{path}: result file lacks {', '.join(missing)}.")
+    return result

@@ -1,0 +1,46 @@
+import numpy as np
+
+from physmocap.camera import Camera, Floor, fit_floor, world_from_floor
+
+
+def test_projection_jacobian_matches_finite_differences():
+    rng = np.random.default_rng(0)
+    cam = Camera.from_settings((640, 480), focal=500.0)
+    R = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    R *= np.sign(np.linalg.det(R))
+    cam = cam.with_extrinsics(R, np.array([0.1, -0.2, 5.0]))
+    pts = rng.normal(size=(7, 3))
+    J = cam.projection_jacobian(pts)
+    eps = 1e-6
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = eps
+        assert np.allclose((cam.project(pts + d) - cam.project(pts - d)) / (2 * eps), J[..., k], atol=1e-6)
+
+
+def test_intrinsics_from_field_of_view_and_default():
+    cam = Camera.from_settings((1000, 500), fov=90.0)
+    assert np.isclose(cam.focal, 500.0) and np.allclose(cam.K[:2, 2], [500, 250])
+    default = Camera.from_settings((1000, 500))
+    assert np.isclose(default.focal, 500.0 / np.tan(np.radians(30)))  # 60 degrees across the width
+
+
+def test_robust_floor_fit_ignores_outliers_and_world_puts_floor_at_zero():
+    rng = np.random.default_rng(1)
+    normal = np.array([0.0, -np.cos(0.2), -np.sin(0.2)])  # camera pitched down by 0.2 rad
+    offset = 1.4
+    base = rng.uniform([-1.0, 0, 3.0], [1.0, 0, 6.0], size=(300, 3))
+    # project onto the plane
+    on_plane = base - (base @ normal + offset)[:, None] * normal
+    noisy = on_plane + rng.normal(scale=0.005, size=on_plane.shape)
+    outliers = on_plane[:30] + 0.3 * normal  # feet labelled in contact while lifted
+    pts = np.vstack([noisy, outliers])
+    floor, inliers = fit_floor(pts, up_prior=np.array([0.0, -1.0, 0.0]))
+    assert np.degrees(np.arccos(np.clip(floor.normal @ normal, -1, 1))) < 1.0
+    assert abs(floor.offset - offset) < 0.02
+    assert inliers[:300].mean() > 0.98 and not inliers[300:].any()
+    R, t = world_from_floor(floor, on_plane[0] + 0.9 * normal)
+    world = (pts[:300] - t) @ R  # camera -> world
+    assert np.abs(world[:, 2]).max() < 0.05
+    assert np.allclose(R.T @ R, np.eye(3)) and np.isclose(np.linalg.det(R), 1.0)
+    assert np.allclose(Floor.from_plane(2 * floor.plane).plane, floor.plane)

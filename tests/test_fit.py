@@ -1,0 +1,136 @@
+import numpy as np
+import pytest
+
+from physmocap.body import kinematics as kin
+from physmocap.camera import Camera
+from physmocap.config import FitSettings, Settings
+from physmocap.kinematics.fit import MARKER_LANDMARKS, MARKERS, FitTargets, KinematicFitter
+from physmocap.kinematics.stage import fit_motion, make_targets, reprojection_errors
+from physmocap.kinematics.calibration import calibrate
+from physmocap.motion import Observations
+from conftest import random_poses
+
+
+def walking_motion(body, frames, fps=30.0):
+    """A smooth motion: walking forward past the camera while swinging the legs and arms."""
+    t = np.arange(frames) / fps
+    q = np.repeat(body.rest_qpos[None], frames, axis=0)
+    step = np.zeros((frames, body.nv))
+    phase = 2 * np.pi * 0.9 * t
+    step[:, 5] = 0.3  # turn about z
+    for side, sign in (("left", 1.0), ("right", -1.0)):
+        step[:, body.dof_address[body.joint_index[f"{side}_hip"]] + 1] = 0.4 * sign * np.sin(phase)
+        step[:, body.dof_address[body.joint_index[f"{side}_knee"]]] = 0.5 + 0.4 * np.sin(phase + sign)
+        step[:, body.dof_address[body.joint_index[f"{side}_shoulder"]]] = sign * 1.3
+        step[:, body.dof_address[body.joint_index[f"{side}_elbow"]]] = 0.3
+    q = kin.integrate(body, q, step)
+    q[:, 0] += 1.2 * t
+    return q
+
+
+def observe(body, qpos, camera, fps=30.0):
+    """Perfect observations of the model's own markers."""
+    pts = kin.forward_kinematics(body, qpos).points[:, body.point_index([b for _, b in MARKERS])]
+    T = len(qpos)
+    k2 = np.zeros((T, 33, 3))
+    k3 = np.zeros((T, 33, 3))
+    k2[:, MARKER_LANDMARKS, :2] = camera.project(pts)
+    k2[:, MARKER_LANDMARKS, 2] = 0.95
+    pelvis = kin.forward_kinematics(body, qpos).points[:, 0]
+    k3[:, MARKER_LANDMARKS] = (pts - pelvis[:, None]) @ camera.R.T
+    # The face and hand landmarks that the calibration measures but the fit does not use.
+    return Observations(k2, k3, fps, camera.image_size, camera_K=camera.K)
+
+
+@pytest.fixture(scope="module")
+def camera():
+    cam = Camera.from_settings((1280, 720), fov=60)
+    # Camera 4 m in front of the walker, 1.2 m high, looking slightly down.
+    pitch = np.radians(8)
+    R = np.array([[1, 0, 0], [0, -np.sin(pitch), -np.cos(pitch)], [0, np.cos(pitch), -np.sin(pitch)]])
+    center = np.array([0.5, -4.0, 1.2])
+    return cam.with_extrinsics(R, -R @ center)
+
+
+def _targets(body, qpos, camera, rng):
+    T = len(qpos)
+    M = len(MARKERS)
+    pts = kin.forward_kinematics(body, qpos).points[:, body.point_index([b for _, b in MARKERS])]
+    return FitTargets(camera.project(pts) + rng.normal(scale=3, size=(T, M, 2)), rng.uniform(0.5, 1, (T, M)),
+                      pts - pts[:, :1] + rng.normal(scale=0.02, size=(T, M, 3)), rng.uniform(0.3, 1, (T, M)),
+                      np.full(T, 4.0))
+
+
+def test_frame_terms_jacobian_matches_finite_differences(body, camera):
+    rng = np.random.default_rng(0)
+    q = random_poses(body, 3, rng, scale=0.5)
+    fitter = KinematicFitter(body, camera, FitSettings(weight_prior=0.3), 30.0)
+    targets = _targets(body, q, camera, rng)
+    # push some hinges beyond their limits so that the limit term is active
+    q[:, body.qpos_address[body.joint_index["left_knee"]]] = -0.3
+    r, J = fitter.frame_terms(q, *fitter.evaluate(q), targets)
+    eps = 1e-6
+    for k in range(body.nv):
+        step = np.zeros((3, body.nv))
+        step[:, k] = eps
+        qp, qm = fitter.integrate(q, step), fitter.integrate(q, -step)
+        rp, _ = fitter.frame_terms(qp, *fitter.evaluate(qp), targets)
+        rm, _ = fitter.frame_terms(qm, *fitter.evaluate(qm), targets)
+        assert np.allclose((rp - rm) / (2 * eps), J[..., k], atol=2e-6), k
+
+
+def test_temporal_signal_jacobians_match_finite_differences(body, camera):
+    rng = np.random.default_rng(1)
+    q = random_poses(body, 2, rng)
+    fitter = KinematicFitter(body, camera, FitSettings(), 25.0)
+    signals = fitter.temporal_signals(*fitter.evaluate(q))
+    eps = 1e-6
+    for k in range(body.nv):
+        step = np.zeros((2, body.nv))
+        step[:, k] = eps
+        plus = fitter.temporal_signals(*fitter.evaluate(fitter.integrate(q, step)))
+        minus = fitter.temporal_signals(*fitter.evaluate(fitter.integrate(q, -step)))
+        for (v, J, _), (vp, _, _), (vm, _, _) in zip(signals, plus, minus):
+            assert np.allclose((vp - vm) / (2 * eps), J[..., k], atol=1e-7)
+
+
+@pytest.mark.parametrize("frames", [1, 2, 5, 8])
+def test_block_banded_solver_matches_dense_solve(frames):
+    rng = np.random.default_rng(frames)
+    nv = 6
+    A = rng.normal(size=(frames * nv + 4, frames * nv))
+    H_dense = A.T @ A + np.eye(frames * nv)
+    # keep only the bands of up to two frames apart, the structure the fitter produces
+    band = np.abs(np.subtract.outer(np.arange(frames * nv) // nv, np.arange(frames * nv) // nv)) <= 2
+    H_dense = np.where(band, H_dense, 0.0) + 10 * frames * np.eye(frames * nv)
+    H = np.zeros((3, frames, nv, nv))
+    for k in range(3):
+        for s in range(frames - k):
+            H[k, s] = H_dense[s * nv:(s + 1) * nv, (s + k) * nv:(s + k + 1) * nv]
+    g = rng.normal(size=(frames, nv))
+    damping = 0.1
+    expected = np.linalg.solve(H_dense + damping * np.diag(np.diag(H_dense)) + 1e-9 * np.eye(frames * nv),
+                               -g.ravel())
+    assert np.allclose(KinematicFitter._solve_banded(g, H, damping).ravel(), expected, atol=1e-9)
+
+
+@pytest.mark.parametrize("online", [False, True])
+def test_fit_recovers_a_known_motion_from_its_projections(body, camera, online):
+    truth = walking_motion(body, 40)
+    obs = observe(body, truth, camera)
+    settings = Settings(online=online).replace("body", height=body.height, mass=body.mass)
+    up = camera.R[:, 2]  # the world's z axis in camera coordinates: the floor is up . (x - t) = 0
+    settings = settings.replace("camera", floor=tuple(np.append(up, -up @ camera.t)))
+    motion = fit_motion(obs, settings)
+    assert np.nanmedian(reprojection_errors(motion.body, motion.camera, motion.qpos, obs)) < 2.0
+    fitted = kin.forward_kinematics(motion.body, motion.qpos).points[:, :20]
+    true = kin.forward_kinematics(body, truth).points[:, :20]
+    # The fit's world has its origin below the first pelvis: compare in the camera frame.
+    error = np.linalg.norm(motion.camera.to_camera(fitted) - camera.to_camera(true), axis=-1)
+    assert np.median(error) < 0.03
+    # The floor given is the true one: the soles touch z = 0 in the fitted world too.
+    soles = kin.forward_kinematics(motion.body, motion.qpos).points[:, motion.body.point_index(
+        ["left_heel", "left_toe", "right_heel", "right_toe"])]
+    true_soles = kin.forward_kinematics(body, truth).points[:, body.point_index(
+        ["left_heel", "left_toe", "right_heel", "right_toe"])]
+    assert np.allclose(soles[..., 2].min(axis=1), true_soles[..., 2].min(axis=1), atol=0.03)
