@@ -100,7 +100,9 @@ def test_joint_positions_match_forward_kinematics(body, tmp_path):
         expected = pose.points[:, body.point_index([point])[0]]
         np.testing.assert_allclose(positions[joint] @ BVH_TO_WORLD.T, expected, atol=1e-4, err_msg=joint)
 
-    point = lambda name: pose.points[:, body.point_index([name])[0]]  # noqa: E731
+    def point(name: str) -> np.ndarray:
+        return pose.points[:, body.point_index([name])[0]]
+
     for side in ("Left", "Right"):
         knuckles = (point(f"{side.lower()}_index") + point(f"{side.lower()}_pinky")) / 2
         np.testing.assert_allclose(end_sites[f"{side}Hand"] @ BVH_TO_WORLD.T, knuckles, atol=1e-4)
