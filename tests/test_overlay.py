@@ -1,0 +1,152 @@
+"""Overlay video and result figure on a small synthetic video."""
+
+from __future__ import annotations
+
+import av
+import cv2
+import numpy as np
+import pytest
+
+from physmocap.body.kinematics import forward_kinematics
+from physmocap.body.model import CONTACT_POINTS, JOINT_NAMES, build_body_model, template_lengths
+from physmocap.io.video import VideoWriter
+from physmocap.viz.figures import result_figure
+from physmocap.viz.overlay import BANNER_COLOUR, render_overlay, skeleton_edges
+
+WIDTH, HEIGHT, FRAMES, FPS = 320, 240, 10, 25.0
+BACKGROUND = 60  # grey level of the synthetic frames
+
+
+@pytest.fixture(scope="module")
+def body():
+    return build_body_model(template_lengths(1.7), 70)
+
+
+@pytest.fixture(scope="module")
+def scene(body):
+    """The rest pose seen from the front (+x) by an orthographic camera: (P, 3) world points, (P, 2) pixels."""
+    world = forward_kinematics(body, body.rest_qpos).points[0]
+    pixels_per_metre = 120.0
+    pixels = np.stack([WIDTH / 2 - pixels_per_metre * world[:, 1], HEIGHT - 15 - pixels_per_metre * world[:, 2]],
+                      axis=1)
+    return world, pixels
+
+
+@pytest.fixture(scope="module")
+def video(tmp_path_factory):
+    path = tmp_path_factory.mktemp("video") / "input.mp4"
+    with VideoWriter(path, FPS, WIDTH, HEIGHT) as writer:
+        for _ in range(FRAMES):
+            writer.write(np.full((HEIGHT, WIDTH, 3), BACKGROUND, np.uint8))
+    return path
+
+
+def decode(path) -> tuple[str, list[np.ndarray]]:
+    """Codec name and the BGR frames of a video, decoded with PyAV."""
+    with av.open(str(path)) as container:
+        stream = container.streams.video[0]
+        codec = stream.codec_context.name
+        frames = [frame.to_ndarray(format="bgr24") for frame in container.decode(stream)]
+    return codec, frames
+
+
+def pixel(frame: np.ndarray, point: np.ndarray) -> np.ndarray:
+    return frame[int(round(point[1])), int(round(point[0]))].astype(int)
+
+
+def test_skeleton_edges_connect_every_named_point(body):
+    edges = skeleton_edges(body)
+    connected = {body.point_names[i] for edge in edges for i in edge}
+    assert connected == set(body.point_names)
+    assert set(JOINT_NAMES) <= connected
+    # One tree-like component: walking the edges from the pelvis reaches every point.
+    reached, frontier = {0}, [0]
+    while frontier:
+        node = frontier.pop()
+        for i, j in edges:
+            for a, b in ((i, j), (j, i)):
+                if a == node and b not in reached:
+                    reached.add(b)
+                    frontier.append(b)
+    assert reached == set(range(len(body.point_names)))
+
+
+def test_overlay_video_is_h264_with_the_skeleton_drawn(body, scene, video, tmp_path):
+    _, pixels = scene
+    points_2d = np.tile(pixels, (FRAMES, 1, 1))
+    valid = np.ones(FRAMES, bool)
+    valid[3] = False
+    keypoints = np.zeros((FRAMES, 33, 3))
+    keypoints[:, 0] = [40.0, 40.0, 0.9]  # one confident detection in a corner
+    contacts = np.zeros((FRAMES, 4), bool)
+    contacts[:5] = True
+    done: list[int] = []
+    out = tmp_path / "overlay.mp4"
+    render_overlay(video, out, points_2d, skeleton_edges(body), valid, keypoints=keypoints, contacts=contacts,
+                   labels=body.point_names, progress=lambda n, total: done.append(n))
+
+    codec, frames = decode(out)
+    assert codec == "h264"
+    assert len(frames) == FRAMES and frames[0].shape == (HEIGHT, WIDTH, 3)
+    assert done == list(range(1, FRAMES + 1))
+    index = {name: i for i, name in enumerate(body.point_names)}
+    spine_middle = (pixels[index["pelvis"]] + pixels[index["neck"]]) / 2
+    left_shin_middle = (pixels[index["left_knee"]] + pixels[index["left_ankle"]]) / 2
+    right_shin_middle = (pixels[index["right_knee"]] + pixels[index["right_ankle"]]) / 2
+    frame = frames[0]
+    assert pixel(frame, spine_middle).min() > BACKGROUND + 100  # white centre line
+    blue, _, red = pixel(frame, left_shin_middle)
+    assert blue > red + 60  # left side blue-ish
+    blue, _, red = pixel(frame, right_shin_middle)
+    assert red > blue + 60  # right side orange-ish
+    assert pixel(frame, np.array([40.0, 40.0])).max() > BACKGROUND + 80  # detector keypoint
+    # The invalid frame has the banner at the top and no skeleton.
+    banner = frames[3][2:6, :, :].reshape(-1, 3).mean(axis=0)
+    assert np.abs(banner - np.array(BANNER_COLOUR)).max() < 40
+    assert np.abs(pixel(frames[3], spine_middle) - BACKGROUND).max() < 15
+
+
+def test_contacts_are_filled_only_while_in_contact(body, scene, video, tmp_path):
+    _, pixels = scene
+    contacts = np.zeros((FRAMES, 4), bool)
+    contacts[:5, 0] = True  # left heel in contact for the first five frames
+    out = tmp_path / "contacts.mp4"
+    # No bones, so that the inside of a contact marker shows only the marker.
+    render_overlay(video, out, np.tile(pixels, (FRAMES, 1, 1)), [], np.ones(FRAMES, bool), contacts=contacts,
+                   labels=body.point_names)
+    _, frames = decode(out)
+    heel = pixels[body.point_index([CONTACT_POINTS[0]])[0]]
+    blue, green, red = pixel(frames[0], heel)
+    assert green > max(blue, red) + 60
+    assert np.abs(pixel(frames[7], heel) - BACKGROUND).max() < 15
+
+
+def test_max_width_scales_frames_and_points(body, scene, video, tmp_path):
+    _, pixels = scene
+    out = tmp_path / "small.mp4"
+    render_overlay(video, out, np.tile(pixels, (FRAMES, 1, 1)), skeleton_edges(body), np.ones(FRAMES, bool),
+                   labels=body.point_names, max_width=160)
+    _, frames = decode(out)
+    assert len(frames) == FRAMES and frames[0].shape == (120, 160, 3)
+    index = {name: i for i, name in enumerate(body.point_names)}
+    spine_middle = (pixels[index["pelvis"]] + pixels[index["neck"]]) / 4  # half the size
+    assert pixel(frames[0], spine_middle).min() > BACKGROUND + 80
+
+
+def test_too_short_video_writes_nothing(body, scene, video, tmp_path):
+    _, pixels = scene
+    out = tmp_path / "long.mp4"
+    with pytest.raises(ValueError, match="fewer"):
+        render_overlay(video, out, np.tile(pixels, (FRAMES + 5, 1, 1)), skeleton_edges(body),
+                       np.ones(FRAMES + 5, bool))
+    assert not out.exists()
+
+
+def test_result_figure_writes_a_png(body, scene, tmp_path):
+    world, pixels = scene
+    clip = world[None] + np.linspace(0.0, 1.0, 6)[:, None, None] * np.array([1.0, 0.5, 0.0])  # walking forward
+    frame = np.full((HEIGHT, WIDTH, 3), BACKGROUND, np.uint8)
+    out = tmp_path / "figure.png"
+    result_figure(frame, pixels, skeleton_edges(body), clip, 2, out, labels=body.point_names)
+    image = cv2.imread(str(out))
+    assert image is not None and image.shape[1] > image.shape[0] > 200
