@@ -58,6 +58,8 @@ def build_parser() -> argparse.ArgumentParser:
     cap.add_argument("--online", action="store_true", help="causal frame-by-frame fit (live use)")
     _add_settings_arguments(cap)
     cap.add_argument("--no-overlay", action="store_true", help="skip rendering overlay.mp4")
+    cap.add_argument("--accept-truncated", action="store_true",
+                     help="capture the frames a truncated video still holds instead of stopping")
 
     det = sub.add_parser("detect", help="run only the 2D/3D keypoint detector and write an observations file",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -95,6 +97,8 @@ def settings_from_args(args):
         s = s.replace("camera", **camera)
     if args.person_box is not None:
         s = s.replace("detect", person_box=args.person_box)
+    if args.accept_truncated:
+        s = s.replace("detect", accept_truncated=True)
     if args.one_euro:
         s = s.replace("fit", one_euro=True)
     if args.online:

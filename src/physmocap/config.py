@@ -46,10 +46,13 @@ class CameraSettings:
 class DetectSettings:
     max_width: int = 640  # px, frames are downscaled to this width for the detector; 160 .. 4096
     person_box: tuple[float, float, float, float] | None = None  # px x0,y0,x1,y1: follow the person inside
+    accept_truncated: bool = False  # capture the decodable part of a truncated video instead of stopping
 
     def check(self) -> None:
         _within("detect.max_width", self.max_width, 160, 4096, "pixels")
         if self.person_box is not None:
+            if len(self.person_box) != 4:
+                raise InputError(f"detect.person_box must be four numbers x0,y0,x1,y1, got {self.person_box}.")
             x0, y0, x1, y1 = self.person_box
             if not (x1 > x0 and y1 > y0):
                 raise InputError(f"detect.person_box must be x0,y0,x1,y1 with x1 > x0 and y1 > y0, got {self.person_box}.")
@@ -107,7 +110,7 @@ class Settings:
 
 
 def _within(name: str, value, low, high, unit: str) -> None:
-    if value is None or not (low <= value <= high):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (low <= value <= high):
         raise InputError(f"{name} = {value} is out of range: expected {low} to {high} {unit}".rstrip() + ".")
 
 

@@ -27,6 +27,7 @@ import numpy as np
 from .body.model import SkeletonLengths, build_body_model
 from .camera import Camera, Floor
 from .config import Settings
+from .errors import InputError
 from .io.atomic import save_npz, write_text
 from .kinematics.calibration import Calibration
 from .kinematics.stage import KinematicMotion, fit_motion
@@ -86,22 +87,32 @@ def detect_stage(video: Path, out_dir: Path, settings: Settings,
                  progress: ProgressFactory | None = None) -> tuple[Observations, bool]:
     """Observations of the video, from the cache when the video and detect settings are unchanged."""
     from .detect.mediapipe_pose import detect_video
+    from .io.video import probe_video
 
     cache, key_file = out_dir / "cache" / "observations.npz", out_dir / "cache" / "observations.key"
-    key = _digest("detect", 1, _file_fingerprint(video), asdict(settings.detect))
-    if cache.is_file() and key_file.is_file() and key_file.read_text() == key:
-        return Observations.load(cache), True
-    bar = progress("detect", 0) if progress else None
-    obs = detect_video(video, person_box=settings.detect.person_box, max_width=settings.detect.max_width,
-                       progress=bar)
-    obs.save(cache)
-    write_text(key_file, key)
-    return obs, False
+    detect_settings = asdict(settings.detect)
+    detect_settings.pop("accept_truncated")
+    key = _digest("detect", 1, _file_fingerprint(video), detect_settings)
+    was_cached = cache.is_file() and key_file.is_file() and key_file.read_text() == key
+    if was_cached:
+        obs = Observations.load(cache)
+    else:
+        bar = progress("detect", 0) if progress else None
+        obs = detect_video(video, person_box=settings.detect.person_box, max_width=settings.detect.max_width,
+                           progress=bar)
+        obs.save(cache)
+        write_text(key_file, key)
+    announced = probe_video(video).frame_count
+    if obs.num_frames < announced - max(2, 0.02 * announced) and not settings.detect.accept_truncated:
+        raise InputError(f"{video}: the video is truncated: only {obs.num_frames} of the {announced} frames it "
+                         "announces decode (use --accept-truncated to capture those).")
+    return obs, was_cached
 
 
 def _observations_key(obs: Observations) -> str:
-    return _digest(hashlib.sha256(obs.keypoints_2d.tobytes() + obs.landmarks_3d.tobytes()
-                                  + obs.valid.tobytes()).hexdigest(), obs.fps, obs.image_size,
+    # float32, as the observations file stores them: fresh and reloaded detections give the same key
+    data = obs.keypoints_2d.astype(np.float32).tobytes() + obs.landmarks_3d.astype(np.float32).tobytes()
+    return _digest(hashlib.sha256(data + obs.valid.tobytes()).hexdigest(), obs.fps, obs.image_size,
                    None if obs.camera_K is None else obs.camera_K.tolist())
 
 
@@ -182,11 +193,10 @@ def run_capture(out_dir: str | os.PathLike, settings: Settings, *, video: str | 
         from .viz.overlay import render_overlay, skeleton_edges
 
         files["overlay"] = str(out_dir / "overlay.mp4")
-        names = list(RESULT_POINTS)
-        points_2d = motion.camera.project(result["joints_world"])
+        points_2d = motion.camera.project(result["joints_world"])  # result points are the body's points
         bar = progress("overlay", obs.num_frames) if progress else None
-        render_overlay(video, files["overlay"], points_2d, skeleton_edges(names), motion.valid,
-                       keypoints=obs.keypoints_2d, progress=bar)
+        render_overlay(video, files["overlay"], points_2d, skeleton_edges(motion.body), motion.valid,
+                       keypoints=obs.keypoints_2d, contacts=result["contacts"], labels=RESULT_POINTS, progress=bar)
     seconds["outputs"] = time.perf_counter() - started
 
     error = motion.reprojection_error

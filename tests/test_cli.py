@@ -1,0 +1,156 @@
+"""The command line end to end: the happy path on the shipped demo clip, and every kind of bad input with real
+files, each answered by one clear sentence, a non-zero exit code, no traceback and no half-written result."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from physmocap.io.video import VideoWriter
+from physmocap.result import REQUIRED_KEYS, RESULT_POINTS, load_result
+from conftest import DEMO_VIDEO
+
+
+def physmocap(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "physmocap.cli", *map(str, args)], capture_output=True,
+                          text=True, cwd=cwd, timeout=600)
+
+
+def assert_clean_failure(proc, *words):
+    assert proc.returncode != 0
+    assert "Traceback" not in proc.stderr
+    lines = [line for line in proc.stderr.strip().splitlines() if line.strip()]
+    assert lines, "an error must say what went wrong"
+    message = lines[-1]
+    for word in words:
+        assert word.lower() in message.lower(), message
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("demo")
+    proc = physmocap("capture", DEMO_VIDEO, "-o", out)
+    assert proc.returncode == 0, proc.stderr
+    return out, proc
+
+
+def test_capture_writes_every_output(demo_run):
+    out, proc = demo_run
+    for name in ("result.npz", "motion.bvh", "overlay.mp4", "summary.json"):
+        assert (out / name).is_file(), name
+    result = load_result(out / "result.npz")
+    T = len(result["qpos"])
+    assert all(k in result for k in REQUIRED_KEYS)
+    assert tuple(result["joint_names"][:20]) == RESULT_POINTS[:20]
+    assert result["joints_world"].shape == (T, len(RESULT_POINTS), 3)
+    assert result["contacts"].shape == (T, 4) and result["grf"].shape == (T, 4, 3)
+    assert result["keypoints_2d"].shape == (T, 33, 3)
+    # The world is Z up with the floor at z = 0: the soles sit near it, the head far above.
+    names = list(result["joint_names"])
+    soles = result["joints_world"][:, [names.index(n) for n in ("left_heel", "left_toe", "right_heel",
+                                                                 "right_toe")], 2]
+    assert abs(np.median(soles.min(axis=1))) < 0.05
+    assert 1.3 < np.median(result["joints_world"][:, names.index("head"), 2]) < 1.8
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["frames"] == T and summary["valid_frames"] > 0.9 * T
+    assert summary["median_reprojection_error_percent_of_height"] < 2.0
+    assert "median reprojection error" in proc.stdout and "results in" in proc.stdout
+
+
+def test_rerun_reuses_cached_stages(demo_run):
+    out, _ = demo_run
+    proc = physmocap("capture", DEMO_VIDEO, "-o", out, "--no-overlay")
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["cached_stages"] == ["detect", "kinematics"]
+    # A new fit setting re-runs the fit but not the detector.
+    proc = physmocap("capture", DEMO_VIDEO, "-o", out, "--no-overlay", "--height", "1.80")
+    assert json.loads((out / "summary.json").read_text())["cached_stages"] == ["detect"]
+    assert abs(float(load_result(out / "result.npz")["body_height"]) - 1.80) < 1e-9
+
+
+def test_observations_file_round_trip_and_online(demo_run, tmp_path):
+    out, _ = demo_run
+    proc = physmocap("capture", "--observations", out / "cache" / "observations.npz", "-o", tmp_path / "r",
+                     "--online")
+    assert proc.returncode == 0, proc.stderr
+    assert "online" in proc.stdout
+    assert (tmp_path / "r" / "result.npz").is_file() and not (tmp_path / "r" / "overlay.mp4").exists()
+
+
+def test_help_teaches_the_commands():
+    proc = physmocap("--help")
+    assert proc.returncode == 0
+    for word in ("capture", "detect", "--online", "result.npz", "motion.bvh"):
+        assert word in proc.stdout
+    assert "--height" in physmocap("capture", "--help").stdout
+
+
+def test_missing_video(tmp_path):
+    assert_clean_failure(physmocap("capture", tmp_path / "nope.mp4", "-o", tmp_path / "o"), "nope.mp4", "no such")
+    assert not (tmp_path / "o").exists()
+
+
+def test_text_file_named_mp4(tmp_path):
+    fake = tmp_path / "notes.mp4"
+    fake.write_text("this is not a video\n" * 50)
+    assert_clean_failure(physmocap("capture", fake, "-o", tmp_path / "o"), "notes.mp4", "video")
+    assert not (tmp_path / "o").exists()
+
+
+def test_empty_video(tmp_path):
+    empty = tmp_path / "empty.mp4"
+    empty.write_bytes(b"")
+    assert_clean_failure(physmocap("capture", empty, "-o", tmp_path / "o"), "empty.mp4", "empty")
+
+
+def test_truncated_video(tmp_path):
+    cut = tmp_path / "cut.mp4"
+    data = DEMO_VIDEO.read_bytes()
+    cut.write_bytes(data[: len(data) // 2])
+    proc = physmocap("capture", cut, "-o", tmp_path / "o")
+    assert_clean_failure(proc, "cut.mp4", "truncated")
+    assert not (tmp_path / "o" / "result.npz").exists()
+
+
+def test_video_without_a_person(tmp_path):
+    blank = tmp_path / "blank.mp4"
+    rng = np.random.default_rng(0)
+    with VideoWriter(blank, 10.0, 320, 240) as writer:
+        for _ in range(8):
+            writer.write(rng.integers(0, 40, size=(240, 320, 3), dtype=np.uint8))
+    proc = physmocap("capture", blank, "-o", tmp_path / "o")
+    assert_clean_failure(proc, "blank.mp4", "no person")
+    assert not (tmp_path / "o" / "result.npz").exists()
+
+
+def test_unreadable_observations_file(tmp_path):
+    bad = tmp_path / "obs.npz"
+    bad.write_bytes(b"PK\x03\x04 definitely not a zip archive")
+    assert_clean_failure(physmocap("capture", "--observations", bad, "-o", tmp_path / "o"), "obs.npz")
+    wrong = tmp_path / "wrong.npz"
+    np.savez(wrong, keypoints_2d=np.zeros((4, 17, 3)))
+    assert_clean_failure(physmocap("capture", "--observations", wrong, "-o", tmp_path / "o"), "wrong.npz")
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--height", "-1.7"], ["body.height", "-1.7"]),
+    (["--mass", "0"], ["body.mass"]),
+    (["--fov", "400"], ["camera.fov"]),
+    (["--floor", "0,0,0,1"], ["floor"]),
+    (["--person-box", "10,10,5,5"], ["person_box"]),
+])
+def test_nonsense_settings(tmp_path, args, words):
+    proc = physmocap("capture", DEMO_VIDEO, "-o", tmp_path / "o", *args)
+    assert_clean_failure(proc, *words)
+    assert not (tmp_path / "o").exists()
+
+
+def test_bad_settings_file(tmp_path):
+    cfg = tmp_path / "s.toml"
+    cfg.write_text("[fit]\nweight_2d = 'heavy'\n")
+    assert_clean_failure(physmocap("capture", DEMO_VIDEO, "-o", tmp_path / "o", "--config", cfg), "weight_2d")
+    cfg.write_text("[fit\n")
+    assert_clean_failure(physmocap("capture", DEMO_VIDEO, "-o", tmp_path / "o", "--config", cfg), "s.toml")
