@@ -23,7 +23,7 @@ from scipy.linalg import LinAlgError, cholesky, solve_triangular
 
 from ..body import kinematics as kin
 from ..body.model import JOINT_NAMES, BodyModel
-from ..body.rotations import matrix_to_quat
+from ..body.rotations import matrix_to_quat, quat_conjugate, quat_multiply
 from ..camera import Camera, projection_jacobian_camera, project_camera_points
 from ..config import FitSettings
 from ..landmarks import LANDMARK_INDEX
@@ -82,6 +82,7 @@ class KinematicFitter:
         self.pelvis_point = body.point_index(["pelvis"])[0]
         tab = kin.tables(body)
         self.ball_qadr, self.ball_vadr = tab.qadr[tab.ball_bodies], tab.vadr[tab.ball_bodies]
+        self.neutral_inverse = quat_conjugate(neutral_qpos(body)[self.ball_qadr[:, None] + np.arange(4)])
         self.hinge_qadr, self.hinge_vadr = tab.qadr[tab.hinge_bodies], tab.vadr[tab.hinge_bodies]
         self.hinge_limits = np.array([body.bodies[b].limit for b in tab.hinge_bodies])
         # Temporal terms are stated at 30 fps: rescale finite differences to keep their meaning per second.
@@ -131,12 +132,13 @@ class KinematicFitter:
         rel = mp - points[:, self.pelvis_point][:, None]
         r[:, 2 * M:5 * M] = (w3 * (rel - targets.targets_3d)).reshape(T, -1)
         J[:, 2 * M:5 * M] = (w3[..., None] * (mj - jac[:, self.pelvis_point][:, None])).reshape(T, -1, nv)
-        # Ball joints towards rest: residual 2 vec(q) (the rotation vector to first order, sign-fixed so that
-        # q and -q agree); its derivative along a local step is q_w I + [q_v]x.
+        # Ball joints towards the neutral pose: residual 2 vec(q) for q the rotation away from it (the rotation
+        # vector to first order, sign-fixed so that q and -q agree); its derivative along a local step is
+        # q_w I + [q_v]x.
         wp = np.sqrt(self.settings.weight_prior)
         quats = qpos[:, self.ball_qadr[:, None] + np.arange(4)]  # (T, n_ball, 4)
-        sign = np.where(quats[..., :1] < 0, -1.0, 1.0)
-        q = quats * sign
+        relative = quat_multiply(self.neutral_inverse, quats)  # rotation away from the neutral pose
+        q = relative * np.where(relative[..., :1] < 0, -1.0, 1.0)
         row = 5 * M
         r[:, row:row + 3 * n_ball] = (2 * wp * q[..., 1:]).reshape(T, -1)
         w, x, y, z = np.moveaxis(q, -1, 0)
@@ -322,14 +324,20 @@ def root_orientation(targets_3d: np.ndarray) -> np.ndarray:
     return np.stack([np.cross(y, z), y, z], axis=1)
 
 
-def initial_qpos(body: BodyModel, camera: Camera, targets: FitTargets, frame: int) -> np.ndarray:
-    """A starting pose for one frame: arms down, pelvis oriented from hips and shoulders, placed on the
-    camera ray of the hip midpoint at the estimated depth. (1, nq)"""
+def neutral_qpos(body: BodyModel) -> np.ndarray:
+    """(nq,) standing straight with the arms hanging 80 degrees down from the T-pose: the pose prior's centre."""
     q = body.rest_qpos.copy()
-    for side, sign in (("left", 1.0), ("right", -1.0)):  # arms hanging, 80 degrees down from the T-pose
+    for side, sign in (("left", 1.0), ("right", -1.0)):
         a = body.qpos_address[body.joint_index[f"{side}_shoulder"]]
         angle = np.radians(80) * sign
         q[a:a + 4] = [np.cos(angle / 2), np.sin(angle / 2), 0.0, 0.0]
+    return q
+
+
+def initial_qpos(body: BodyModel, camera: Camera, targets: FitTargets, frame: int) -> np.ndarray:
+    """A starting pose for one frame: the neutral pose, pelvis oriented from hips and shoulders, placed on the
+    camera ray of the hip midpoint at the estimated depth. (1, nq)"""
+    q = neutral_qpos(body)
     idx = {b: i for i, (_, b) in enumerate(MARKERS)}
     q[3:7] = matrix_to_quat(root_orientation(targets.targets_3d[frame]))
     hips = 0.5 * (targets.keypoints[frame, idx["left_hip"]] + targets.keypoints[frame, idx["right_hip"]])
