@@ -1,0 +1,292 @@
+"""MediaPipe Pose (legacy solution, BlazePose full) on the frames of a video, following one person.
+
+Person following: the first person found (MediaPipe's choice on the whole frame, or the person inside a given
+box) is the track. In each later frame MediaPipe sees only a search region around the track's last landmark box
+(the rest of the frame is blanked), grown by a margin, and more the longer the person has been unseen, up to the
+whole frame. A sighting whose torso centre moved or whose torso size changed more than a person plausibly can
+since the last sighting is rejected as a "track jump"; frames without a person are "no person". Rejected frames
+are invalid and hold zeros.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from typing import Any, BinaryIO, Callable, ContextManager, Iterator, Sequence
+
+import cv2
+import numpy as np
+
+from ..errors import InputError
+from ..io.video import iter_frames, resize_to_width
+from ..landmarks import LANDMARK_INDEX, NUM_LANDMARKS
+from ..motion import Observations
+
+logger = logging.getLogger(__name__)
+
+SEARCH_MARGIN = 0.5
+"""The search region adds this fraction of the landmark box's larger side on every side of the box."""
+MAX_STEP = 0.75
+"""Torso sizes the torso centre may move between consecutive frames before the sighting counts as a jump."""
+MAX_SIZE_RATIO = 1.5
+"""Factor by which the torso size may grow or shrink per frame before the sighting counts as a jump."""
+MAX_SPEED = 8.0
+"""Torso sizes per second a person may move while unseen (about 4 m/s): widens the gate and the search region."""
+_TORSO = [LANDMARK_INDEX[name] for name in ("left_shoulder", "right_shoulder", "left_hip", "right_hip")]
+
+# Informational lines that MediaPipe's C++ code writes straight to stderr; any other line is passed through.
+_BENIGN_NATIVE_LOG_LINES = (
+    "Created TensorFlow Lite XNNPACK delegate for CPU",
+    "All log messages before absl::InitializeLog() is called are written to STDERR",
+    "inference_feedback_manager.cc",
+    "Using NORM_RECT without IMAGE_DIMENSIONS is only supported for the square ROI",
+)
+
+Box = tuple[float, float, float, float]
+"""(x0, y0, x1, y1) in pixels of the native frame."""
+
+
+def torso_centre_and_size(xy: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre (2,) of the shoulders and hips and the torso size in pixels, from (33, 2) landmark positions.
+
+    The size is the longer diagonal of the shoulder-hip quadrilateral, which stays large whether the person faces
+    the camera, turns sideways or leans towards it.
+    """
+    left_shoulder, right_shoulder, left_hip, right_hip = xy[_TORSO]
+    size = max(np.linalg.norm(left_shoulder - right_hip), np.linalg.norm(right_shoulder - left_hip))
+    return xy[_TORSO].mean(axis=0), float(size)
+
+
+@dataclass(frozen=True)
+class Sighting:
+    """The tracked person in one frame: landmark box (x0, y0, x1, y1), torso centre (2,) and size, in pixels."""
+
+    frame: int
+    box: np.ndarray
+    centre: np.ndarray
+    size: float
+
+    @classmethod
+    def from_landmarks(cls, frame: int, xy: np.ndarray) -> "Sighting":
+        """From (33, 2) landmark positions in pixels."""
+        centre, size = torso_centre_and_size(xy)
+        return cls(frame, np.concatenate([xy.min(axis=0), xy.max(axis=0)]), centre, size)
+
+
+def is_track_jump(last: Sighting, new: Sighting, fps: float) -> bool:
+    """True if `new` is implausibly far from, or of implausibly different size than, the `last` sighting."""
+    frames = new.frame - last.frame
+    step = np.linalg.norm(new.centre - last.centre)
+    allowed_step = (MAX_STEP + MAX_SPEED * (frames - 1) / fps) * last.size
+    size_ratio = max(new.size, 1e-6) / max(last.size, 1e-6)
+    allowed_ratio = MAX_SIZE_RATIO**frames
+    return bool(step > allowed_step or size_ratio > allowed_ratio or size_ratio < 1 / allowed_ratio)
+
+
+def grow_box(box: Sequence[float], margin: float, image_size: tuple[int, int]) -> tuple[int, int, int, int]:
+    """`box` (x0, y0, x1, y1) grown by `margin` pixels on every side, as whole pixels clamped to the image."""
+    width, height = image_size
+    x0, y0, x1, y1 = box
+    return (
+        max(0, int(np.floor(x0 - margin))),
+        max(0, int(np.floor(y0 - margin))),
+        min(width, int(np.ceil(x1 + margin))),
+        min(height, int(np.ceil(y1 + margin))),
+    )
+
+
+def search_region(last: Sighting, frame: int, fps: float, image_size: tuple[int, int]) -> tuple[int, int, int, int]:
+    """Where to look for the person last seen as `last` in `frame`: pixel region (x0, y0, x1, y1), end exclusive."""
+    box_side = max(last.box[2] - last.box[0], last.box[3] - last.box[1])
+    unseen_s = (frame - last.frame - 1) / fps
+    return grow_box(last.box, SEARCH_MARGIN * box_side + MAX_SPEED * last.size * unseen_s, image_size)
+
+
+class _PoseModel:
+    """MediaPipe Pose on pixel regions of BGR frames, with its native log spam filtered out of stderr."""
+
+    def __init__(self) -> None:
+        import mediapipe as mp
+
+        self._native_log = tempfile.TemporaryFile()
+        with self._filtered_native_stderr():
+            self._pose = mp.solutions.pose.Pose(
+                static_image_mode=False,
+                model_complexity=1,
+                smooth_landmarks=True,
+                min_detection_confidence=0.5,
+                min_tracking_confidence=0.5,
+            )
+            self._wait_until_ready()
+
+    def detect(
+        self, frame: np.ndarray, region: tuple[int, int, int, int], max_width: int | None
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Landmarks of the person in `region` of (H, W, 3) BGR `frame`, or None if there is nobody there.
+
+        The frame is scaled down to `max_width` and blanked outside the region, so that MediaPipe keeps seeing
+        images of one geometry (its tracking and smoothing work in normalised image coordinates).
+        Returns keypoints (33, 3): x, y in native pixels (integer coordinates at pixel centres) and visibility;
+        and world landmarks (33, 3) in metres, hip-centred, x right, y down, z away from the camera.
+        """
+        height, width = frame.shape[:2]
+        if max_width is not None and width > max_width:
+            frame = resize_to_width(frame, max_width)
+        scale_x, scale_y = frame.shape[1] / width, frame.shape[0] / height
+        x0, y0 = int(region[0] * scale_x), int(region[1] * scale_y)
+        x1, y1 = int(np.ceil(region[2] * scale_x)), int(np.ceil(region[3] * scale_y))
+        if (x0, y0, x1, y1) == (0, 0, frame.shape[1], frame.shape[0]):
+            image = frame
+        else:
+            image = np.zeros_like(frame)
+            image[y0:y1, x0:x1] = frame[y0:y1, x0:x1]
+        with self._filtered_native_stderr():
+            result: Any = self._pose.process(cv2.cvtColor(image, cv2.COLOR_BGR2RGB))
+        if result.pose_landmarks is None:
+            return None
+        keypoints = np.array([(p.x, p.y, p.visibility) for p in result.pose_landmarks.landmark])
+        world = np.array([(p.x, p.y, p.z) for p in result.pose_world_landmarks.landmark])
+        # MediaPipe's normalised coordinates run from the left/top edge (0) to the right/bottom edge (1).
+        keypoints[:, :2] = keypoints[:, :2] * (width, height) - 0.5
+        return keypoints, world
+
+    def reset(self) -> None:
+        """Forget the tracked region: the next frame runs MediaPipe's person detector again."""
+        with self._filtered_native_stderr():
+            self._pose.reset()
+            self._wait_until_ready()
+
+    def _wait_until_ready(self) -> None:
+        """Process a blank image: MediaPipe loads its models (and logs about it) in the background until then."""
+        self._pose.process(np.zeros((64, 64, 3), dtype=np.uint8))
+
+    def close(self) -> None:
+        self._pose.close()
+        self._native_log.close()
+
+    def _filtered_native_stderr(self) -> ContextManager[None]:
+        return _native_stderr_filtered(self._native_log)
+
+
+@contextlib.contextmanager
+def _native_stderr_filtered(log_file: BinaryIO) -> Iterator[None]:
+    """Send file descriptor 2 to `log_file` for the block, then replay all but the benign lines to stderr."""
+    sys.stderr.flush()
+    saved_fd = os.dup(2)
+    os.dup2(log_file.fileno(), 2)
+    try:
+        yield
+    finally:
+        os.dup2(saved_fd, 2)
+        os.close(saved_fd)
+        log_file.seek(0)
+        text = log_file.read().decode(errors="replace")
+        log_file.seek(0)
+        log_file.truncate()
+        for line in text.splitlines():
+            if line.strip() and not any(benign in line for benign in _BENIGN_NATIVE_LOG_LINES):
+                print(line, file=sys.stderr)
+
+
+def _check_person_box(path: object, person_box: Sequence[float], image_size: tuple[int, int]) -> Box:
+    box = tuple(float(v) for v in person_box)
+    if len(box) != 4 or not np.all(np.isfinite(box)) or box[0] >= box[2] or box[1] >= box[3]:
+        raise InputError(f"{path}: person_box must be (x0, y0, x1, y1) pixels with x0 < x1 and y0 < y1, got {box}.")
+    width, height = image_size
+    if box[2] <= 0 or box[3] <= 0 or box[0] >= width or box[1] >= height:
+        raise InputError(f"{path}: person_box {box} lies outside the {width}x{height} frame.")
+    return box  # type: ignore[return-value]
+
+
+def detect_video(
+    path: str | os.PathLike,
+    *,
+    person_box: Sequence[float] | None = None,
+    max_width: int | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> Observations:
+    """MediaPipe Pose landmarks of one person followed through the video at `path`.
+
+    person_box: (x0, y0, x1, y1) native pixels around the person to follow, in the first frames where they
+        appear; default: the person MediaPipe finds first on the whole frame.
+    max_width: frames wider than this are scaled down to it before detection; default None, the native
+        resolution: MediaPipe's cost hardly depends on the frame size (it runs fixed-size networks on its own
+        crops), and downscaling loses accuracy on people who fill little of the frame.
+        Coordinates are always returned in native pixels.
+    progress: called as progress(frames_done, frames_announced) after each frame.
+    Returns Observations with T = frames decoded (pixel coordinates: integers at pixel centres, as in OpenCV);
+    frames without the followed person are invalid and all zero.
+    Raises InputError for an unreadable video or when no frame shows a person.
+    """
+    reader = iter_frames(path)
+    info = reader.info
+    image_size = (info.width, info.height)
+    start_box = None if person_box is None else _check_person_box(path, person_box, image_size)
+    if start_box is None:
+        start_region = (0, 0, info.width, info.height)
+    else:
+        start_side = max(start_box[2] - start_box[0], start_box[3] - start_box[1])
+        start_region = grow_box(start_box, SEARCH_MARGIN * start_side, image_size)
+
+    keypoints, world, reasons = [], [], []
+    last: Sighting | None = None
+    detection_seconds = 0.0
+    model = _PoseModel()
+    try:
+        for index, frame in reader:
+            started = time.perf_counter()
+            region = start_region if last is None else search_region(last, index, info.fps, image_size)
+            found = model.detect(frame, region, max_width)
+            if found is None:
+                reason = "no person"
+            else:
+                sighting = Sighting.from_landmarks(index, found[0][:, :2])
+                reason = _rejection(last, sighting, start_box, info.fps)
+                if reason:
+                    model.reset()  # MediaPipe would keep following whomever it found
+                else:
+                    last = sighting
+            detection_seconds += time.perf_counter() - started
+            keypoints.append(np.zeros((NUM_LANDMARKS, 3)) if reason else found[0])
+            world.append(np.zeros((NUM_LANDMARKS, 3)) if reason else found[1])
+            reasons.append(reason)
+            if progress is not None:
+                progress(index + 1, max(info.frame_count, index + 1))
+    finally:
+        model.close()
+
+    if last is None:
+        where = "" if start_box is None else f" inside person_box {start_box}"
+        raise InputError(f"{path}: no person was found{where} in any frame.")
+    if reader.missing_frames:
+        logger.warning(
+            "%s: decoding stopped after %d of the %d frames the file announces (truncated file?); "
+            "detection covers the frames that decoded.",
+            path, reader.frames_read, info.frame_count,
+        )
+    invalid_reason = np.array(reasons, dtype=object)
+    return Observations(
+        keypoints_2d=np.stack(keypoints),
+        landmarks_3d=np.stack(world),
+        fps=info.fps,
+        image_size=image_size,
+        valid=invalid_reason == "",
+        invalid_reason=invalid_reason,
+        source=str(path),
+        seconds_per_frame=detection_seconds / len(reasons),
+    )
+
+
+def _rejection(last: Sighting | None, sighting: Sighting, start_box: Box | None, fps: float) -> str:
+    """Why `sighting` is not the followed person ("" if it is), given the `last` accepted sighting."""
+    if last is not None:
+        return "track jump" if is_track_jump(last, sighting, fps) else ""
+    x, y = sighting.centre
+    if start_box is not None and not (start_box[0] <= x <= start_box[2] and start_box[1] <= y <= start_box[3]):
+        return "outside person box"
+    return ""
