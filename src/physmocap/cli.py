@@ -67,7 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
     det.add_argument("-o", "--output", type=Path, required=True, help="observations .npz to write")
     det.add_argument("--person-box", type=_floats(4, "--person-box"), metavar="X0,Y0,X1,Y1",
                      help="follow the person inside this box (pixels)")
-    det.add_argument("--max-width", type=int, default=640, help="detector input width, pixels")
+    det.add_argument("--max-width", type=int, default=None,
+                     help="downscale what the detector sees to this width, pixels (default: native)")
     return parser
 
 
