@@ -154,3 +154,13 @@ def test_bad_settings_file(tmp_path):
     assert_clean_failure(physmocap("capture", DEMO_VIDEO, "-o", tmp_path / "o", "--config", cfg), "weight_2d")
     cfg.write_text("[fit\n")
     assert_clean_failure(physmocap("capture", DEMO_VIDEO, "-o", tmp_path / "o", "--config", cfg), "s.toml")
+
+
+def test_online_capture_of_a_video_streams_and_caches(tmp_path):
+    out = tmp_path / "live"
+    proc = physmocap("capture", DEMO_VIDEO, "-o", out, "--online", "--no-overlay")
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["online"] and summary["cached_stages"] == []
+    proc = physmocap("capture", DEMO_VIDEO, "-o", out, "--online", "--no-overlay")
+    assert json.loads((out / "summary.json").read_text())["cached_stages"] == ["detect", "kinematics"]

@@ -87,13 +87,9 @@ def detect_stage(video: Path, out_dir: Path, settings: Settings,
                  progress: ProgressFactory | None = None) -> tuple[Observations, bool]:
     """Observations of the video, from the cache when the video and detect settings are unchanged."""
     from .detect.mediapipe_pose import detect_video
-    from .io.video import probe_video
 
-    cache, key_file = out_dir / "cache" / "observations.npz", out_dir / "cache" / "observations.key"
-    detect_settings = asdict(settings.detect)
-    detect_settings.pop("accept_truncated")
-    key = _digest("detect", 1, _file_fingerprint(video), detect_settings)
-    was_cached = cache.is_file() and key_file.is_file() and key_file.read_text() == key
+    cache, key_file, key = _detection_cache(video, out_dir, settings)
+    was_cached = _detections_cached(video, out_dir, settings)
     if was_cached:
         obs = Observations.load(cache)
     else:
@@ -102,11 +98,42 @@ def detect_stage(video: Path, out_dir: Path, settings: Settings,
                            progress=bar)
         obs.save(cache)
         write_text(key_file, key)
+    _check_truncation(video, obs, settings)
+    return obs, was_cached
+
+
+def _detection_cache(video: Path, out_dir: Path, settings: Settings) -> tuple[Path, Path, str]:
+    detect_settings = asdict(settings.detect)
+    detect_settings.pop("accept_truncated")
+    key = _digest("detect", 1, _file_fingerprint(video), detect_settings)
+    return out_dir / "cache" / "observations.npz", out_dir / "cache" / "observations.key", key
+
+
+def _detections_cached(video: Path, out_dir: Path, settings: Settings) -> bool:
+    cache, key_file, key = _detection_cache(video, out_dir, settings)
+    return cache.is_file() and key_file.is_file() and key_file.read_text() == key
+
+
+def _check_truncation(video: Path, obs: Observations, settings: Settings) -> None:
+    from .io.video import probe_video
+
     announced = probe_video(video).frame_count
     if obs.num_frames < announced - max(2, 0.02 * announced) and not settings.detect.accept_truncated:
         raise InputError(f"{video}: the video is truncated: only {obs.num_frames} of the {announced} frames it "
                          "announces decode (use --accept-truncated to capture those).")
-    return obs, was_cached
+
+
+def stream_stage(video: Path, out_dir: Path, settings: Settings) -> tuple[Observations, KinematicMotion]:
+    """Detection and causal fit together (live order); both outputs are cached like the separate stages'."""
+    from .live import stream_capture
+
+    report = stream_capture(str(video), settings)
+    _check_truncation(video, report.observations, settings)
+    cache, key_file, key = _detection_cache(video, out_dir, settings)
+    report.observations.save(cache)
+    write_text(key_file, key)
+    _save_motion(out_dir, report.observations, settings, report.motion)
+    return report.observations, report.motion
 
 
 def _observations_key(obs: Observations) -> str:
@@ -119,9 +146,7 @@ def _observations_key(obs: Observations) -> str:
 def kinematics_stage(obs: Observations, out_dir: Path, settings: Settings,
                      progress: ProgressFactory | None = None) -> tuple[KinematicMotion, bool]:
     """The fitted kinematic motion, from the cache when observations and settings are unchanged."""
-    cache = out_dir / "cache" / "kinematics.npz"
-    key = _digest("kinematics", 1, _observations_key(obs), asdict(settings.body), asdict(settings.camera),
-                  asdict(settings.fit), settings.online)
+    cache, key = _kinematics_cache(out_dir, obs, settings)
     if cache.is_file():
         try:
             with np.load(cache, allow_pickle=False) as data:
@@ -131,6 +156,18 @@ def kinematics_stage(obs: Observations, out_dir: Path, settings: Settings,
             pass  # a stale or foreign cache file is simply recomputed
     bar = progress("fit", obs.num_frames) if progress else None
     motion = fit_motion(obs, settings, bar)
+    _save_motion(out_dir, obs, settings, motion)
+    return motion, False
+
+
+def _kinematics_cache(out_dir: Path, obs: Observations, settings: Settings) -> tuple[Path, str]:
+    key = _digest("kinematics", 1, _observations_key(obs), asdict(settings.body), asdict(settings.camera),
+                  asdict(settings.fit), settings.online)
+    return out_dir / "cache" / "kinematics.npz", key
+
+
+def _save_motion(out_dir: Path, obs: Observations, settings: Settings, motion: KinematicMotion) -> None:
+    cache, key = _kinematics_cache(out_dir, obs, settings)
     save_npz(cache, key=np.str_(key), qpos=motion.qpos, lengths=np.str_(json.dumps(motion.body.lengths.__dict__)),
              mass=motion.body.mass, camera_K=motion.camera.K, camera_R=motion.camera.R, camera_t=motion.camera.t,
              image_size=np.array(motion.camera.image_size), floor=motion.floor.plane,
@@ -138,7 +175,6 @@ def kinematics_stage(obs: Observations, out_dir: Path, settings: Settings,
              valid=motion.valid, seconds=motion.seconds, online=motion.online,
              landmark_scale=motion.calibration.landmark_scale, frames_used=motion.calibration.frames_used,
              replaced=np.array(motion.calibration.replaced, dtype=str))
-    return motion, False
 
 
 def _motion_from_cache(data) -> KinematicMotion:
@@ -166,23 +202,27 @@ def run_capture(out_dir: str | os.PathLike, settings: Settings, *, video: str | 
     cached: list[str] = []
     video = None if video is None else Path(video)
 
-    started = time.perf_counter()
+    # Cached stages report the time they took when they ran.
+    motion: KinematicMotion | None = None
     if observations is not None:
         obs = Observations.load(observations)
         source = str(observations)
-    else:
-        obs, was_cached = detect_stage(video, out_dir, settings, progress)
+    elif settings.online and not _detections_cached(video, out_dir, settings):
+        # Live order: the detector and the causal fit run concurrently, frame by frame.
+        obs, motion = stream_stage(video, out_dir, settings)
         source = str(video)
-        if was_cached:
+        seconds["detect"] = obs.seconds_per_frame * obs.num_frames
+    else:
+        obs, detect_cached = detect_stage(video, out_dir, settings, progress)
+        source = str(video)
+        seconds["detect"] = obs.seconds_per_frame * obs.num_frames
+        if detect_cached:
             cached.append("detect")
-    seconds["detect"] = (obs.seconds_per_frame * obs.num_frames) if "detect" in cached or observations \
-        else time.perf_counter() - started
-
-    started = time.perf_counter()
-    motion, was_cached = kinematics_stage(obs, out_dir, settings, progress)
-    if was_cached:
-        cached.append("kinematics")
-    seconds["kinematics"] = motion.seconds if was_cached else time.perf_counter() - started
+    if motion is None:
+        motion, kinematics_cached = kinematics_stage(obs, out_dir, settings, progress)
+        if kinematics_cached:
+            cached.append("kinematics")
+    seconds["kinematics"] = motion.seconds
 
     started = time.perf_counter()
     result = build_result(obs, motion, seconds, settings.as_dict())

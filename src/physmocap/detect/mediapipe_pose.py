@@ -203,6 +203,52 @@ def _check_person_box(path: object, person_box: Sequence[float], image_size: tup
     return box  # type: ignore[return-value]
 
 
+class PersonFollower:
+    """Follows one person through frames given one at a time: the per-frame core of detect_video, also
+    driven directly by live capture.
+
+    image_size: (width, height) of the frames; fps: their rate (how far the person may move between sightings);
+    person_box, max_width: as in detect_video.
+    """
+
+    def __init__(self, image_size: tuple[int, int], fps: float, *, person_box: Box | None = None,
+                 max_width: int | None = None) -> None:
+        self.image_size, self.fps, self.max_width = image_size, fps, max_width
+        self.start_box = person_box
+        if person_box is None:
+            self.start_region = (0, 0, image_size[0], image_size[1])
+        else:
+            side = max(person_box[2] - person_box[0], person_box[3] - person_box[1])
+            self.start_region = grow_box(person_box, SEARCH_MARGIN * side, image_size)
+        self.last: Sighting | None = None
+        self.seconds = 0.0
+        self._model = _PoseModel()
+
+    def detect(self, index: int, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray, str]:
+        """Keypoints (33, 3) px + visibility, world landmarks (33, 3) m, and why the frame is not the followed
+        person ("" when it is; zeros are returned then)."""
+        started = time.perf_counter()
+        region = self.start_region if self.last is None else search_region(self.last, index, self.fps,
+                                                                           self.image_size)
+        found = self._model.detect(frame, region, self.max_width)
+        if found is None:
+            reason = "no person"
+        else:
+            sighting = Sighting.from_landmarks(index, found[0][:, :2])
+            reason = _rejection(self.last, sighting, self.start_box, self.fps)
+            if reason:
+                self._model.reset()  # MediaPipe would keep following whomever it found
+            else:
+                self.last = sighting
+        self.seconds += time.perf_counter() - started
+        if reason:
+            return np.zeros((NUM_LANDMARKS, 3)), np.zeros((NUM_LANDMARKS, 3)), reason
+        return found[0], found[1], ""
+
+    def close(self) -> None:
+        self._model.close()
+
+
 def detect_video(
     path: str | os.PathLike,
     *,
@@ -227,40 +273,19 @@ def detect_video(
     info = reader.info
     image_size = (info.width, info.height)
     start_box = None if person_box is None else _check_person_box(path, person_box, image_size)
-    if start_box is None:
-        start_region = (0, 0, info.width, info.height)
-    else:
-        start_side = max(start_box[2] - start_box[0], start_box[3] - start_box[1])
-        start_region = grow_box(start_box, SEARCH_MARGIN * start_side, image_size)
-
     keypoints, world, reasons = [], [], []
-    last: Sighting | None = None
-    detection_seconds = 0.0
-    model = _PoseModel()
+    follower = PersonFollower(image_size, info.fps, person_box=start_box, max_width=max_width)
     try:
         for index, frame in reader:
-            started = time.perf_counter()
-            region = start_region if last is None else search_region(last, index, info.fps, image_size)
-            found = model.detect(frame, region, max_width)
-            if found is None:
-                reason = "no person"
-            else:
-                sighting = Sighting.from_landmarks(index, found[0][:, :2])
-                reason = _rejection(last, sighting, start_box, info.fps)
-                if reason:
-                    model.reset()  # MediaPipe would keep following whomever it found
-                else:
-                    last = sighting
-            detection_seconds += time.perf_counter() - started
-            keypoints.append(np.zeros((NUM_LANDMARKS, 3)) if reason else found[0])
-            world.append(np.zeros((NUM_LANDMARKS, 3)) if reason else found[1])
+            kp, wl, reason = follower.detect(index, frame)
+            keypoints.append(kp)
+            world.append(wl)
             reasons.append(reason)
             if progress is not None:
                 progress(index + 1, max(info.frame_count, index + 1))
     finally:
-        model.close()
-
-    if last is None:
+        follower.close()
+    if follower.last is None:
         where = "" if start_box is None else f" inside person_box {start_box}"
         raise InputError(f"{path}: no person was found{where} in any frame.")
     if reader.missing_frames:
@@ -278,7 +303,7 @@ def detect_video(
         valid=invalid_reason == "",
         invalid_reason=invalid_reason,
         source=str(path),
-        seconds_per_frame=detection_seconds / len(reasons),
+        seconds_per_frame=follower.seconds / len(reasons),
     )
 
 
