@@ -67,8 +67,8 @@ class FitSettings:
 
     weight_2d: float = 1.0  # E_proj: reprojection; 0 .. 100
     weight_3d: float = 0.3  # E_IK: root-relative 3D landmarks; 0 .. 100
-    weight_smooth: float = 0.5  # E_smooth: acceleration of the joints; 0 .. 100
-    weight_depth: float = 0.3  # E_depth: change of the joints' depth along the camera axis; 0 .. 100
+    weight_smooth: float = 0.1  # E_smooth: acceleration of the joints; 0 .. 100
+    weight_depth: float = 0.03  # E_depth: change of the joints' depth along the camera axis; 0 .. 100
     weight_prior: float = 1e-4  # pull of ball joints towards a neutral pose, resolves twists; 0 .. 1
     weight_limits: float = 10.0  # hinge joint limits; 0 .. 1000
     min_confidence: float = 0.1  # keypoints below this confidence are ignored; 0 .. 1

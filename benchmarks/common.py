@@ -1,0 +1,54 @@
+"""Shared helpers of the benchmark scripts: data locations, machine description, timing."""
+
+from __future__ import annotations
+
+import os
+import platform
+import statistics
+import subprocess
+import time
+from pathlib import Path
+
+import physmocap  # noqa: F401 - single-threaded BLAS
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("PHYSMOCAP_SHARED", REPO.parent / "shared"))
+VIDEOS = SHARED / "data" / "videos"
+MOCAP = SHARED / "data" / "mocap"
+RESULTS = REPO / "benchmarks" / "results"
+
+# Joints whose definitions agree between the body model, MediaPipe and the motion capture skeletons
+# (pelvis, spine, neck and head are placed differently by each and are left out of pose errors).
+EVAL_JOINTS = ("left_shoulder", "left_elbow", "left_wrist", "right_shoulder", "right_elbow", "right_wrist",
+               "left_hip", "left_knee", "left_ankle", "left_heel", "left_toe", "right_hip", "right_knee",
+               "right_ankle", "right_heel", "right_toe")
+
+
+def machine_description() -> str:
+    cpu = "unknown CPU"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, {platform.system()}"
+
+
+def git_revision() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                              cwd=REPO).stdout.strip()
+    except OSError:
+        return "unknown"
+
+
+def median_time(fn, repeats: int = 3) -> tuple[float, object]:
+    """Median wall time of `repeats` calls, and the last call's result."""
+    times, result = [], None
+    for _ in range(repeats):
+        start = time.perf_counter()
+        result = fn()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times), result
