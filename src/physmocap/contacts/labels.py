@@ -1,0 +1,140 @@
+"""Automatic foot-contact and stationary labels from 3D motion (the supervision of the contact networks).
+
+Rule: Rempe et al. 2020, Sec. 3.2. A heel or toe site is in contact when (i) it moved less than 2 cm since the
+previous frame and (ii) it is within 5 cm of the known floor. Their videos ran at 30 fps, so (i) is a speed
+under 0.6 m/s; here it is a setting in m/s, measured over a fixed time interval so that the rule means the same
+at 12, 30, 60 or 120 fps.
+
+Why Rempe's rule and not PhysCap's (Sec. 4.2: speed under 5 cm/s and height under the clip's standing height of
+the first ten frames plus 5 cm):
+- The floor is known. `load_mocap` puts the floor at z = 0 under the sole sites, so a fixed height above the
+  floor needs no assumption about the clip's first frames; PhysCap's reference height assumes both feet are flat
+  on the floor in the first ten frames, which is false for clips that start mid-jump, in a cartwheel or on one
+  leg (CMU 01_01, 05_06, 02_04 here).
+- 5 cm/s is below the noise of differentiated motion capture: 1 mm of marker jitter between 120 fps frames is
+  already 12 cm/s, and a planted heel rolls and a planted toe pivots during push-off. On the CMU walk 02_01 the
+  PhysCap rule marks 7-17 % of the frames as contact, in scattered single frames, where the feet are planted about
+  half of the time; Rempe's rule gives one unbroken contact per step (scripts/plot_contact_labels.py). Rempe's
+  0.6 m/s with the 5 cm height gate keeps planted and rolling feet in contact and rejects swinging feet, which
+  pass the floor at 1-4 m/s.
+
+Stationary (PhysCap Sec. 4.2): the root (pelvis, the midpoint of the hips) moves slower than a threshold. The paper
+gives no value; 0.25 m/s, measured over 0.2 s, separates standing, swaying and fighting on the spot (median root
+speed 0.07-0.11 m/s in CMU 02_05, 02_07, 02_10) from walking (5th percentile 0.47 m/s in the slowest walk here,
+03_01; 0.8 m/s in the "slow walk" 07_04).
+
+Every function is a pure function of positions (metres, world frame Z up, floor z = 0) and the frame rate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..mocap.bvh_reader import JOINT_INDEX
+
+CONTACT_SITES: tuple[str, ...] = ("left_heel", "left_toe", "right_heel", "right_toe")
+"""The four contact points, in the project's order; columns of every contact array."""
+CONTACT_SITE_INDICES: tuple[int, ...] = tuple(JOINT_INDEX[name] for name in CONTACT_SITES)
+
+
+@dataclass(frozen=True)
+class LabelSettings:
+    """Thresholds of the automatic labels, SI units.
+
+    contact_max_height: m above the floor (z = 0) a site may be and still touch it. Rempe 3.2: 0.05.
+        Typical range 0.02-0.08 (sole sites of retargeted mocap sit within 1-2 cm of the floor when planted).
+    contact_max_speed: m/s a site may move and still be in contact. Rempe 3.2: 2 cm between frames at 30 fps,
+        0.6 m/s. Range 0.05 (PhysCap's 5 cm/s, needs smoothed motion) to 1.0.
+    contact_speed_interval: s over which a site's displacement is measured (backwards, "since the previous
+        frame" at Rempe's 30 fps): 1/30. Where frames are further apart, one frame interval is used.
+    stationary_max_speed: m/s the root may move for the pose to count as stationary (PhysCap's phi_v, no value
+        given). 0.25; range 0.1-0.5.
+    stationary_speed_interval: s over which the root's displacement is measured, centred on the frame: 0.2.
+    """
+
+    contact_max_height: float = 0.05
+    contact_max_speed: float = 0.6
+    contact_speed_interval: float = 1.0 / 30.0
+    stationary_max_speed: float = 0.25
+    stationary_speed_interval: float = 0.2
+
+    def check(self) -> None:
+        for name in ("contact_max_height", "contact_max_speed", "contact_speed_interval", "stationary_max_speed",
+                     "stationary_speed_interval"):
+            value = getattr(self, name)
+            if not np.isfinite(value) or value <= 0:
+                raise InputError(f"LabelSettings.{name} is {value}, expected a positive number.")
+
+
+def point_speed(points: np.ndarray, fps: float, interval: float, centred: bool) -> np.ndarray:
+    """Speed of points from their displacement over a time interval, m/s.
+
+    points: (T, ..., 3) metres at `fps` frames per second. interval: seconds, at least one frame.
+    centred: measure from t - interval/2 to t + interval/2; otherwise from t - interval to t (the first frames,
+        which have no past, use t to t + interval). Positions between frames are interpolated linearly, and the
+        interval is shortened at the clip's ends.
+    Returns (T, ...) speeds, m/s; zeros for a single frame.
+    """
+    num_frames = len(points)
+    if num_frames < 2:
+        return np.zeros(points.shape[:-1])
+    frames = max(interval * fps, 1.0)
+    times = np.arange(num_frames, dtype=float)
+    if centred:
+        start, end = times - 0.5 * frames, times + 0.5 * frames
+    else:
+        start, end = times - frames, times.copy()
+        end = np.where(start < 0, frames, end)
+    start = np.clip(start, 0.0, num_frames - 1)
+    end = np.clip(end, 0.0, num_frames - 1)
+    displacement = _interpolate(points, end) - _interpolate(points, start)
+    seconds = np.maximum(end - start, 1e-9) / fps
+    return np.linalg.norm(displacement, axis=-1) / seconds.reshape((-1,) + (1,) * (points.ndim - 2))
+
+
+def _interpolate(points: np.ndarray, frame_positions: np.ndarray) -> np.ndarray:
+    """points (T, ..., 3) linearly interpolated at fractional frame positions (N,) in [0, T - 1]."""
+    lower = np.minimum(np.floor(frame_positions).astype(int), len(points) - 2)
+    weight = (frame_positions - lower).reshape((-1,) + (1,) * (points.ndim - 1))
+    return (1.0 - weight) * points[lower] + weight * points[lower + 1]
+
+
+def contact_labels(sites: np.ndarray, fps: float, settings: LabelSettings = LabelSettings()) -> np.ndarray:
+    """Rempe 3.2 contact labels of the four sole sites.
+
+    sites: (T, 4, 3) world positions of left heel, left toe, right heel, right toe, metres, floor z = 0.
+    Returns (T, 4) bool, True where the site is within `contact_max_height` of the floor and moved slower than
+    `contact_max_speed` over the last `contact_speed_interval`.
+    """
+    settings.check()
+    sites = np.asarray(sites, dtype=float)
+    if sites.ndim != 3 or sites.shape[1:] != (4, 3):
+        raise InputError(f"contact_labels: sites has shape {sites.shape}, expected (T, 4, 3).")
+    speed = point_speed(sites, fps, settings.contact_speed_interval, centred=False)
+    return (sites[..., 2] < settings.contact_max_height) & (speed < settings.contact_max_speed)
+
+
+def stationary_labels(root: np.ndarray, fps: float, settings: LabelSettings = LabelSettings()) -> np.ndarray:
+    """PhysCap 4.2 stationary flag: root (T, 3) metres slower than `stationary_max_speed`. Returns (T,) bool."""
+    settings.check()
+    root = np.asarray(root, dtype=float)
+    if root.ndim != 2 or root.shape[1] != 3:
+        raise InputError(f"stationary_labels: root has shape {root.shape}, expected (T, 3).")
+    return point_speed(root, fps, settings.stationary_speed_interval, centred=True) < settings.stationary_max_speed
+
+
+def motion_labels(
+    positions: np.ndarray, fps: float, settings: LabelSettings = LabelSettings()
+) -> tuple[np.ndarray, np.ndarray]:
+    """Contact and stationary labels of a motion on the project's joint set.
+
+    positions: (T, 20, 3) world positions in `JOINT_NAMES` order (a `MocapClip.positions`), metres, floor z = 0.
+    Returns contacts (T, 4) bool (CONTACT_SITES order) and stationary (T,) bool.
+    """
+    positions = np.asarray(positions, dtype=float)
+    contacts = contact_labels(positions[:, CONTACT_SITE_INDICES], fps, settings)
+    stationary = stationary_labels(positions[:, JOINT_INDEX["pelvis"]], fps, settings)
+    return contacts, stationary
