@@ -89,15 +89,55 @@ class FitSettings:
 
 
 @dataclass(frozen=True)
+class PhysicsSettings:
+    """Physics after the kinematic fit. PhysCap stage III (Shimada et al. 2020, 4.3 and 5.1) for "physcap"."""
+
+    method: str = "none"  # "none" or "physcap"
+    kp_joint: float = 300.0  # 1/s^2, PD gains of the joints (paper 5.1); 0 .. 1e4
+    kd_joint: float = 20.0  # 1/s
+    kp_root_rotation: float = 340.0  # 1/s^2
+    kd_root_rotation: float = 30.0  # 1/s
+    kp_root_translation: float = 1000.0  # 1/s^2
+    kd_root_translation: float = 80.0  # 1/s
+    contact_height: float = 0.1  # m, psi of eq. (5): a predicted contact counts only below this height; 0 .. 1
+    friction: float = 0.8  # mu; the pyramid uses mu / sqrt(2) (eq. 7); 0.05 .. 2
+    slide_speed: float = 0.05  # m/s, sigma of eq. (9): tangential speed a contact may keep (paper: not given;
+    # 5 cm/s is its contact-labelling speed); 0 .. 1
+    step: float | None = None  # s, phi of eq. (1); None: one frame / iterations (the paper's 0.01 s at 25 fps)
+    iterations: int = 4  # n, steps ii-v per frame; 1 .. 50
+    torque_weight: float = 4.5e-4  # weight of |tau|^2 against |qdd - qdd_des|^2 (authors' release); 0 .. 1
+    residual_weight: float = 4.5e-4  # weight of the root's direct actuation |tau_root|^2; 0 .. 1e3
+    balance_correction: bool = True  # 4.3.1: straighten stationary poses whose centre of mass leaves the support
+    correction_rate: float = 0.1  # fraction of the remaining lean corrected per frame (paper: theta / 10); 0 .. 1
+
+    def check(self) -> None:
+        if self.method not in ("none", "physcap"):
+            raise InputError(f"physics.method must be none or physcap, got '{self.method}'.")
+        for name in ("kp_joint", "kd_joint", "kp_root_rotation", "kd_root_rotation", "kp_root_translation",
+                     "kd_root_translation"):
+            _within(f"physics.{name}", getattr(self, name), 0.0, 1e5, "")
+        _within("physics.contact_height", self.contact_height, 0.0, 1.0, "m")
+        _within("physics.friction", self.friction, 0.05, 2.0, "")
+        _within("physics.slide_speed", self.slide_speed, 0.0, 1.0, "m/s")
+        if self.step is not None:
+            _within("physics.step", self.step, 1e-4, 0.1, "s")
+        _within("physics.iterations", self.iterations, 1, 50, "")
+        _within("physics.torque_weight", self.torque_weight, 0.0, 1.0, "")
+        _within("physics.residual_weight", self.residual_weight, 0.0, 1e3, "")
+        _within("physics.correction_rate", self.correction_rate, 0.0, 1.0, "")
+
+
+@dataclass(frozen=True)
 class Settings:
     body: BodySettings = field(default_factory=BodySettings)
     camera: CameraSettings = field(default_factory=CameraSettings)
     detect: DetectSettings = field(default_factory=DetectSettings)
     fit: FitSettings = field(default_factory=FitSettings)
+    physics: PhysicsSettings = field(default_factory=PhysicsSettings)
     online: bool = False  # causal per-frame fit (live use) instead of the whole clip at once
 
     def check(self) -> "Settings":
-        for section in (self.body, self.camera, self.detect, self.fit):
+        for section in (self.body, self.camera, self.detect, self.fit, self.physics):
             section.check()
         return self
 

@@ -1,0 +1,99 @@
+"""Pose correction of PhysCap 4.3.1: a stationary person whose centre of gravity projects outside the base of
+support is straightened step by step, first by tilting the whole body upright about the feet, then by
+straightening knees and hips, until the pose is balanced or the person moves."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+from scipy.spatial import ConvexHull, QhullError
+
+from ..body.model import CONTACT_POINTS, BodyModel
+from ..body.rotations import axis_angle_matrix, quat_exp, quat_log, quat_multiply
+from ..kinematics.stage import rigid_transform_qpos
+
+UP = np.array([0.0, 0.0, 1.0])
+SMALL_LEAN = np.radians(2.0)  # below this the tilt is done and the legs are straightened instead
+
+
+def inside_support(point: np.ndarray, support: np.ndarray, margin: float = 0.02) -> bool:
+    """Whether the 2D `point` lies in the convex hull of `support` (k, 2), grown by `margin` metres."""
+    if len(support) == 0:
+        return False
+    if len(support) >= 3:
+        try:
+            hull = ConvexHull(support)
+            return bool(np.all(hull.equations[:, :2] @ point + hull.equations[:, 2] <= margin))
+        except QhullError:  # collinear: fall through to the segment test
+            pass
+    a, b = support.min(axis=0), support.max(axis=0)
+    ends = support[[np.argmin(support @ (b - a)), np.argmax(support @ (b - a))]]
+    d = ends[1] - ends[0]
+    s = np.clip((point - ends[0]) @ d / max(d @ d, 1e-12), 0.0, 1.0)
+    return bool(np.linalg.norm(ends[0] + s * d - point) <= margin)
+
+
+class BalanceCorrector:
+    """Keeps the accumulated corrections of 4.3.1 from frame to frame (causal)."""
+
+    def __init__(self, body: BodyModel, rate: float = 0.1):
+        self.body, self.rate = body, rate
+        self.model = body.mujoco_model()
+        self.data = mujoco.MjData(self.model)
+        self.sites = np.array([self.model.site(n).id for n in CONTACT_POINTS])
+        self.neck = self.model.site("neck").id
+        self.pelvis = self.model.site("pelvis").id
+        self.legs = [(body.qpos_address[body.joint_index[f"{s}_knee"]],
+                      body.qpos_address[body.joint_index[f"{s}_hip"]]) for s in ("left", "right")]
+        self.reset()
+
+    def reset(self) -> None:
+        self.tilt = 0.0  # xi of the paper: accumulated correction angle, radians
+        self.straighten = 0.0  # accumulated share of knee and hip bending removed
+
+    def _state(self, qpos):
+        d = self.data
+        d.qpos[:] = qpos
+        mujoco.mj_kinematics(self.model, d)
+        mujoco.mj_comPos(self.model, d)
+        return d.subtree_com[1].copy(), d.site_xpos[self.sites].copy(), d.site_xpos[self.neck] - d.site_xpos[self.pelvis]
+
+    def correct(self, q_kin: np.ndarray, stationary: bool, contacts: np.ndarray) -> tuple[np.ndarray, bool]:
+        """The corrected pose for this frame and whether a correction applied."""
+        if not stationary or not contacts.any():
+            self.reset()
+            return q_kin, False
+        com, sites, spine = self._state(q_kin)
+        support = sites[contacts, :2]
+        if inside_support(com[:2], support) and self.tilt == 0.0 and self.straighten == 0.0:
+            return q_kin, False
+        lean = np.arccos(np.clip(spine @ UP / np.linalg.norm(spine), -1.0, 1.0))
+        q = q_kin
+        axis = np.cross(spine, UP)
+        if np.linalg.norm(axis) > 1e-9:
+            axis /= np.linalg.norm(axis)
+            tilt = min(self.tilt, lean)
+            pivot = np.append(support.mean(axis=0), 0.0)
+            R = axis_angle_matrix(axis, np.array(tilt))
+            q = rigid_transform_qpos(q[None], R, pivot - R @ pivot)[0]
+        q = self._straightened(q)
+        com, _, spine_now = self._state(q)
+        if inside_support(com[:2], support):
+            return q, True  # balanced: keep the accumulated correction while the person stands still
+        remaining = np.arccos(np.clip(spine_now @ UP / np.linalg.norm(spine_now), -1.0, 1.0))
+        if remaining > SMALL_LEAN:
+            self.tilt += self.rate * remaining  # xi_{t+1} = xi_t + theta_t / 10
+        else:
+            self.straighten = min(1.0, self.straighten + self.rate)
+        return q, True
+
+    def _straightened(self, qpos: np.ndarray) -> np.ndarray:
+        """Knees and hips moved `straighten` of the way towards straight."""
+        if self.straighten == 0.0:
+            return qpos
+        q = qpos.copy()
+        keep = 1.0 - self.straighten
+        for knee, hip in self.legs:
+            q[knee] *= keep
+            q[hip:hip + 4] = quat_exp(keep * quat_log(q[hip:hip + 4]))
+        return q

@@ -1,0 +1,187 @@
+"""PhysCap stage III (Shimada et al. 2020, section 4.3): per frame, causal, on the compiled MuJoCo body.
+
+Each frame: (i) balance correction of stationary, unbalanced kinematic poses (4.3.1); then n times: (ii) desired
+accelerations by PD control towards the kinematic pose (eq. 4); (iii) contact gating (eq. 5) and the ground
+reaction forces that best explain the root's desired motion inside a linearised friction cone (eq. 6-7);
+(iv) accelerations and torques that track the desired accelerations with small torques, subject to the
+equation of motion with those forces and to contact velocity constraints (eq. 8-10); (v) semi-implicit Euler
+integration (eq. 1). Whatever the forces cannot explain appears as direct actuation of the root (the residual).
+
+Conventions: world Z up, floor z = 0; generalised velocities in MuJoCo's layout (root linear velocity in the
+world, root angular velocity in the pelvis frame); forces in newtons.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import daqp
+import mujoco
+import numpy as np
+
+from ..body.model import CONTACT_POINTS, BodyModel
+from ..config import PhysicsSettings
+
+INF = 1e20  # daqp's "no bound"
+
+
+@dataclass
+class SubstepRecord:
+    """One integration step, kept for tests and diagnostics (all in MuJoCo's coordinates)."""
+
+    qpos: np.ndarray
+    qvel: np.ndarray
+    qacc: np.ndarray
+    torque: np.ndarray  # (nv,) generalised forces besides contacts and gravity; [:6] is the root residual
+    contact_forces: np.ndarray  # (4, 3) world frame
+    active: np.ndarray  # (4,) contacts in use
+
+
+@dataclass
+class FrameOutput:
+    """Averages over a frame's integration steps."""
+
+    contact_forces: np.ndarray  # (4, 3) N, world frame
+    residual: np.ndarray  # (6,) root force (world, N) and torque (pelvis frame, N m)
+    active: np.ndarray  # (4,) bool, contacts used in the frame's last step
+    qp_failures: int  # steps whose QP failed and fell back
+    records: list[SubstepRecord] = field(default_factory=list)
+
+
+class PhysCapTracker:
+    """The physics-based character tracking a kinematic motion. One per clip (it holds the state q, qdot)."""
+
+    def __init__(self, body: BodyModel, settings: PhysicsSettings, fps: float, record: bool = False):
+        self.body, self.settings, self.record = body, settings, record
+        self.model = body.mujoco_model()
+        self.data = mujoco.MjData(self.model)
+        nv = self.model.nv
+        self.dt = settings.step if settings.step is not None else 1.0 / (fps * settings.iterations)
+        self.kp = np.full(nv, settings.kp_joint)
+        self.kd = np.full(nv, settings.kd_joint)
+        self.kp[:3], self.kd[:3] = settings.kp_root_translation, settings.kd_root_translation
+        self.kp[3:6], self.kd[3:6] = settings.kp_root_rotation, settings.kd_root_rotation
+        self.sites = np.array([self.model.site(n).id for n in CONTACT_POINTS])
+        self.contact_of_geom = np.full(self.model.ngeom, -1)  # geom id -> contact point index, -1 for others
+        for j, name in enumerate(CONTACT_POINTS):
+            self.contact_of_geom[self.model.geom(f"{name}_collision").id] = j
+        self.torque_weights = np.full(nv, settings.torque_weight)
+        self.torque_weights[:6] = settings.residual_weight
+        mu = settings.friction / np.sqrt(2.0)
+        # Friction pyramid rows per contact: mu*fz -+ fx >= 0, mu*fz -+ fy >= 0.
+        self.pyramid = np.array([[-1.0, 0.0, mu], [1.0, 0.0, mu], [0.0, -1.0, mu], [0.0, 1.0, mu]])
+        self.mass_matrix = np.zeros((nv, nv))
+        self.bias = np.zeros(nv)
+        self.identity = np.eye(nv)
+        self.grf_rows = np.kron(np.eye(4), self.pyramid)  # (16, 12)
+        self.grf_regularisation = 1e-6 * np.eye(12)
+        self._bounds: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self.contact_jacobian = np.zeros((4, 3, nv))
+        self.qpos = np.zeros(self.model.nq)
+        self.qvel = np.zeros(nv)
+
+    def reset(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
+        self.qpos[:] = qpos
+        self.qvel[:] = qvel
+
+    # ---- the pieces of one step -------------------------------------------------------------------------
+    def _dynamics(self):
+        """Mass matrix, bias forces, contact Jacobians, contact heights and floor collisions at the state."""
+        m, d = self.model, self.data
+        d.qpos[:] = self.qpos
+        d.qvel[:] = self.qvel
+        # Only the pieces used (no constraint solver): kinematics, inertia, collisions, bias forces.
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_crb(m, d)
+        mujoco.mj_collision(m, d)
+        mujoco.mj_comVel(m, d)
+        mujoco.mj_rne(m, d, 0, self.bias)
+        mujoco.mj_fullM(m, d, self.mass_matrix)
+        for j, site in enumerate(self.sites):
+            mujoco.mj_jacSite(m, d, self.contact_jacobian[j], None, site)
+        touching = np.zeros(4, bool)
+        hit = self.contact_of_geom[d.contact.geom[:d.ncon].ravel()]
+        touching[hit[hit >= 0]] = True
+        return self.bias, d.site_xpos[self.sites, 2].copy(), touching
+
+    def desired_acceleration(self, q_kin, qd_kin, qdd_kin) -> np.ndarray:
+        """Eq. (4): PD control towards the kinematic pose; the pose error is taken on the manifold."""
+        error = np.zeros(self.model.nv)
+        mujoco.mj_differentiatePos(self.model, error, 1.0, self.qpos, q_kin)
+        return qdd_kin + self.kp * error + self.kd * (qd_kin - self.qvel)
+
+    def ground_reaction_forces(self, qdd_des, bias, active) -> tuple[np.ndarray, bool]:
+        """Eq. (6-7): forces (4, 3) at the active contacts that best produce the root's desired acceleration,
+        pushing only, inside the friction pyramid. Returns the forces and whether the QP solved."""
+        if not active.any():
+            return np.zeros((4, 3)), True
+        root_rows = self.contact_jacobian[:, :, :6].reshape(12, 6)  # J^T restricted to the root: its transpose
+        target = self.mass_matrix[:6] @ qdd_des + bias[:6]
+        H = root_rows @ root_rows.T + self.grf_regularisation
+        upper, lower = self._grf_bounds(active)
+        x, _, exitflag, _ = daqp.solve(H, -root_rows @ target, self.grf_rows, upper, lower)
+        if exitflag != 1:
+            return np.zeros((4, 3)), False
+        return x.reshape(4, 3) * active[:, None], True  # exact zeros where the bounds pin the force to 0
+
+    def _grf_bounds(self, active) -> tuple[np.ndarray, np.ndarray]:
+        """daqp bounds (12 simple + 16 pyramid rows) for a contact pattern: inactive contacts carry no force."""
+        key = int(active @ (1, 2, 4, 8))
+        if key not in self._bounds:
+            upper, lower = np.zeros(28), np.zeros(28)
+            upper[12:] = INF
+            for j in np.flatnonzero(active):
+                upper[3 * j:3 * j + 3] = INF
+                lower[3 * j:3 * j + 2] = -INF  # tangential free (the pyramid bounds it), normal >= 0
+            self._bounds[key] = (upper, lower)
+        return self._bounds[key]
+
+    def pose_accelerations(self, qdd_des, bias, forces, active, heights) -> tuple[np.ndarray, np.ndarray, bool]:
+        """Eq. (10): qdd minimising |qdd - qdd_des|^2 + tau' W tau with tau = M qdd + c - J^T lambda (the
+        equation of motion, eq. 2), subject to eq. (9) at the active contacts after the step: the normal
+        velocity keeps the point on or above the floor, tangential speeds stay within sigma.
+        Returns qdd, tau, and whether the QP solved (else the unconstrained optimum is used)."""
+        M, dt = self.mass_matrix, self.dt
+        external = self.contact_jacobian.reshape(12, -1).T @ forces.ravel()
+        WM = self.torque_weights[:, None] * M
+        H = 2.0 * (self.identity + M @ WM)
+        f = 2.0 * (M @ (self.torque_weights * (bias - external)) - qdd_des)
+        solved = True
+        if active.any():
+            rows = self.contact_jacobian[active].reshape(-1, M.shape[0])  # x, y, z rows of each contact
+            velocity = rows @ self.qvel
+            sigma = self.settings.slide_speed
+            lower, upper = -sigma - velocity, sigma - velocity
+            lower[2::3] = -heights[active] / dt - velocity[2::3]  # end the step on or above the floor
+            upper[2::3] = INF
+            qdd, _, exitflag, _ = daqp.solve(H, f, dt * rows, upper, lower)
+            solved = exitflag == 1
+        if not active.any() or not solved:
+            qdd = np.linalg.solve(H, -f)
+        torque = M @ qdd + bias - external
+        return qdd, torque, solved
+
+    # ---- one video frame ----------------------------------------------------------------------------------
+    def track(self, q_kin: np.ndarray, qd_kin: np.ndarray, qdd_kin: np.ndarray,
+              predicted_contacts: np.ndarray) -> FrameOutput:
+        """Advance the character by one frame towards the kinematic pose (steps ii-v, n times)."""
+        s = self.settings
+        forces_sum, residual_sum, failures = np.zeros((4, 3)), np.zeros(6), 0
+        records = []
+        active = np.zeros(4, bool)
+        for _ in range(s.iterations):
+            bias, heights, touching = self._dynamics()
+            active = (predicted_contacts & (heights < s.contact_height)) | touching  # eq. (5)
+            qdd_des = self.desired_acceleration(q_kin, qd_kin, qdd_kin)
+            forces, grf_ok = self.ground_reaction_forces(qdd_des, bias, active)
+            qdd, torque, pose_ok = self.pose_accelerations(qdd_des, bias, forces, active, heights)
+            failures += (not grf_ok) + (not pose_ok)
+            if self.record:
+                records.append(SubstepRecord(self.qpos.copy(), self.qvel.copy(), qdd, torque, forces, active.copy()))
+            self.qvel += self.dt * qdd  # eq. (1): velocity first, then position with the new velocity
+            mujoco.mj_integratePos(self.model, self.qpos, self.qvel, self.dt)
+            forces_sum += forces
+            residual_sum += torque[:6]
+        n = s.iterations
+        return FrameOutput(forces_sum / n, residual_sum / n, active, failures, records)

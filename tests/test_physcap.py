@@ -1,0 +1,148 @@
+"""PhysCap stage III: tests that check physics, not just that it runs."""
+
+import mujoco
+import numpy as np
+import pytest
+
+from physmocap.body import kinematics as kin
+from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
+from physmocap.config import PhysicsSettings
+from physmocap.dynamics.balance import inside_support
+from physmocap.dynamics.physcap import PhysCapTracker
+from physmocap.dynamics.stage import kinematic_derivatives, run_physcap
+from physmocap.kinematics.stage import rigid_transform_qpos
+
+FPS = 25.0
+G = 9.81
+
+
+@pytest.fixture(scope="module")
+def body():
+    return build_body_model(template_lengths(1.75), 72.0)
+
+
+def track(body, qpos_kin, contacts, settings=PhysicsSettings(), stationary=None):
+    """Run the tracker over a kinematic motion, keeping every integration step."""
+    velocity, acceleration = kinematic_derivatives(body, qpos_kin, FPS)
+    tracker = PhysCapTracker(body, settings, FPS, record=True)
+    tracker.reset(qpos_kin[0], velocity[0])
+    frames = [tracker.track(q, v, a, c) for q, v, a, c in zip(qpos_kin, velocity, acceleration, contacts)]
+    return tracker, frames, [r for f in frames for r in f.records]
+
+
+def standing(body, frames):
+    return np.repeat(body.rest_qpos[None], frames, axis=0)
+
+
+def jump(body, frames=40, takeoff=10, flight=0.4):
+    """Stand, then a ballistic flight of `flight` seconds, then stand again: the root's height follows the
+    parabola, and the feet leave the floor. Returns poses and the flight frames."""
+    q = standing(body, frames)
+    t = (np.arange(frames) - takeoff) / FPS
+    in_air = (t > 0) & (t < flight)
+    v0 = G * flight / 2
+    q[in_air, 2] += v0 * t[in_air] - 0.5 * G * t[in_air] ** 2
+    return q, in_air
+
+
+def test_equation_of_motion_holds_at_every_step(body):
+    q, in_air = jump(body)
+    contacts = np.repeat(~in_air[:, None], 4, axis=1)
+    tracker, _, records = track(body, q, contacts)
+    m = mujoco.MjModel.from_xml_string(_xml_without_contacts(body))
+    d = mujoco.MjData(m)
+    jac = np.zeros((3, m.nv))
+    for r in records:
+        d.qpos[:], d.qvel[:], d.qacc[:] = r.qpos, r.qvel, r.qacc
+        mujoco.mj_inverse(m, d)  # M qdd + c, computed independently by MuJoCo
+        external = np.zeros(m.nv)
+        for j, name in enumerate(CONTACT_POINTS):
+            mujoco.mj_jacSite(m, d, jac, None, m.site(name).id)
+            external += jac.T @ r.contact_forces[j]
+        residual = d.qfrc_inverse - (r.torque + external)
+        assert np.abs(residual).max() < 1e-6 * (1 + np.abs(d.qfrc_inverse).max())
+
+
+def _xml_without_contacts(body):
+    from physmocap.body.mujoco_model import mjcf_xml
+
+    return mjcf_xml(body).replace('<option timestep', '<option><flag contact="disable"/></option>\n  <option timestep')
+
+
+def test_forces_stay_in_the_friction_pyramid_and_never_pull(body):
+    rng = np.random.default_rng(0)
+    q = standing(body, 30)
+    q[:, 0] += 0.3 * np.sin(np.arange(30) / 4)  # a sway the feet must resist
+    q = kin.integrate(body, q, rng.normal(scale=0.05, size=(30, body.nv)) * (np.arange(body.nv) >= 6))
+    _, _, records = track(body, q, np.ones((30, 4), bool))
+    mu = PhysicsSettings().friction / np.sqrt(2)
+    for r in records:
+        f = r.contact_forces
+        assert np.all(f[:, 2] >= -1e-6)
+        assert np.all(np.abs(f[:, :2]) <= mu * f[:, 2:3] + 1e-6)
+        assert np.all(f[~r.active] == 0)
+
+
+def test_standing_still_is_carried_by_the_feet(body):
+    q = standing(body, 50)
+    tracker, frames, records = track(body, q, np.ones((50, 4), bool))
+    weight = body.mass * G
+    vertical = np.array([f.contact_forces[:, 2].sum() for f in frames[10:]])
+    assert np.all(np.abs(vertical - weight) < 0.05 * weight)
+    residual = np.array([np.linalg.norm(f.residual[:3]) for f in frames[10:]])
+    assert residual.max() < 0.01 * weight
+    soles = kin.forward_kinematics(body, np.array([r.qpos for r in records])).points[
+        :, body.point_index(CONTACT_POINTS)]
+    assert np.abs(soles - soles[0]).max() < 1e-3
+
+
+def test_flight_has_no_contact_force_and_a_ballistic_centre_of_mass(body):
+    q, in_air = jump(body)
+    contacts = np.repeat(~in_air[:, None], 4, axis=1)
+    tracker, frames, records = track(body, q, contacts)
+    flight = [f for f, air in zip(frames, in_air) if air]
+    assert all(np.all(f.contact_forces == 0) for f in flight[1:])
+    # Newton for the whole body: m a_com = m g + root residual force, with no contact force in the air.
+    air_steps = [i for i, r in enumerate(records) if not r.active.any() and 0 < i < len(records) - 1]
+    com = kin.center_of_mass(body, kin.forward_kinematics(body, np.array([r.qpos for r in records])))
+    dt = tracker.dt
+    for i in air_steps[2:-2]:
+        accel = (com[i + 1] - 2 * com[i] + com[i - 1]) / dt**2
+        expected = np.array([0, 0, -G]) + records[i].torque[:3] / body.mass  # semi-implicit Euler: q_{i+1} - 2 q_i + q_{i-1} = dt^2 qdd_i
+        assert np.linalg.norm(accel - expected) < 0.5
+
+
+def test_stationary_leaning_pose_is_brought_back_to_balance(body):
+    q = standing(body, 80)
+    # Lean forward by 25 degrees about the line through the toes: the centre of mass leaves the feet.
+    toes = kin.forward_kinematics(body, body.rest_qpos).points[0, body.point_index(["left_toe", "right_toe"])]
+    pivot = toes.mean(axis=0)
+    angle = np.radians(25)
+    R = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
+    q = rigid_transform_qpos(q, R, pivot - R @ pivot)
+    heels_up = kin.forward_kinematics(body, q[:1]).points[0, body.point_index(CONTACT_POINTS)]
+    contacts = np.repeat((heels_up[:, 2] < 0.05)[None], 80, axis=0)
+    pose = kin.forward_kinematics(body, q[:1])
+    support = heels_up[contacts[0], :2]
+    assert not inside_support(kin.center_of_mass(body, pose)[0, :2], support)
+    result = run_physcap(body, q, FPS, contacts, np.ones(80, bool), PhysicsSettings())
+    final = kin.forward_kinematics(body, result.qpos[-10:])
+    feet = final.points[:, body.point_index(CONTACT_POINTS)]
+    com = kin.center_of_mass(body, final)
+    assert result.corrected.any()
+    assert all(inside_support(c[:2], f[contacts[0], :2]) for c, f in zip(com, feet))
+
+
+def test_feet_in_contact_neither_sink_nor_slide(body):
+    rng = np.random.default_rng(1)
+    q = standing(body, 40)
+    q[:, 2] -= 0.02  # the kinematic feet sink 2 cm into the floor
+    q[:, 0] += np.linspace(0, 0.3, 40)  # and slide 30 cm forward
+    settings = PhysicsSettings()
+    tracker, _, records = track(body, q, np.ones((40, 4), bool), settings)
+    soles = kin.forward_kinematics(body, np.array([r.qpos for r in records] + [tracker.qpos])).points[
+        :, body.point_index(CONTACT_POINTS)]
+    assert soles[1:, :, 2].min() > -1e-6
+    slide = np.linalg.norm(np.diff(soles[:, :, :2], axis=0), axis=-1)
+    both_active = np.array([r.active for r in records])
+    assert np.all(slide[both_active] <= settings.slide_speed * tracker.dt + 1e-6)
