@@ -72,7 +72,7 @@ class FitSettings:
     weight_prior: float = 1e-4  # pull of ball joints towards a neutral pose, resolves twists; 0 .. 1
     weight_limits: float = 10.0  # hinge joint limits; 0 .. 1000
     min_confidence: float = 0.1  # keypoints below this confidence are ignored; 0 .. 1
-    offline_iterations: int = 12  # Levenberg-Marquardt iterations over the whole clip; 1 .. 200
+    offline_iterations: int = 8  # Levenberg-Marquardt iterations over the whole clip; 1 .. 200
     online_iterations: int = 4  # Levenberg-Marquardt iterations per frame when causal; 1 .. 50
     one_euro: bool = False  # One-Euro filter on the fitted pose (Casiez et al. 2012)
     one_euro_min_cutoff: float = 1.5  # Hz; 0.01 .. 30

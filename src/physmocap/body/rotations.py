@@ -44,6 +44,13 @@ def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     ], axis=-1)
 
 
+def quat_left_matrix(p: np.ndarray) -> np.ndarray:
+    """(..., 4) -> (..., 4, 4) matrices L with L @ q == quat_multiply(p, q)."""
+    w, x, y, z = np.moveaxis(p, -1, 0)
+    rows = [[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]]
+    return np.moveaxis(np.array(rows), (0, 1), (-2, -1))
+
+
 def quat_conjugate(q: np.ndarray) -> np.ndarray:
     return q * np.array([1.0, -1.0, -1.0, -1.0])
 
