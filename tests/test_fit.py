@@ -64,7 +64,8 @@ def _targets(body, qpos, camera, rng):
 def test_frame_terms_jacobian_matches_finite_differences(body, camera):
     rng = np.random.default_rng(0)
     q = random_poses(body, 3, rng, scale=0.5)
-    fitter = KinematicFitter(body, camera, FitSettings(weight_prior=0.3), 30.0)
+    # Robust weights are held fixed within a linearisation: compare the Jacobian with them off.
+    fitter = KinematicFitter(body, camera, FitSettings(weight_prior=0.3, robust_2d=0, robust_3d=0), 30.0)
     targets = _targets(body, q, camera, rng)
     # push some hinges beyond their limits so that the limit term is active
     q[:, body.qpos_address[body.joint_index["left_knee"]]] = -0.3
@@ -134,3 +135,25 @@ def test_fit_recovers_a_known_motion_from_its_projections(body, camera, online):
     true_soles = kin.forward_kinematics(body, truth).points[:, body.point_index(
         ["left_heel", "left_toe", "right_heel", "right_toe"])]
     assert np.allclose(soles[..., 2].min(axis=1), true_soles[..., 2].min(axis=1), atol=0.03)
+
+
+def test_robust_weights_resist_gross_detector_errors(body, camera):
+    """A detector that throws one ankle 40 cm off for a few frames should not drag the fitted leg along."""
+    truth = walking_motion(body, 40)
+    obs = observe(body, truth, camera)
+    ankle = MARKER_LANDMARKS[[b for _, b in MARKERS].index("left_ankle")]
+    wrong = slice(30, 36)
+    obs.keypoints_2d[wrong, ankle, :2] += camera.focal * 0.4 / 4.0  # 40 cm at 4 m, to the side
+    obs.landmarks_3d[wrong, ankle, 0] += 0.4
+    up = camera.R[:, 2]
+    floor = tuple(np.append(up, -up @ camera.t))
+    errors = {}
+    for robust in (True, False):
+        fit = FitSettings() if robust else FitSettings(robust_2d=0, robust_3d=0)
+        settings = Settings(fit=fit).replace("body", height=body.height).replace("camera", floor=floor)
+        motion = fit_motion(obs, settings)
+        ids = motion.body.point_index(["left_knee", "left_ankle"])
+        fitted = motion.camera.to_camera(kin.forward_kinematics(motion.body, motion.qpos).points[wrong][:, ids])
+        true = camera.to_camera(kin.forward_kinematics(body, truth).points[wrong][:, ids])
+        errors[robust] = np.linalg.norm(fitted - true, axis=-1).mean()
+    assert errors[True] < 0.5 * errors[False]

@@ -72,6 +72,9 @@ class FitSettings:
     weight_prior: float = 1e-4  # pull of ball joints towards a neutral pose, resolves twists; 0 .. 1
     weight_limits: float = 10.0  # hinge joint limits; 0 .. 1000
     min_confidence: float = 0.1  # keypoints below this confidence are ignored; 0 .. 1
+    robust_2d: float = 0.05  # m at the person's depth: reprojection errors beyond this count linearly (Huber);
+    # 0 disables; 0 .. 1
+    robust_3d: float = 0.10  # m (weighted): 3D landmark errors beyond this count linearly; 0 disables; 0 .. 1
     offline_iterations: int = 8  # Levenberg-Marquardt iterations over the whole clip; 1 .. 200
     online_iterations: int = 4  # Levenberg-Marquardt iterations per frame when causal; 1 .. 50
     one_euro: bool = False  # One-Euro filter on the fitted pose (Casiez et al. 2012)
@@ -82,6 +85,8 @@ class FitSettings:
         for name in ("weight_2d", "weight_3d", "weight_smooth", "weight_depth", "weight_prior", "weight_limits"):
             _within(f"fit.{name}", getattr(self, name), 0.0, 1000.0, "")
         _within("fit.min_confidence", self.min_confidence, 0.0, 1.0, "")
+        _within("fit.robust_2d", self.robust_2d, 0.0, 1.0, "m")
+        _within("fit.robust_3d", self.robust_3d, 0.0, 1.0, "m")
         _within("fit.offline_iterations", self.offline_iterations, 1, 200, "")
         _within("fit.online_iterations", self.online_iterations, 1, 50, "")
         _within("fit.one_euro_min_cutoff", self.one_euro_min_cutoff, 0.01, 30.0, "Hz")

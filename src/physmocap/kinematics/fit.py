@@ -144,14 +144,17 @@ class KinematicFitter:
         uv = pc[..., :2] * inv_z[..., None]
         scale = targets.weight_2d * (targets.depth[:, None] / cam.focal)  # (T, M)
         K2 = cam.K[:2, :2]
-        r[:, :2 * M] = (scale[..., None] * (uv @ K2.T + cam.K[:2, 2] - targets.keypoints)).reshape(T, -1)
+        pixel_error = uv @ K2.T + cam.K[:2, 2] - targets.keypoints  # (T, M, 2)
+        scale = scale * self._robust_weight(scale[..., None] * pixel_error, self.settings.robust_2d)
+        r[:, :2 * M] = (scale[..., None] * pixel_error).reshape(T, -1)
         cam_jac = cam.R @ mj  # (T, M, 3, nv): d(camera-frame point)
         d_uv = (cam_jac[:, :, :2] - uv[..., None] * cam_jac[:, :, 2:3]) * (scale * inv_z)[..., None, None]
         J[:, :2 * M] = (K2 @ d_uv).reshape(T, -1, nv)
         # Root-relative 3D landmarks.
-        w3 = targets.weight_3d[..., None]
-        r[:, 2 * M:5 * M] = (w3 * (mp - points[:, self.pelvis_point, None] - targets.targets_3d)).reshape(T, -1)
-        J[:, 2 * M:5 * M] = (w3[..., None] * (mj - jac[:, self.pelvis_point, None])).reshape(T, -1, nv)
+        offset = mp - points[:, self.pelvis_point, None] - targets.targets_3d
+        w3 = targets.weight_3d * self._robust_weight(targets.weight_3d[..., None] * offset, self.settings.robust_3d)
+        r[:, 2 * M:5 * M] = (w3[..., None] * offset).reshape(T, -1)
+        J[:, 2 * M:5 * M] = (w3[..., None, None] * (mj - jac[:, self.pelvis_point, None])).reshape(T, -1, nv)
         # Ball joints towards the neutral pose: residual 2 vec(q) for q the rotation away from it (the rotation
         # vector to first order, sign-fixed so that q and -q agree); its derivative along a local step is
         # q_w I + [q_v]x.
@@ -172,6 +175,17 @@ class KinematicFitter:
         r[:, row:] = wl * excess
         J[:, row + np.arange(len(angles[0])), self.hinge_vadr] = wl * (excess != 0)
         return r, J
+
+    @staticmethod
+    def _robust_weight(residuals: np.ndarray, threshold: float) -> np.ndarray:
+        """Huber weights as iteratively reweighted least squares: markers whose residual (T, M, k) is longer
+        than `threshold` metres count with weight threshold / |r| (a square root, as they scale residuals), so
+        a detector's gross errors (a left/right foot swap) pull linearly, not quadratically. The weights are
+        held fixed within each linearisation; 0 disables them."""
+        if threshold <= 0:
+            return np.ones(residuals.shape[:-1])
+        norm = np.linalg.norm(residuals, axis=-1)
+        return np.sqrt(np.minimum(1.0, threshold / np.maximum(norm, 1e-12)))
 
     def temporal_signals(self, points, jac) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """The quantities whose finite differences are penalised: (values (T, n), Jacobians (T, n, nv),
