@@ -51,6 +51,11 @@ def detections(video: Path) -> Observations:
     return obs
 
 
+def _flat(points_2d: np.ndarray) -> np.ndarray:
+    """Image points (T, J, 2) as 3D points on the image plane, for the 3D metrics."""
+    return np.concatenate([points_2d, np.zeros(points_2d.shape[:-1] + (1,))], axis=-1)
+
+
 def quality(obs: Observations, motion) -> dict:
     body = motion.body
     valid = obs.valid
@@ -74,8 +79,8 @@ def quality(obs: Observations, motion) -> dict:
         reprojection_percent_height=float(np.nanmedian(100 * error / height_px)),
         bone_std_fitted_mm=float(1000 * metrics.bone_length_std(pts[valid], edges).max()),
         bone_std_detector_mm=float(1000 * metrics.bone_length_std(detector_3d[valid], edges).max()),
-        acceleration_2d_detected=float(metrics.mean_acceleration(kp[run][:, confident, :2], obs.fps)),
-        acceleration_2d_fitted=float(metrics.mean_acceleration(reprojected[run][:, confident], obs.fps)),
+        acceleration_2d_detected=float(metrics.mean_acceleration(_flat(kp[run][:, confident, :2]), obs.fps)),
+        acceleration_2d_fitted=float(metrics.mean_acceleration(_flat(reprojected[run][:, confident]), obs.fps)),
         acceleration_3d_detected=float(metrics.mean_acceleration(detector_3d[run], obs.fps)),
         acceleration_3d_fitted=float(metrics.mean_acceleration(fitted_rel[run], obs.fps)),
         valid_frames=int(valid.sum()), frames=int(len(valid)),
