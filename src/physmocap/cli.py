@@ -56,6 +56,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="run folder (default: runs/<video name>)")
     cap.add_argument("--observations", type=Path, help="fit this observations .npz instead of detecting")
     cap.add_argument("--online", action="store_true", help="causal frame-by-frame fit (live use)")
+    cap.add_argument("--physics", choices=("none", "physcap"), default=None,
+                     help="physics after the kinematic fit: PhysCap's real-time tracker (default with --online) "
+                          "or none (default offline)")
     _add_settings_arguments(cap)
     cap.add_argument("--no-overlay", action="store_true", help="skip rendering overlay.mp4")
     cap.add_argument("--accept-truncated", action="store_true",
@@ -104,6 +107,9 @@ def settings_from_args(args):
         s = s.replace("fit", one_euro=True)
     if args.online:
         s = s.replace(None, online=True)
+    physics = args.physics or ("physcap" if s.online else None)
+    if physics is not None:
+        s = s.replace("physics", method=physics)
     return s.check()
 
 
@@ -145,7 +151,7 @@ def cmd_capture(args) -> int:
                           overlay=not args.no_overlay, progress=_progress_factory(sys.stderr.isatty()))
     invalid = summary.frames - summary.valid_frames
     print(f"captured {summary.valid_frames}/{summary.frames} frames at {summary.fps:.1f} fps "
-          f"({'online' if summary.online else 'offline'} fit)")
+          f"({'online' if summary.online else 'offline'} fit, physics: {summary.physics})")
     if invalid:
         details = "; ".join(f"{reason}: frames {', '.join(r[:6])}{' ...' if len(r) > 6 else ''}"
                             for reason, r in summary.invalid_frames.items())
@@ -153,6 +159,9 @@ def cmd_capture(args) -> int:
     if summary.skeleton_scale_replaced:
         print("note: implausible detector lengths replaced by template proportions: "
               + ", ".join(summary.skeleton_scale_replaced))
+    if summary.physics_fallback_frames:
+        print("warning: the physics QP failed and fell back on frames "
+              + ", ".join(summary.physics_fallback_frames[:6]) + (" ..." if len(summary.physics_fallback_frames) > 6 else ""))
     print(f"median reprojection error {summary.median_reprojection_error_px:.1f} px "
           f"({summary.median_reprojection_error_percent_of_height:.2f}% of the person's height)")
     times = ", ".join(f"{k} {v:.1f} s" for k, v in summary.stage_seconds.items())

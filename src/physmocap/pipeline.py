@@ -65,6 +65,8 @@ class RunSummary:
     median_reprojection_error_px: float
     median_reprojection_error_percent_of_height: float
     skeleton_scale_replaced: list[str]
+    physics: str
+    physics_fallback_frames: list[str]
     files: dict[str, str] = field(default_factory=dict)
 
     def to_json(self) -> str:
@@ -190,6 +192,41 @@ def _motion_from_cache(data) -> KinematicMotion:
                            bool(data["online"]))
 
 
+def contacts_stage(obs: Observations, settings: Settings) -> tuple[np.ndarray, np.ndarray]:
+    """Foot contacts (T, 4) and the stationary flag (T,) from the 2D keypoints: the causal network when online,
+    the centred one offline (fast enough not to need a cache)."""
+    from .contacts.predict import predict_contacts
+
+    contacts, stationary, _ = predict_contacts(obs, "causal" if settings.online else "centred")
+    return contacts, stationary
+
+
+def physics_stage(obs: Observations, motion: KinematicMotion, contacts: np.ndarray, stationary: np.ndarray,
+                  out_dir: Path, settings: Settings, progress: ProgressFactory | None = None):
+    """The physically tracked motion (None without physics), from the cache when nothing changed."""
+    from .dynamics.stage import PhysicsMotion, run_physcap
+
+    if settings.physics.method == "none":
+        return None, False
+    cache = out_dir / "cache" / "physics.npz"
+    key = _digest("physics", 1, _kinematics_cache(out_dir, obs, settings)[1],
+                  hashlib.sha256(contacts.tobytes() + stationary.tobytes()).hexdigest(), asdict(settings.physics))
+    if cache.is_file():
+        try:
+            with np.load(cache, allow_pickle=False) as data:
+                if str(data["key"]) == key:
+                    return PhysicsMotion(data["qpos"], data["grf"], data["residual"], data["contacts"],
+                                         data["corrected"], data["qp_failures"], float(data["seconds"])), True
+        except (OSError, ValueError, KeyError):
+            pass  # recomputed below
+    bar = progress("physics", obs.num_frames) if progress else None
+    physics = run_physcap(motion.body, motion.qpos, obs.fps, contacts, stationary, settings.physics, bar)
+    save_npz(cache, key=np.str_(key), qpos=physics.qpos, grf=physics.grf, residual=physics.residual,
+             contacts=physics.contacts, corrected=physics.corrected, qp_failures=physics.qp_failures,
+             seconds=physics.seconds)
+    return physics, False
+
+
 def run_capture(out_dir: str | os.PathLike, settings: Settings, *, video: str | os.PathLike | None = None,
                 observations: str | os.PathLike | None = None, overlay: bool = True,
                 progress: ProgressFactory | None = None) -> RunSummary:
@@ -225,10 +262,19 @@ def run_capture(out_dir: str | os.PathLike, settings: Settings, *, video: str | 
     seconds["kinematics"] = motion.seconds
 
     started = time.perf_counter()
-    result = build_result(obs, motion, seconds, settings.as_dict())
+    contacts, stationary = contacts_stage(obs, settings)
+    seconds["contacts"] = time.perf_counter() - started
+    physics, physics_cached = physics_stage(obs, motion, contacts, stationary, out_dir, settings, progress)
+    if physics is not None:
+        seconds["physics"] = physics.seconds
+        if physics_cached:
+            cached.append("physics")
+
+    started = time.perf_counter()
+    result = build_result(obs, motion, seconds, settings.as_dict(), contacts, stationary, physics)
     files = {"result": str(out_dir / "result.npz"), "bvh": str(out_dir / "motion.bvh")}
     save_result(files["result"], result)
-    write_bvh(files["bvh"], motion.body, motion.qpos, obs.fps)
+    write_bvh(files["bvh"], motion.body, result["qpos"], obs.fps)
     if overlay and video is not None:
         from .viz.overlay import render_overlay, skeleton_edges
 
@@ -250,7 +296,8 @@ def run_capture(out_dir: str | os.PathLike, settings: Settings, *, video: str | 
         invalid_frames=reasons, fps=obs.fps, online=settings.online, stage_seconds=seconds, cached_stages=cached,
         median_reprojection_error_px=_nanmedian(error),
         median_reprojection_error_percent_of_height=_nanmedian(relative),
-        skeleton_scale_replaced=list(motion.calibration.replaced), files=files)
+        skeleton_scale_replaced=list(motion.calibration.replaced), physics=settings.physics.method,
+        physics_fallback_frames=_frame_ranges(np.flatnonzero(result["physics_fallback"])), files=files)
     files["summary"] = str(out_dir / "summary.json")
     write_text(files["summary"], summary.to_json())
     return summary

@@ -13,6 +13,7 @@ from .body import kinematics as kin
 from .body.model import CONTACT_POINTS, JOINT_NAMES, LANDMARK_POINTS
 from .errors import InputError
 from .io.atomic import save_npz
+from .dynamics.stage import PhysicsMotion
 from .kinematics.stage import KinematicMotion
 from .motion import Observations
 
@@ -32,25 +33,30 @@ def person_height_pixels(motion: KinematicMotion) -> np.ndarray:
 
 
 def build_result(obs: Observations, motion: KinematicMotion, stage_seconds: dict[str, float],
-                 settings: dict, contacts: np.ndarray | None = None,
-                 stationary: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """All arrays of result.npz for a kinematic motion (physics keys are zeros until a physics stage runs)."""
+                 settings: dict, contacts: np.ndarray, stationary: np.ndarray,
+                 physics: PhysicsMotion | None = None) -> dict[str, np.ndarray]:
+    """All arrays of result.npz. Without physics the final motion is the kinematic one, `contacts` are the
+    predicted flags and the force keys are zeros; with physics, `contacts` are the flags the physics used."""
     body, T = motion.body, len(motion.qpos)
-    pose = kin.forward_kinematics(body, motion.qpos)
-    joints = pose.points[:, body.point_index(RESULT_POINTS)]
+    points = body.point_index(RESULT_POINTS)
+    kinematic = kin.forward_kinematics(body, motion.qpos).points[:, points]
+    final = kinematic if physics is None else kin.forward_kinematics(body, physics.qpos).points[:, points]
     return dict(
         fps=np.float64(obs.fps),
         joint_names=np.array(RESULT_POINTS),
-        joints_world=joints,
-        joints_world_kinematic=joints.copy(),
-        qpos=motion.qpos,
-        qpos_kinematic=motion.qpos.copy(),
+        joints_world=final,
+        joints_world_kinematic=kinematic,
+        qpos=motion.qpos if physics is None else physics.qpos,
+        qpos_kinematic=motion.qpos,
         contact_names=np.array(CONTACT_POINTS),
-        contacts=np.zeros((T, 4), bool) if contacts is None else contacts,
-        stationary=np.zeros(T, bool) if stationary is None else stationary,
-        grf=np.zeros((T, 4, 3)),
-        residual_root_force=np.zeros((T, 6)),
-        physics=np.str_("none"),
+        contacts=contacts if physics is None else physics.contacts,
+        contacts_predicted=contacts,
+        stationary=stationary,
+        grf=np.zeros((T, 4, 3)) if physics is None else physics.grf,
+        residual_root_force=np.zeros((T, 6)) if physics is None else physics.residual,
+        physics=np.str_("none" if physics is None else "physcap"),
+        physics_fallback=np.zeros(T, bool) if physics is None else physics.qp_failures > 0,
+        balance_corrected=np.zeros(T, bool) if physics is None else physics.corrected,
         camera_K=motion.camera.K,
         camera_R=motion.camera.R,
         camera_t=motion.camera.t,
