@@ -17,6 +17,9 @@ examples:
   physmocap capture video.mp4 --person-box 100,50,400,700   # follow the person inside this box
   physmocap detect video.mp4 -o obs.npz                  # only the detector; any other detector can
   physmocap capture --observations obs.npz -o runs/x     # ...write this file format and be fitted
+  physmocap capture video.mp4 --physics physcap          # PhysCap physics on the offline fit
+  physmocap live 0 -o runs/cam                           # live from camera 0: detection, fit, contacts, physics
+  physmocap live video.mp4 --max-frames 200              # a file played at its own frame rate, as a camera
 
 outputs of capture (in the -o folder):
   result.npz    joints, generalised coordinates, camera, floor, flags (see README "Result file")
@@ -64,6 +67,21 @@ def build_parser() -> argparse.ArgumentParser:
     cap.add_argument("--accept-truncated", action="store_true",
                      help="capture the frames a truncated video still holds instead of stopping")
 
+    live = sub.add_parser("live", help="live capture from a camera or a video played at its frame rate",
+                          formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                          description="Detection, causal fit, contacts and PhysCap physics frame by frame, with "
+                                      "latency and frames per second reported at the end.")
+    live.add_argument("source", help="camera index (0, 1, ...) or a video file")
+    live.add_argument("-o", "--output", type=Path, default=None,
+                      help="folder for live.jsonl (one line per frame as it arrives) and, at the end, result.npz, "
+                           "motion.bvh and summary.json")
+    live.add_argument("--as-fast-as-possible", action="store_true",
+                      help="feed a video file as fast as the pipeline goes instead of at its own frame rate")
+    live.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
+    live.add_argument("--physics", choices=("none", "physcap"), default="physcap")
+    live.add_argument("--online", action="store_true", default=True, help=argparse.SUPPRESS)
+    _add_settings_arguments(live)
+
     det = sub.add_parser("detect", help="run only the 2D/3D keypoint detector and write an observations file",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     det.add_argument("video", type=Path)
@@ -101,13 +119,13 @@ def settings_from_args(args):
         s = s.replace("camera", **camera)
     if args.person_box is not None:
         s = s.replace("detect", person_box=args.person_box)
-    if args.accept_truncated:
+    if getattr(args, "accept_truncated", False):
         s = s.replace("detect", accept_truncated=True)
     if args.one_euro:
         s = s.replace("fit", one_euro=True)
     if args.online:
         s = s.replace(None, online=True)
-    physics = args.physics or ("physcap" if s.online else None)
+    physics = getattr(args, "physics", None) or ("physcap" if s.online else None)
     if physics is not None:
         s = s.replace("physics", method=physics)
     return s.check()
@@ -170,6 +188,63 @@ def cmd_capture(args) -> int:
     return 0
 
 
+def cmd_live(args) -> int:
+    import json
+    import time
+
+    import numpy as np
+
+    from .errors import InputError
+    from .live import stream_capture
+    from .pipeline import write_outputs
+
+    settings = settings_from_args(args)
+    if args.max_frames is not None and args.max_frames < 1:
+        raise InputError(f"--max-frames must be at least 1, got {args.max_frames}.")
+    source = args.source
+    if not source.isdigit():
+        from .io.video import probe_video
+
+        probe_video(source)
+    stream = None
+    if args.output is not None:
+        args.output.mkdir(parents=True, exist_ok=True)
+        stream = open(args.output / "live.jsonl", "w")  # a log written as frames arrive, not a result file
+    started = time.perf_counter()
+
+    def on_pose(index, qpos, details):
+        if stream is None:
+            return
+        line = dict(frame=index, seconds=round(time.perf_counter() - started, 4), root=qpos[:3].round(4).tolist(),
+                    contacts=details["contacts"].tolist(), stationary=details["stationary"])
+        if "grf" in details:
+            line["grf_total_n"] = details["grf"].sum(axis=0).round(2).tolist()
+        stream.write(json.dumps(line) + "\n")
+        stream.flush()
+
+    try:
+        report = stream_capture(source, settings, realtime=not args.as_fast_as_possible,
+                                max_frames=args.max_frames, on_pose=on_pose)
+    finally:
+        if stream is not None:
+            stream.close()
+    T = report.observations.num_frames
+    print(f"live: {T} frames at {report.frames_per_second:.1f} frames per second; latency median "
+          f"{report.latency_median_ms:.0f} ms, 95th percentile {report.latency_p95_ms:.0f} ms "
+          f"(after the {report.warmup_frames}-frame calibration warm-up)")
+    print(f"per frame: detect {report.detect_ms_per_frame:.1f} ms, fit {report.fit_ms_per_frame:.1f} ms, "
+          f"contacts and physics {report.contacts_physics_ms_per_frame:.1f} ms")
+    if args.output is not None:
+        seconds = {"detect": report.detect_ms_per_frame * T / 1000, "kinematics": report.motion.seconds,
+                   "contacts_physics": report.contacts_physics_ms_per_frame * T / 1000}
+        summary = write_outputs(args.output, str(source), report.observations, report.motion, report.contacts,
+                                report.stationary, report.physics, settings, seconds, [])
+        if report.physics is not None and np.any(report.physics.qp_failures):
+            print(f"warning: the physics QP fell back on {int(np.sum(report.physics.qp_failures > 0))} frames")
+        print(f"results in {args.output}/: live.jsonl, " + ", ".join(Path(p).name for p in summary.files.values()))
+    return 0
+
+
 def cmd_detect(args) -> int:
     from .config import DetectSettings
     from .detect.mediapipe_pose import detect_video
@@ -193,7 +268,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return {"capture": cmd_capture, "detect": cmd_detect}[args.command](args)
+        return {"capture": cmd_capture, "live": cmd_live, "detect": cmd_detect}[args.command](args)
     except InputError as exc:
         print(f"physmocap: error: {exc}", file=sys.stderr)
         return 2

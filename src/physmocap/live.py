@@ -16,6 +16,9 @@ import cv2
 import numpy as np
 
 from .config import Settings
+from .contacts.features import CAUSAL_WINDOW
+from .contacts.predict import load_weights, network_probabilities
+from .dynamics.stage import PhysicsMotion, PhysicsStream
 from .errors import InputError
 from .kinematics.online import OnlineFitter
 from .kinematics.stage import KinematicMotion, reprojection_errors
@@ -27,11 +30,14 @@ _END = object()
 
 @dataclass
 class LiveReport:
-    """What a live run did. Latency runs from a frame being decoded to its pose being ready; the first
-    `warmup_frames` wait for the calibration and are reported apart."""
+    """What a live run did. Latency runs from a frame being decoded to its final pose being ready (after
+    physics when it runs); the first `warmup_frames` wait for the calibration and are reported apart."""
 
     observations: Observations
     motion: KinematicMotion
+    contacts: np.ndarray  # (T, 4) causal network flags
+    stationary: np.ndarray  # (T,)
+    physics: PhysicsMotion | None
     wall_seconds: float
     frames_per_second: float
     latency_median_ms: float
@@ -39,6 +45,7 @@ class LiveReport:
     warmup_frames: int
     detect_ms_per_frame: float
     fit_ms_per_frame: float
+    contacts_physics_ms_per_frame: float
 
 
 def _open_source(source) -> tuple[Iterator[tuple[int, np.ndarray]], float, tuple[int, int], Callable[[], None]]:
@@ -67,12 +74,14 @@ def _open_source(source) -> tuple[Iterator[tuple[int, np.ndarray]], float, tuple
 
 
 def stream_capture(source, settings: Settings, *, realtime: bool = False, max_frames: int | None = None,
-                   on_pose: Callable[[int, np.ndarray], None] | None = None) -> LiveReport:
-    """Capture from a camera index or video file frame by frame.
+                   on_pose: Callable[[int, np.ndarray, dict], None] | None = None) -> LiveReport:
+    """Capture from a camera index or video file frame by frame: detection, causal fit, causal contacts and,
+    with settings.physics.method == "physcap", the physics tracker.
 
-    realtime: feed a video file at its own frame rate, as a camera would (frames the fit cannot keep up with
-        queue up and show as latency); otherwise as fast as the detector goes.
-    on_pose: called with (frame index, qpos) as soon as each pose is ready.
+    realtime: feed a video file at its own frame rate, as a camera would (frames the pipeline cannot keep up
+        with queue up and show as latency); otherwise as fast as the detector goes.
+    on_pose: called with (frame index, final qpos, details) as soon as each pose is ready; details holds the
+        frame's contacts (4,), stationary flag and, with physics, grf (4, 3) and residual (6,).
     """
     from .detect.mediapipe_pose import PersonFollower
 
@@ -101,20 +110,42 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
             detections.put((_END, follower.seconds))
 
     fitter = OnlineFitter(settings, fps, image_size)
+    contact_weights = load_weights("causal")
     keypoints, world, reasons, latency = [], [], [], {}
     qpos: dict[int, np.ndarray] = {}
-    fit_seconds = 0.0
+    fit_seconds = after_fit_seconds = 0.0  # the kinematic fit; contacts and physics after it
     started = time.perf_counter()
     reader = threading.Thread(target=detect_all, name="physmocap-detect", daemon=True)
     reader.start()
 
+    physics_on = settings.physics.method == "physcap"
+    contacts_by_frame: dict[int, tuple[np.ndarray, bool]] = {}
+    physics_frames: dict[int, tuple] = {}
+    physics: PhysicsStream | None = None
+
     def deliver(results):
-        now = time.perf_counter()
+        nonlocal physics, after_fit_seconds
         for index, q in results:
             qpos[index] = q
-            latency[index] = now - decoded_at[index]
+            t0 = time.perf_counter()
+            start = max(0, index - CAUSAL_WINDOW.length + 1)
+            window = np.array(keypoints[start:index + 1])
+            valid = np.array([r == "" for r in reasons[start:index + 1]])
+            _, flags = network_probabilities(window, valid, fps, contact_weights, "causal")
+            contacts, stationary = flags[-1, :4], bool(flags[-1, 4])
+            contacts_by_frame[index] = (contacts, stationary)
+            details = dict(contacts=contacts, stationary=stationary)
+            final = q
+            if physics_on:
+                if physics is None:
+                    physics = PhysicsStream(fitter.body, settings.physics, fps)
+                final, frame, corrected = physics.push(q, contacts, stationary)
+                physics_frames[index] = (final, frame, corrected)
+                details.update(grf=frame.contact_forces, residual=frame.residual)
+            after_fit_seconds += time.perf_counter() - t0
+            latency[index] = time.perf_counter() - decoded_at[index]
             if on_pose:
-                on_pose(index, q)
+                on_pose(index, final, details)
 
     while True:
         item = detections.get()
@@ -130,8 +161,9 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
         fit_seconds += time.perf_counter() - t0
         deliver(results)
     t0 = time.perf_counter()
-    deliver(fitter.finish())
+    results = fitter.finish()
     fit_seconds += time.perf_counter() - t0
+    deliver(results)
     wall = time.perf_counter() - started
     reader.join()
     if failure:
@@ -144,11 +176,22 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
                        image_size, valid=reason_array == "", invalid_reason=reason_array, source=str(source),
                        seconds_per_frame=detect_seconds / max(T, 1))
     q = np.stack([qpos[i] for i in range(T)])
+    contacts = np.array([contacts_by_frame[i][0] for i in range(T)])
+    stationary = np.array([contacts_by_frame[i][1] for i in range(T)])
+    physics_motion = None
+    if physics_on:
+        frames = [physics_frames[i] for i in range(T)]
+        physics_motion = PhysicsMotion(np.stack([f[0] for f in frames]),
+                                       np.stack([f[1].contact_forces for f in frames]),
+                                       np.stack([f[1].residual for f in frames]), np.stack([f[1].active for f in frames]),
+                                       np.array([f[2] for f in frames]), np.array([f[1].qp_failures for f in frames]),
+                                       after_fit_seconds)
     motion = KinematicMotion(fitter.body, fitter.calibration, fitter.camera, fitter.floor, q,
                              reprojection_errors(fitter.body, fitter.camera, q, obs), obs.valid.copy(), fit_seconds,
                              True)
     warmup = min(T, int(np.argmax(np.cumsum(obs.valid) >= fitter.warmup)) + 1) if obs.valid.any() else T
     steady = np.array([latency[i] for i in range(warmup, T)]) * 1000
-    return LiveReport(obs, motion, wall, T / wall, float(np.median(steady)) if len(steady) else float("nan"),
+    return LiveReport(obs, motion, contacts, stationary, physics_motion, wall, T / wall, float(np.median(steady)) if len(steady) else float("nan"),
                       float(np.percentile(steady, 95)) if len(steady) else float("nan"), warmup,
-                      detect_seconds / max(T, 1) * 1000, fit_seconds / max(T, 1) * 1000)
+                      detect_seconds / max(T, 1) * 1000, fit_seconds / max(T, 1) * 1000,
+                      after_fit_seconds / max(T, 1) * 1000)

@@ -129,7 +129,8 @@ def stream_stage(video: Path, out_dir: Path, settings: Settings) -> tuple[Observ
     """Detection and causal fit together (live order); both outputs are cached like the separate stages'."""
     from .live import stream_capture
 
-    report = stream_capture(str(video), settings)
+    # Physics runs as its own cached stage afterwards; here only what the detector and the fit produce.
+    report = stream_capture(str(video), settings.replace("physics", method="none"))
     _check_truncation(video, report.observations, settings)
     cache, key_file, key = _detection_cache(video, out_dir, settings)
     report.observations.save(cache)
@@ -231,8 +232,6 @@ def run_capture(out_dir: str | os.PathLike, settings: Settings, *, video: str | 
                 observations: str | os.PathLike | None = None, overlay: bool = True,
                 progress: ProgressFactory | None = None) -> RunSummary:
     """Video (or observations file) -> run folder with result.npz, motion.bvh, overlay.mp4, summary.json."""
-    from .io.bvh_export import write_bvh
-
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     seconds: dict[str, float] = {}
@@ -269,19 +268,28 @@ def run_capture(out_dir: str | os.PathLike, settings: Settings, *, video: str | 
         seconds["physics"] = physics.seconds
         if physics_cached:
             cached.append("physics")
+    return write_outputs(out_dir, source, obs, motion, contacts, stationary, physics, settings, seconds, cached,
+                         video if overlay else None, progress)
+
+
+def write_outputs(out_dir: Path, source: str, obs: Observations, motion: KinematicMotion, contacts: np.ndarray,
+                  stationary: np.ndarray, physics, settings: Settings, seconds: dict[str, float], cached: list[str],
+                  overlay_video: Path | None = None, progress: ProgressFactory | None = None) -> RunSummary:
+    """result.npz, motion.bvh, overlay.mp4 (when `overlay_video` is given) and summary.json."""
+    from .io.bvh_export import write_bvh
 
     started = time.perf_counter()
     result = build_result(obs, motion, seconds, settings.as_dict(), contacts, stationary, physics)
     files = {"result": str(out_dir / "result.npz"), "bvh": str(out_dir / "motion.bvh")}
     save_result(files["result"], result)
     write_bvh(files["bvh"], motion.body, result["qpos"], obs.fps)
-    if overlay and video is not None:
+    if overlay_video is not None:
         from .viz.overlay import render_overlay, skeleton_edges
 
         files["overlay"] = str(out_dir / "overlay.mp4")
         points_2d = motion.camera.project(result["joints_world"])  # result points are the body's points
         bar = progress("overlay", obs.num_frames) if progress else None
-        render_overlay(video, files["overlay"], points_2d, skeleton_edges(motion.body), motion.valid,
+        render_overlay(overlay_video, files["overlay"], points_2d, skeleton_edges(motion.body), motion.valid,
                        keypoints=obs.keypoints_2d, contacts=result["contacts"], labels=RESULT_POINTS, progress=bar)
     seconds["outputs"] = time.perf_counter() - started
 

@@ -11,7 +11,7 @@ from ..body import kinematics as kin
 from ..body.model import BodyModel
 from ..config import PhysicsSettings
 from .balance import BalanceCorrector
-from .physcap import PhysCapTracker
+from .physcap import FrameOutput, PhysCapTracker
 
 
 @dataclass
@@ -30,6 +30,39 @@ class PhysicsMotion:
     seconds: float
 
 
+class PhysicsStream:
+    """The physics stage one frame at a time (live capture, and `run_physcap` frame by frame): estimates the
+    kinematic velocities causally, corrects balance, and tracks."""
+
+    def __init__(self, body: BodyModel, settings: PhysicsSettings, fps: float):
+        self.body, self.settings, self.fps = body, settings, fps
+        self.tracker = PhysCapTracker(body, settings, fps)
+        self.balance = BalanceCorrector(body, settings.correction_rate)
+        self._previous: np.ndarray | None = None  # last kinematic pose
+        self._velocity = np.zeros(body.nv)
+        self._frames = 0
+
+    def push(self, q_kin: np.ndarray, contacts: np.ndarray,
+             stationary: bool) -> tuple[np.ndarray, FrameOutput, bool]:
+        """One frame's kinematic pose (nq,), contacts (4,) and stationary flag -> tracked pose, forces, and
+        whether the balance correction changed the target."""
+        # The same backward differences as kinematic_derivatives: no acceleration before the third frame.
+        velocity, acceleration = np.zeros(self.body.nv), np.zeros(self.body.nv)
+        if self._previous is None:
+            self.tracker.reset(q_kin, velocity)
+        else:
+            velocity = kin.difference(self.body, self._previous[None], q_kin[None])[0] * self.fps
+            if self._frames >= 2:
+                acceleration = (velocity - self._velocity) * self.fps
+        self._previous, self._velocity = q_kin, velocity
+        self._frames += 1
+        target, corrected = q_kin, False
+        if self.settings.balance_correction:
+            target, corrected = self.balance.correct(q_kin, stationary, contacts)
+        frame = self.tracker.track(target, velocity, acceleration, contacts)
+        return self.tracker.qpos.copy(), frame, corrected
+
+
 def kinematic_derivatives(body: BodyModel, qpos: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
     """Causal (backward) finite differences on the manifold: velocities and accelerations (T, nv)."""
     velocity = np.zeros((len(qpos), body.nv))
@@ -45,18 +78,11 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     come from the contact stage. Causal: frame t uses frames up to t only."""
     start = time.perf_counter()
     T = len(qpos_kin)
-    velocity, acceleration = kinematic_derivatives(body, qpos_kin, fps)
-    tracker = PhysCapTracker(body, settings, fps)
-    balance = BalanceCorrector(body, settings.correction_rate)
-    tracker.reset(qpos_kin[0], velocity[0])
+    stream = PhysicsStream(body, settings, fps)
     out = PhysicsMotion(np.empty_like(qpos_kin), np.zeros((T, 4, 3)), np.zeros((T, 6)), np.zeros((T, 4), bool),
                         np.zeros(T, bool), np.zeros(T, int), 0.0)
     for t in range(T):
-        target = qpos_kin[t]
-        if settings.balance_correction:
-            target, out.corrected[t] = balance.correct(target, bool(stationary[t]), contacts[t])
-        frame = tracker.track(target, velocity[t], acceleration[t], contacts[t])
-        out.qpos[t] = tracker.qpos
+        out.qpos[t], frame, out.corrected[t] = stream.push(qpos_kin[t], contacts[t], bool(stationary[t]))
         out.grf[t], out.residual[t], out.contacts[t], out.qp_failures[t] = (
             frame.contact_forces, frame.residual, frame.active, frame.qp_failures)
         if progress:

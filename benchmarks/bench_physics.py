@@ -1,0 +1,52 @@
+"""Speed of the PhysCap stage alone: frames per second on one core (4 integration steps per frame, the paper's
+n), on a real kinematic motion (the shipped demo clip, fitted online) with its predicted contacts. Median over
+several runs; the stage is single-threaded (BLAS pinned to one thread by `import physmocap`).
+
+    .venv/bin/python benchmarks/bench_physics.py [--repeats 5] [--json OUT.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from common import REPO, RESULTS  # noqa: E402
+from physmocap.config import Settings  # noqa: E402
+from physmocap.contacts.predict import predict_contacts  # noqa: E402
+from physmocap.detect.mediapipe_pose import detect_video  # noqa: E402
+from physmocap.dynamics.stage import run_physcap  # noqa: E402
+from physmocap.kinematics.stage import fit_motion  # noqa: E402
+
+DEMO = REPO / "src" / "physmocap" / "data" / "demo" / "taiji_demo.mp4"
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--json", default=str(RESULTS / "physics_speed.json"))
+    args = parser.parse_args(argv)
+    obs = detect_video(DEMO)
+    settings = Settings(online=True)
+    motion = fit_motion(obs, settings)
+    contacts, stationary, _ = predict_contacts(obs, "causal")
+    runs = [run_physcap(motion.body, motion.qpos, obs.fps, contacts, stationary, settings.physics)
+            for _ in range(args.repeats)]
+    seconds = statistics.median(r.seconds for r in runs)
+    out = dict(frames=obs.num_frames, iterations_per_frame=settings.physics.iterations,
+               frames_per_second=obs.num_frames / seconds, ms_per_frame=1000 * seconds / obs.num_frames,
+               contact_frames=int(contacts.any(axis=1).sum()),
+               qp_failures=int(np.sum([r.qp_failures.sum() for r in runs[:1]])))
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    Path(args.json).write_text(json.dumps(out, indent=2))
+    print(json.dumps(out, indent=1))
+    return out
+
+
+if __name__ == "__main__":
+    main()
