@@ -1,0 +1,192 @@
+"""Run every benchmark and rewrite BENCHMARKS.md (what `make bench` does; about 20-30 minutes on 2 cores).
+
+    .venv/bin/python benchmarks/run_all.py [--only NAME ...] [--compose-only]
+
+Each benchmark is a script of its own that writes benchmarks/results/<name>.json (and .md); this script runs
+them one after another in fresh processes, then composes the tables. --compose-only rebuilds BENCHMARKS.md from
+the results already there.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).parent))
+from common import REPO, RESULTS, git_revision, machine_description  # noqa: E402
+
+BENCHMARKS = {  # name: (script, arguments)
+    "kinematics_real": ("bench_kinematics.py", []),
+    "synthetic": ("bench_synthetic.py", []),
+    "physics_speed": ("bench_physics.py", []),
+    "multiview_none": ("bench_multiview.py", ["--physics", "none"]),
+    "multiview_physcap": ("bench_multiview.py", ["--physics", "physcap"]),
+    "contacts": ("bench_contacts.py", []),
+}
+
+
+def run(names: list[str]) -> dict[str, float]:
+    seconds = {}
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    for name in names:
+        script, args = BENCHMARKS[name]
+        start = time.perf_counter()
+        print(f"== {name}: {script} {' '.join(args)}", flush=True)
+        subprocess.run([sys.executable, str(REPO / "benchmarks" / script), *args], check=True, env=env)
+        seconds[name] = time.perf_counter() - start
+    return seconds
+
+
+def _load(name: str):
+    path = RESULTS / f"{name}.json"
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def _f(x, digits=1):
+    return "n/a" if x is None or x != x else f"{x:.{digits}f}"
+
+
+def kinematics_section() -> list[str]:
+    data = _load("kinematics_real")
+    if not data:
+        return ["(not run)"]
+    lines = [
+        "| video | frames | detect ms/frame | fit offline ms/frame | fit online ms/frame | live fps native / 640 px "
+        "| live latency median / p95 ms (640 px) | reprojection px (% height) offline / online | bone std mm fitted "
+        "/ detector 3D | mean accel. 2D px/s² detected → fitted (offline) | mean accel. 3D m/s² detected → fitted "
+        "(offline) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for video, row in data.items():
+        off, on = row["offline"], row["online"]
+        lines.append(
+            f"| {video} | {off['frames']} | {_f(row['detect_ms_per_frame'])} | {_f(row['fit_ms_per_frame_offline'])} "
+            f"| {_f(row['fit_ms_per_frame_online'])} | {_f(row['live_native']['fps'])} / {_f(row['live_640']['fps'])} "
+            f"| {_f(row['live_640']['latency_median_ms'], 0)} / {_f(row['live_640']['latency_p95_ms'], 0)} "
+            f"| {_f(off['reprojection_px'])} ({_f(off['reprojection_percent_height'], 2)}%) / "
+            f"{_f(on['reprojection_px'])} ({_f(on['reprojection_percent_height'], 2)}%) "
+            f"| {off['bone_std_fitted_mm']:.1e} / {_f(off['bone_std_detector_mm'])} "
+            f"| {_f(off['acceleration_2d_detected'], 0)} → {_f(off['acceleration_2d_fitted'], 0)} "
+            f"| {_f(off['acceleration_3d_detected'])} → {_f(off['acceleration_3d_fitted'])} |")
+    return lines
+
+
+SYNTHETIC_COLUMNS = (
+    ("mpjpe_root_mm", "MPJPE root-rel. mm", 1), ("mpjpe_procrustes_mm", "Procrustes mm", 1),
+    ("global_root_mm", "global root mm", 1), ("pck150", "PCK@150 %", 1), ("e_smooth_mm", "e_smooth mm", 2),
+    ("e_smooth_std_mm", "σ_smooth", 2), ("acceleration_error", "accel. error m/s²", 2), ("mpe_mm", "MPE mm", 1),
+    ("pnp_percent", "PNP %", 1), ("floating_percent", "float %", 1), ("penetration_percent", "penetr. %", 1),
+    ("skate_percent", "skate %", 1), ("grf_mean_percent_bw", "GRF mean % BW", 1),
+    ("grf_mean_percent_bw_walking", "GRF mean % BW (walks)", 1), ("grf_max_percent_bw", "GRF max % BW", 0),
+    ("grf_ballistic_percent_bw", "ballistic GRF % BW", 1), ("residual_mean_percent_bw", "residual root force % BW", 1),
+    ("ms_per_frame", "ms/frame", 2),
+)
+
+
+def synthetic_section() -> list[str]:
+    data = _load("synthetic")
+    if not data:
+        return ["(not run)"]
+    header = "| method | " + " | ".join(title for _, title, _ in SYNTHETIC_COLUMNS) + " |"
+    lines = [header, "|---" * (len(SYNTHETIC_COLUMNS) + 1) + "|"]
+    for method, row in data["summary"].items():
+        lines.append(f"| {method} | " + " | ".join(_f(row.get(k), d) for k, _, d in SYNTHETIC_COLUMNS) + " |")
+    lines += ["", f"Clips: {', '.join(c.split('/')[-1] for c in data['clips'])}; seeds {data['seeds']}; "
+              f"{data['seconds']:.0f} s each at {data['fps']:.0f} fps. Kinematic GRF rows are the forces the motion "
+              "implies (m (a_com - g)); physics rows the solved contact forces. The ms/frame of physics rows is "
+              "the physics stage alone.", "",
+              "Without the detector's left/right foot swaps (the rest of the noise as measured): " + "; ".join(
+                  f"{m}: root-relative {_f(r['mpjpe_root_mm'])} mm, global root {_f(r['global_root_mm'])} mm"
+                  for m, r in data["without_foot_swaps"].items()) + ".",
+              "Global root error of the offline fit when the height given is off by 3%: " + ", ".join(
+                  f"{k}: {_f(v)} mm" for k, v in data["height_error_global_root_mm"].items()) + "."]
+    return lines
+
+
+def physics_speed_section() -> list[str]:
+    data = _load("physics_speed")
+    if not data:
+        return ["(not run)"]
+    return [f"PhysCap stage alone, {data['iterations_per_frame']} integration steps per frame, one core: "
+            f"**{_f(data['frames_per_second'], 0)} frames per second** ({_f(data['ms_per_frame'], 3)} ms/frame) on "
+            f"the demo clip's online kinematics ({data['frames']} frames, {data['contact_frames']} with contact; "
+            f"{data['qp_failures']} QP fallbacks)."]
+
+
+def include(name: str) -> list[str]:
+    path = RESULTS / f"{name}.md"
+    if not path.is_file():
+        return ["(not run)"]
+    text = path.read_text().strip().splitlines()
+    return [line if not line.startswith("#") else "#" + line for line in text]
+
+
+def compose(seconds: dict[str, float]) -> str:
+    today = datetime.date.today().isoformat()
+    parts = [
+        "# Benchmarks",
+        "",
+        f"Machine: {machine_description()}; shared with other work, so timings are medians over several runs and "
+        f"comparisons are measured side by side. Git {git_revision()}, {today}. Regenerate everything with "
+        "`make bench` (benchmarks/run_all.py, about half an hour); each section names its own script.",
+        "",
+        "## Kinematic capture on real videos",
+        "",
+        "`.venv/bin/python benchmarks/bench_kinematics.py` — shared videos `hybrik_taiji.mp4` (1280x720, 24 fps) "
+        "and `sports2d_demo.mp4` (1768x994, 30 fps; the person MediaPipe finds first is followed, the man doing "
+        "jumping jacks). Detection at native resolution; the live pipeline runs the detector and the causal fit "
+        "concurrently (`capture --online`), on the video as given and on a 640-pixel-wide copy. Reprojection: "
+        "median over frames of the median marker distance to confident detections; % of the person's height in "
+        "pixels. Bone std: largest std over time of a limb length. Accelerations over the longest run of valid "
+        "frames.",
+        "",
+        *kinematics_section(),
+        "",
+        "## Synthetic set with ground truth: kinematic and physics methods",
+        "",
+        "`.venv/bin/python benchmarks/bench_synthetic.py` — CMU motion capture of the contact networks' held-out "
+        "subjects, filmed by random cameras (Rempe et al. A.1), detector errors as measured for MediaPipe on the "
+        "shared videos (`physmocap.contacts.noise`), the pipeline run from the observations with the true "
+        "intrinsics and height. Pose errors in the camera frame; floor metrics against the true floor and true "
+        "contact labels (Rempe 3.2).",
+        "",
+        *synthetic_section(),
+        "",
+        "## Physics speed",
+        "",
+        "`.venv/bin/python benchmarks/bench_physics.py`",
+        "",
+        *physics_speed_section(),
+        "",
+        "## Multi-view real set",
+        "",
+        *include("multiview"),
+        "",
+        "## Contacts",
+        "",
+        *include("contacts"),
+        "",
+    ]
+    if seconds:
+        parts += ["## Benchmark run time", "", ", ".join(f"{k} {v / 60:.1f} min" for k, v in seconds.items()), ""]
+    return "\n".join(parts)
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--only", nargs="*", choices=sorted(BENCHMARKS), default=None)
+    parser.add_argument("--compose-only", action="store_true")
+    args = parser.parse_args(argv)
+    seconds = {} if args.compose_only else run(args.only or list(BENCHMARKS))
+    (REPO / "BENCHMARKS.md").write_text(compose(seconds))
+    print(f"wrote {REPO / 'BENCHMARKS.md'}")
+
+
+if __name__ == "__main__":
+    main()
