@@ -157,3 +157,23 @@ def test_robust_weights_resist_gross_detector_errors(body, camera):
         true = camera.to_camera(kin.forward_kinematics(body, truth).points[wrong][:, ids])
         errors[robust] = np.linalg.norm(fitted - true, axis=-1).mean()
     assert errors[True] < 0.5 * errors[False]
+
+
+def test_one_euro_filter_removes_jitter_and_keeps_orientations_valid(body):
+    from physmocap.kinematics.filters import one_euro_qpos
+
+    rng = np.random.default_rng(3)
+    still = np.repeat(body.rest_qpos[None], 60, axis=0)
+    noisy = kin.integrate(body, still, rng.normal(scale=0.02, size=(60, body.nv)))
+    filtered = one_euro_qpos(body, noisy, fps=30.0)
+    error_noisy = np.abs(kin.difference(body, still, noisy)).mean()
+    error_filtered = np.abs(kin.difference(body, still[20:], filtered[20:])).mean()
+    assert error_filtered < 0.5 * error_noisy
+    quats = filtered[:, 3:7]
+    assert np.allclose(np.linalg.norm(quats, axis=1), 1.0)
+    # Fast motion lags less than with a fixed low-pass filter at the minimum cutoff (beta = 0): the speed term.
+    moving = still.copy()
+    moving[:, 0] = 3.0 * np.arange(60) / 30.0
+    lag = np.abs(one_euro_qpos(body, moving, fps=30.0)[30:, 0] - moving[30:, 0]).max()
+    fixed_lag = np.abs(one_euro_qpos(body, moving, fps=30.0, beta=0.0)[30:, 0] - moving[30:, 0]).max()
+    assert lag < 0.6 * fixed_lag
