@@ -58,10 +58,11 @@ def kinematics_section() -> list[str]:
         return ["(not run)"]
     lines = [
         "| video | frames | detect ms/frame | fit offline ms/frame | fit online ms/frame | live fps native / 640 px "
-        "| live latency median / p95 ms (640 px) | reprojection px (% height) offline / online | bone std mm fitted "
+        "| live latency median / p95 ms (640 px) | live with contacts + PhysCap, 640 px: fps, latency median / p95 ms "
+        "| reprojection px (% height) offline / online | bone std mm fitted "
         "/ detector 3D | mean accel. 2D px/s² detected → fitted (offline) | mean accel. 3D m/s² detected → fitted "
         "(offline) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for video, row in data.items():
         off, on = row["offline"], row["online"]
@@ -69,12 +70,20 @@ def kinematics_section() -> list[str]:
             f"| {video} | {off['frames']} | {_f(row['detect_ms_per_frame'])} | {_f(row['fit_ms_per_frame_offline'])} "
             f"| {_f(row['fit_ms_per_frame_online'])} | {_f(row['live_native']['fps'])} / {_f(row['live_640']['fps'])} "
             f"| {_f(row['live_640']['latency_median_ms'], 0)} / {_f(row['live_640']['latency_p95_ms'], 0)} "
+            f"| {_live_physics(row)} "
             f"| {_f(off['reprojection_px'])} ({_f(off['reprojection_percent_height'], 2)}%) / "
             f"{_f(on['reprojection_px'])} ({_f(on['reprojection_percent_height'], 2)}%) "
             f"| {off['bone_std_fitted_mm']:.1e} / {_f(off['bone_std_detector_mm'])} "
             f"| {_f(off['acceleration_2d_detected'], 0)} → {_f(off['acceleration_2d_fitted'], 0)} "
             f"| {_f(off['acceleration_3d_detected'])} → {_f(off['acceleration_3d_fitted'])} |")
     return lines
+
+
+def _live_physics(row: dict) -> str:
+    live = row.get("live_640_physcap")
+    if not live:
+        return "n/a"
+    return f"{_f(live['fps'])}, {_f(live['latency_median_ms'], 0)} / {_f(live['latency_p95_ms'], 0)}"
 
 
 SYNTHETIC_COLUMNS = (
