@@ -13,11 +13,16 @@ settings) are cached in --cache. What is measured, and how:
   over triples of frames where the keypoint's confidence is at least 0.5, in person heights; for white noise of
   SD s, d2 has SD sqrt(6) s. The robust SD (1.4826 x median absolute deviation) ignores fast true motion.
   Pooled over all videos and landmarks; per landmark the same gives the spread of `landmark_scale`.
-- Total 2D error and its slow part (keypoint_drift_sd, keypoint_drift_seconds): on the four calibrated,
-  synchronised Pose2Sim views, each keypoint is triangulated from the four views (linear DLT) and reprojected;
-  the residuals, scaled by sqrt(8 / 5) for the three degrees of freedom the triangulation absorbs out of eight
-  measurements, are the detector's total error. The slow part is what the white part leaves:
-  drift_sd = sqrt(total^2 - white^2). Its time scale is the lag where the residuals' autocorrelation falls to 1/e.
+- Total 2D error and its slowly varying part (keypoint_drift_sd, keypoint_drift_seconds): on the four
+  calibrated, synchronised Pose2Sim views, each keypoint is triangulated from the four views (linear DLT) and
+  reprojected; the residuals, scaled by sqrt(8 / 5) for the three degrees of freedom the triangulation absorbs
+  out of eight measurements, are the detector's total error (robust SD per landmark from the median residual
+  length). Residuals over 0.1 person heights are gross errors (counted, left out). The rest splits into a
+  static part (each view's and landmark's median over time: joint-definition bias and the calibration's own
+  inconsistency, which move no keypoint between frames) and a time-varying part; the drift is the varying part
+  less the white part, drift_sd = sqrt(varying^2 - white^2), with the time scale where the varying part's
+  autocorrelation falls to 1/e. Cross-check: the spread of the heel and toe keypoints of feet that the hand
+  labels (benchmarks/labels/contacts_real.toml) mark as planted for 8 frames or more.
 - Confidence (confidence_mean, confidence_sd): mean and SD of the visibility of keypoints with visibility >= 0.5.
 - Dropouts: an episode is a run of frames where a keypoint's visibility is under 0.5; dropout_per_second is the
   number of episodes per keypoint per second of video, dropout_seconds their mean length, dropout_confidence twice
@@ -32,7 +37,8 @@ settings) are cached in --cache. What is measured, and how:
 - 3D landmarks: white jitter (landmark_sd) as for 2D, in metres, on landmarks_3d, for x, y (image plane) and z
   (depth) separately. Total error on the Pose2Sim views: the triangulated 3D points, hip-centred and rotated into
   each camera's axes, against that view's landmarks_3d after a least-squares scale (MediaPipe's 3D is metric only
-  roughly); landmark_drift_sd = sqrt(total^2 - white^2) over x and y. Depth: per frame the least-squares factor
+  roughly); split into static and varying parts as in 2D (errors over 3 robust SDs left out);
+  landmark_drift_sd = sqrt(varying^2 - white^2) over x and y. Depth: per frame the least-squares factor
   between the landmarks' and the triangulation's z (hip-centred): depth_scale_sd is the RMS of (factor - 1),
   depth_scale_seconds the 1/e time of its autocorrelation.
 """
@@ -48,7 +54,7 @@ from pathlib import Path
 import physmocap  # noqa: F401 - single-threaded BLAS
 import numpy as np
 
-from physmocap.contacts.real_videos import REAL_VIDEOS, cached_detection
+from physmocap.contacts.real_videos import REAL_VIDEOS, cached_detection, load_real_labels
 from physmocap.landmarks import LANDMARK_INDEX, LANDMARK_NAMES, NUM_LANDMARKS
 from physmocap.mocap.synthetic import NoiseModel
 from physmocap.motion import Observations
@@ -56,6 +62,8 @@ from physmocap.motion import Observations
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared"
 VIDEOS = SHARED / "data" / "videos"
+LABELS = REPO / "benchmarks" / "labels" / "contacts_real.toml"
+MIN_PLANTED_FRAMES = 8
 POSE2SIM_CALIBRATION = VIDEOS / "pose2sim_demo_singleperson" / "calibration" / "Calib.qca.txt"
 SEEN = 0.5  # visibility at and above which a keypoint counts as seen
 EYE_HEIGHT_FRACTION = 0.936
@@ -198,24 +206,58 @@ def multiview_errors(views: list[Observations]) -> dict[str, object]:
     # Robust SDs per coordinate: the median of a 2D Gaussian error's length is 1.1774 SD.
     norms = np.linalg.norm(residuals_2d, axis=-1)
     total_2d_per_landmark = np.median(norms, axis=(0, 1)) / RAYLEIGH_MEDIAN
-    total_2d = float(np.median(total_2d_per_landmark))
-    clipped_2d = np.clip(residuals_2d, -3 * total_2d, 3 * total_2d)
+    gross = norms > GROSS_ERROR
+    static_2d, varying_2d = split_static(np.where(gross[..., None], np.nan, residuals_2d))
     total_3d_xy = robust_sd(errors_3d[..., :2])
-    clipped_3d = np.clip(errors_3d, -3 * total_3d_xy, 3 * total_3d_xy)
+    static_3d, varying_3d = split_static(np.where(np.abs(errors_3d) > 3 * total_3d_xy, np.nan, errors_3d))
     return dict(
         stature_m=float(stature),
-        total_2d=total_2d,
+        total_2d=float(np.median(total_2d_per_landmark)),
         total_2d_per_landmark=total_2d_per_landmark,
-        gross_2d_fraction=float(np.mean(norms > GROSS_ERROR)),
-        residual_seconds_2d=autocorrelation_seconds(clipped_2d.transpose(1, 0, 2, 3).reshape(len(points), -1), fps),
+        gross_2d_fraction=float(np.mean(gross)),
+        static_2d=robust_sd(static_2d),
+        varying_2d=robust_sd(varying_2d),
+        varying_seconds_2d=autocorrelation_seconds(varying_2d.transpose(1, 0, 2, 3).reshape(len(points), -1), fps),
         total_3d_xy=total_3d_xy,
         total_3d_z=robust_sd(errors_3d[..., 2]),
-        residual_seconds_3d=autocorrelation_seconds(clipped_3d.transpose(1, 0, 2, 3).reshape(len(points), -1), fps),
+        static_3d_xy=robust_sd(static_3d[..., :2]),
+        varying_3d_xy=robust_sd(varying_3d[..., :2]),
+        varying_3d_z=robust_sd(varying_3d[..., 2]),
+        varying_seconds_3d=autocorrelation_seconds(varying_3d.transpose(1, 0, 2, 3).reshape(len(points), -1), fps),
         depth_factor_median=float(np.median(depth_factors)),
         depth_scale_sd=robust_sd(depth_factors - np.median(depth_factors, axis=1, keepdims=True)),
         depth_scale_seconds=autocorrelation_seconds(np.clip(depth_factors.T, 0.0, 2.0), fps),
-        median_reprojection_px=float(np.median(np.linalg.norm(residuals_2d, axis=-1)) / np.sqrt(8.0 / 5.0)),
+        median_reprojection_px=float(np.median(norms) / np.sqrt(8.0 / 5.0)),
     )
+
+
+def split_static(errors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Split errors (V, T, K, C) (nan where left out) into each view's and landmark's median over time (the
+    static bias, (V, 1, K, C)) and the rest (time-varying, with nan as 0 so that autocorrelations can run)."""
+    static = np.nanmedian(errors, axis=1, keepdims=True)
+    return static, np.nan_to_num(errors - static)
+
+
+def planted_foot_spread(detections: dict[str, Observations]) -> dict[str, float]:
+    """Spread of the foot keypoints while the foot is planted, from the hand labels: within every run of at least
+    MIN_PLANTED_FRAMES consecutive labelled contact frames of a site, the deviation of its keypoint (heel or
+    foot index) from the run's median, in person heights. A planted foot does not move, so this is the
+    detector's time-varying error during real motion (foot swaps included, hence the robust SD)."""
+    labels = load_real_labels(LABELS)
+    keypoints = [LANDMARK_INDEX[name] for name in ("left_heel", "left_foot_index", "right_heel", "right_foot_index")]
+    deviations = []
+    for name, label in labels.items():
+        obs = detections[name]
+        height = person_height_pixels(obs)
+        for column, keypoint in enumerate(keypoints):
+            frames = label.frames[label.contacts[:, column] == 1]
+            for run in np.split(frames, np.flatnonzero(np.diff(frames) != 1) + 1):
+                if len(run) >= MIN_PLANTED_FRAMES and obs.valid[run].all():
+                    xy = obs.keypoints_2d[run, keypoint, :2] / height
+                    deviations.append(xy - np.median(xy, axis=0))
+    spread = np.concatenate(deviations)
+    return dict(runs=len(deviations), frames=len(spread), robust_sd=robust_sd(spread),
+                beyond_0_1=float(np.mean(np.linalg.norm(spread, axis=1) > GROSS_ERROR)))
 
 
 def measure(cache_dir: Path) -> tuple[NoiseModel, dict[str, object]]:
@@ -260,11 +302,11 @@ def measure(cache_dir: Path) -> tuple[NoiseModel, dict[str, object]]:
     scale = multiview["total_2d_per_landmark"] / multiview["total_2d_per_landmark"].mean()
     noise = NoiseModel(
         keypoint_sd=round(white_2d, 4),
-        keypoint_drift_sd=round(float(np.sqrt(max(multiview["total_2d"] ** 2 - white_2d**2, 0.0))), 4),
-        keypoint_drift_seconds=round(multiview["residual_seconds_2d"], 3),
+        keypoint_drift_sd=round(float(np.sqrt(max(multiview["varying_2d"] ** 2 - white_2d**2, 0.0))), 4),
+        keypoint_drift_seconds=round(multiview["varying_seconds_2d"], 3),
         landmark_sd=round(white_3d_xy, 4),
-        landmark_drift_sd=round(float(np.sqrt(max(multiview["total_3d_xy"] ** 2 - white_3d_xy**2, 0.0))), 4),
-        landmark_drift_seconds=round(multiview["residual_seconds_3d"], 3),
+        landmark_drift_sd=round(float(np.sqrt(max(multiview["varying_3d_xy"] ** 2 - white_3d_xy**2, 0.0))), 4),
+        landmark_drift_seconds=round(multiview["varying_seconds_3d"], 3),
         depth_scale_sd=round(multiview["depth_scale_sd"], 3),
         depth_scale_seconds=round(multiview["depth_scale_seconds"], 3),
         confidence_mean=round(float(visible.mean()), 3),
@@ -283,6 +325,7 @@ def measure(cache_dir: Path) -> tuple[NoiseModel, dict[str, object]]:
         white_3d_xy=white_3d_xy, white_3d_z=white_3d_z, white_3d_dropout=white_3d_dropout, dropout_episodes=len(dropout_lengths),
         foot_swap_durations=swap_durations,
         white_2d_per_landmark=dict(zip(LANDMARK_NAMES, np.round(white_2d_per_landmark, 5).tolist())),
+        planted_feet=planted_foot_spread(detections),
         multiview={k: (np.round(v, 5).tolist() if isinstance(v, np.ndarray) else v) for k, v in multiview.items()},
     )
     return noise, raw

@@ -1,0 +1,190 @@
+"""Synthetic training and test data for the contact networks: detector-like 2D keypoints from motion capture,
+labelled automatically, split by CMU subject.
+
+Every sequence is one clip of `../shared/data/mocap` (or a segment of a long one) with its own body proportions
+(`vary_proportions`), frame rate (resampled, 12-60 fps), static camera (Rempe A.1 via `random_camera`, random
+focal length, landscape or portrait image), left/right mirroring, and MediaPipe-like errors
+(`noise.MEDIAPIPE_NOISE`). The labels come from the original clip at its own frame rate (`labels.motion_labels`)
+and are carried to each resampled frame from the nearest original frame, so they do not depend on the rendering.
+
+Everything is deterministic given the seed: each sequence draws from its own generator seeded by (seed, clip
+name, variant), so adding clips or variants does not change the others.
+"""
+
+from __future__ import annotations
+
+import os
+import zlib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..landmarks import MIRRORED
+from ..mocap.bvh_reader import JOINT_INDEX, MocapClip, cmu_subject, load_mocap
+from ..mocap.synthetic import NoiseModel, make_observations, random_camera, resample
+from .features import mirror_keypoints
+from .labels import LabelSettings, motion_labels
+from .noise import MEDIAPIPE_NOISE
+
+TEST_SUBJECTS: tuple[str, ...] = ("6", "131")
+"""CMU subjects held out for testing: basketball and walks (6: six clips, 25 s), start-walk-stop and hops (131:
+three clips, 28 s). Every other subject trains (1, 2, 5, 7: 35 usable clips, 4.1 minutes)."""
+
+# Contact columns (l heel, l toe, r heel, r toe) after a left/right mirror.
+MIRRORED_CONTACT_COLUMNS = (2, 3, 0, 1)
+_UPPER_BODY = tuple(JOINT_INDEX[n] for n in ("spine", "neck", "head", "left_shoulder", "left_elbow", "left_wrist",
+                                              "right_shoulder", "right_elbow", "right_wrist"))
+_ARMS = {side: tuple(JOINT_INDEX[f"{side}_{part}"] for part in ("elbow", "wrist")) for side in ("left", "right")}
+
+
+@dataclass(frozen=True)
+class SyntheticSettings:
+    """How synthetic sequences are made.
+
+    variants_per_clip: sequences made from each clip (different cameras, rates, bodies, noise).
+    fps_range: frames per second, uniform (issue 3: 12-60).
+    max_seconds: longer clips are cut to a random segment of this length, s (a static camera must keep the
+        whole segment in view; 8 s keeps the person large in the frame).
+    mirror_probability: chance of mirroring a sequence left/right.
+    stature_scale_range: the whole body scaled about the floor by this factor, uniform (0.85-1.12 turns the
+        CMU actors into people of about 1.45-1.95 m).
+    upper_body_scale_range: trunk, head and arms scaled about the pelvis, uniform (trunk-to-leg ratio).
+    arm_scale_range: elbows and wrists scaled about the shoulders, uniform.
+    portrait_probability: chance of a 1080 x 1920 portrait image instead of 1280 x 720 (phone videos).
+    noise: the detector's errors.
+    labels: the automatic label thresholds.
+    """
+
+    variants_per_clip: int = 12
+    fps_range: tuple[float, float] = (12.0, 60.0)
+    max_seconds: float = 8.0
+    mirror_probability: float = 0.5
+    stature_scale_range: tuple[float, float] = (0.85, 1.12)
+    upper_body_scale_range: tuple[float, float] = (0.9, 1.1)
+    arm_scale_range: tuple[float, float] = (0.9, 1.1)
+    portrait_probability: float = 0.3
+    noise: NoiseModel = field(default=MEDIAPIPE_NOISE)
+    labels: LabelSettings = field(default_factory=LabelSettings)
+
+
+@dataclass
+class SyntheticSequence:
+    """One synthetic video's detector output and labels.
+
+    name: "<clip>#<variant>". subject: CMU subject id.
+    fps: frames per second. image_size: (width, height) pixels.
+    keypoints_2d: (T, 33, 3) pixels + confidence. landmarks_3d: (T, 33, 3) metres, hip-relative, camera axes.
+    contacts: (T, 4) bool, l heel, l toe, r heel, r toe. stationary: (T,) bool.
+    """
+
+    name: str
+    subject: str
+    fps: float
+    image_size: tuple[int, int]
+    keypoints_2d: np.ndarray
+    landmarks_3d: np.ndarray
+    contacts: np.ndarray
+    stationary: np.ndarray
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.keypoints_2d)
+
+    @property
+    def valid(self) -> np.ndarray:
+        return np.ones(self.num_frames, dtype=bool)
+
+
+def mocap_files(mocap_root: str | os.PathLike) -> list[Path]:
+    """Every BVH file under mocap_root (both the raw CMU and the CC3 folders), sorted by name."""
+    files = sorted(Path(mocap_root).rglob("*.bvh"))
+    if not files:
+        raise InputError(f"{mocap_root}: no .bvh files found.")
+    return files
+
+
+def usable_clip(clip: MocapClip) -> bool:
+    """False for clips on uneven ground (the loader could not level their floor): a height-above-floor label
+    means nothing there (CMU 03_01, 03_02, "walk on uneven terrain")."""
+    return not any("not levelled" in note for note in clip.notes)
+
+
+def split_by_subject(files: list[Path], test_subjects: tuple[str, ...] = TEST_SUBJECTS) -> tuple[list[Path], list[Path]]:
+    """(train, test) files: a file is in test when its CMU subject (`cmu_subject`) is in test_subjects."""
+    test = [f for f in files if cmu_subject(f) in test_subjects]
+    train = [f for f in files if cmu_subject(f) not in test_subjects]
+    return train, test
+
+
+def vary_proportions(clip: MocapClip, rng: np.random.Generator, settings: SyntheticSettings) -> MocapClip:
+    """The clip on a body of other proportions, with every foot-floor contact kept.
+
+    The upper body (spine and above, arms) is scaled about the pelvis, the arms about the shoulders, then the
+    whole body about the floor point below the clip's mean pelvis. Legs and feet keep their motion relative to
+    the floor except for the uniform stature scale, so contacts stay contacts.
+    """
+    positions = clip.positions.copy()
+    pelvis = positions[:, JOINT_INDEX["pelvis"]][:, None]
+    positions[:, _UPPER_BODY] = pelvis + rng.uniform(*settings.upper_body_scale_range) * (positions[:, _UPPER_BODY] - pelvis)
+    arm_scale = rng.uniform(*settings.arm_scale_range)
+    for side, arm in _ARMS.items():
+        shoulder = positions[:, JOINT_INDEX[f"{side}_shoulder"]][:, None]
+        positions[:, arm] = shoulder + arm_scale * (positions[:, arm] - shoulder)
+    centre = np.append(clip.joint("pelvis")[:, :2].mean(axis=0), 0.0)
+    positions = centre + rng.uniform(*settings.stature_scale_range) * (positions - centre)
+    return replace(clip, positions=positions)
+
+
+def _segment(clip: MocapClip, rng: np.random.Generator, max_seconds: float) -> MocapClip:
+    """A random segment of at most max_seconds of the clip (the whole clip if it is shorter)."""
+    length = int(round(max_seconds * clip.fps))
+    if clip.num_frames <= length:
+        return clip
+    start = int(rng.integers(0, clip.num_frames - length + 1))
+    part = slice(start, start + length)
+    return replace(clip, positions=clip.positions[part], head_rotation=clip.head_rotation[part],
+                   hand_rotations=clip.hand_rotations[part])
+
+
+def _sequence_rng(seed: int, clip_name: str, variant: int) -> np.random.Generator:
+    return np.random.default_rng([seed, zlib.crc32(clip_name.encode()), variant])
+
+
+def synthesise(clip: MocapClip, variant: int, seed: int, settings: SyntheticSettings = SyntheticSettings()) -> SyntheticSequence:
+    """One synthetic sequence of `clip` (see the module docstring); deterministic in (seed, clip.name, variant)."""
+    rng = _sequence_rng(seed, f"{clip.skeleton}:{clip.name}", variant)
+    clip = _segment(clip, rng, settings.max_seconds)
+    contacts, stationary = motion_labels(clip.positions, clip.fps, settings.labels)
+    body = vary_proportions(clip, rng, settings)
+    fps = float(rng.uniform(*settings.fps_range))
+    filmed = resample(body, fps)
+    source_frames = np.minimum(np.rint(np.arange(filmed.num_frames) * clip.fps / fps).astype(int), clip.num_frames - 1)
+    contacts, stationary = contacts[source_frames], stationary[source_frames]
+    image_size = (1080, 1920) if rng.random() < settings.portrait_probability else (1280, 720)
+    K, R, t = random_camera(filmed, rng, image_size)
+    observations, _ = make_observations(filmed, K, R, t, rng, settings.noise, image_size)
+    keypoints_2d, landmarks_3d = observations.keypoints_2d, observations.landmarks_3d
+    if rng.random() < settings.mirror_probability:
+        keypoints_2d = mirror_keypoints(keypoints_2d, image_size[0])
+        landmarks_3d = landmarks_3d[:, list(MIRRORED)] * np.array([-1.0, 1.0, 1.0])
+        contacts = contacts[:, MIRRORED_CONTACT_COLUMNS]
+    return SyntheticSequence(
+        name=f"{clip.name}#{variant}", subject=clip.subject, fps=fps, image_size=image_size,
+        keypoints_2d=keypoints_2d.astype(np.float32), landmarks_3d=landmarks_3d.astype(np.float32),
+        contacts=contacts, stationary=stationary,
+    )
+
+
+def load_clips(files: list[Path]) -> list[MocapClip]:
+    """The usable clips (`usable_clip`) of the given BVH files."""
+    return [clip for clip in map(load_mocap, files) if usable_clip(clip)]
+
+
+def make_sequences(
+    clips: list[MocapClip], seed: int, settings: SyntheticSettings = SyntheticSettings(), variants: int | None = None
+) -> list[SyntheticSequence]:
+    """`variants` (default settings.variants_per_clip) synthetic sequences of every clip, in clip order."""
+    count = settings.variants_per_clip if variants is None else variants
+    return [synthesise(clip, variant, seed, settings) for clip in clips for variant in range(count)]

@@ -1,0 +1,163 @@
+"""The input representation shared by both contact networks: windows of root-centred, scale-normalised 2D
+keypoints with their confidences, plus the frame interval.
+
+A window is `length` consecutive frames around a target; its reference frame (the last one for the causal
+network, the centre one for the centred network) fixes the origin: the midpoint of the hips in that frame, as in
+Rempe et al. 3.2, so the window keeps the root's motion relative to the reference frame. Coordinates are divided
+by the person's size in the window (the median over its frames of shoulder-midpoint-to-hip-midpoint plus thigh
+plus shank, in pixels, about 0.8 of the stature for an upright person), which puts them mostly in [-1.5, 1.5]
+(Rempe: "largely between [-1, 1]") whatever the resolution and distance. Confidences pass unchanged.
+
+One scalar joins every window: the frame interval in units of 1/30 s (REFERENCE_FPS / fps). The networks are
+trained at 12-60 fps, and the same foot speed is a 5x different displacement per frame at 12 and at 60 fps;
+without the interval the networks could not tell a slow slide at 12 fps from a fast swing at 60 fps.
+
+Frames that are not valid (no person) are filled from the nearest valid frame with confidence 0, so a window
+never holds zeros as positions; windows reaching past the clip's ends repeat the end frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..landmarks import LANDMARK_INDEX, MIRRORED, NUM_LANDMARKS
+
+FEATURE_LANDMARKS: tuple[str, ...] = (
+    "left_shoulder", "right_shoulder", "left_hip", "right_hip", "left_knee", "right_knee",
+    "left_ankle", "right_ankle", "left_heel", "right_heel", "left_foot_index", "right_foot_index",
+)
+"""The keypoints the networks read: lower body up to the hips (Rempe's best ablation) plus the shoulders, which
+carry the trunk's lean and the scale."""
+FEATURE_INDICES: tuple[int, ...] = tuple(LANDMARK_INDEX[name] for name in FEATURE_LANDMARKS)
+NUM_FEATURE_POINTS = len(FEATURE_LANDMARKS)
+VALUES_PER_POINT = 3  # x, y (normalised), confidence
+REFERENCE_FPS = 30.0
+MIN_SCALE_PIXELS = 1.0
+
+# Positions within FEATURE_LANDMARKS.
+_SHOULDERS = (0, 1)
+_HIPS = (2, 3)
+_KNEES = (4, 5)
+_ANKLES = (6, 7)
+FOOT_POINTS = (8, 10, 9, 11)
+"""Positions of the contact sites' keypoints (l heel, l toe, r heel, r toe) within FEATURE_LANDMARKS."""
+HIP_POINTS = _HIPS
+
+
+@dataclass(frozen=True)
+class WindowSpec:
+    """Frames a network reads around each target frame.
+
+    length: frames in the window (PhysCap: 7, causal; Rempe: 9, centred).
+    reference: index in the window of the target frame, whose hip midpoint is the origin (length - 1 for causal,
+        length // 2 for centred).
+    outputs: frames the network predicts, centred on the reference frame (1 causal; Rempe: 5).
+    """
+
+    length: int
+    reference: int
+    outputs: int = 1
+
+    def __post_init__(self) -> None:
+        if self.length < 1 or not 0 <= self.reference < self.length:
+            raise InputError(f"WindowSpec: reference {self.reference} outside a window of {self.length} frames.")
+        half = self.outputs // 2
+        if self.outputs < 1 or self.outputs % 2 == 0 or self.reference - half < 0 or self.reference + half >= self.length:
+            raise InputError(f"WindowSpec: {self.outputs} output frames do not fit around frame {self.reference}.")
+
+    @property
+    def input_size(self) -> int:
+        """Length of a flattened input vector: length x 12 points x (x, y, c), plus the frame interval."""
+        return self.length * NUM_FEATURE_POINTS * VALUES_PER_POINT + 1
+
+
+CAUSAL_WINDOW = WindowSpec(length=7, reference=6, outputs=1)
+CENTRED_WINDOW = WindowSpec(length=9, reference=4, outputs=5)
+
+
+def select_keypoints(keypoints_2d: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """The network's keypoints of every frame, invalid frames filled from the nearest valid one.
+
+    keypoints_2d: (T, 33, 3) pixels and confidence. valid: (T,) bool.
+    Returns (T, 12, 3) float32: FEATURE_LANDMARKS' x, y (pixels) and confidence (0 in filled frames). All zeros
+    if no frame is valid.
+    """
+    keypoints_2d = np.asarray(keypoints_2d)
+    valid = np.asarray(valid, dtype=bool)
+    if keypoints_2d.ndim != 3 or keypoints_2d.shape[1:] != (NUM_LANDMARKS, 3) or valid.shape != keypoints_2d.shape[:1]:
+        raise InputError(f"keypoints_2d {keypoints_2d.shape} and valid {valid.shape}: expected (T, 33, 3) and (T,).")
+    points = keypoints_2d[:, FEATURE_INDICES].astype(np.float32)
+    if valid.all() or not valid.any():
+        return points if valid.any() else np.zeros_like(points)
+    frames = np.arange(len(valid))
+    valid_frames = np.flatnonzero(valid)
+    after = np.clip(np.searchsorted(valid_frames, frames), 0, len(valid_frames) - 1)
+    before = np.clip(after - 1, 0, len(valid_frames) - 1)
+    nearer = np.where(np.abs(valid_frames[before] - frames) <= np.abs(valid_frames[after] - frames), before, after)
+    filled = points[valid_frames[nearer]]
+    filled[~valid, :, 2] = 0.0
+    return filled
+
+
+def window_indices(num_frames: int, targets: np.ndarray, spec: WindowSpec) -> np.ndarray:
+    """(N, length) frame indices of the windows of target frames (N,), clamped to the clip [0, T - 1]."""
+    offsets = np.arange(spec.length) - spec.reference
+    return np.clip(np.asarray(targets)[:, None] + offsets, 0, num_frames - 1)
+
+
+def person_size(windows: np.ndarray) -> np.ndarray:
+    """The person's size in each window, pixels: median over its frames of shoulder-midpoint-to-hip-midpoint plus
+    mean thigh plus mean shank length. windows: (N, W, 12, 3) (`select_keypoints` rows). Returns (N,), at least
+    MIN_SCALE_PIXELS."""
+    xy = windows[..., :2]
+    hips = 0.5 * (xy[..., _HIPS[0], :] + xy[..., _HIPS[1], :])
+    shoulders = 0.5 * (xy[..., _SHOULDERS[0], :] + xy[..., _SHOULDERS[1], :])
+    torso = np.linalg.norm(shoulders - hips, axis=-1)
+    thigh = 0.5 * sum(np.linalg.norm(xy[..., k, :] - xy[..., h, :], axis=-1) for h, k in zip(_HIPS, _KNEES))
+    shank = 0.5 * sum(np.linalg.norm(xy[..., a, :] - xy[..., k, :], axis=-1) for k, a in zip(_KNEES, _ANKLES))
+    return np.maximum(np.median(torso + thigh + shank, axis=1), MIN_SCALE_PIXELS)
+
+
+def normalise_windows(windows: np.ndarray, reference: int) -> np.ndarray:
+    """Root-centre and scale windows of selected keypoints.
+
+    windows: (N, W, 12, 3) pixels + confidence (`select_keypoints` rows). reference: index of the frame whose hip
+    midpoint becomes the origin. Returns (N, W, 12, 3) float32: positions divided by the window's `person_size`,
+    confidences unchanged.
+    """
+    xy = windows[..., :2]
+    hips = 0.5 * (xy[:, reference, _HIPS[0]] + xy[:, reference, _HIPS[1]])
+    scale = person_size(windows)
+    normalised = np.empty(windows.shape, dtype=np.float32)
+    normalised[..., :2] = (xy - hips[:, None, None, :]) / scale[:, None, None, None]
+    normalised[..., 2] = windows[..., 2]
+    return normalised
+
+
+def window_inputs(points: np.ndarray, fps: float, targets: np.ndarray, spec: WindowSpec) -> np.ndarray:
+    """Flattened network inputs of the windows around target frames.
+
+    points: (T, 12, 3) from `select_keypoints`. fps: frames per second. targets: (N,) frame indices.
+    Returns (N, spec.input_size) float32: per frame of the window, per point, (x, y, c) normalised by
+    `normalise_windows`, then REFERENCE_FPS / fps.
+    """
+    if fps <= 0:
+        raise InputError(f"window_inputs: fps is {fps}, expected a positive number.")
+    windows = normalise_windows(points[window_indices(len(points), targets, spec)], spec.reference)
+    inputs = np.empty((len(windows), spec.input_size), dtype=np.float32)
+    inputs[:, :-1] = windows.reshape(len(windows), -1)
+    inputs[:, -1] = REFERENCE_FPS / fps
+    return inputs
+
+
+def mirror_keypoints(keypoints_2d: np.ndarray, image_width: int) -> np.ndarray:
+    """Keypoints of the horizontally mirrored video: x -> width - 1 - x and left <-> right landmarks swapped.
+
+    keypoints_2d: (T, 33, C) with x in column 0 (pixels, integer coordinates at pixel centres). Returns a copy.
+    """
+    mirrored = np.array(keypoints_2d[:, list(MIRRORED)], copy=True)
+    mirrored[..., 0] = image_width - 1 - mirrored[..., 0]
+    return mirrored

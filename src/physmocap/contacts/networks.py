@@ -1,0 +1,92 @@
+"""The two contact networks' architectures and their numpy inference (the product runs without torch).
+
+Both read the inputs of `features.window_inputs` and give five logits per predicted frame: left heel, left toe,
+right heel, right toe contact, stationary (OUTPUT_NAMES).
+
+- Causal (PhysCap 4.2, after Zou et al. 2020): the last 7 frames; temporal convolutions (kernel 3, no padding,
+  each followed by batch normalisation and ReLU) shrink the window 7 -> 5 -> 3 -> 1 frames, then one fully
+  connected layer. The frame interval enters as one more input channel, constant over the window.
+- Centred (Rempe 3.2, A.2): 9 frames centred on the target; an MLP 1024-512-128-32 with batch normalisation and
+  ReLU after every hidden layer, then a linear layer to 5 frames x 5 outputs for the 5 central frames.
+
+Weights are stored as float32 arrays in an .npz file with batch normalisation folded into the preceding layer:
+- causal: "conv{i}.weight" (kernel, in, out), "conv{i}.bias" (out,), "fc.weight" (in, 5), "fc.bias" (5,).
+- centred: "linear{i}.weight" (in, out), "linear{i}.bias" (out,), the last one with 25 outputs (frame-major).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from .features import CAUSAL_WINDOW, CENTRED_WINDOW, NUM_FEATURE_POINTS, VALUES_PER_POINT, WindowSpec
+
+OUTPUT_NAMES: tuple[str, ...] = ("left_heel", "left_toe", "right_heel", "right_toe", "stationary")
+NUM_OUTPUTS = len(OUTPUT_NAMES)
+FRAME_CHANNELS = NUM_FEATURE_POINTS * VALUES_PER_POINT  # 36 values per frame
+
+
+@dataclass(frozen=True)
+class CausalNetSpec:
+    """Causal temporal-convolution network. channels: output channels of each convolution (their number must
+    shrink the window to one frame: (length - 1) / (kernel - 1) layers); kernel: frames per convolution;
+    dropout: before the fully connected layer, training only."""
+
+    window: WindowSpec = CAUSAL_WINDOW
+    channels: tuple[int, ...] = (128, 128, 128)
+    kernel: int = 3
+    dropout: float = 0.2
+
+    def __post_init__(self) -> None:
+        if (self.window.length - 1) != len(self.channels) * (self.kernel - 1):
+            raise InputError(
+                f"CausalNetSpec: {len(self.channels)} convolutions of kernel {self.kernel} do not shrink "
+                f"{self.window.length} frames to one."
+            )
+
+
+@dataclass(frozen=True)
+class CentredNetSpec:
+    """Centred MLP (Rempe A.2: hidden sizes 1024, 512, 128, 32; dropout 0.3 before the 128 layer)."""
+
+    window: WindowSpec = CENTRED_WINDOW
+    hidden: tuple[int, ...] = (1024, 512, 128, 32)
+    dropout: float = 0.3
+    dropout_before_layer: int = 2
+
+
+def sigmoid(logits: np.ndarray) -> np.ndarray:
+    return 0.5 * (1.0 + np.tanh(0.5 * logits))
+
+
+def causal_forward(params: dict[str, np.ndarray], inputs: np.ndarray) -> np.ndarray:
+    """Logits (N, 5) of the causal network for inputs (N, 7 x 36 + 1) (`features.window_inputs`)."""
+    count = len(inputs)
+    length = (inputs.shape[1] - 1) // FRAME_CHANNELS
+    hidden = np.empty((count, length, FRAME_CHANNELS + 1), dtype=np.float32)
+    hidden[..., :-1] = inputs[:, :-1].reshape(count, length, FRAME_CHANNELS)
+    hidden[..., -1] = inputs[:, -1:]
+    layer = 0
+    while f"conv{layer}.weight" in params:
+        weight, bias = params[f"conv{layer}.weight"], params[f"conv{layer}.bias"]
+        kernel = len(weight)
+        out_length = hidden.shape[1] - kernel + 1
+        out = np.broadcast_to(bias, (count, out_length, len(bias))).copy()
+        for k in range(kernel):
+            out += hidden[:, k : k + out_length] @ weight[k]
+        hidden = np.maximum(out, 0.0)
+        layer += 1
+    return hidden[:, 0] @ params["fc.weight"] + params["fc.bias"]
+
+
+def centred_forward(params: dict[str, np.ndarray], inputs: np.ndarray) -> np.ndarray:
+    """Logits (N, 5 frames, 5) of the centred network for inputs (N, 9 x 36 + 1); frames t-2 .. t+2."""
+    hidden = inputs
+    layer = 0
+    while f"linear{layer + 1}.weight" in params:
+        hidden = np.maximum(hidden @ params[f"linear{layer}.weight"] + params[f"linear{layer}.bias"], 0.0)
+        layer += 1
+    logits = hidden @ params[f"linear{layer}.weight"] + params[f"linear{layer}.bias"]
+    return logits.reshape(len(inputs), -1, NUM_OUTPUTS)

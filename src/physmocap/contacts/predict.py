@@ -1,0 +1,117 @@
+"""Foot contacts and the stationary flag of every frame of a video's observations, from the shipped networks."""
+
+from __future__ import annotations
+
+import functools
+import os
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from ..errors import InputError
+from ..motion import Observations
+from .features import CAUSAL_WINDOW, CENTRED_WINDOW, select_keypoints, window_inputs
+from .networks import NUM_OUTPUTS, causal_forward, centred_forward, sigmoid
+
+Mode = Literal["causal", "centred"]
+MODES: tuple[str, ...] = ("causal", "centred")
+WEIGHTS_DIR = Path(__file__).resolve().parents[1] / "data" / "contacts"
+THRESHOLD = 0.5  # probability above which a flag is set (both papers' sigmoid outputs)
+BATCH_FRAMES = 4096  # frames per network call: bounds memory on long videos
+
+
+def weights_path(mode: Mode, weights_dir: str | os.PathLike = WEIGHTS_DIR) -> Path:
+    if mode not in MODES:
+        raise InputError(f"contact network mode is {mode!r}, expected one of {MODES}.")
+    return Path(weights_dir) / f"{mode}.npz"
+
+
+@functools.lru_cache(maxsize=8)
+def _load_cached(path: str, modified: float) -> dict[str, np.ndarray]:
+    with np.load(path) as data:
+        return {key: data[key].astype(np.float32) for key in data.files}
+
+
+def load_weights(mode: Mode, weights_dir: str | os.PathLike = WEIGHTS_DIR) -> dict[str, np.ndarray]:
+    """The network parameters of `mode` from weights_dir/<mode>.npz, read once per file version."""
+    path = weights_path(mode, weights_dir)
+    if not path.is_file():
+        raise InputError(f"{path}: no contact network weights; run `physmocap train-contacts` to make them.")
+    return _load_cached(str(path), path.stat().st_mtime)
+
+
+def network_probabilities(
+    keypoints_2d: np.ndarray, valid: np.ndarray, fps: float, params: dict[str, np.ndarray], mode: Mode
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-frame probabilities and flags of the five outputs, for given parameters.
+
+    keypoints_2d: (T, 33, 3) pixels + confidence; valid: (T,) bool; fps: frames per second.
+    causal: each frame's window is it and the 6 frames before (PhysCap), so a frame's flags never depend on later
+        frames; probabilities are the network's sigmoid outputs, flags are probabilities > 0.5.
+    centred: every frame is a target of a 9-frame window whose network predicts the 5 central frames (Rempe); each
+        frame collects up to 5 overlapping predictions, the flag is their majority vote (ties, at the clip's ends
+        or next to invalid frames, go to the mean probability) and the probability is their mean.
+    Invalid frames get probability 0 and no flag, and cast no votes.
+    Returns probabilities (T, 5) float and flags (T, 5) bool, columns l heel, l toe, r heel, r toe, stationary.
+    """
+    valid = np.asarray(valid, dtype=bool)
+    points = select_keypoints(keypoints_2d, valid)
+    num_frames = len(points)
+    targets = np.flatnonzero(valid)
+    probabilities = np.zeros((num_frames, NUM_OUTPUTS))
+    if mode == "causal":
+        for start in range(0, len(targets), BATCH_FRAMES):
+            batch = targets[start : start + BATCH_FRAMES]
+            probabilities[batch] = sigmoid(causal_forward(params, window_inputs(points, fps, batch, CAUSAL_WINDOW)))
+        return probabilities, probabilities > THRESHOLD
+    if mode != "centred":
+        raise InputError(f"contact network mode is {mode!r}, expected one of {MODES}.")
+    half = CENTRED_WINDOW.outputs // 2
+    votes = np.full((num_frames, CENTRED_WINDOW.outputs, NUM_OUTPUTS), np.nan)
+    for start in range(0, len(targets), BATCH_FRAMES):
+        batch = targets[start : start + BATCH_FRAMES]
+        predicted = sigmoid(centred_forward(params, window_inputs(points, fps, batch, CENTRED_WINDOW)))
+        for offset in range(-half, half + 1):
+            frames = batch + offset
+            inside = (frames >= 0) & (frames < num_frames)
+            votes[frames[inside], offset + half] = predicted[inside, offset + half]
+    votes[~valid] = np.nan
+    cast = np.isfinite(votes)
+    yes = (votes > THRESHOLD).sum(axis=1)
+    no = (cast & (votes <= THRESHOLD)).sum(axis=1)
+    with np.errstate(invalid="ignore"):
+        mean = np.where(cast.any(axis=1), np.nansum(votes, axis=1) / np.maximum(cast.sum(axis=1), 1), 0.0)
+    flags = (yes > no) | ((yes == no) & (mean > THRESHOLD))
+    flags[~valid] = False
+    mean[~valid] = 0.0
+    return mean, flags
+
+
+def predict_contacts(
+    obs: Observations, mode: Mode = "causal", weights_dir: str | os.PathLike = WEIGHTS_DIR
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Foot contacts and the stationary flag of every frame, from 2D keypoints, with the shipped networks.
+
+    obs: the detector's observations; only keypoints_2d (T, 33, 3) (pixels + confidence), valid (T,) and fps
+        are read. Any resolution and frame rate (trained on 12-60 fps, 720p and 1080x1920 portrait).
+    mode: "causal" for live/online use (PhysCap: a frame's flags use it and the 6 frames before it only, so they
+        are final as soon as the frame arrives); "centred" for offline use (Rempe: 9-frame windows, 5 predicted
+        frames each, majority vote; a frame's flags use up to 6 frames on either side).
+    weights_dir: folder with causal.npz and centred.npz; default the weights shipped in physmocap/data/contacts
+        (made by `contacts.train.train_contacts`). Loaded once per file and kept.
+    Returns:
+        contacts: (T, 4) bool, columns left heel, left toe, right heel, right toe; True = touching the floor.
+        stationary: (T,) bool, True where the person is not moving about (root slower than 0.25 m/s; see
+            `labels.LabelSettings`).
+        probabilities: (T, 5) float in [0, 1], the same five columns (contacts then stationary) before
+            thresholding at 0.5 (centred: mean over the overlapping predictions).
+    Invalid frames (obs.valid False) get no contact, not stationary and probability 0: the caller flags them.
+    Neighbours of invalid frames use the nearest valid frame's keypoints with confidence 0 in their windows.
+    Cost: about 0.1 ms (causal) / 0.4 ms (centred) per frame on one core (benchmarks/bench_contacts.py).
+    Raises InputError for an unknown mode or missing weights.
+    """
+    if obs.num_frames == 0:
+        return np.zeros((0, 4), bool), np.zeros(0, bool), np.zeros((0, NUM_OUTPUTS))
+    probabilities, flags = network_probabilities(obs.keypoints_2d, obs.valid, obs.fps, load_weights(mode, weights_dir), mode)
+    return flags[:, :4], flags[:, 4], probabilities

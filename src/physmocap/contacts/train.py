@@ -1,0 +1,318 @@
+"""Train both contact networks on synthetic data from motion capture and export them for numpy inference.
+
+`train_contacts(data_root, out_dir)` rebuilds the shipped weights (physmocap/data/contacts) from
+`../shared/data/mocap`, deterministically for a given seed: same seed and data, same weights (one torch thread,
+deterministic algorithms, every random draw from seeded generators). Needs torch (requirements.lock), which the
+rest of the package does not.
+
+Recipe (Rempe A.2 where it applies): binary cross-entropy on the five outputs of every predicted frame, Adam with
+L2 weight decay 1e-4, Gaussian noise (SD 0.005) on the normalised positions, batch normalisation and dropout; the
+learning rate starts at 1e-3 and decays on a cosine to zero (Rempe: 1e-4 with early stopping on a validation
+set; the larger rate reaches a low loss within the few epochs that a 2-core machine affords, and the fixed
+schedule needs no validation subject taken from the few training subjects).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+from torch import nn
+
+from .. import metrics
+from .dataset import TEST_SUBJECTS, SyntheticSequence, SyntheticSettings, load_clips, make_sequences, mocap_files, split_by_subject
+from .features import REFERENCE_FPS, WindowSpec, normalise_windows, select_keypoints
+from .networks import FRAME_CHANNELS, NUM_OUTPUTS, OUTPUT_NAMES, CausalNetSpec, CentredNetSpec
+from .predict import MODES, Mode, network_probabilities
+
+METADATA_FILE = "training.json"
+BATCH_NORM_EPSILON = 1e-5
+
+
+@dataclass(frozen=True)
+class TrainSettings:
+    """Optimisation settings (per network).
+
+    epochs: passes over every training frame. batch_size: windows per step.
+    learning_rate: Adam's initial rate, decayed on a cosine to 0. weight_decay: L2 (Rempe: 1e-4).
+    input_noise: SD of Gaussian noise on the normalised positions (Rempe: 0.005).
+    max_steps: stop after this many steps (None: all epochs); for quick tests.
+    threads: torch threads (1 keeps training deterministic and leaves the other core free).
+    """
+
+    epochs: int = 6
+    batch_size: int = 256
+    learning_rate: float = 1e-3
+    weight_decay: float = 1e-4
+    input_noise: float = 0.005
+    max_steps: int | None = None
+    threads: int = 1
+
+
+@dataclass(frozen=True)
+class ContactTrainingSettings:
+    """Everything `train_contacts` needs besides the data: synthetic data, networks, optimisation, split."""
+
+    synthetic: SyntheticSettings = field(default_factory=SyntheticSettings)
+    causal: CausalNetSpec = field(default_factory=CausalNetSpec)
+    centred: CentredNetSpec = field(default_factory=CentredNetSpec)
+    optimisation: TrainSettings = field(default_factory=TrainSettings)
+    test_subjects: tuple[str, ...] = TEST_SUBJECTS
+    test_variants_per_clip: int = 4
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Torch modules, with the parameter layout of networks.py after `export`
+
+
+class TorchCausalNet(nn.Module):
+    """networks.CausalNetSpec in torch: input (N, length x 36 + 1) -> logits (N, 5)."""
+
+    def __init__(self, spec: CausalNetSpec) -> None:
+        super().__init__()
+        self.length = spec.window.length
+        layers: list[nn.Module] = []
+        channels = FRAME_CHANNELS + 1
+        for out in spec.channels:
+            layers += [nn.Conv1d(channels, out, spec.kernel), nn.BatchNorm1d(out), nn.ReLU()]
+            channels = out
+        self.convolutions = nn.Sequential(*layers)
+        self.dropout = nn.Dropout(spec.dropout)
+        self.fc = nn.Linear(channels, NUM_OUTPUTS)
+
+    def forward(self, inputs: torch.Tensor) -> torch.Tensor:
+        frames = inputs[:, :-1].reshape(len(inputs), self.length, FRAME_CHANNELS)
+        interval = inputs[:, -1:, None].expand(-1, self.length, 1)
+        hidden = self.convolutions(torch.cat([frames, interval], dim=2).transpose(1, 2))
+        return self.fc(self.dropout(hidden[:, :, 0]))
+
+    def export(self) -> dict[str, np.ndarray]:
+        """Parameters for networks.causal_forward, batch normalisation folded into the convolutions."""
+        params = {}
+        convolutions = [m for m in self.convolutions if isinstance(m, nn.Conv1d)]
+        norms = [m for m in self.convolutions if isinstance(m, nn.BatchNorm1d)]
+        for i, (conv, norm) in enumerate(zip(convolutions, norms)):
+            weight, bias = _fold(conv.weight, conv.bias, norm)
+            params[f"conv{i}.weight"] = weight.permute(2, 1, 0).numpy()  # (out, in, k) -> (k, in, out)
+            params[f"conv{i}.bias"] = bias.numpy()
+        params["fc.weight"] = self.fc.weight.detach().T.numpy()
+        params["fc.bias"] = self.fc.bias.detach().numpy()
+        return {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in params.items()}
+
+
+class TorchCentredNet(nn.Module):
+    """networks.CentredNetSpec in torch: input (N, length x 36 + 1) -> logits (N, outputs x 5)."""
+
+    def __init__(self, spec: CentredNetSpec) -> None:
+        super().__init__()
+        layers: list[nn.Module] = []
+        size = spec.window.input_size
+        for i, hidden in enumerate(spec.hidden):
+            if i == spec.dropout_before_layer:
+                layers.append(nn.Dropout(spec.dropout))
+            layers += [nn.Linear(size, hidden), nn.BatchNorm1d(hidden), nn.ReLU()]
+            size = hidden
+        layers.append(nn.Linear(size, spec.window.outputs * NUM_OUTPUTS))
+        self.layers = nn.Sequential(*layers)
+
+    def forward(self, inputs: torch.Tensor) -> torch.Tensor:
+        return self.layers(inputs)
+
+    def export(self) -> dict[str, np.ndarray]:
+        """Parameters for networks.centred_forward, batch normalisation folded into the linear layers."""
+        linears = [m for m in self.layers if isinstance(m, nn.Linear)]
+        norms = [m for m in self.layers if isinstance(m, nn.BatchNorm1d)]
+        params = {}
+        for i, linear in enumerate(linears):
+            weight, bias = (linear.weight.detach(), linear.bias.detach()) if i == len(norms) else _fold(
+                linear.weight, linear.bias, norms[i])
+            params[f"linear{i}.weight"] = weight.T.numpy()
+            params[f"linear{i}.bias"] = bias.numpy()
+        return {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in params.items()}
+
+
+def _fold(weight: torch.Tensor, bias: torch.Tensor, norm: nn.BatchNorm1d) -> tuple[torch.Tensor, torch.Tensor]:
+    """Weight and bias of a layer followed by batch normalisation (evaluation mode), as one layer."""
+    with torch.no_grad():
+        factor = norm.weight / torch.sqrt(norm.running_var + norm.eps)
+        shape = (-1,) + (1,) * (weight.dim() - 1)
+        return weight * factor.reshape(shape), (bias - norm.running_mean) * factor + norm.bias
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Training data as frames; windows are cut per batch
+
+
+@dataclass
+class FrameTable:
+    """All frames of a list of sequences, concatenated.
+
+    points: (F, 12, 3) `select_keypoints` rows. interval: (F,) REFERENCE_FPS / fps. labels: (F, 5) float
+    (4 contacts, stationary). sequence_start, sequence_length: (F,) where each frame's sequence lies in the table.
+    """
+
+    points: np.ndarray
+    interval: np.ndarray
+    labels: np.ndarray
+    sequence_start: np.ndarray
+    sequence_length: np.ndarray
+
+    @classmethod
+    def from_sequences(cls, sequences: list[SyntheticSequence]) -> "FrameTable":
+        lengths = np.array([s.num_frames for s in sequences])
+        starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+        return cls(
+            points=np.concatenate([select_keypoints(s.keypoints_2d, s.valid) for s in sequences]),
+            interval=np.concatenate([np.full(s.num_frames, REFERENCE_FPS / s.fps, np.float32) for s in sequences]),
+            labels=np.concatenate([np.column_stack([s.contacts, s.stationary]) for s in sequences]).astype(np.float32),
+            sequence_start=np.repeat(starts, lengths),
+            sequence_length=np.repeat(lengths, lengths),
+        )
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def batch(self, frames: np.ndarray, window: WindowSpec, rng: np.random.Generator, input_noise: float
+              ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Inputs (B, input_size) and labels (B, outputs x 5) of the windows whose targets are `frames` (B,)."""
+        start = self.sequence_start[frames][:, None]
+        offsets = np.arange(window.length) - window.reference
+        local = np.clip((frames - self.sequence_start[frames])[:, None] + offsets, 0, self.sequence_length[frames][:, None] - 1)
+        indices = start + local
+        windows = normalise_windows(self.points[indices], window.reference)
+        windows[..., :2] += input_noise * rng.standard_normal(windows[..., :2].shape).astype(np.float32)
+        inputs = np.concatenate([windows.reshape(len(frames), -1), self.interval[frames, None]], axis=1)
+        half = window.outputs // 2
+        output_frames = indices[:, window.reference - half : window.reference + half + 1]
+        labels = self.labels[output_frames].reshape(len(frames), -1)
+        return torch.from_numpy(inputs), torch.from_numpy(labels)
+
+
+def train_network(
+    model: nn.Module, table: FrameTable, window: WindowSpec, settings: TrainSettings, seed: int,
+    log: Callable[[str], None] = print,
+) -> dict[str, float]:
+    """Train `model` in place on every frame of `table` as a target. Returns the final mean training loss."""
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    steps_per_epoch = int(np.ceil(len(table) / settings.batch_size))
+    total_steps = settings.epochs * steps_per_epoch
+    if settings.max_steps is not None:
+        total_steps = min(total_steps, settings.max_steps)
+    optimiser = torch.optim.Adam(model.parameters(), lr=settings.learning_rate, weight_decay=settings.weight_decay)
+    schedule = torch.optim.lr_scheduler.LambdaLR(optimiser, lambda step: 0.5 * (1.0 + np.cos(np.pi * step / total_steps)))
+    loss_function = nn.BCEWithLogitsLoss()
+    model.train()
+    step, epoch_loss = 0, float("nan")
+    while step < total_steps:
+        order = rng.permutation(len(table))
+        losses = []
+        for first in range(0, len(order), settings.batch_size):
+            if step >= total_steps:
+                break
+            inputs, labels = table.batch(order[first : first + settings.batch_size], window, rng, settings.input_noise)
+            if len(inputs) < 2:  # batch normalisation needs two samples
+                continue
+            loss = loss_function(model(inputs), labels)
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+            schedule.step()
+            losses.append(loss.item())
+            step += 1
+        epoch_loss = float(np.mean(losses)) if losses else epoch_loss
+        log(f"  step {step}/{total_steps}: mean loss {epoch_loss:.4f}")
+    model.eval()
+    return {"final_epoch_loss": epoch_loss, "steps": step}
+
+
+def evaluate(params: dict[str, np.ndarray], mode: Mode, sequences: list[SyntheticSequence]) -> dict[str, float]:
+    """Accuracy, precision, recall and F1 of the four contacts pooled, and stationary accuracy, on sequences."""
+    predicted, truth, moving, moving_truth = [], [], [], []
+    for s in sequences:
+        _, flags = network_probabilities(s.keypoints_2d, s.valid, s.fps, params, mode)
+        predicted.append(flags[:, :4])
+        truth.append(s.contacts)
+        moving.append(flags[:, 4])
+        moving_truth.append(s.stationary)
+    scores = metrics.contact_scores(np.concatenate(predicted), np.concatenate(truth))
+    stationary = metrics.contact_scores(np.concatenate(moving), np.concatenate(moving_truth))
+    return {"accuracy": scores["accuracy"], "precision": scores["precision"], "recall": scores["recall"],
+            "f1": scores["f1"], "stationary_accuracy": stationary["accuracy"]}
+
+
+def train_contacts(
+    data_root: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    seed: int = 0,
+    settings: ContactTrainingSettings = ContactTrainingSettings(),
+    max_clips: int | None = None,
+    log: Callable[[str], None] = print,
+) -> dict[str, object]:
+    """Make synthetic data from the motion capture under data_root, train both networks, write their weights.
+
+    data_root: the shared data folder (holding mocap/, searched recursively for .bvh) or the mocap folder itself.
+    out_dir: written: causal.npz and centred.npz (numpy parameters, see networks.py) and training.json (seed,
+        settings, split, data sizes, losses, seconds, held-out synthetic scores). Created if missing.
+    seed: every random choice (synthetic data, initialisation, batches, noise) follows from it.
+    settings: see ContactTrainingSettings; the defaults made the shipped weights.
+    max_clips: use only the first N training and N test clips (sorted by file name), for quick tests.
+    Subjects in settings.test_subjects never enter training; they are synthesised with seed + 1 and
+    settings.test_variants_per_clip variants for the held-out scores.
+    Returns the metadata written to training.json.
+    """
+    started = time.perf_counter()
+    torch.set_num_threads(settings.optimisation.threads)
+    torch.use_deterministic_algorithms(True)
+    data_root = Path(data_root)
+    train_files, test_files = split_by_subject(mocap_files(data_root), settings.test_subjects)
+    if max_clips is not None:
+        train_files, test_files = train_files[:max_clips], test_files[:max_clips]
+    train_clips, test_clips = load_clips(train_files), load_clips(test_files)
+    train_sequences = make_sequences(train_clips, seed, settings.synthetic)
+    test_sequences = make_sequences(test_clips, seed + 1, settings.synthetic, variants=settings.test_variants_per_clip)
+    table = FrameTable.from_sequences(train_sequences)
+    data_seconds = time.perf_counter() - started
+    log(f"synthetic data: {len(train_sequences)} training sequences ({len(table)} frames) from {len(train_clips)} "
+        f"clips, {len(test_sequences)} test sequences, {data_seconds:.1f} s")
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    networks: dict[Mode, tuple[nn.Module, WindowSpec]] = {
+        "causal": (TorchCausalNet(settings.causal), settings.causal.window),
+        "centred": (TorchCentredNet(settings.centred), settings.centred.window),
+    }
+    results: dict[str, object] = {}
+    for index, mode in enumerate(MODES):
+        model, window = networks[mode]
+        mode_started = time.perf_counter()
+        log(f"training the {mode} network ({sum(p.numel() for p in model.parameters())} parameters)")
+        training = train_network(model, table, window, settings.optimisation, seed + 10 * (index + 1), log)
+        params = model.export()
+        np.savez(out_dir / f"{mode}.npz", **params)
+        held_out = evaluate(params, mode, test_sequences) if test_sequences else {}
+        results[mode] = {**training, "seconds": time.perf_counter() - mode_started, "held_out_synthetic": held_out}
+        log(f"  {mode}: {results[mode]}")
+    metadata = {
+        "seed": seed,
+        "outputs": list(OUTPUT_NAMES),
+        "train_subjects": sorted({c.subject for c in train_clips}, key=int),
+        "test_subjects": sorted({c.subject for c in test_clips}, key=int),
+        "train_clips": [c.name for c in train_clips],
+        "test_clips": [c.name for c in test_clips],
+        "train_frames": len(table),
+        "test_frames": int(sum(s.num_frames for s in test_sequences)),
+        "data_seconds": data_seconds,
+        "total_seconds": time.perf_counter() - started,
+        "torch": torch.__version__,
+        "settings": asdict(settings),
+        **results,
+    }
+    (out_dir / METADATA_FILE).write_text(json.dumps(metadata, indent=1, default=str))
+    return metadata
