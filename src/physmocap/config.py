@@ -80,9 +80,19 @@ class FitSettings:
     one_euro: bool = False  # One-Euro filter on the fitted pose (Casiez et al. 2012)
     one_euro_min_cutoff: float = 1.5  # Hz; 0.01 .. 30
     one_euro_beta: float = 0.3  # speed coefficient; 0 .. 10
+    # Optional terms of Rempe et al. 2020 (B.3), all off by default (the trajopt stage turns them on with the
+    # paper's weights, TrajoptSettings.kinematic_*). Residuals in metres (radians for angles), stated at 30 fps.
+    weight_contact_velocity: float = 0.0  # E_cont (B6): heel/toe motion between two frames both in contact;
+    # offline fit only; paper 10; 0 .. 1000
+    weight_floor: float = 0.0  # E_floor (B7): heel/toe height above the floor plane while in contact; paper 10;
+    # 0 .. 1000
+    weight_velocity: float = 0.0  # E_vel (B2): velocity of the pelvis-relative joint positions; paper 0.1; 0 .. 100
+    weight_angle_velocity: float = 0.0  # E_ang (B3): change of the joint angles (ball joints' rotation vectors
+    # and hinge angles, not the root) between frames; paper 0.1; 0 .. 100
 
     def check(self) -> None:
-        for name in ("weight_2d", "weight_3d", "weight_smooth", "weight_depth", "weight_prior", "weight_limits"):
+        for name in ("weight_2d", "weight_3d", "weight_smooth", "weight_depth", "weight_prior", "weight_limits",
+                     "weight_contact_velocity", "weight_floor", "weight_velocity", "weight_angle_velocity"):
             _within(f"fit.{name}", getattr(self, name), 0.0, 1000.0, "")
         _within("fit.min_confidence", self.min_confidence, 0.0, 1.0, "")
         _within("fit.robust_2d", self.robust_2d, 0.0, 1.0, "m")

@@ -6,7 +6,11 @@ Energy terms (each a small named piece with its residual and analytic Jacobian, 
 - 3D data (E_IK): root-relative model points against the detector's 3D landmarks;
 - smoothness (E_smooth): acceleration of the joints in the world;
 - depth (E_depth): change of the joints' distance along the camera axis between frames;
-- pose prior and hinge limits, which keep unobservable twists at rest and knees/elbows bending one way.
+- pose prior and hinge limits, which keep unobservable twists at rest and knees/elbows bending one way;
+- optional terms of Rempe et al. 2020 (B.3), off unless their weights are set: contact velocity (B6, heels and
+  toes still between two frames labelled in contact), contact position on the floor (B7), velocity of the
+  pelvis-relative joints (B2) and change of the joint angles (B3). Contact labels and the floor plane come with
+  the targets (FitTargets.contacts, FitTargets.floor).
 
 Two solvers share these terms: offline over the whole clip (block-banded normal equations, LAPACK banded
 Cholesky), and online, causal, one frame at a time with the previous two frames fixed (constant cost per frame).
@@ -22,8 +26,8 @@ import numpy as np
 from scipy.linalg import LinAlgError, cholesky, solve_triangular
 
 from ..body import kinematics as kin
-from ..body.model import JOINT_NAMES, BodyModel
-from ..body.rotations import matrix_to_quat, quat_conjugate, quat_left_matrix
+from ..body.model import CONTACT_POINTS, JOINT_NAMES, BodyModel
+from ..body.rotations import matrix_to_quat, quat_conjugate, quat_left_matrix, quat_log, so3_right_jacobian_inverse
 from ..camera import Camera
 from ..config import FitSettings
 from ..landmarks import LANDMARK_INDEX
@@ -55,6 +59,10 @@ class FitTargets:
     keypoints: (T, M, 2) pixels; weight_2d: (T, M) sqrt of weight times confidence (0 = unseen);
     targets_3d: (T, M, 3) root-relative positions in the world frame, metres; weight_3d: (T, M);
     depth: (T,) the person's distance along the camera axis, metres, used to express pixels as metres.
+    contacts: optional (T, 4) contact weights in 0..1 of the heel and toe sites (CONTACT_POINTS order: l heel,
+        l toe, r heel, r toe), for the contact velocity and floor terms; None: no contact terms.
+    floor: optional (4,) plane n . x + d = 0 in the fit's world frame, n the unit normal pointing up, for the
+        floor term; None: no floor term.
     """
 
     keypoints: np.ndarray
@@ -62,10 +70,12 @@ class FitTargets:
     targets_3d: np.ndarray
     weight_3d: np.ndarray
     depth: np.ndarray
+    contacts: np.ndarray | None = None
+    floor: np.ndarray | None = None
 
     def frames(self, sl: slice) -> "FitTargets":
         return FitTargets(self.keypoints[sl], self.weight_2d[sl], self.targets_3d[sl], self.weight_3d[sl],
-                          self.depth[sl])
+                          self.depth[sl], None if self.contacts is None else self.contacts[sl], self.floor)
 
 
 @dataclass
@@ -86,6 +96,7 @@ class KinematicFitter:
         self.marker_points = body.point_index([b for _, b in MARKERS])
         self.joint_points = body.point_index(JOINT_NAMES)
         self.pelvis_point = body.point_index(["pelvis"])[0]
+        self.contact_points = body.point_index(CONTACT_POINTS)
         tab = kin.tables(body)
         self.ball_vadr = tab.vadr[tab.ball_bodies]
         self.ball_qidx = tab.qadr[tab.ball_bodies][:, None] + np.arange(4)
@@ -99,6 +110,8 @@ class KinematicFitter:
 
         self.hinge_qadr, self.hinge_vadr = tab.qadr[tab.hinge_bodies], tab.vadr[tab.hinge_bodies]
         self.hinge_limits = np.array([body.bodies[b].limit for b in tab.hinge_bodies])
+        # Joint angles of the angle-velocity term: ball joints' rotation vectors, then hinge angles.
+        self.angle_columns = np.concatenate([(self.ball_vadr[:, None] + np.arange(3)).ravel(), self.hinge_vadr])
         # Temporal terms are stated at 30 fps: rescale finite differences to keep their meaning per second.
         self.accel_scale = (fps / 30.0) ** 2
         self.velocity_scale = fps / 30.0
@@ -135,8 +148,9 @@ class KinematicFitter:
         cam = self.camera
         T, nv, M = len(qpos), self.body.nv, len(self.marker_points)
         n_ball = len(self.ball_vadr)
-        r = np.empty((T, self.frame_rows))
-        J = np.zeros((T, self.frame_rows, nv))
+        floor_rows = 4 if self._floor_active(targets) else 0
+        r = np.empty((T, self.frame_rows + floor_rows))
+        J = np.zeros((T, self.frame_rows + floor_rows, nv))
         mp, mj = points[:, self.marker_points], jac[:, self.marker_points]
         # Reprojection, in metres at the person's depth: r = s (K2 (x, y) / z + c - keypoint).
         pc = mp @ cam.R.T + cam.t
@@ -172,9 +186,20 @@ class KinematicFitter:
         angles = qpos[:, self.hinge_qadr]
         wl = np.sqrt(self.settings.weight_limits)
         excess = angles - np.clip(angles, self.hinge_limits[:, 0], self.hinge_limits[:, 1])
-        r[:, row:] = wl * excess
-        J[:, row + np.arange(len(angles[0])), self.hinge_vadr] = wl * (excess != 0)
+        n_hinge = len(self.hinge_vadr)
+        r[:, row:row + n_hinge] = wl * excess
+        J[:, row + np.arange(n_hinge), self.hinge_vadr] = wl * (excess != 0)
+        if floor_rows:
+            # Contact position (Rempe B7): c sqrt(w) (n . x + d) for the heel and toe sites.
+            row += n_hinge
+            normal, offset = targets.floor[:3], targets.floor[3]
+            scale = np.sqrt(self.settings.weight_floor) * targets.contacts  # (T, 4)
+            r[:, row:] = scale * (points[:, self.contact_points] @ normal + offset)
+            J[:, row:] = scale[..., None] * (normal @ jac[:, self.contact_points])
         return r, J
+
+    def _floor_active(self, targets: FitTargets) -> bool:
+        return self.settings.weight_floor > 0 and targets.floor is not None and targets.contacts is not None
 
     @staticmethod
     def _robust_weight(residuals: np.ndarray, threshold: float) -> np.ndarray:
@@ -187,18 +212,62 @@ class KinematicFitter:
         norm = np.linalg.norm(residuals, axis=-1)
         return np.sqrt(np.minimum(1.0, threshold / np.maximum(norm, 1e-12)))
 
-    def temporal_signals(self, points, jac) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    def temporal_signals(self, points, jac, qpos=None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """The quantities whose finite differences are penalised: (values (T, n), Jacobians (T, n, nv),
-        coefficients of the difference). Acceleration of joint positions and velocity of their depth."""
+        coefficients of the difference). Acceleration of joint positions and velocity of their depth; when their
+        weights are set, velocity of the pelvis-relative joints (B2) and of the joint angles (B3, needs qpos
+        (T, nq))."""
         jp, jj = points[:, self.joint_points], jac[:, self.joint_points]
         T, nv = len(points), self.body.nv
-        ws = np.sqrt(self.settings.weight_smooth) * self.accel_scale
-        wd = np.sqrt(self.settings.weight_depth) * self.velocity_scale
+        s = self.settings
+        ws = np.sqrt(s.weight_smooth) * self.accel_scale
+        wd = np.sqrt(s.weight_depth) * self.velocity_scale
         axis = self.camera.R[2]
-        return [
+        velocity = np.array([-1.0, 1.0])
+        signals = [
             (ws * jp.reshape(T, -1), ws * jj.reshape(T, -1, nv), np.array([1.0, -2.0, 1.0])),
-            (wd * (jp @ axis), wd * (axis @ jj), np.array([-1.0, 1.0])),
+            (wd * (jp @ axis), wd * (axis @ jj), velocity),
         ]
+        if s.weight_velocity > 0:
+            wv = np.sqrt(s.weight_velocity) * self.velocity_scale
+            pelvis, pelvis_jac = points[:, self.pelvis_point, None], jac[:, self.pelvis_point, None]
+            signals.append((wv * (jp - pelvis).reshape(T, -1), wv * (jj - pelvis_jac).reshape(T, -1, nv), velocity))
+        if s.weight_angle_velocity > 0:
+            if qpos is None:
+                raise ValueError("the joint-angle velocity term needs the poses (qpos)")
+            signals.append(self._angle_signal(qpos, np.sqrt(s.weight_angle_velocity) * self.velocity_scale))
+        return signals
+
+    def _angle_signal(self, qpos: np.ndarray, weight: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Joint angles (T, 3 n_ball + n_hinge): the ball joints' rotation vectors from rest (the root excluded:
+        its yaw wraps round) and the hinge angles; the derivative of log(q exp(d)) along a local step d is the
+        inverse right Jacobian of SO(3)."""
+        T, nv = len(qpos), self.body.nv
+        n_ball = len(self.ball_vadr)
+        rotvec = quat_log(qpos[:, self.ball_qidx])  # (T, n_ball, 3)
+        values = np.concatenate([rotvec.reshape(T, -1), qpos[:, self.hinge_qadr]], axis=1)
+        jacobians = np.zeros((T, values.shape[1], nv))
+        blocks = so3_right_jacobian_inverse(rotvec)  # (T, n_ball, 3, 3)
+        rows = (3 * np.arange(n_ball)[:, None, None] + np.arange(3)[None, :, None]).repeat(3, axis=2)
+        cols = (self.ball_vadr[:, None, None] + np.arange(3)[None, None, :]).repeat(3, axis=1)
+        jacobians[:, rows, cols] = blocks
+        jacobians[:, 3 * n_ball + np.arange(len(self.hinge_vadr)), self.hinge_vadr] = 1.0
+        return weight * values, weight * jacobians, np.array([-1.0, 1.0])
+
+    def contact_signals(self, points, jac, targets: FitTargets):
+        """Contact velocity (Rempe B6) as a weighted temporal signal: (values (T, 12), Jacobians (T, 12, nv),
+        coefficients [-1, 1], weights (T - 1, 12)); a pair of frames counts when the site is in contact in both
+        (the paper weighs by the first frame's label, which also stills a foot as it lifts off). Empty without
+        contacts or weight."""
+        if self.settings.weight_contact_velocity <= 0 or targets.contacts is None or len(points) < 2:
+            return []
+        T, nv = len(points), self.body.nv
+        w = np.sqrt(self.settings.weight_contact_velocity) * self.velocity_scale
+        c = targets.contacts
+        pair = np.repeat(np.minimum(c[:-1], c[1:]), 3, axis=1)  # (T - 1, 12)
+        values = w * points[:, self.contact_points].reshape(T, -1)
+        jacobians = w * jac[:, self.contact_points].reshape(T, -1, nv)
+        return [(values, jacobians, np.array([-1.0, 1.0]), pair)]
 
     # ---- offline: the whole clip -------------------------------------------------------------------------
     def _offline_system(self, qpos, targets):
@@ -211,18 +280,28 @@ class KinematicFitter:
         H[0] = Jt @ J
         g = (Jt @ r[..., None])[..., 0]
         cost = float(np.sum(r * r))
-        for values, jacobians, coeffs in self.temporal_signals(points, jac):
+        signals = [(v, j, c, None) for v, j, c in self.temporal_signals(points, jac, qpos)]
+        for values, jacobians, coeffs, pair_weights in signals + self.contact_signals(points, jac, targets):
             K = len(coeffs)
             n = T - K + 1
             if n <= 0:
                 continue
             rho = sum(c * values[k:k + n] for k, c in enumerate(coeffs))
+            if pair_weights is not None:  # rho_t scaled per difference: d rho_t / d x_(t+a) = c_a w_t J_(t+a)
+                rho = rho * pair_weights
+                weighted = [coeffs[a] * pair_weights[..., None] * jacobians[a:a + n] for a in range(K)]
             cost += float(np.sum(rho * rho))
             Jt = jacobians.transpose(0, 2, 1)
             for a in range(K):
-                g[a:a + n] += coeffs[a] * (Jt[a:a + n] @ rho[..., None])[..., 0]
+                if pair_weights is None:
+                    g[a:a + n] += coeffs[a] * (Jt[a:a + n] @ rho[..., None])[..., 0]
+                else:
+                    g[a:a + n] += (weighted[a].transpose(0, 2, 1) @ rho[..., None])[..., 0]
                 for b in range(a, K):
-                    block = coeffs[a] * coeffs[b] * (Jt[a:a + n] @ jacobians[b:b + n])
+                    if pair_weights is None:
+                        block = coeffs[a] * coeffs[b] * (Jt[a:a + n] @ jacobians[b:b + n])
+                    else:
+                        block = weighted[a].transpose(0, 2, 1) @ weighted[b]
                     if a == b:
                         H[0, a:a + n] += block
                     else:
@@ -288,7 +367,7 @@ class KinematicFitter:
         H = J.T @ J
         g = J.T @ r
         cost = float(r @ r)
-        for (values, jacobians, coeffs), past in zip(self.temporal_signals(points, jac), history):
+        for (values, jacobians, coeffs), past in zip(self.temporal_signals(points, jac, qpos), history):
             if past is None or len(past) < len(coeffs) - 1:
                 continue
             rho = coeffs[-1] * values[0] + sum(c * v for c, v in zip(coeffs[:-1], past[-(len(coeffs) - 1):]))
@@ -311,9 +390,10 @@ class KinematicFitter:
                                     self.integrate, qpos_init, iterations, damping=ONLINE_DAMPING)
 
     def signal_values(self, qpos: np.ndarray) -> list[np.ndarray]:
-        """The temporal signals' values at fitted frames (for the online history)."""
+        """The temporal signals' values at fitted frames (for the online history). The contact velocity term
+        is offline only: the online fit does not use it."""
         points, jac = self.evaluate(qpos)
-        return [values for values, _, _ in self.temporal_signals(points, jac)]
+        return [values for values, _, _ in self.temporal_signals(points, jac, qpos)]
 
 
 def _levenberg_marquardt(system_at, solve, integrate, q0, iterations, damping, tolerance=1e-3):

@@ -1,0 +1,165 @@
+"""The kinematic fit's optional terms of Rempe et al. 2020 (B.3): contact velocity, contact position on the floor,
+joint velocity and joint-angle velocity. Jacobians against finite differences on the manifold, the assembled
+gradient against the cost, and the effect on a motion."""
+
+import numpy as np
+import pytest
+
+from physmocap.body import kinematics as kin
+from physmocap.body.model import CONTACT_POINTS
+from physmocap.camera import Camera
+from physmocap.config import FitSettings
+from physmocap.kinematics.fit import MARKERS, FitTargets, KinematicFitter
+from conftest import random_poses
+
+ALL_TERMS = FitSettings(weight_contact_velocity=10.0, weight_floor=10.0, weight_velocity=0.1,
+                        weight_angle_velocity=0.1, robust_2d=0, robust_3d=0)
+
+
+@pytest.fixture(scope="module")
+def camera():
+    cam = Camera.from_settings((1280, 720), fov=60)
+    R = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])
+    return cam.with_extrinsics(R, -R @ np.array([0.0, -4.0, 1.0]))
+
+
+def targets_for(body, qpos, camera, rng, contacts=None, floor=None):
+    T, M = len(qpos), len(MARKERS)
+    pts = kin.forward_kinematics(body, qpos).points[:, body.point_index([b for _, b in MARKERS])]
+    if contacts is None:
+        contacts = rng.uniform(0, 1, (T, 4)).round()
+    if floor is None:
+        n = np.array([0.05, -0.03, 1.0])
+        floor = np.append(n / np.linalg.norm(n), 0.02)
+    return FitTargets(camera.project(pts) + rng.normal(scale=3, size=(T, M, 2)), rng.uniform(0.5, 1, (T, M)),
+                      pts - pts[:, :1] + rng.normal(scale=0.02, size=(T, M, 3)), rng.uniform(0.3, 1, (T, M)),
+                      np.full(T, 4.0), contacts, floor)
+
+
+def test_defaults_leave_the_terms_off():
+    s = FitSettings()
+    assert s.weight_contact_velocity == s.weight_floor == s.weight_velocity == s.weight_angle_velocity == 0.0
+
+
+def test_floor_rows_appear_only_with_weight_floor_and_contacts(body, camera):
+    rng = np.random.default_rng(0)
+    q = random_poses(body, 2, rng)
+    targets = targets_for(body, q, camera, rng)
+    base = KinematicFitter(body, camera, FitSettings(), 30.0)
+    with_floor = KinematicFitter(body, camera, FitSettings(weight_floor=10.0), 30.0)
+    r0, _ = base.frame_terms(q, *base.evaluate(q), targets)
+    r1, _ = with_floor.frame_terms(q, *with_floor.evaluate(q), targets)
+    assert r1.shape[1] == r0.shape[1] + 4
+    assert np.allclose(r1[:, :r0.shape[1]], r0)
+    no_floor = FitTargets(*[getattr(targets, f) for f in ("keypoints", "weight_2d", "targets_3d", "weight_3d",
+                                                          "depth")], targets.contacts, None)
+    assert with_floor.frame_terms(q, *with_floor.evaluate(q), no_floor)[0].shape == r0.shape
+    # The residual is sqrt(w) c (n . x + d) of the heel and toe sites.
+    soles = kin.forward_kinematics(body, q).points[:, body.point_index(CONTACT_POINTS)]
+    expected = np.sqrt(10.0) * targets.contacts * (soles @ targets.floor[:3] + targets.floor[3])
+    assert np.allclose(r1[:, -4:], expected)
+
+
+def test_frame_terms_with_floor_jacobian_matches_finite_differences(body, camera):
+    rng = np.random.default_rng(1)
+    q = random_poses(body, 3, rng, scale=0.5)
+    fitter = KinematicFitter(body, camera, ALL_TERMS, 30.0)
+    targets = targets_for(body, q, camera, rng, contacts=np.ones((3, 4)))
+    r, J = fitter.frame_terms(q, *fitter.evaluate(q), targets)
+    eps = 1e-6
+    for k in range(body.nv):
+        step = np.zeros((3, body.nv))
+        step[:, k] = eps
+        qp, qm = fitter.integrate(q, step), fitter.integrate(q, -step)
+        rp, _ = fitter.frame_terms(qp, *fitter.evaluate(qp), targets)
+        rm, _ = fitter.frame_terms(qm, *fitter.evaluate(qm), targets)
+        assert np.allclose((rp - rm) / (2 * eps), J[..., k], atol=2e-6), k
+
+
+def test_velocity_and_angle_signal_jacobians_match_finite_differences(body, camera):
+    rng = np.random.default_rng(2)
+    q = random_poses(body, 3, rng, scale=0.6)
+    fitter = KinematicFitter(body, camera, ALL_TERMS, 25.0)
+    signals = fitter.temporal_signals(*fitter.evaluate(q), q)
+    assert len(signals) == 4  # acceleration, depth, joint velocity, angle velocity
+    eps = 1e-6
+    for k in range(body.nv):
+        step = np.zeros((3, body.nv))
+        step[:, k] = eps
+        qp, qm = fitter.integrate(q, step), fitter.integrate(q, -step)
+        plus = fitter.temporal_signals(*fitter.evaluate(qp), qp)
+        minus = fitter.temporal_signals(*fitter.evaluate(qm), qm)
+        for (v, J, _), (vp, _, _), (vm, _, _) in zip(signals, plus, minus):
+            assert np.allclose((vp - vm) / (2 * eps), J[..., k], atol=1e-6), k
+
+
+def test_angle_signal_is_the_joint_angles(body, camera):
+    rng = np.random.default_rng(3)
+    q = random_poses(body, 2, rng)
+    fitter = KinematicFitter(body, camera, FitSettings(weight_angle_velocity=1.0), 30.0)
+    values = fitter.temporal_signals(*fitter.evaluate(q), q)[-1][0]
+    tab = kin.tables(body)
+    expected = np.concatenate([kin.ball_rotation_vectors(body, q).reshape(2, -1), q[:, tab.qadr[tab.hinge_bodies]]],
+                              axis=1)
+    assert np.allclose(values, expected)
+
+
+def test_contact_velocity_jacobian_and_pair_weights(body, camera):
+    rng = np.random.default_rng(4)
+    q = random_poses(body, 4, rng)
+    contacts = np.array([[1, 1, 0, 0], [1, 0, 0, 1], [1, 1, 0, 1], [0, 1, 1, 1]], float)
+    targets = targets_for(body, q, camera, rng, contacts=contacts)
+    fitter = KinematicFitter(body, camera, ALL_TERMS, 30.0)
+    ((values, J, coeffs, pair),) = fitter.contact_signals(*fitter.evaluate(q), targets)
+    assert np.array_equal(coeffs, [-1.0, 1.0])
+    # A pair counts when the site is in contact in both frames.
+    assert np.array_equal(pair[:, ::3], [[1, 0, 0, 0], [1, 0, 0, 1], [0, 1, 0, 1]])
+    eps = 1e-6
+    for k in range(body.nv):
+        step = np.zeros((4, body.nv))
+        step[:, k] = eps
+        qp, qm = fitter.integrate(q, step), fitter.integrate(q, -step)
+        ((vp, _, _, _),) = fitter.contact_signals(*fitter.evaluate(qp), targets)
+        ((vm, _, _, _),) = fitter.contact_signals(*fitter.evaluate(qm), targets)
+        assert np.allclose((vp - vm) / (2 * eps), J[..., k], atol=1e-6), k
+    unlabelled = FitTargets(targets.keypoints, targets.weight_2d, targets.targets_3d, targets.weight_3d,
+                            targets.depth)
+    assert fitter.contact_signals(*fitter.evaluate(q), unlabelled) == []
+    off = KinematicFitter(body, camera, FitSettings(), 30.0)
+    assert off.contact_signals(*off.evaluate(q), targets) == []
+
+
+def test_offline_gradient_matches_the_cost_with_all_terms(body, camera):
+    """The assembled gradient (with the per-pair contact weights) is half the cost's derivative."""
+    rng = np.random.default_rng(5)
+    T = 5
+    q = random_poses(body, T, rng, scale=0.3)
+    targets = targets_for(body, q, camera, rng)
+    fitter = KinematicFitter(body, camera, ALL_TERMS, 30.0)
+    cost, g, H = fitter._offline_system(q, targets)
+    eps = 1e-6
+    for _ in range(6):
+        direction = rng.normal(size=(T, body.nv))
+        cp = fitter._offline_system(fitter.integrate(q, eps * direction), targets)[0]
+        cm = fitter._offline_system(fitter.integrate(q, -eps * direction), targets)[0]
+        assert np.isclose((cp - cm) / (2 * eps), 2 * np.sum(g * direction), rtol=1e-5, atol=1e-7)
+    # The Gauss-Newton matrix is positive semi-definite in every diagonal block.
+    assert np.all(np.linalg.eigvalsh(H[0]) > -1e-9)
+
+
+def test_contact_terms_plant_the_feet_on_the_floor(body, camera):
+    """Feet labelled in contact that jitter and hover in the data end up still and on the given floor."""
+    rng = np.random.default_rng(6)
+    T = 20
+    truth = np.repeat(body.rest_qpos[None], T, axis=0)
+    noisy = kin.integrate(body, truth, rng.normal(scale=0.02, size=(T, body.nv)))
+    noisy[:, 2] += 0.04  # hovering 4 cm
+    targets = targets_for(body, noisy, camera, rng, contacts=np.ones((T, 4)), floor=np.array([0, 0, 1.0, 0]))
+    soles = body.point_index(CONTACT_POINTS)
+    results = {}
+    for name, settings in (("plain", FitSettings(robust_2d=0, robust_3d=0)), ("contact", ALL_TERMS)):
+        fitted = KinematicFitter(body, camera, settings, 30.0).fit_offline(noisy, targets).qpos
+        feet = kin.forward_kinematics(body, fitted).points[:, soles]
+        results[name] = (np.abs(feet[..., 2]).mean(), np.linalg.norm(np.diff(feet, axis=0), axis=-1).mean())
+    assert results["contact"][0] < 0.3 * results["plain"][0]
+    assert results["contact"][1] < 0.5 * results["plain"][1]
