@@ -17,6 +17,9 @@ WORLD_TO_OPENSIM = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]]
 CONTACTS = ("left_heel", "left_toe", "right_heel", "right_toe")
 FEET = {"l": (0, 1), "r": (2, 3)}
 
+opensim.Logger.removeFileSink()  # OpenSim would otherwise write opensim.log into the working directory
+opensim.Logger.setLevelString("warn")
+
 
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory):
