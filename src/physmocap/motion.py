@@ -6,14 +6,13 @@ T is the number of frames, K = 33 MediaPipe landmarks, J the number of named poi
 from __future__ import annotations
 
 import os
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from .errors import InputError
-from .io.atomic import save_npz
+from .io.atomic import read_npz, save_npz
 from .landmarks import NUM_LANDMARKS
 
 
@@ -78,13 +77,7 @@ class Observations:
     def load(cls, path: str | os.PathLike) -> "Observations":
         """Read and check an observations file; any problem raises InputError naming the file."""
         path = Path(path)
-        if not path.is_file():
-            raise InputError(f"{path}: no such observations file.")
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                contents = {key: data[key] for key in data.files}
-        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-            raise InputError(f"{path}: not a readable .npz observations file ({exc}).") from None
+        contents = read_npz(path, "observations")
         for key in ("keypoints_2d", "landmarks_3d", "fps", "image_size"):
             if key not in contents:
                 raise InputError(f"{path}: observations file has no '{key}' array.")

@@ -4,16 +4,15 @@ from __future__ import annotations
 
 import json
 import os
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from .body import kinematics as kin
 from .body.model import CONTACT_POINTS, JOINT_NAMES, LANDMARK_POINTS
-from .errors import InputError
-from .io.atomic import save_npz
 from .dynamics.stage import PhysicsMotion
+from .errors import InputError
+from .io.atomic import read_npz, save_npz
 from .kinematics.stage import KinematicMotion
 from .motion import Observations
 
@@ -82,13 +81,7 @@ def save_result(path: str | os.PathLike, result: dict[str, np.ndarray]) -> None:
 def load_result(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """Read a result file; InputError naming the file if it is missing, unreadable or incomplete."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such result file.")
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            result = {k: data[k] for k in data.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-        raise InputError(f"{path}: not a readable result .npz file ({exc}).") from None
+    result = read_npz(path, "result")
     missing = [k for k in REQUIRED_KEYS if k not in result]
     if missing:
         raise InputError(f"{path}: result file lacks {', '.join(missing)}.")

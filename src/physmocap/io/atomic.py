@@ -1,4 +1,5 @@
-"""Atomic file writes: an interrupted run never leaves a half-written file under the final name."""
+"""Atomic file writes (an interrupted run never leaves a half-written file under the final name), and reading
+.npz files with errors a user can act on."""
 
 from __future__ import annotations
 
@@ -35,6 +36,23 @@ def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+def read_npz(path: str | os.PathLike, kind: str) -> dict[str, np.ndarray]:
+    """All arrays of an .npz file; InputError naming the file (a `kind` file, e.g. "observations") if it is
+    missing or unreadable. No pickles."""
+    import zipfile
+
+    from ..errors import InputError
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such {kind} file.")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return {key: data[key] for key in data.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise InputError(f"{path}: not a readable .npz {kind} file ({exc}).") from None
 
 
 def save_npz(path: str | os.PathLike, **arrays) -> None:
