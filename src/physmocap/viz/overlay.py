@@ -1,8 +1,9 @@
 """The fitted skeleton drawn over the input video: an H.264 MP4 to check a reconstruction by eye.
 
 Colours (BGR): the body's left side blue, its right side orange, the centre line white; detector keypoints small
-yellow dots; foot contact points green, filled while in contact and hollow otherwise. Frames that could not be
-reconstructed carry a red banner instead of a skeleton.
+yellow dots; foot contact points green, filled while in contact and hollow otherwise; ground reaction forces
+magenta arrows from the contact points (one body weight is FORCE_ARROW_BODY_HEIGHTS body heights long in the
+world). Frames that could not be reconstructed carry a red banner instead of a skeleton.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import numpy as np
 
 from ..body.model import CONTACT_POINTS, BodyModel
 from ..io.video import VideoWriter, iter_frames, scaled_height
+from ..metrics import GRAVITY
 
 Colour = tuple[int, int, int]  # BGR, 0-255
 
@@ -24,7 +26,11 @@ CENTRE_COLOUR: Colour = (255, 255, 255)
 KEYPOINT_COLOUR: Colour = (0, 230, 255)
 CONTACT_COLOUR: Colour = (60, 210, 60)
 BANNER_COLOUR: Colour = (30, 30, 200)
+FORCE_COLOUR: Colour = (96, 27, 216)
 BANNER_TEXT = "frame not reconstructed"
+
+FORCE_ARROW_BODY_HEIGHTS = 0.4  # an arrow of one body weight is this many body heights long
+MIN_DRAWN_FORCE = 1.0  # N: weaker forces get no arrow
 
 # Detector keypoints below this confidence are not drawn.
 KEYPOINT_MIN_CONFIDENCE = 0.5
@@ -92,6 +98,7 @@ def draw_overlay(
     labels: Sequence[str] | None = None,
     keypoints: np.ndarray | None = None,
     contacts: np.ndarray | None = None,
+    force_arrows: np.ndarray | None = None,
     valid: bool = True,
 ) -> np.ndarray:
     """One annotated frame: a copy of BGR `frame` (H, W, 3) with the skeleton and markers drawn on it.
@@ -100,7 +107,8 @@ def draw_overlay(
     edges: bones as index pairs into points_2d. labels: (P,) point names (body.point_names), for the side colours
     and to find the contact points. keypoints: (K, 3) detector x, y in pixels and confidence. contacts: (4,) bool
     for the points named in CONTACT_POINTS (left heel, left toe, right heel, right toe); needs `labels`.
-    valid: False draws the banner and no skeleton or contacts.
+    force_arrows: (C, 2, 2) start and tip pixels of force arrows (see `force_arrows_2d`); non-finite ones are
+    skipped. valid: False draws the banner and no skeleton, contacts or forces.
     """
     image = frame.copy()
     width = line_width(image)
@@ -125,7 +133,38 @@ def draw_overlay(
             if finite[index]:
                 _circle(image, points_2d[index], 2.5 * width, CONTACT_COLOUR,
                         cv2.FILLED if in_contact else max(1, width // 2))
+    if force_arrows is not None:
+        for start, tip in np.asarray(force_arrows, dtype=float):
+            length = np.linalg.norm(tip - start)
+            if np.all(np.isfinite(start)) and np.all(np.isfinite(tip)) and length > 0.5:
+                cv2.arrowedLine(image, _fixed(start), _fixed(tip), FORCE_COLOUR, width, cv2.LINE_AA, SHIFT,
+                                tipLength=min(0.3, 6.0 * width / length))
     return image
+
+
+def force_arrow_scale(body_mass: float, body_height: float) -> float:
+    """Metres of arrow per newton: one body weight (body_mass kg) is FORCE_ARROW_BODY_HEIGHTS x body_height m."""
+    return FORCE_ARROW_BODY_HEIGHTS * body_height / (body_mass * GRAVITY)
+
+
+def force_arrows_2d(contact_points: np.ndarray, forces: np.ndarray, project: Callable[[np.ndarray], np.ndarray],
+                    metres_per_newton: float) -> np.ndarray:
+    """Ground reaction force arrows in pixels: (T, C, 2, 2) start and tip (x, y) of each contact force.
+
+    contact_points: (T, C, 3) world positions, metres, where the forces act; forces: (T, C, 3) newtons, world
+    frame (result.npz "grf" with C = 4). project: world points (..., 3) -> pixels (..., 2), e.g. Camera.project.
+    metres_per_newton: arrow length in the world per newton (see `force_arrow_scale`).
+    Arrows of forces below MIN_DRAWN_FORCE are NaN (not drawn).
+    """
+    contact_points = np.asarray(contact_points, dtype=float)
+    forces = np.asarray(forces, dtype=float)
+    if contact_points.shape != forces.shape or contact_points.ndim != 3 or contact_points.shape[2] != 3:
+        raise ValueError(f"contact_points and forces must both have shape (T, C, 3), got {contact_points.shape} "
+                         f"and {forces.shape}.")
+    ends = np.stack([contact_points, contact_points + forces * metres_per_newton], axis=2)  # (T, C, 2, 3)
+    arrows = np.asarray(project(ends), dtype=float)
+    arrows[np.linalg.norm(forces, axis=-1) < MIN_DRAWN_FORCE] = np.nan
+    return arrows
 
 
 def contact_point_indices(labels: Sequence[str] | None) -> list[int]:
@@ -161,6 +200,7 @@ def render_overlay(
     keypoints: np.ndarray | None = None,
     contacts: np.ndarray | None = None,
     labels: Sequence[str] | None = None,
+    force_arrows: np.ndarray | None = None,
     max_width: int | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> None:
@@ -170,7 +210,8 @@ def render_overlay(
     the P points (e.g. skeleton_edges(body)). valid: (T,) bool, False marks frames not reconstructed.
     keypoints: (T, K, 3) detector x, y (native pixels) and confidence. contacts: (T, 4) bool for left heel, left
     toe, right heel, right toe. labels: (P,) point names (body.point_names), for side colours and to find the
-    contact points (required with `contacts`). max_width: frames wider than this are scaled down to it.
+    contact points (required with `contacts`). force_arrows: (T, C, 2, 2) ground reaction force arrows in native
+    pixels (see `force_arrows_2d`). max_width: frames wider than this are scaled down to it.
     progress: called as progress(frames_done, T) after each frame.
     The output keeps the input's frame rate. A video with fewer than T frames raises ValueError (and writes nothing).
     """
@@ -188,6 +229,10 @@ def render_overlay(
         if np.shape(contacts) != (T, len(CONTACT_POINTS)):
             raise ValueError(f"contacts must have shape ({T}, {len(CONTACT_POINTS)}), got {np.shape(contacts)}.")
         contact_point_indices(labels)  # missing contact names fail here, before any decoding
+    force_arrows = None if force_arrows is None else np.asarray(force_arrows, dtype=float)
+    if force_arrows is not None and (force_arrows.ndim != 4 or force_arrows.shape[0] != T
+                                     or force_arrows.shape[2:] != (2, 2)):
+        raise ValueError(f"force_arrows must have shape ({T}, C, 2, 2), got {force_arrows.shape}.")
     if labels is not None and len(labels) != P:
         raise ValueError(f"labels must name all {P} points, got {len(labels)} names.")
     if any(not (0 <= i < P and 0 <= j < P) for i, j in edges):
@@ -205,7 +250,9 @@ def render_overlay(
             image = draw_overlay(
                 frame, points_2d[index] * scale, edges, labels=labels,
                 keypoints=None if keypoints is None else keypoints[index] * np.append(scale, 1.0),
-                contacts=None if contacts is None else contacts[index], valid=bool(valid[index]),
+                contacts=None if contacts is None else contacts[index],
+                force_arrows=None if force_arrows is None else force_arrows[index] * scale,
+                valid=bool(valid[index]),
             )
             writer.write(image)
             if progress is not None:

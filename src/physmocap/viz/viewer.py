@@ -23,11 +23,10 @@ from ..body.kinematics import center_of_mass, forward_kinematics
 from ..body.model import CONTACT_POINTS
 from ..export import body_from_result
 from ..io.atomic import write_text
-from .overlay import SKELETON_EDGE_NAMES
+from ..metrics import GRAVITY
+from .overlay import SKELETON_EDGE_NAMES, force_arrow_scale
 
-GRAVITY = 9.81
 SUPPORT_MARGIN = 0.05  # m: a centre of mass this close to the support polygon still counts as over it
-FORCE_ARROW_BODY_HEIGHTS = 0.4  # an arrow of one body weight is this many body heights long
 GHOST_OFFSET = 1.0  # m beside the final motion, to the right as the video camera sees it
 DATA_PLACEHOLDER = "/*PHYSMOCAP_DATA*/"
 SCRIPT_PLACEHOLDER = "/*PHYSMOCAP_SCRIPT*/"
@@ -125,7 +124,7 @@ def viewer_payload(result: dict[str, np.ndarray], video: str | None) -> dict:
         "support": _base64(vertices, "<f4"),
         "supportCounts": _base64(counts, "u1"),
         "valid": _base64(np.asarray(result["valid"], bool), "u1"),
-        "metresPerNewton": FORCE_ARROW_BODY_HEIGHTS * float(result["body_height"]) / weight,
+        "metresPerNewton": force_arrow_scale(float(result["body_mass"]), float(result["body_height"])),
         "bodyWeight": weight,
         "ghostOffset": ghost.tolist(),
         "cameraCentre": (-np.asarray(result["camera_R"]).T @ np.asarray(result["camera_t"])).tolist(),

@@ -1,0 +1,224 @@
+"""OUT/report.html: one page per run that links every output and shows the run's metrics.
+
+The metrics need no ground truth (all from `physmocap.metrics`), each for the final motion and for the kinematic
+motion before physics: jitter (mean joint acceleration), foot floating / penetration / skate against the floor
+z = 0 and the contacts used, penetration error, ground reaction forces (solved by physics, and implied by the
+centre of mass), the share of supported frames whose centre of mass is over the support polygon, the root force
+physics could not explain, and the reprojection error against the detected keypoints.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import math
+import os
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..body.kinematics import center_of_mass, forward_kinematics
+from ..body.model import CONTACT_POINTS, JOINT_NAMES
+from ..export import body_from_result
+from ..io.atomic import write_text
+from ..landmarks import LANDMARK_INDEX
+from .. import metrics
+from .plots import write_plots
+from .viewer import com_over_support, support_polygons
+
+KEYPOINT_MIN_CONFIDENCE = 0.5  # detections below this confidence do not count for the reprojection error
+
+# Output files a run folder may hold, in the order the report lists them: file name -> what it is.
+RUN_FILES: dict[str, str] = {
+    "viewer.html": "3D viewer (opens offline in a browser)",
+    "overlay.mp4": "overlay video: skeleton, contacts and forces on the input",
+    "result.npz": "result file (every array of the run)",
+    "motion.bvh": "BVH animation (Mixamo names, Y up)",
+    "motion.glb": "glTF binary: skinned mannequin (metres, Y up)",
+    "markers.trc": "OpenSim marker trajectories",
+    "grf.mot": "OpenSim ground reaction forces (one force plate per foot)",
+    "external_loads.xml": "OpenSim ExternalLoads applying grf.mot to calcn_r / calcn_l",
+    "summary.json": "run summary",
+    "metrics.json": "the metrics below, as JSON",
+}
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One row of the report: values of the final and the kinematic motion (None: does not apply)."""
+
+    key: str
+    section: str
+    label: str
+    unit: str
+    final: float | None
+    kinematic: float | None
+    meaning: str
+
+
+def _point_ids(result: dict[str, np.ndarray], names) -> list[int]:
+    all_names = [str(n) for n in result["joint_names"]]
+    return [all_names.index(n) for n in names]
+
+
+def _keypoint_pairs(result: dict[str, np.ndarray]) -> tuple[list[int], list[int]]:
+    """Result points and the detector landmarks at the same place (the toe is MediaPipe's foot_index)."""
+    points, landmarks = [], []
+    for index, name in enumerate(str(n) for n in result["joint_names"]):
+        landmark = name.replace("_toe", "_foot_index")
+        if landmark in LANDMARK_INDEX:
+            points.append(index)
+            landmarks.append(LANDMARK_INDEX[landmark])
+    return points, landmarks
+
+
+def run_metrics(result: dict[str, np.ndarray]) -> list[Metric]:
+    """The report's metrics for a result (see the module docstring)."""
+    fps, mass = float(result["fps"]), float(result["body_mass"])
+    weight = mass * metrics.GRAVITY
+    body = body_from_result(result)
+    contacts = np.asarray(result["contacts"], bool)
+    joints, feet = _point_ids(result, JOINT_NAMES), _point_ids(result, CONTACT_POINTS)
+    motions = {"final": (result["joints_world"], result["qpos"]),
+               "kinematic": (result["joints_world_kinematic"], result.get("qpos_kinematic", result["qpos"]))}
+    values: dict[str, dict[str, float]] = {}
+
+    def put(key: str, motion: str, value: float) -> None:
+        values.setdefault(key, {})[motion] = float(value)
+
+    kp_points, kp_landmarks = _keypoint_pairs(result)
+    keypoints = np.asarray(result["keypoints_2d"], dtype=float)[:, kp_landmarks]
+    keypoints = np.where(np.asarray(result["valid"], bool)[:, None, None], keypoints, 0.0)
+    for motion, (points, qpos) in motions.items():
+        put("mean_acceleration", motion, metrics.mean_acceleration(points[:, joints], fps))
+        foot = metrics.foot_contact_errors(points[:, feet], contacts, fps=fps)
+        for name in ("floating_percent", "penetration_percent", "skate_percent"):
+            put(name, motion, foot[name])
+        mpe, _, pnp = metrics.mpe_pnp(points[:, feet], contacts)
+        put("mpe", motion, 1000 * mpe)
+        put("pnp_percent", motion, pnp)
+        com = center_of_mass(body, forward_kinematics(body, qpos))
+        implied = metrics.grf_statistics(metrics.implied_grf(com, mass, fps), mass, contacts)
+        put("implied_grf_mean_percent_bw", motion, implied["mean_percent_bw"])
+        put("implied_grf_max_percent_bw", motion, implied["max_percent_bw"])
+        put("implied_grf_ballistic_percent_bw", motion, implied["ballistic_percent_bw"])
+        vertices, counts = support_polygons(points[:, feet], contacts)
+        supported = counts > 0
+        over = com_over_support(com, vertices, counts)
+        put("com_over_support_percent", motion, 100 * over[supported].mean() if supported.any() else math.nan)
+        error, _ = metrics.reprojection_error(points[:, kp_points], result["camera_K"], result["camera_R"],
+                                              result["camera_t"], keypoints, KEYPOINT_MIN_CONFIDENCE)
+        put("reprojection_error", motion, error)
+
+    physics = bool(np.any(np.asarray(result["grf"]) != 0))
+    if physics:
+        solved = metrics.grf_statistics(result["grf"], mass, contacts)
+        put("grf_mean_percent_bw", "final", solved["mean_percent_bw"])
+        put("grf_max_percent_bw", "final", solved["max_percent_bw"])
+        put("grf_ballistic_percent_bw", "final", solved["ballistic_percent_bw"])
+        residual = np.linalg.norm(np.asarray(result["residual_root_force"])[:, :3], axis=1)
+        put("residual_force_percent_bw", "final", 100 * residual.mean() / weight)
+
+    rows = [
+        ("mean_acceleration", "Smoothness", "mean joint acceleration", "m/s²",
+         "jitter without ground truth: mean |second difference| × fps² over the 20 joints; lower is smoother"),
+        ("floating_percent", "Feet and floor", "floating", "% foot-frames",
+         "in contact yet more than 3 cm above the floor (Rempe et al. 2020)"),
+        ("penetration_percent", "Feet and floor", "penetration", "% foot-frames",
+         "more than 3 cm below the floor at any time (Rempe et al. 2020)"),
+        ("skate_percent", "Feet and floor", "skate", "% foot-frames",
+         "in contact in two frames and sliding more than 2 cm per 1/30 s (Rempe et al. 2020)"),
+        ("mpe", "Feet and floor", "mean penetration error", "mm",
+         "mean distance of the contact points from the floor while in contact (PhysCap MPE)"),
+        ("pnp_percent", "Feet and floor", "non-penetration", "% frames",
+         "frames with no foot point below the floor (PhysCap PNP)"),
+        ("grf_mean_percent_bw", "Forces", "solved GRF, mean", "% body weight",
+         "net ground reaction force from physics, mean over frames (about 100 over a whole clip)"),
+        ("grf_max_percent_bw", "Forces", "solved GRF, maximum", "% body weight", "its largest value"),
+        ("grf_ballistic_percent_bw", "Forces", "solved GRF in flight", "% body weight",
+         "median over frames without contact (ideal 0)"),
+        ("implied_grf_mean_percent_bw", "Forces", "implied GRF, mean", "% body weight",
+         "net external force m (a_com − g) the motion's centre of mass implies (Rempe et al. 2020)"),
+        ("implied_grf_max_percent_bw", "Forces", "implied GRF, maximum", "% body weight",
+         "its largest value: spikes mean jitter"),
+        ("implied_grf_ballistic_percent_bw", "Forces", "implied GRF in flight", "% body weight",
+         "median over frames without contact (ideal 0)"),
+        ("residual_force_percent_bw", "Forces", "residual root force", "% body weight",
+         "mean force physics had to apply directly to the pelvis (unexplained by contacts)"),
+        ("com_over_support_percent", "Balance", "centre of mass over support", "% supported frames",
+         "the centre of mass projects within 5 cm of the support polygon of the contact points"),
+        ("reprojection_error", "Image agreement", "reprojection error", "px",
+         "mean distance of the projected points to the detected keypoints (confidence ≥ 0.5)"),
+    ]
+    return [Metric(key, section, label, unit, values[key].get("final"), values[key].get("kinematic"), meaning)
+            for key, section, label, unit, meaning in rows if key in values]
+
+
+def _number(value: float | None) -> str:
+    if value is None or not math.isfinite(value):
+        return "–"
+    return f"{value:.3g}" if abs(value) < 1000 else f"{value:.0f}"
+
+
+def report_html(run_dir: Path, result: dict[str, np.ndarray], rows: list[Metric], plots: dict[str, str]) -> str:
+    """The report page; links are relative to `run_dir`, where it is written."""
+    fps, frames = float(result["fps"]), len(result["joints_world"])
+    valid = int(np.asarray(result["valid"], bool).sum())
+    physics = str(result.get("physics", "none"))
+    stage_seconds = json.loads(str(result["stage_seconds"]))
+    links = "\n".join(f'<li><a href="{html.escape(name)}">{html.escape(name)}</a> — {html.escape(what)}</li>'
+                      for name, what in RUN_FILES.items() if (run_dir / name).is_file())
+    table, section = [], None
+    for row in rows:
+        if row.section != section:
+            section = row.section
+            table.append(f'<tr class="section"><th colspan="5">{html.escape(section)}</th></tr>')
+        table.append(f"<tr><td>{html.escape(row.label)}</td><td class=num>{_number(row.final)}</td>"
+                     f"<td class=num>{_number(row.kinematic)}</td><td>{html.escape(row.unit)}</td>"
+                     f"<td class=meaning>{html.escape(row.meaning)}</td></tr>")
+    images = "\n".join(f'<figure><img src="{html.escape(Path(path).relative_to(run_dir).as_posix())}" '
+                       f'alt="{html.escape(name)}"></figure>' for name, path in plots.items())
+    video = ('<video src="overlay.mp4" controls muted playsinline></video>'
+             if (run_dir / "overlay.mp4").is_file() else "")
+    timings = ", ".join(f"{html.escape(k)} {v:.1f} s" for k, v in stage_seconds.items())
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>physmocap report · {html.escape(run_dir.name)}</title>
+<style>
+ body {{ font-family: system-ui, sans-serif; margin: 24px auto; max-width: 1100px; color: #222; padding: 0 16px; }}
+ h1 {{ font-size: 22px; }} h2 {{ font-size: 17px; margin-top: 28px; }}
+ table {{ border-collapse: collapse; width: 100%; font-size: 14px; }}
+ td, th {{ border-bottom: 1px solid #e0e0e0; padding: 5px 8px; text-align: left; vertical-align: top; }}
+ tr.section th {{ background: #eceff1; }} td.num {{ text-align: right; font-variant-numeric: tabular-nums; }}
+ td.meaning {{ color: #555; font-size: 13px; }} video {{ max-width: 100%; max-height: 420px; }}
+ figure {{ margin: 10px 0; }} figure img {{ max-width: 100%; }}
+</style></head><body>
+<h1>physmocap run: {html.escape(run_dir.name)}</h1>
+<p>{frames} frames at {fps:.4g} fps ({frames / fps:.1f} s), {valid} reconstructed; physics: {html.escape(physics)};
+body {float(result["body_height"]):.2f} m, {float(result["body_mass"]):.0f} kg. Time per stage: {timings}.</p>
+<h2>Files</h2><ul>{links}</ul>
+{video}
+<h2>Metrics</h2>
+<p>Without ground truth: the final motion against the kinematic motion before physics, the floor z = 0 and the
+contacts the run used.</p>
+<table><tr><th>metric</th><th>final</th><th>kinematic</th><th>unit</th><th>meaning</th></tr>
+{chr(10).join(table)}
+</table>
+<h2>Plots</h2>
+{images}
+</body></html>
+"""
+
+
+def write_report(run_dir: str | os.PathLike, result: dict[str, np.ndarray]) -> dict[str, str]:
+    """Write the plots (run_dir/plots/*.png), metrics.json and report.html into the run folder `run_dir`, linking
+    the outputs already there (write the viewer, overlay and exports first). Returns {kind: path}."""
+    run_dir = Path(run_dir)
+    plots = write_plots(result, run_dir / "plots")
+    rows = run_metrics(result)
+    metrics_path, report_path = run_dir / "metrics.json", run_dir / "report.html"
+    finite = {r.key: {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(r).items()}
+              for r in rows}
+    write_text(metrics_path, json.dumps(finite, indent=1, allow_nan=False))
+    write_text(report_path, report_html(run_dir, result, rows, plots))
+    return {"report": str(report_path), "metrics": str(metrics_path), **plots}
