@@ -3,6 +3,9 @@ from the animation channels, the skin's inverse bind matrices, and the skinned m
 
 from __future__ import annotations
 
+import json
+import shutil
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -185,3 +188,25 @@ def test_rejects_bad_input(tmp_path):
     with pytest.raises(ValueError, match="fps"):
         write_glb(tmp_path / "fps.glb", body, result["qpos"], 0.0)
     assert not list(tmp_path.iterdir())
+
+
+VALIDATOR_MODULE = Path(__file__).resolve().parents[1] / ".venv" / "node" / "node_modules" / "gltf-validator"
+VALIDATE_JS = """
+const validator = require(process.argv[1]);
+const bytes = new Uint8Array(require("fs").readFileSync(process.argv[2]));
+validator.validateBytes(bytes).then((report) => console.log(JSON.stringify(report.issues)));
+"""
+
+
+def test_khronos_validator_finds_no_issue(exported):
+    """The Khronos glTF-Validator (npm gltf-validator, installed into .venv/node by the Makefile) reports no error,
+    warning, info or hint."""
+    node = shutil.which("node")
+    if node is None or not VALIDATOR_MODULE.is_dir():
+        pytest.skip("node or the gltf-validator package is not installed")
+    _, path, _ = exported
+    output = subprocess.run([node, "-e", VALIDATE_JS, str(VALIDATOR_MODULE), str(path)], capture_output=True,
+                            text=True, timeout=60, check=True).stdout
+    issues = json.loads(output)
+    assert (issues["numErrors"], issues["numWarnings"], issues["numInfos"], issues["numHints"]) == (0, 0, 0, 0), \
+        issues["messages"]
