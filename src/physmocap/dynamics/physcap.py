@@ -170,10 +170,15 @@ class PhysCapTracker:
         forces_sum, residual_sum, failures = np.zeros((4, 3)), np.zeros(6), 0
         records = []
         active = np.zeros(4, bool)
-        for _ in range(s.iterations):
+        target = np.empty_like(q_kin)
+        for i in range(s.iterations):
+            # The steps advance the character through the frame: step i aims at where the kinematic motion is
+            # at its end time, moving along the kinematic velocity, so that the last step lands on frame t.
+            target[:] = q_kin
+            mujoco.mj_integratePos(self.model, target, qd_kin, -(s.iterations - 1 - i) * self.dt)
             bias, heights, touching = self._dynamics()
             active = (predicted_contacts & (heights < s.contact_height)) | touching  # eq. (5)
-            qdd_des = self.desired_acceleration(q_kin, qd_kin, qdd_kin)
+            qdd_des = self.desired_acceleration(target, qd_kin, qdd_kin)
             forces, grf_ok = self.ground_reaction_forces(qdd_des, bias, active)
             qdd, torque, pose_ok = self.pose_accelerations(qdd_des, bias, forces, active, heights)
             failures += (not grf_ok) + (not pose_ok)
