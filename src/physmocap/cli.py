@@ -20,6 +20,7 @@ examples:
   physmocap capture video.mp4 --physics physcap          # PhysCap physics on the offline fit
   physmocap live 0 -o runs/cam                           # live from camera 0: detection, fit, contacts, physics
   physmocap live video.mp4 --max-frames 200              # a file played at its own frame rate, as a camera
+  physmocap export runs/walk/result.npz --to glb         # BVH, GLB or OpenSim files from any earlier run
 
 outputs of capture (in the -o folder):
   result.npz    joints, generalised coordinates, camera, floor, flags (see README "Result file")
@@ -82,6 +83,14 @@ def build_parser() -> argparse.ArgumentParser:
     live.add_argument("--online", action="store_true", default=True, help=argparse.SUPPRESS)
     _add_settings_arguments(live)
 
+    exp = sub.add_parser("export", help="BVH, GLB or OpenSim files from a result.npz of any earlier run",
+                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    exp.add_argument("result", type=Path, help="a result.npz")
+    exp.add_argument("--to", choices=("bvh", "glb", "opensim"), required=True)
+    exp.add_argument("-o", "--output", type=Path, default=None, help="folder (default: the result's folder)")
+    exp.add_argument("--units", default=None, help="bvh: m or cm; opensim: m or mm")
+    exp.add_argument("--root-at-origin", action="store_true", help="bvh, glb: start the root above the origin")
+
     det = sub.add_parser("detect", help="run only the 2D/3D keypoint detector and write an observations file",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     det.add_argument("video", type=Path)
@@ -104,13 +113,28 @@ def _add_settings_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--person-box", type=_floats(4, "--person-box"), metavar="X0,Y0,X1,Y1",
                    help="follow the person inside this box (pixels)")
     p.add_argument("--one-euro", action="store_true", help="One-Euro filter the fitted pose")
+    p.add_argument("--preset", choices=("walking", "running", "jumping", "dancing", "standing"),
+                   help="settings suited to the activity (see physmocap/presets.py)")
+    p.add_argument("--smoothing", type=float, default=None,
+                   help="smoothing strength, 1 = default, 0 = none, up to 100")
+    p.add_argument("--foot-lock", choices=("auto", "always", "never"), default=None,
+                   help="contacts for physics: predicted (auto), whenever a sole is near the floor (always), "
+                        "or none, e.g. airborne or swimming motion (never)")
     p.add_argument("--config", type=Path, help="TOML settings file (see README)")
 
 
 def settings_from_args(args):
     from .config import load_settings
 
+    from .presets import apply_preset, apply_smoothing
+
     s = load_settings(args.config)
+    if args.preset:
+        s = apply_preset(s, args.preset)
+    if args.smoothing is not None:
+        s = apply_smoothing(s, args.smoothing)
+    if args.foot_lock is not None:
+        s = s.replace("physics", foot_lock=args.foot_lock)
     body = {k: v for k, v in (("height", args.height), ("mass", args.mass)) if v is not None}
     camera = {k: v for k, v in (("focal", args.focal), ("fov", args.fov), ("floor", args.floor)) if v is not None}
     if body:
@@ -245,6 +269,19 @@ def cmd_live(args) -> int:
     return 0
 
 
+def cmd_export(args) -> int:
+    from .export import export_result
+
+    options = {}
+    if args.units is not None:
+        options["units"] = args.units
+    if args.root_at_origin:
+        options["root_at_origin"] = True
+    files = export_result(args.result, args.to, args.output or args.result.parent, **options)
+    print("wrote " + ", ".join(str(p) for p in files.values()))
+    return 0
+
+
 def cmd_detect(args) -> int:
     from .config import DetectSettings
     from .detect.mediapipe_pose import detect_video
@@ -268,7 +305,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return {"capture": cmd_capture, "live": cmd_live, "detect": cmd_detect}[args.command](args)
+        commands = {"capture": cmd_capture, "live": cmd_live, "export": cmd_export, "detect": cmd_detect}
+        return commands[args.command](args)
     except InputError as exc:
         print(f"physmocap: error: {exc}", file=sys.stderr)
         return 2

@@ -125,12 +125,16 @@ class PhysicsSettings:
     # value, tuned by the authors for a 40 kg character) a 70 kg root reaches only a third of its desired
     # acceleration and on the demo clip the residual averaged 150% of body weight (1e-3: 76%, 1e-2: 28%, but then
     # a leaning stationary pose can no longer be brought back to balance); 0 .. 1e3
+    foot_lock: str = "auto"  # auto: the predicted contacts; always: every sole point within contact_height of the
+    # floor; never: no contacts and no floor collisions (airborne or swimming motion)
     balance_correction: bool = True  # 4.3.1: straighten stationary poses whose centre of mass leaves the support
     correction_rate: float = 0.1  # fraction of the remaining lean corrected per frame (paper: theta / 10); 0 .. 1
 
     def check(self) -> None:
         if self.method not in ("none", "physcap"):
             raise InputError(f"physics.method must be none or physcap, got '{self.method}'.")
+        if self.foot_lock not in ("auto", "always", "never"):
+            raise InputError(f"physics.foot_lock must be auto, always or never, got '{self.foot_lock}'.")
         for name in ("kp_joint", "kd_joint", "kp_root_rotation", "kd_root_rotation", "kp_root_translation",
                      "kd_root_translation"):
             _within(f"physics.{name}", getattr(self, name), 0.0, 1e5, "")

@@ -23,6 +23,7 @@ from .errors import InputError
 from .kinematics.online import OnlineFitter
 from .kinematics.stage import KinematicMotion, reprojection_errors
 from .landmarks import NUM_LANDMARKS
+from .presets import foot_lock, foot_point_heights
 from .motion import Observations
 
 _END = object()
@@ -133,6 +134,10 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
             valid = np.array([r == "" for r in reasons[start:index + 1]])
             _, flags = network_probabilities(window, valid, fps, contact_weights, "causal")
             contacts, stationary = flags[-1, :4], bool(flags[-1, 4])
+            if settings.physics.foot_lock != "auto":
+                heights = foot_point_heights(fitter.body, q[None])
+                contacts = foot_lock(contacts[None], heights, settings.physics.foot_lock,
+                                     settings.physics.contact_height)[0]
             contacts_by_frame[index] = (contacts, stationary)
             details = dict(contacts=contacts, stationary=stationary)
             final = q

@@ -261,7 +261,8 @@ def run_capture(out_dir: str | os.PathLike, settings: Settings, *, video: str | 
     seconds["kinematics"] = motion.seconds
 
     started = time.perf_counter()
-    contacts, stationary = contacts_stage(obs, settings)
+    predicted, stationary = contacts_stage(obs, settings)
+    contacts = lock_feet(predicted, motion, settings)
     seconds["contacts"] = time.perf_counter() - started
     physics, physics_cached = physics_stage(obs, motion, contacts, stationary, out_dir, settings, progress)
     if physics is not None:
@@ -269,28 +270,53 @@ def run_capture(out_dir: str | os.PathLike, settings: Settings, *, video: str | 
         if physics_cached:
             cached.append("physics")
     return write_outputs(out_dir, source, obs, motion, contacts, stationary, physics, settings, seconds, cached,
-                         video if overlay else None, progress)
+                         video if overlay else None, progress, predicted)
+
+
+def lock_feet(predicted: np.ndarray, motion: KinematicMotion, settings: Settings) -> np.ndarray:
+    """The contacts physics uses: the predictions (auto), every low sole point (always) or none (never)."""
+    from .presets import foot_lock, foot_point_heights
+
+    return foot_lock(predicted, foot_point_heights(motion.body, motion.qpos), settings.physics.foot_lock,
+                     settings.physics.contact_height)
 
 
 def write_outputs(out_dir: Path, source: str, obs: Observations, motion: KinematicMotion, contacts: np.ndarray,
                   stationary: np.ndarray, physics, settings: Settings, seconds: dict[str, float], cached: list[str],
-                  overlay_video: Path | None = None, progress: ProgressFactory | None = None) -> RunSummary:
-    """result.npz, motion.bvh, overlay.mp4 (when `overlay_video` is given) and summary.json."""
+                  overlay_video: Path | None = None, progress: ProgressFactory | None = None,
+                  predicted: np.ndarray | None = None) -> RunSummary:
+    """result.npz, the exports (motion.bvh, motion.glb, OpenSim markers.trc, grf.mot, external_loads.xml),
+    overlay.mp4 (when `overlay_video` is given), viewer.html, summary.json and report.html."""
+    from .export import export_result
     from .io.bvh_export import write_bvh
+    from .io.glb import write_glb
+    from .viz.report import write_report
+    from .viz.viewer import write_viewer
 
     started = time.perf_counter()
-    result = build_result(obs, motion, seconds, settings.as_dict(), contacts, stationary, physics)
-    files = {"result": str(out_dir / "result.npz"), "bvh": str(out_dir / "motion.bvh")}
+    result = build_result(obs, motion, seconds, settings.as_dict(), contacts, stationary, physics, predicted)
+    files = {"result": str(out_dir / "result.npz"), "bvh": str(out_dir / "motion.bvh"),
+             "glb": str(out_dir / "motion.glb")}
     save_result(files["result"], result)
     write_bvh(files["bvh"], motion.body, result["qpos"], obs.fps)
+    write_glb(files["glb"], motion.body, result["qpos"], obs.fps)
+    files.update(export_result(files["result"], "opensim", out_dir))
     if overlay_video is not None:
-        from .viz.overlay import render_overlay, skeleton_edges
+        from .body.model import CONTACT_POINTS
+        from .viz.overlay import force_arrow_scale, force_arrows_2d, render_overlay, skeleton_edges
 
         files["overlay"] = str(out_dir / "overlay.mp4")
         points_2d = motion.camera.project(result["joints_world"])  # result points are the body's points
+        soles = result["joints_world"][:, [RESULT_POINTS.index(n) for n in CONTACT_POINTS]]
+        arrows = force_arrows_2d(soles, result["grf"], motion.camera.project,
+                                 force_arrow_scale(motion.body.mass, motion.body.height))
         bar = progress("overlay", obs.num_frames) if progress else None
         render_overlay(overlay_video, files["overlay"], points_2d, skeleton_edges(motion.body), motion.valid,
-                       keypoints=obs.keypoints_2d, contacts=result["contacts"], labels=RESULT_POINTS, progress=bar)
+                       keypoints=obs.keypoints_2d, contacts=result["contacts"], labels=RESULT_POINTS, progress=bar,
+                       force_arrows=arrows)
+    files["viewer"] = str(out_dir / "viewer.html")
+    write_viewer(result, files["viewer"], video="overlay.mp4" if overlay_video is not None else None)
+    files["report"] = str(out_dir / "report.html")
     seconds["outputs"] = time.perf_counter() - started
 
     error = motion.reprojection_error
@@ -308,6 +334,7 @@ def write_outputs(out_dir: Path, source: str, obs: Observations, motion: Kinemat
         physics_fallback_frames=_frame_ranges(np.flatnonzero(result["physics_fallback"])), files=files)
     files["summary"] = str(out_dir / "summary.json")
     write_text(files["summary"], summary.to_json())
+    write_report(out_dir, result)  # last: it links every output that exists
     return summary
 
 

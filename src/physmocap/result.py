@@ -33,9 +33,10 @@ def person_height_pixels(motion: KinematicMotion) -> np.ndarray:
 
 def build_result(obs: Observations, motion: KinematicMotion, stage_seconds: dict[str, float],
                  settings: dict, contacts: np.ndarray, stationary: np.ndarray,
-                 physics: PhysicsMotion | None = None) -> dict[str, np.ndarray]:
-    """All arrays of result.npz. Without physics the final motion is the kinematic one, `contacts` are the
-    predicted flags and the force keys are zeros; with physics, `contacts` are the flags the physics used."""
+                 physics: PhysicsMotion | None = None, predicted: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """All arrays of result.npz. `contacts`: the flags after foot-lock; `predicted`: the contact network's
+    (default: the same). Without physics the final motion is the kinematic one and the force keys are zeros;
+    with physics, `contacts` become the flags the physics used."""
     body, T = motion.body, len(motion.qpos)
     points = body.point_index(RESULT_POINTS)
     kinematic = kin.forward_kinematics(body, motion.qpos).points[:, points]
@@ -49,7 +50,7 @@ def build_result(obs: Observations, motion: KinematicMotion, stage_seconds: dict
         qpos_kinematic=motion.qpos,
         contact_names=np.array(CONTACT_POINTS),
         contacts=contacts if physics is None else physics.contacts,
-        contacts_predicted=contacts,
+        contacts_predicted=contacts if predicted is None else predicted,
         stationary=stationary,
         grf=np.zeros((T, 4, 3)) if physics is None else physics.grf,
         residual_root_force=np.zeros((T, 6)) if physics is None else physics.residual,

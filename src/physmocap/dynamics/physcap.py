@@ -177,7 +177,9 @@ class PhysCapTracker:
             target[:] = q_kin
             mujoco.mj_integratePos(self.model, target, qd_kin, -(s.iterations - 1 - i) * self.dt)
             bias, heights, touching = self._dynamics()
-            active = (predicted_contacts & (heights < s.contact_height)) | touching  # eq. (5)
+            active = predicted_contacts & (heights < s.contact_height)  # eq. (5)
+            if s.foot_lock != "never":  # airborne or swimming motion: the floor does not push back
+                active |= touching
             qdd_des = self.desired_acceleration(target, qd_kin, qdd_kin)
             forces, grf_ok = self.ground_reaction_forces(qdd_des, bias, active)
             qdd, torque, pose_ok = self.pose_accelerations(qdd_des, bias, forces, active, heights)
