@@ -38,7 +38,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import EVAL_JOINTS, REPO, RESULTS, VIDEOS, git_revision, machine_description  # noqa: E402
+from common import REPO, RESULTS, VIDEOS, git_revision, machine_description  # noqa: E402
+from physmocap.evaluation import EVAL_JOINTS  # noqa: E402
 
 from physmocap import metrics  # noqa: E402
 from physmocap.camera import project_camera_points  # noqa: E402

@@ -24,15 +24,14 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import EVAL_JOINTS, MOCAP, RESULTS  # noqa: E402
-from physmocap import metrics  # noqa: E402
+from common import MOCAP, RESULTS  # noqa: E402
 from physmocap.body import kinematics as kin  # noqa: E402
-from physmocap.body.model import CONTACT_POINTS, JOINT_NAMES, SkeletonLengths, TEMPLATE_RATIOS  # noqa: E402
+from physmocap.body.model import SkeletonLengths, TEMPLATE_RATIOS  # noqa: E402
 from physmocap.config import Settings  # noqa: E402
-from physmocap.contacts.labels import contact_labels  # noqa: E402
 from physmocap.contacts.noise import MEDIAPIPE_NOISE  # noqa: E402
 from physmocap.contacts.predict import predict_contacts  # noqa: E402
 from physmocap.dynamics.stage import run_physcap  # noqa: E402
+from physmocap.evaluation import score_against_truth, to_truth_world  # noqa: E402
 from physmocap.kinematics.calibration import measure_lengths  # noqa: E402
 from physmocap.kinematics.stage import fit_motion  # noqa: E402
 from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
@@ -64,55 +63,12 @@ def first_seconds(clip, seconds):
                                hand_rotations=clip.hand_rotations[:n])
 
 
-def to_true_world(points_camera: np.ndarray, truth: dict) -> np.ndarray:
-    return (points_camera - truth["camera_t"]) @ truth["camera_R"]
-
-
-def score(points: np.ndarray, truth: dict, true_contacts: np.ndarray, body, fps: float,
-          grf: np.ndarray | None, residual: np.ndarray | None, com: np.ndarray) -> dict:
-    """Metrics of one method's world points (T, P, 3) in the TRUE world frame (camera frame mapped back)."""
-    ev = [JOINT_NAMES.index(j) for j in EVAL_JOINTS]
-    hips = [JOINT_NAMES.index("left_hip"), JOINT_NAMES.index("right_hip")]
-    true = truth["joints_world"]
-    pred_joints, true_joints = points[:, ev], true[:, ev]
-    pred_root, true_root = points[:, hips].mean(1), true[:, hips].mean(1)
-    with_root_p = np.concatenate([pred_root[:, None], pred_joints], axis=1)
-    with_root_t = np.concatenate([true_root[:, None], true_joints], axis=1)
-    names = list(body.point_names)
-    feet = points[:, [names.index(n) for n in CONTACT_POINTS]]
-    mass = body.mass
-    net = grf.sum(axis=1) if grf is not None else metrics.implied_grf(com, mass, fps)
-    grf_stats = metrics.grf_statistics(net, mass, true_contacts)
-    mpe, mpe_std, pnp = metrics.mpe_pnp(feet, true_contacts)
-    foot = metrics.foot_contact_errors(feet, true_contacts, fps=fps)
-    smooth, smooth_std = metrics.e_smooth(pred_joints, true_joints)
-    out = dict(
-        mpjpe_root_mm=1000 * metrics.mpjpe(with_root_p, with_root_t, align="root", joints=list(range(1, 17))),
-        mpjpe_procrustes_mm=1000 * metrics.mpjpe(pred_joints, true_joints, align="procrustes"),
-        global_root_mm=1000 * float(np.linalg.norm(pred_root - true_root, axis=-1).mean()),
-        global_mpjpe_mm=1000 * metrics.mpjpe(pred_joints, true_joints, align="none"),
-        pck150=metrics.pck(with_root_p, with_root_t, align="root", joints=list(range(1, 17))),
-        e_smooth_mm=1000 * smooth, e_smooth_std_mm=1000 * smooth_std,
-        acceleration_error=metrics.acceleration_error(pred_joints, true_joints, fps),
-        mpe_mm=1000 * mpe, pnp_percent=pnp,
-        floating_percent=foot["floating_percent"], penetration_percent=foot["penetration_percent"],
-        skate_percent=foot["skate_percent"],
-        grf_mean_percent_bw=grf_stats["mean_percent_bw"], grf_max_percent_bw=grf_stats["max_percent_bw"],
-        grf_ballistic_percent_bw=grf_stats["ballistic_percent_bw"],
-        residual_mean_percent_bw=(float("nan") if residual is None else
-                                  100 * float(np.linalg.norm(residual[:, :3], axis=-1).mean()) / (mass * 9.81)),
-    )
-    return {k: float(v) for k, v in out.items()}
-
-
 def evaluate_case(name: str, seed: int, noise: NoiseModel = MEDIAPIPE_NOISE, methods=METHODS,
                   height_error: float = 0.0) -> list[dict]:
     clip = first_seconds(resample(load_mocap(MOCAP / name), FPS), SECONDS)
     rng = np.random.default_rng(seed)
     K, R, t = random_camera(clip, rng)
     obs, truth = make_observations(clip, K, R, t, rng, noise)
-    names = list(truth["joint_names"])
-    true_contacts = contact_labels(truth["joints_world"][:, [names.index(n) for n in CONTACT_POINTS]], FPS)
     settings = Settings().replace("body", height=model_height(truth["landmarks_world"]) * (1 + height_error))
     rows, fitted = [], {}
     for method in methods:
@@ -130,9 +86,9 @@ def evaluate_case(name: str, seed: int, noise: NoiseModel = MEDIAPIPE_NOISE, met
         else:
             seconds = motion.seconds
         pose = kin.forward_kinematics(motion.body, qpos)
-        points = to_true_world(motion.camera.to_camera(pose.points), truth)
-        com = to_true_world(motion.camera.to_camera(kin.center_of_mass(motion.body, pose)), truth)
-        row = score(points, truth, true_contacts, motion.body, FPS, grf, residual, com)
+        points = to_truth_world(pose.points, motion.camera.R, motion.camera.t, truth)
+        com = to_truth_world(kin.center_of_mass(motion.body, pose), motion.camera.R, motion.camera.t, truth)
+        row = score_against_truth(points, motion.body.point_names, com, truth, motion.body.mass, grf, residual)
         row.update(method=method, clip=name.split("/")[-1], seed=seed, frames=len(qpos),
                    ms_per_frame=1000 * seconds / len(qpos), wall_ms_per_frame=1000 * (time.perf_counter() - start)
                    / len(qpos))

@@ -17,11 +17,6 @@ VIDEOS = SHARED / "data" / "videos"
 MOCAP = SHARED / "data" / "mocap"
 RESULTS = REPO / "benchmarks" / "results"
 
-# Joints whose definitions agree between the body model, MediaPipe and the motion capture skeletons
-# (pelvis, spine, neck and head are placed differently by each and are left out of pose errors).
-EVAL_JOINTS = ("left_shoulder", "left_elbow", "left_wrist", "right_shoulder", "right_elbow", "right_wrist",
-               "left_hip", "left_knee", "left_ankle", "left_heel", "left_toe", "right_hip", "right_knee",
-               "right_ankle", "right_heel", "right_toe")
 
 
 def machine_description() -> str:

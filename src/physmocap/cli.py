@@ -21,6 +21,7 @@ examples:
   physmocap live 0 -o runs/cam                           # live from camera 0: detection, fit, contacts, physics
   physmocap live video.mp4 --max-frames 200              # a file played at its own frame rate, as a camera
   physmocap export runs/walk/result.npz --to glb         # BVH, GLB or OpenSim files from any earlier run
+  physmocap evaluate runs/walk/result.npz [--truth truth.npz]   # every metric of a run
 
 outputs of capture (in the -o folder):
   result.npz    joints, generalised coordinates, camera, floor, flags (see README "Result file")
@@ -90,6 +91,14 @@ def build_parser() -> argparse.ArgumentParser:
     exp.add_argument("-o", "--output", type=Path, default=None, help="folder (default: the result's folder)")
     exp.add_argument("--units", default=None, help="bvh: m or cm; opensim: m or mm")
     exp.add_argument("--root-at-origin", action="store_true", help="bvh, glb: start the root above the origin")
+
+    ev = sub.add_parser("evaluate", help="every metric of a run, against ground truth if given",
+                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    ev.add_argument("result", type=Path, help="a result.npz")
+    ev.add_argument("--truth", type=Path, default=None,
+                    help="truth .npz (joint_names, joints_world, camera_R, camera_t, fps), e.g. a synthetic case")
+    ev.add_argument("-o", "--output", type=Path, default=None,
+                    help="evaluation JSON to write (default: evaluation.json beside the result)")
 
     det = sub.add_parser("detect", help="run only the 2D/3D keypoint detector and write an observations file",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -282,6 +291,26 @@ def cmd_export(args) -> int:
     return 0
 
 
+def cmd_evaluate(args) -> int:
+    from .evaluation import evaluate, write_evaluation
+
+    evaluation = evaluate(args.result, args.truth)
+    print(f"{'metric':<48} {'final':>12} {'kinematic':>12}")
+    for row in evaluation["run"].values():
+        final, kinematic = (_number(row[k]) for k in ("final", "kinematic"))
+        print(f"{row['label'] + (' (' + row['unit'] + ')' if row['unit'] else ''):<48} {final:>12} {kinematic:>12}")
+    for motion, scores in evaluation.get("truth", {}).items():
+        print(f"against the truth, {motion} motion: " + ", ".join(f"{k} {_number(v)}" for k, v in scores.items()))
+    out = args.output or args.result.parent / "evaluation.json"
+    write_evaluation(out, evaluation)
+    print(f"written to {out}")
+    return 0
+
+
+def _number(value) -> str:
+    return "-" if value is None or value != value else f"{value:.4g}"
+
+
 def cmd_detect(args) -> int:
     from .config import DetectSettings
     from .detect.mediapipe_pose import detect_video
@@ -305,7 +334,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        commands = {"capture": cmd_capture, "live": cmd_live, "export": cmd_export, "detect": cmd_detect}
+        commands = {"capture": cmd_capture, "live": cmd_live, "export": cmd_export, "evaluate": cmd_evaluate,
+                    "detect": cmd_detect}
         return commands[args.command](args)
     except InputError as exc:
         print(f"physmocap: error: {exc}", file=sys.stderr)
