@@ -25,6 +25,7 @@ BENCHMARKS = {  # name: (script, arguments)
     "kinematics_real": ("bench_kinematics.py", []),
     "synthetic": ("bench_synthetic.py", []),
     "physics_speed": ("bench_physics.py", []),
+    "scaling": ("bench_scaling.py", []),
     "multiview_none": ("bench_multiview.py", ["--physics", "none"]),
     "multiview_physcap": ("bench_multiview.py", ["--physics", "physcap"]),
     "contacts": ("bench_contacts.py", []),
@@ -128,6 +129,26 @@ def physics_speed_section() -> list[str]:
             f"{data['qp_failures']} QP fallbacks)."]
 
 
+def scaling_section() -> list[str]:
+    data = _load("scaling")
+    if not data:
+        return ["(not run)"]
+    names = {"detect": "detection", "fit_offline": "kinematic fit, offline", "fit_online": "kinematic fit, online",
+             "contacts_centred": "contacts, centred network", "contacts_causal": "contacts, causal network",
+             "physics": "PhysCap physics", "outputs": "outputs (result, BVH, GLB, OpenSim, overlay, viewer, report)"}
+    lines = ["| stage | ms/frame | peak resident memory MB |", "|---|---|---|"]
+    for key, row in data["stages"].items():
+        lines.append(f"| {names.get(key, key)} | {_f(row['ms_per_frame'], 2)} | {_f(row['peak_rss_mb'], 0)} |")
+    lines += ["", f"End to end (detection, online fit, causal contacts, physics, all outputs, one after the other): "
+              f"{_f(data['end_to_end_frames_per_second'])} frames per second.", "",
+              "| clip length | frames | offline fit s | ms/frame | physics s | peak memory MB |", "|---|---|---|---|---|---|"]
+    for seconds, row in data["lengths"].items():
+        lines.append(f"| {seconds} s | {row['frames']} | {_f(row['fit_seconds'], 2)} | "
+                     f"{_f(1000 * row['fit_seconds'] / row['frames'], 2)} | {_f(row['physics_seconds'], 2)} | "
+                     f"{_f(row['peak_rss_mb'], 0)} |")
+    return lines
+
+
 def include(name: str) -> list[str]:
     path = RESULTS / f"{name}.md"
     if not path.is_file():
@@ -172,6 +193,18 @@ def compose(seconds: dict[str, float]) -> str:
         "`.venv/bin/python benchmarks/bench_physics.py`",
         "",
         *physics_speed_section(),
+        "",
+        "## Speed and memory per stage; time against clip length",
+        "",
+        "`.venv/bin/python benchmarks/bench_scaling.py` — each stage in a fresh process on the demo clip (96 "
+        "frames, 640x360); lengths: the first 2-20 s of CMU 001_01 (forward jumps) at 30 fps through synthetic "
+        "observations.",
+        "",
+        *scaling_section(),
+        "",
+        "## Trajectory optimisation (Rempe et al.)",
+        "",
+        *include("trajopt"),
         "",
         "## Multi-view real set",
         "",
