@@ -175,7 +175,11 @@ class TrajoptSettings:
     # flickering frame at 30 fps); 0 .. 1
     # Constraints (figure 3, C.2); a sample interval of 0 means every frame.
     constraints: tuple[str, ...] = TRAJOPT_CONSTRAINTS  # constraint sets used, by name
-    dynamics_interval: float = 0.1  # s between dynamics constraints; 0 .. 1
+    dynamics_interval: float = 0.1  # s between dynamics constraints (Newton and Euler); 0 .. 1
+    linear_dynamics_interval: float = 0.0  # s between Newton's equation (ours: every frame). With the paper's
+    # 0.1 s the forces between samples are free, and read at the frames they averaged 241% of body weight on the
+    # synthetic clips (measured); Euler's equation every frame over-constrains the 0.1 s orientation
+    # polynomials (IPOPT stalls); 0 .. 1
     kinematic_interval: float = 0.08  # s between foot-length and leg-length constraints; 0 .. 1
     floor_interval: float = 0.1  # s between above-floor constraints of feet in flight; 0 .. 1
     boundary_frames: int = 5  # frames whose mean COM velocity the first and last velocity must match; 1 .. 100
@@ -219,7 +223,7 @@ class TrajoptSettings:
         _within("trajopt.segments_per_phase", self.segments_per_phase, 1, 50, "")
         _within("trajopt.segment_phase_seconds", self.segment_phase_seconds, 0.1, 60.0, "s")
         _within("trajopt.min_phase_seconds", self.min_phase_seconds, 0.0, 1.0, "s")
-        for name in ("dynamics_interval", "kinematic_interval", "floor_interval"):
+        for name in ("dynamics_interval", "linear_dynamics_interval", "kinematic_interval", "floor_interval"):
             _within(f"trajopt.{name}", getattr(self, name), 0.0, 1.0, "s")
         _within("trajopt.boundary_frames", self.boundary_frames, 1, 100, "frames")
         _within("trajopt.max_force", self.max_force, 10.0, 1e5, "N")

@@ -1,0 +1,668 @@
+"""The centroidal trajectory optimisation of Rempe et al. 2020 (section 3.1, figure 3, appendix C) for one window
+of frames, as named pieces:
+
+variable sets
+  com                 COM position and Z-Y-X Euler orientation: Hermite nodes (value, rate) every ~0.1 s
+  foot_<point>        per heel/toe: one (x, y) per contact phase (z = 0: on the floor; constant: no slip), and
+                      Hermite nodes through each flight (at least 6 polynomials per phase)
+  force_<point>       per heel/toe: Hermite nodes through each contact phase (at least 6 polynomials), in body
+                      weights; zero in flight by construction; zero where a contact phase meets a flight
+  durations           (last stage only) the times of the phase boundaries
+constraint sets (TrajoptSettings.constraints)
+  dynamics            m r'' = sum f + m g; I_w w' + w x I_w w = sum (p - r) x f, I_w from the input's I_b(t);
+                      Euler's equation every 0.1 s (the paper), Newton's at every frame (ours, see settings)
+  velocity_boundaries COM velocity at the clip's first and last frame = mean input velocity of 5 frames
+  foot_length         |heel - toe| = foot length
+  leg_length          |point - hip| <= leg reach, the hip placed from the COM pose with the input's offset
+  force_limits        0 <= f_n <= f_max and |f_t| <= mu f_n (friction pyramid) at force nodes and frames
+  above_floor         z >= 0 for feet in flight
+  phase_order         (durations only) every phase keeps a minimum duration
+cost terms (TrajoptSettings.costs)
+  data, velocity, acceleration   equations (1), (3), (4) at every frame
+  duration                       equation (2)
+
+Everything is written on whole rows of samples (3, n): a trajectory sampled at fixed times is one sparse
+product with x, so building the program costs little more than its size. World frame: Z up, floor z = 0 (the
+kinematic stage moves the world there). Times in seconds, absolute.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+import scipy.sparse as sp
+
+from ..body.model import CONTACT_POINTS
+from ..config import TrajoptSettings
+from .phases import Phase, flags_from_phases, segment_count
+from .problem import ConstraintSet, CostTerm, VariableSet
+from .reduced import ReducedMotion
+from .splines import Node, Segment, Trajectory
+
+# The program's symbols. Scalar graphs (SX) evaluate fastest at these sizes; CasADi builds their exact first
+# and second derivatives once per program (measured: MX graphs build no faster here and iterate 5x slower).
+SYMBOL = ca.SX
+
+POINT_NAMES = tuple(name.replace("left_", "l_").replace("right_", "r_") for name in CONTACT_POINTS)
+FOOT_PAIRS = ((0, 1), (2, 3))  # (heel, toe) of the left and right foot
+
+
+@dataclass
+class WindowStart:
+    """The state a window must start in, taken from the previous window's solution at the junction time.
+    com, com_rate, euler, euler_rate: (3,); feet, feet_rate: (4, 3) m, m/s; forces, force_rates: (4, 3) body
+    weights (zero for points in flight)."""
+
+    com: np.ndarray
+    com_rate: np.ndarray
+    euler: np.ndarray
+    euler_rate: np.ndarray
+    feet: np.ndarray
+    feet_rate: np.ndarray
+    forces: np.ndarray
+    force_rates: np.ndarray
+
+
+@dataclass
+class Window:
+    """One window's inputs: the reduced motion at its frames (absolute times), the phases of each contact point
+    (covering exactly the window's time span), the velocities the clip's ends must match (None: not a clip end),
+    the start state (None: free) and the time after which phase boundaries stay put (the junction)."""
+
+    reduced: ReducedMotion
+    phases: list[list[Phase]]
+    start_velocity: np.ndarray | None = None
+    end_velocity: np.ndarray | None = None
+    start: WindowStart | None = None
+    freeze_after: float = np.inf
+
+    @property
+    def t0(self) -> float:
+        return float(self.reduced.times[0])
+
+    @property
+    def t1(self) -> float:
+        return float(self.reduced.times[-1])
+
+
+def sample_times(t0: float, t1: float, interval: float, frames: np.ndarray) -> np.ndarray:
+    """Constraint sample times: every `interval` seconds from t0 to t1 (both included, spacing adjusted to fit),
+    or the frame times when interval is 0."""
+    if interval <= 0:
+        return np.asarray(frames, float)
+    n = max(1, int(round((t1 - t0) / interval)))
+    return np.linspace(t0, t1, n + 1)
+
+
+def interpolate(times: np.ndarray, values: np.ndarray, t) -> np.ndarray:
+    """Linear interpolation of values (T, ...) at times t (n,) -> (n, ...)."""
+    flat = values.reshape(len(values), -1)
+    t = np.atleast_1d(np.asarray(t, float))
+    out = np.stack([np.interp(t, times, flat[:, k]) for k in range(flat.shape[1])], axis=-1)
+    return out.reshape((len(t),) + values.shape[1:])
+
+
+def rate(times: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Time derivative of values (T, ...) by finite differences."""
+    if len(times) < 2:
+        return np.zeros_like(values)
+    return np.gradient(values, times, axis=0)
+
+
+# ---- rigid-body kinematics of Z-Y-X Euler angles, on rows of samples --------------------------------------------
+def rotate(e, v, inverse: bool = False):
+    """R(e) v (or R(e)^T v) for Z-Y-X Euler angles e = (yaw, pitch, roll) with R = Rz Ry Rx; e and v (3, n)
+    CasADi or numpy, column by column."""
+    cy, sy, cp, sp, cr, sr = (ca.cos(e[0, :]), ca.sin(e[0, :]), ca.cos(e[1, :]), ca.sin(e[1, :]),
+                              ca.cos(e[2, :]), ca.sin(e[2, :]))
+    x, y, z = v[0, :], v[1, :], v[2, :]
+    if not inverse:
+        y, z = cr * y - sr * z, sr * y + cr * z  # Rx
+        x, z = cp * x + sp * z, -sp * x + cp * z  # Ry
+        x, y = cy * x - sy * y, sy * x + cy * y  # Rz
+    else:
+        x, y = cy * x + sy * y, -sy * x + cy * y  # Rz^T
+        x, z = cp * x - sp * z, sp * x + cp * z  # Ry^T
+        y, z = cr * y + sr * z, -sr * y + cr * z  # Rx^T
+    return ca.vertcat(x, y, z)
+
+
+def angular_velocity(e, de, dde):
+    """World angular velocity w and acceleration w' (3, n) from Z-Y-X Euler angles and their first and second
+    time derivatives (3, n): w = E(e) e', w' = E(e) e'' + E'(e, e') e'."""
+    cy, sy, cp, sp = ca.cos(e[0, :]), ca.sin(e[0, :]), ca.cos(e[1, :]), ca.sin(e[1, :])
+    dy, dp, dr = de[0, :], de[1, :], de[2, :]
+    ddy, ddp, ddr = dde[0, :], dde[1, :], dde[2, :]
+    w = ca.vertcat(-sy * dp + cy * cp * dr, cy * dp + sy * cp * dr, dy - sp * dr)
+    dw = ca.vertcat(-cy * dy * dp - sy * ddp + (-sy * dy * cp - cy * sp * dp) * dr + cy * cp * ddr,
+                    -sy * dy * dp + cy * ddp + (cy * dy * cp - sy * sp * dp) * dr + sy * cp * ddr,
+                    ddy - cp * dp * dr - sp * ddr)
+    return w, dw
+
+
+def cross(a, b):
+    """Column-wise cross product of (3, n) rows."""
+    return ca.vertcat(a[1, :] * b[2, :] - a[2, :] * b[1, :], a[2, :] * b[0, :] - a[0, :] * b[2, :],
+                      a[0, :] * b[1, :] - a[1, :] * b[0, :])
+
+
+def apply_inertia(inertia: np.ndarray, v):
+    """I v column by column: inertia (n, 3, 3) numbers, v (3, n)."""
+    rows = []
+    for i in range(3):
+        rows.append(sum(ca.DM(inertia[:, i, j]).T * v[j, :] for j in range(3)))
+    return ca.vertcat(*rows)
+
+
+def euler_torque(e, de, dde, inertia: np.ndarray):
+    """I_w w' + w x I_w w in the world frame (3, n), with I_w = R I_b R^T and I_b (n, 3, 3) per sample,
+    evaluated in the body frame."""
+    w, dw = angular_velocity(e, de, dde)
+    wb, dwb = rotate(e, w, inverse=True), rotate(e, dw, inverse=True)
+    return rotate(e, apply_inertia(inertia, dwb) + cross(wb, apply_inertia(inertia, wb)))
+
+
+# ---- variable sets -----------------------------------------------------------------------------------------
+class ComVariables:
+    """COM position and orientation: Hermite nodes (value and rate of both) at n + 1 evenly spaced times over the
+    window, about `interval` apart; 12 numbers per node. Initialised from the input."""
+
+    def __init__(self, window: Window, interval: float, offset: int):
+        red = window.reduced
+        n = max(1, int(round((window.t1 - window.t0) / interval)))
+        self.node_times = t = np.linspace(window.t0, window.t1, n + 1)
+        self.set = VariableSet.create("com", 12 * (n + 1))
+        pos = interpolate(red.times, red.com, t)
+        vel = interpolate(red.times, rate(red.times, red.com), t)
+        ang = interpolate(red.times, red.euler, t)
+        ang_rate = interpolate(red.times, rate(red.times, red.euler), t)
+        self.set.initial = np.concatenate([pos, vel, ang, ang_rate], axis=1).ravel()
+        if window.start is not None:  # continue from the previous window
+            s = window.start
+            fixed = np.concatenate([s.com, s.com_rate, s.euler, s.euler_rate])
+            self.set.lower[:12] = self.set.upper[:12] = self.set.initial[:12] = fixed
+        base = offset + 12 * np.arange(n + 1)
+        self.position = self._trajectory(base, 0)
+        self.orientation = self._trajectory(base, 6)
+
+    def _trajectory(self, base: np.ndarray, row: int) -> Trajectory:
+        nodes = [Node.at(b + row, b + row + 3) for b in base]
+        t = self.node_times
+        return Trajectory([Segment(float(t[j]), float(t[j + 1]), nodes[j], nodes[j + 1], (t[j], t[j + 1]))
+                           for j in range(len(t) - 1)])
+
+
+class Schedule:
+    """The phase boundary times of one contact point: floats at the input timing, or expressions of the
+    `durations` variables. boundaries[j] is the start of phase j; boundaries[-1] the window's end."""
+
+    def __init__(self, phases: list[Phase], boundaries: list | None = None, slack: float = 0.0):
+        self.phases = phases
+        self.nominal = [p.start for p in phases] + [phases[-1].end]
+        self.boundaries = list(self.nominal) if boundaries is None else boundaries
+        self.slack = slack
+
+    def segment(self, j: int, k: int, m: int, first: Node, second: Node) -> Segment:
+        """Segment k of the m of phase j."""
+        b0, b1 = self.boundaries[j], self.boundaries[j + 1]
+        n0, n1 = self.nominal[j], self.nominal[j + 1]
+        start = b0 + (b1 - b0) * (k / m) if k else b0
+        end = b0 + (b1 - b0) * ((k + 1) / m) if k + 1 < m else b1
+        nominal = (n0 + (n1 - n0) * k / m, n0 + (n1 - n0) * (k + 1) / m)
+        return Segment(start, end, first, second, nominal, self.slack)
+
+
+class _Packer:
+    """Collects a variable set's entries: initial values and bounds, handing out indices."""
+
+    def __init__(self, offset: int):
+        self.offset, self.initial, self.lower, self.upper = offset, [], [], []
+
+    def take(self, values, lower, upper) -> int:
+        index = self.offset + sum(len(v) for v in self.initial)
+        self.initial.append(np.asarray(values, float))
+        self.lower.append(np.broadcast_to(np.asarray(lower, float), (len(self.initial[-1]),)))
+        self.upper.append(np.broadcast_to(np.asarray(upper, float), (len(self.initial[-1]),)))
+        return index
+
+    def variable_set(self, name: str) -> VariableSet:
+        size = sum(len(v) for v in self.initial)
+        out = VariableSet.create(name, size)
+        if size:
+            out.initial = np.concatenate(self.initial)
+            out.lower, out.upper = np.concatenate(self.lower).copy(), np.concatenate(self.upper).copy()
+        return out
+
+
+class FootVariables:
+    """One heel or toe: a constant (x, y, 0) per contact phase (no slip, on the floor), Hermite nodes through
+    each flight phase (z >= 0 at the nodes) with zero velocity where it meets a contact; the nodes at the
+    window's ends are free unless the window continues a previous one."""
+
+    def __init__(self, index: int, window: Window, schedule: Schedule, settings: TrajoptSettings, offset: int):
+        red, phases = window.reduced, schedule.phases
+        feet = red.feet[:, index]
+        feet_rate = rate(red.times, feet)
+        pack = _Packer(offset)
+        contact_at: dict[int, int] = {}
+        for j, p in enumerate(phases):
+            if p.contact:
+                inside = (red.times >= p.start - 1e-9) & (red.times <= p.end + 1e-9)
+                xy = np.median(feet[inside, :2], axis=0) if inside.any() else interpolate(red.times, feet,
+                                                                                          p.start)[0, :2]
+                contact_at[j] = pack.take(xy, -np.inf, np.inf)
+        flight_nodes: dict[tuple[int, int], int] = {}
+        self.segment_counts = []
+        for j, p in enumerate(phases):
+            m = 1 if p.contact else segment_count(p.duration, settings.segments_per_phase,
+                                                  settings.segment_phase_seconds)
+            self.segment_counts.append(m)
+            if p.contact:
+                continue
+            times = np.linspace(p.start, p.end, m + 1)
+            for k in range(m + 1):
+                if (k == 0 and j > 0) or (k == m and j < len(phases) - 1):
+                    continue  # shared with the neighbouring contact phase
+                pos = interpolate(red.times, feet, times[k])[0]
+                vel = interpolate(red.times, feet_rate, times[k])[0]
+                pos[2] = max(pos[2], 0.0)
+                flight_nodes[(j, k)] = pack.take(np.concatenate([pos, vel]), [-np.inf, -np.inf, 0.0] + [-np.inf] * 3,
+                                                 np.inf)
+        self.set = pack.variable_set(f"foot_{POINT_NAMES[index]}")
+        if window.start is not None:  # continue from the previous window
+            s = window.start
+            if phases[0].contact:
+                self._fix(contact_at[0] - offset, s.feet[index, :2])
+            else:
+                self._fix(flight_nodes[(0, 0)] - offset, np.concatenate([s.feet[index], s.feet_rate[index]]))
+        contact_nodes = {j: Node.resting(a) for j, a in contact_at.items()}
+        segments = []
+        for j, p in enumerate(phases):
+            m = self.segment_counts[j]
+            if p.contact:
+                segments.append(schedule.segment(j, 0, 1, contact_nodes[j], contact_nodes[j]))
+                continue
+            nodes = []
+            for k in range(m + 1):
+                if (j, k) in flight_nodes:
+                    a = flight_nodes[(j, k)]
+                    nodes.append(Node.at(a, a + 3))
+                else:
+                    nodes.append(contact_nodes[j - 1] if k == 0 else contact_nodes[j + 1])
+            segments += [schedule.segment(j, k, m, nodes[k], nodes[k + 1]) for k in range(m)]
+        self.trajectory = Trajectory(segments)
+
+    def _fix(self, local: int, values: np.ndarray) -> None:
+        sl = slice(local, local + len(values))
+        self.set.lower[sl] = self.set.upper[sl] = self.set.initial[sl] = values
+
+
+class ForceVariables:
+    """One heel's or toe's contact force in body weights: Hermite nodes (value, rate) through each contact phase;
+    zero in flight. A contact phase's ends that meet a flight phase are held at zero force (the force fades in
+    at touch-down and out at lift-off, which keeps it continuous when phase durations move). Normal force within
+    [0, f_max] and tangential within mu f_max at the nodes by bounds."""
+
+    def __init__(self, index: int, window: Window, schedule: Schedule, settings: TrajoptSettings,
+                 support: np.ndarray, offset: int):
+        phases = schedule.phases
+        fmax = settings.max_force / (window.reduced.mass * settings.gravity)
+        tangential = settings.friction * fmax
+        pack = _Packer(offset)
+        self.segment_counts, self.node_times, self.value_index = [], [], []
+        segments = []
+        zero = Node.zero()
+        for j, p in enumerate(phases):
+            if not p.contact:
+                self.segment_counts.append(1)
+                segments.append(schedule.segment(j, 0, 1, zero, zero))
+                continue
+            m = segment_count(p.duration, settings.segments_per_phase, settings.segment_phase_seconds)
+            self.segment_counts.append(m)
+            times = np.linspace(p.start, p.end, m + 1)
+            share = np.interp(times, window.reduced.times, support)
+            nodes = []
+            for k in range(m + 1):
+                meets_flight = (k == 0 and j > 0) or (k == m and j < len(phases) - 1)
+                limit = 0.0 if meets_flight else 1.0
+                a = pack.take([0.0, 0.0, share[k] * limit, 0.0, 0.0, 0.0],
+                              [-tangential * limit, -tangential * limit, 0.0] + [-np.inf] * 3,
+                              [tangential * limit, tangential * limit, fmax * limit] + [np.inf] * 3)
+                nodes.append(Node.at(a, a + 3))
+                self.node_times.append(float(times[k]))
+                self.value_index.append(a)
+            segments += [schedule.segment(j, k, m, nodes[k], nodes[k + 1]) for k in range(m)]
+        self.set = pack.variable_set(f"force_{POINT_NAMES[index]}")
+        if window.start is not None and phases[0].contact:
+            s = window.start
+            fixed = np.concatenate([s.forces[index], s.force_rates[index]])
+            self.set.lower[:6] = self.set.upper[:6] = self.set.initial[:6] = fixed
+        self.trajectory = Trajectory(segments)
+        self.any_contact = bool(self.value_index)
+
+
+class DurationVariables:
+    """The interior phase boundaries of every contact point (Rempe's contact durations T_ij, as the times
+    between them: the durations then add up to the window by construction). Each may move by `max_change`
+    seconds; boundaries near or after the window's junction stay put."""
+
+    def __init__(self, window: Window, settings: TrajoptSettings):
+        self.index: list[list[int | None]] = []
+        nominal, lower, upper = [], [], []
+        change = settings.max_duration_change
+        for phases in window.phases:
+            row = []
+            for p in phases[1:]:
+                b = p.start
+                if change <= 0 or b >= window.freeze_after - change:
+                    row.append(None)
+                    continue
+                row.append(len(nominal))
+                nominal.append(b)
+                lower.append(max(window.t0, b - change))
+                upper.append(min(window.t1, b + change))
+            self.index.append(row)
+        self.set = VariableSet.create("durations", len(nominal))
+        self.set.initial, self.set.lower, self.set.upper = (np.array(nominal, float), np.array(lower, float),
+                                                            np.array(upper, float))
+
+    def boundaries(self, point: int, phases: list[Phase], x: ca.SX | None = None) -> list:
+        """Phase boundary times of one point: floats, or entries of x (the program's variables)."""
+        out = [phases[0].start]
+        for p, k in zip(phases[1:], self.index[point]):
+            out.append(p.start if k is None or x is None else x[self.offset + k])
+        return out + [phases[-1].end]
+
+    offset: int = 0
+
+
+# ---- the problem of one window ---------------------------------------------------------------------------------
+@dataclass
+class WindowProblem:
+    """Every piece of one window's program: the variable vector x, variable sets, trajectories, constraint sets
+    and cost terms by name."""
+
+    window: Window
+    settings: TrajoptSettings
+    x: ca.SX
+    com: ComVariables
+    feet: list[FootVariables]
+    forces: list[ForceVariables]
+    durations: DurationVariables | None
+    constraints: dict[str, ConstraintSet] = field(default_factory=dict)
+    costs: dict[str, CostTerm] = field(default_factory=dict)
+
+    @property
+    def variable_sets(self) -> list[VariableSet]:
+        sets = [self.com.set] + [f.set for f in self.feet] + [f.set for f in self.forces]
+        return sets + ([self.durations.set] if self.durations is not None else [])
+
+    @property
+    def force_set_names(self) -> tuple[str, ...]:
+        return tuple(f.set.name for f in self.forces)
+
+    def sample(self, trajectory: Trajectory, times: np.ndarray, order: int = 0) -> ca.SX:
+        return trajectory.sample(self.x, times, order)
+
+    def select(self, starts: np.ndarray) -> ca.MX:
+        """(3, k) the entries x[a:a + 3] for each a in starts (k,), by one sparse product."""
+        rows = np.arange(3 * len(starts))
+        cols = (np.asarray(starts)[:, None] + np.arange(3)).ravel()
+        M = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(rows), int(self.x.shape[0])))
+        return ca.reshape(ca.mtimes(ca.DM(M), self.x), 3, len(starts))
+
+    def contacts(self) -> np.ndarray:
+        """(n, 4) contact flags of the window's frames under the input timing."""
+        return np.stack([flags_from_phases(p, self.window.reduced.times) for p in self.window.phases], axis=1)
+
+
+def support_shares(contacts: np.ndarray) -> np.ndarray:
+    """(T, 4) initial normal force of each point in body weights: the weight shared among the points in contact."""
+    n = contacts.sum(axis=1, keepdims=True)
+    return np.where(contacts, 1.0 / np.maximum(n, 1), 0.0)
+
+
+def build_window_problem(window: Window, settings: TrajoptSettings, durations: bool = False) -> WindowProblem:
+    """All variable sets, constraint sets and cost terms of one window; with `durations`, the phase boundaries
+    are variables too (the last stage of the staged solve)."""
+    red = window.reduced
+    contacts = np.stack([flags_from_phases(p, red.times) for p in window.phases], axis=1)
+    shares = support_shares(contacts)
+    duration_vars = DurationVariables(window, settings) if durations else None
+    # Sizes first (they do not depend on the timing), then the symbols.
+    com = ComVariables(window, settings.com_interval, 0)
+    offset = com.set.size
+    feet, forces = [], []
+    fixed = [Schedule(p) for p in window.phases]
+    for i in range(4):
+        feet.append(FootVariables(i, window, fixed[i], settings, offset))
+        offset += feet[-1].set.size
+    for i in range(4):
+        forces.append(ForceVariables(i, window, fixed[i], settings, shares[:, i], offset))
+        offset += forces[-1].set.size
+    if duration_vars is not None:
+        duration_vars.offset = offset
+        offset += duration_vars.set.size
+    x = SYMBOL.sym("x", offset)
+    problem = WindowProblem(window, settings, x, com, feet, forces, duration_vars)
+    start = 0
+    for v in problem.variable_sets:
+        v.symbols = x[start:start + v.size]
+        start += v.size
+    if duration_vars is not None:  # the same variables, the trajectories re-timed by the boundary variables
+        slack = settings.max_duration_change
+        for i in range(4):
+            moving = Schedule(window.phases[i], duration_vars.boundaries(i, window.phases[i], x), slack)
+            feet[i].trajectory = FootVariables(i, window, moving, settings,
+                                               _offset_of(problem, feet[i].set)).trajectory
+            forces[i].trajectory = ForceVariables(i, window, moving, settings, shares[:, i],
+                                                  _offset_of(problem, forces[i].set)).trajectory
+    for name in settings.constraints:
+        problem.constraints[name] = CONSTRAINTS[name](problem)
+    if durations:
+        problem.constraints["phase_order"] = phase_order(problem)
+    for name in settings.costs:
+        if name == "duration" and not durations:
+            continue
+        problem.costs[name] = COSTS[name](problem)
+    return problem
+
+
+def _offset_of(problem: WindowProblem, target: VariableSet) -> int:
+    start = 0
+    for v in problem.variable_sets:
+        if v is target:
+            return start
+        start += v.size
+    raise KeyError(target.name)
+
+
+# ---- constraint sets ---------------------------------------------------------------------------------------
+def dynamics_residuals(problem: WindowProblem, times: np.ndarray):
+    """Newton and Euler residuals (3, n) each at `times`, scaled by body weight (and 1 m), forces f in body
+    weights: r''/g + z - sum f and (I_w w' + w x I_w w)/(m g) - sum (p - r) x f."""
+    s, red = problem.settings, problem.window.reduced
+    n = len(times)
+    r = problem.sample(problem.com.position, times, 0)
+    acc = problem.sample(problem.com.position, times, 2)
+    e = [problem.sample(problem.com.orientation, times, k) for k in range(3)]
+    torque = euler_torque(e[0], e[1], e[2], interpolate(red.times, red.inertia, times))
+    total, moment = SYMBOL.zeros(3, n), SYMBOL.zeros(3, n)
+    for i, force in enumerate(problem.forces):
+        if not force.any_contact:
+            continue
+        f = problem.sample(force.trajectory, times)
+        total = total + f
+        moment = moment + cross(problem.sample(problem.feet[i].trajectory, times) - r, f)
+    up = ca.DM([[0.0], [0.0], [1.0]]) @ ca.DM.ones(1, n)
+    return acc / s.gravity + up - total, torque / (red.mass * s.gravity) - moment
+
+
+def dynamics(problem: WindowProblem) -> ConstraintSet:
+    """m r'' = sum f + m g and I_w w' + w x I_w w = sum (p - r) x f at the dynamics samples (every
+    `dynamics_interval`), and Newton's equation also at every `linear_dynamics_interval` (every frame by
+    default), so that the forces read at the frames are the ones that move the COM."""
+    s, w, red = problem.settings, problem.window, problem.window.reduced
+    times = sample_times(w.t0, w.t1, s.dynamics_interval, red.times)
+    linear, angular = dynamics_residuals(problem, times)
+    linear_times = sample_times(w.t0, w.t1, s.linear_dynamics_interval, red.times)
+    if not np.array_equal(linear_times, times):
+        linear, _ = dynamics_residuals(problem, linear_times)
+    out = ConstraintSet("dynamics")
+    out.add(linear)
+    out.add(angular)
+    return out
+
+
+def velocity_boundaries(problem: WindowProblem) -> ConstraintSet:
+    """COM velocity at the clip's first and last frame equals the input's mean over `boundary_frames` frames."""
+    w = problem.window
+    out = ConstraintSet("velocity_boundaries")
+    if w.start_velocity is not None and w.start is None:
+        out.add(problem.sample(problem.com.position, [w.t0], 1) - w.start_velocity.reshape(3, 1))
+    if w.end_velocity is not None:
+        out.add(problem.sample(problem.com.position, [w.t1], 1) - w.end_velocity.reshape(3, 1))
+    return out
+
+
+def foot_length(problem: WindowProblem) -> ConstraintSet:
+    """|heel - toe|^2 / l_foot^2 = 1 for both feet at the kinematic samples."""
+    s, w, red = problem.settings, problem.window, problem.window.reduced
+    times = sample_times(w.t0, w.t1, s.kinematic_interval, red.times)
+    out = ConstraintSet("foot_length")
+    for side, (heel, toe) in enumerate(FOOT_PAIRS):
+        d = problem.sample(problem.feet[heel].trajectory, times) - problem.sample(problem.feet[toe].trajectory, times)
+        out.add(ca.sum1(d * d) / red.foot_length[side] ** 2 - 1.0)
+    return out
+
+
+def leg_length(problem: WindowProblem) -> ConstraintSet:
+    """|p_i - hip_i|^2 <= l_leg,i^2 at the kinematic samples; hip_i = r + R(theta) h_i(t), h_i the input's hip
+    offset from the COM in the root frame."""
+    s, w, red = problem.settings, problem.window, problem.window.reduced
+    times = sample_times(w.t0, w.t1, s.kinematic_interval, red.times)
+    r = problem.sample(problem.com.position, times)
+    e = problem.sample(problem.com.orientation, times)
+    hips = interpolate(red.times, red.hips, times)  # (n, 4, 3)
+    out = ConstraintSet("leg_length")
+    for i, foot in enumerate(problem.feet):
+        d = problem.sample(foot.trajectory, times) - r - rotate(e, ca.DM(hips[:, i].T))
+        out.add(ca.sum1(d * d) / red.leg_length[i] ** 2, -np.inf, 1.0)
+    return out
+
+
+def _pyramid(out: ConstraintSet, f, mu: float) -> None:
+    """|f_x| <= mu f_z and |f_y| <= mu f_z for columns f (3, n): four linear rows <= 0 each."""
+    out.add(ca.vertcat(f[0, :] - mu * f[2, :], -f[0, :] - mu * f[2, :], f[1, :] - mu * f[2, :],
+                       -f[1, :] - mu * f[2, :]), -np.inf, 0.0)
+
+
+def force_limits(problem: WindowProblem) -> ConstraintSet:
+    """Pushing, at most f_max, inside the friction pyramid: at every force node (the normal force's limits are
+    variable bounds there) and at every frame in contact (the cubic between nodes could leave them)."""
+    s, red = problem.settings, problem.window.reduced
+    fmax = s.max_force / (red.mass * s.gravity)
+    out = ConstraintSet("force_limits")
+    for i, force in enumerate(problem.forces):
+        if not force.any_contact:
+            continue
+        _pyramid(out, problem.select(np.array(force.value_index)), s.friction)
+        flags = flags_from_phases(problem.window.phases[i], red.times)
+        times = red.times if force.trajectory.symbolic_times else red.times[flags]
+        if len(times):
+            f = problem.sample(force.trajectory, times)
+            _pyramid(out, f, s.friction)
+            out.add(f[2, :], 0.0, fmax)
+    return out
+
+
+def above_floor(problem: WindowProblem) -> ConstraintSet:
+    """z >= 0 of each heel and toe at the floor samples (in contact it is 0 by construction)."""
+    s, w, red = problem.settings, problem.window, problem.window.reduced
+    times = sample_times(w.t0, w.t1, s.floor_interval, red.times)
+    out = ConstraintSet("above_floor")
+    for foot in problem.feet:
+        out.add(problem.sample(foot.trajectory, times)[2, :], 0.0, np.inf)
+    return out
+
+
+def phase_order(problem: WindowProblem) -> ConstraintSet:
+    """Phase boundaries keep their order with at least min_phase_seconds (half a frame if less) between them."""
+    s, w = problem.settings, problem.window
+    frame = w.reduced.times[1] - w.reduced.times[0] if w.reduced.num_frames > 1 else 0.0
+    gap = max(s.min_phase_seconds, 0.5 * frame)
+    out = ConstraintSet("phase_order")
+    for i, phases in enumerate(w.phases):
+        bounds = problem.durations.boundaries(i, phases, problem.x)
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            if isinstance(a, float) and isinstance(b, float):
+                continue
+            out.add(b - a, gap, np.inf)
+    return out
+
+
+CONSTRAINTS = dict(dynamics=dynamics, velocity_boundaries=velocity_boundaries, foot_length=foot_length,
+                   leg_length=leg_length, force_limits=force_limits, above_floor=above_floor)
+
+
+# ---- cost terms ------------------------------------------------------------------------------------------------
+# The smoothing terms' derivatives are per 1/30 s step (a velocity in metres per step, an acceleration in metres
+# per step squared), like the finite differences of the same authors' kinematic terms (B2-B4) and of this
+# project's fit: read as per-second derivatives, the paper's gamma_p = 0.1 and beta_p = 1e-4 outweigh the data
+# term so much that swinging feet are pulled 10-20 cm off their path (measured), which the paper's figures do
+# not show.
+SMOOTHING_STEP = 1.0 / 30.0  # s
+
+
+def _frame_cost(problem: WindowProblem, order: int, weights: tuple[float, float, float], targets: bool) -> ca.SX:
+    red = problem.window.reduced
+    times = red.times
+    unit = SMOOTHING_STEP ** (2 * order)
+    w_r, w_theta, w_p = (unit * w for w in weights)
+    r = problem.sample(problem.com.position, times, order)
+    e = problem.sample(problem.com.orientation, times, order)
+    if targets:
+        r, e = r - ca.DM(red.com.T), e - ca.DM(red.euler.T)
+    total = w_r * ca.sumsqr(r) + w_theta * ca.sumsqr(e)
+    for i, foot in enumerate(problem.feet):
+        p = problem.sample(foot.trajectory, times, order)
+        if targets:
+            p = p - ca.DM(red.feet[:, i].T)
+        total = total + w_p * ca.sumsqr(p)
+    return total
+
+
+def data(problem: WindowProblem) -> CostTerm:
+    """E_data (1): w_r |r - r_in|^2 + w_theta |theta - theta_in|^2 + w_p sum |p_i - p_in,i|^2 at every frame."""
+    s = problem.settings
+    return CostTerm("data", _frame_cost(problem, 0, (s.weight_com, s.weight_orientation, s.weight_feet), True))
+
+
+def velocity(problem: WindowProblem) -> CostTerm:
+    """E_vel (3): gamma_r |r'|^2 + gamma_theta |theta'|^2 + gamma_p sum |p_i'|^2 at every frame (per 1/30 s)."""
+    s = problem.settings
+    return CostTerm("velocity", _frame_cost(problem, 1, (s.velocity_com, s.velocity_orientation, s.velocity_feet),
+                                            False))
+
+
+def acceleration(problem: WindowProblem) -> CostTerm:
+    """E_acc (4): beta_r |r''|^2 + beta_theta |theta''|^2 + beta_p sum |p_i''|^2 at every frame (per (1/30 s)^2)."""
+    s = problem.settings
+    return CostTerm("acceleration", _frame_cost(
+        problem, 2, (s.acceleration_com, s.acceleration_orientation, s.acceleration_feet), False))
+
+
+def duration(problem: WindowProblem) -> CostTerm:
+    """E_dur (2): w_d sum (T_ij - T_in,ij)^2 over every phase."""
+    s, w = problem.settings, problem.window
+    total = 0
+    for i, phases in enumerate(w.phases):
+        bounds = problem.durations.boundaries(i, phases, problem.x)
+        for j, p in enumerate(phases):
+            total = total + s.weight_duration * (bounds[j + 1] - bounds[j] - p.duration) ** 2
+    return CostTerm("duration", total)
+
+
+COSTS = dict(data=data, velocity=velocity, acceleration=acceleration, duration=duration)

@@ -1,0 +1,92 @@
+"""The kinematic optimisation before the trajectory optimisation (Rempe et al. 2020, 3.3 and B.3-B.4), on the
+project's one kinematic fitter with its optional contact terms switched on:
+
+1. the offline fit with contact velocity, joint velocity and joint-angle velocity terms (no floor term), from
+   the kinematic stage's motion;
+2. a robust (Huber) plane fit to the heel and toe positions labelled in contact; contacts farther than
+   `floor_outlier_distance` from it become no contact; the world is moved onto the plane (z = 0);
+3. the fit again with the floor term, which puts the feet in contact on the floor.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from ..body import kinematics as kin
+from ..body.model import CONTACT_POINTS
+from ..camera import fit_floor
+from ..config import FitSettings, TrajoptSettings
+from ..kinematics.fit import KinematicFitter
+from ..kinematics.stage import (KinematicMotion, make_targets, move_world_to_floor, raw_depth,
+                                reprojection_errors, smooth_depth)
+from ..motion import Observations
+
+MIN_FLOOR_POINTS = 8  # fewer contact points than this leave the floor as it was
+
+
+@dataclasses.dataclass
+class RefinedKinematics:
+    """motion: the refined kinematic motion (world frame moved onto the refitted floor); contacts: (T, 4) the
+    contact flags with the floor's outliers removed; relabelled: (T, 4) flags that were removed; seconds."""
+
+    motion: KinematicMotion
+    contacts: np.ndarray
+    relabelled: np.ndarray
+    seconds: float
+
+
+def contact_fit_settings(fit: FitSettings, settings: TrajoptSettings, floor: bool) -> FitSettings:
+    """The fit's settings with Rempe's optional terms at their trajopt weights (the floor term only if `floor`)."""
+    return dataclasses.replace(fit, weight_contact_velocity=settings.kinematic_contact_velocity,
+                               weight_velocity=settings.kinematic_velocity,
+                               weight_angle_velocity=settings.kinematic_angle_velocity,
+                               weight_floor=settings.kinematic_floor if floor else 0.0)
+
+
+def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.ndarray, fit: FitSettings,
+                      settings: TrajoptSettings, keep_floor: bool = False) -> RefinedKinematics:
+    """Rempe's three-stage kinematic optimisation (B.4) from an offline kinematic motion.
+
+    obs: the detector's observations; motion: the kinematic stage's result (offline fit, world on its floor);
+    contacts: (T, 4) bool flags (l heel, l toe, r heel, r toe) from the contact stage; fit: the fit's settings;
+    settings: the trajopt settings (weights of the optional terms, outlier distance); keep_floor: keep
+    motion.floor (e.g. a floor given by the user) instead of refitting it, still relabelling the contacts far
+    from it.
+    """
+    start = time.perf_counter()
+    body, camera, fps = motion.body, motion.camera, obs.fps
+    contacts = np.asarray(contacts, bool) & obs.valid[:, None]
+    depth = smooth_depth(raw_depth(obs.keypoints_2d, obs.landmarks_3d, obs.valid, camera.focal, motion.calibration,
+                                   fit.min_confidence))
+
+    def targets_in(cam, flags, floor):
+        t = make_targets(obs.keypoints_2d, obs.landmarks_3d, obs.valid, depth, cam, motion.calibration, fit)
+        return dataclasses.replace(t, contacts=flags.astype(float), floor=floor)
+
+    # 1. Contacts still, no floor.
+    qpos = KinematicFitter(body, camera, contact_fit_settings(fit, settings, False), fps).fit_offline(
+        motion.qpos, targets_in(camera, contacts, None)).qpos
+    # 2. The floor through the contact points (camera frame), outliers relabelled.
+    soles = camera.to_camera(kin.forward_kinematics(body, qpos).points[:, body.point_index(CONTACT_POINTS)])
+    floor = motion.floor
+    kept = contacts.copy()
+    if contacts.sum() >= MIN_FLOOR_POINTS:
+        if keep_floor:
+            inliers = np.abs(floor.height(soles[contacts])) < settings.floor_outlier_distance
+        else:
+            floor, inliers = fit_floor(soles[contacts], camera.R[:, 2],
+                                       outlier_distance=settings.floor_outlier_distance)
+        kept[contacts] = inliers
+    anchor = int(np.argmax(obs.valid))
+    qpos, camera = move_world_to_floor(qpos, camera, floor, anchor)
+    # 3. Again, with the feet in contact on the floor (z = 0 in the new world).
+    qpos = KinematicFitter(body, camera, contact_fit_settings(fit, settings, True), fps).fit_offline(
+        qpos, targets_in(camera, kept, np.array([0.0, 0.0, 1.0, 0.0]))).qpos
+    seconds = time.perf_counter() - start
+    refined = KinematicMotion(body, motion.calibration, camera, floor, qpos,
+                              reprojection_errors(body, camera, qpos, obs), motion.valid.copy(),
+                              motion.seconds + seconds, False)
+    return RefinedKinematics(refined, kept, contacts & ~kept, seconds)

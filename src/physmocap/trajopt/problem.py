@@ -1,0 +1,173 @@
+"""A nonlinear program assembled from small named pieces, in the manner of ifopt: variable sets (symbols, bounds,
+initial values), constraint sets (expressions and bounds) and cost terms (scalar expressions), solved by IPOPT
+through CasADi with exact first and second derivatives (CasADi's algorithmic differentiation).
+
+A stage of a staged solve is the same program with some variable sets held at their values (`fixed`) and some
+constraint sets switched off (`relaxed`), so the program is built once and solved several times.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+INF = np.inf
+
+
+@dataclass
+class VariableSet:
+    """n optimisation variables: bounds and initial values (n,); `symbols` (n, 1) is their part of the
+    program's variable vector once the program is laid out."""
+
+    name: str
+    size: int
+    lower: np.ndarray
+    upper: np.ndarray
+    initial: np.ndarray
+    symbols: object = None
+
+    @staticmethod
+    def create(name: str, size: int) -> "VariableSet":
+        return VariableSet(name, size, np.full(size, -INF), np.full(size, INF), np.zeros(size))
+
+
+@dataclass
+class ConstraintSet:
+    """Constraints lower <= g(x) <= upper, collected row block by row block."""
+
+    name: str
+    rows: list = field(default_factory=list)
+    lower: list = field(default_factory=list)
+    upper: list = field(default_factory=list)
+
+    def add(self, expression, lower=0.0, upper=0.0) -> None:
+        expression = ca.vec(expression)
+        n = int(expression.shape[0])
+        self.rows.append(expression)
+        self.lower.append(np.broadcast_to(np.asarray(lower, float), (n,)).copy())
+        self.upper.append(np.broadcast_to(np.asarray(upper, float), (n,)).copy())
+
+    @property
+    def size(self) -> int:
+        return int(sum(r.shape[0] for r in self.rows))
+
+    def expression(self):
+        return ca.vertcat(*self.rows) if self.rows else None
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        if not self.rows:
+            return np.zeros(0), np.zeros(0)
+        return np.concatenate(self.lower), np.concatenate(self.upper)
+
+
+@dataclass
+class CostTerm:
+    """A scalar term of the objective."""
+
+    name: str
+    value: object
+
+
+@dataclass
+class Solution:
+    """One IPOPT run. x: (n,) values; values: the same split by variable set; costs: each term's value;
+    status: IPOPT's return status; converged: it reports an optimum (to its tolerance or its acceptable one)."""
+
+    x: np.ndarray
+    values: dict[str, np.ndarray]
+    objective: float
+    costs: dict[str, float]
+    status: str
+    converged: bool
+    iterations: int
+    seconds: float
+    max_violation: float
+
+
+CONVERGED_STATUSES = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+
+
+class Program:
+    """The program of the given pieces, with its IPOPT solver built once. x: the variable vector (a CasADi
+    symbol, SX or MX), the variable sets laid out along it in order."""
+
+    def __init__(self, x, variables: list[VariableSet], constraints: list[ConstraintSet], costs: list[CostTerm],
+                 ipopt_options: dict):
+        self.variables, self.costs = variables, costs
+        constraints = [c for c in constraints if c.size]
+        self.constraints = constraints
+        self.x = x
+        self.var_slices: dict[str, slice] = {}
+        start = 0
+        for v in variables:
+            self.var_slices[v.name] = slice(start, start + v.size)
+            start += v.size
+        self.con_slices: dict[str, slice] = {}
+        start = 0
+        for c in constraints:
+            self.con_slices[c.name] = slice(start, start + c.size)
+            start += c.size
+        if sum(v.size for v in variables) != x.shape[0]:
+            raise ValueError("the variable sets do not lay out the whole variable vector")
+        zero = type(x)(0)
+        self.g = ca.densify(ca.vertcat(*[c.expression() for c in constraints])) if constraints else type(x)(0, 1)
+        self.f = sum((c.value for c in costs), zero)
+        self.lbg = np.concatenate([c.bounds()[0] for c in constraints]) if constraints else np.zeros(0)
+        self.ubg = np.concatenate([c.bounds()[1] for c in constraints]) if constraints else np.zeros(0)
+        options = {"ipopt": dict(ipopt_options), "print_time": False, "error_on_fail": False}
+        options["ipopt"].setdefault("print_level", 0)
+        options["ipopt"].setdefault("sb", "yes")
+        self.solver = ca.nlpsol("trajopt", "ipopt", {"x": self.x, "f": self.f, "g": self.g}, options)
+        self.cost_values = ca.Function("costs", [self.x], [c.value for c in costs] or [zero])
+        self.constraint_values = ca.Function("constraints", [self.x], [self.g])
+
+    @property
+    def num_variables(self) -> int:
+        return int(self.x.shape[0])
+
+    @property
+    def num_constraints(self) -> int:
+        return int(self.g.shape[0])
+
+    def initial(self) -> np.ndarray:
+        return np.concatenate([v.initial for v in self.variables])
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return (np.concatenate([v.lower for v in self.variables]), np.concatenate([v.upper for v in self.variables]))
+
+    def solve(self, x0: np.ndarray, fixed: tuple[str, ...] = (), relaxed: tuple[str, ...] = (),
+              lower: np.ndarray | None = None, upper: np.ndarray | None = None) -> Solution:
+        """Solve from x0 (n,), with the variable sets named in `fixed` held at their x0 values and the
+        constraint sets named in `relaxed` switched off. lower/upper override the variable bounds."""
+        lbx, ubx = self.bounds()
+        if lower is not None:
+            lbx = lower.copy()
+        if upper is not None:
+            ubx = upper.copy()
+        x0 = np.clip(x0, lbx, ubx)
+        for name in fixed:
+            sl = self.var_slices[name]
+            lbx[sl] = ubx[sl] = x0[sl]
+        lbg, ubg = self.lbg.copy(), self.ubg.copy()
+        active = np.ones(len(lbg), bool)
+        for name in relaxed:
+            sl = self.con_slices.get(name)
+            if sl is not None:
+                lbg[sl], ubg[sl] = -INF, INF
+                active[sl] = False
+        start = time.perf_counter()
+        out = self.solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+        seconds = time.perf_counter() - start
+        stats = self.solver.stats()
+        x = np.asarray(out["x"]).ravel()
+        g = np.asarray(out["g"]).ravel()
+        violation = np.maximum(lbg - g, 0) + np.maximum(g - ubg, 0)
+        violation = float(violation[active].max()) if active.any() else 0.0
+        costs = [float(c) for c in self.cost_values(x)] if self.costs else []
+        status = str(stats.get("return_status", "unknown"))
+        return Solution(x, {v.name: x[self.var_slices[v.name]] for v in self.variables}, float(out["f"]),
+                        {c.name: v for c, v in zip(self.costs, costs)}, status, status in CONVERGED_STATUSES,
+                        int(stats.get("iter_count", -1)), seconds, violation)

@@ -1,0 +1,186 @@
+"""The staged solve of one window (Rempe et al. 2020, 3.1 "Optimization Algorithm" and C.3):
+
+1. fit: the polynomials to the input, contact phases fixed, no dynamics (forces held);
+2. dynamics: everything, from the fit, forces started at the weight shared among the points in contact;
+3. durations (optional): the phase boundaries free too; kept only if IPOPT converges and the objective (which
+   now also pays for changed durations) is lower than after stage 2.
+
+A window converges when stage 2 converges; otherwise its result must not be used (the caller keeps the
+kinematic motion there and says so).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+from ..config import TrajoptSettings
+from .formulation import POINT_NAMES, Window, WindowProblem, WindowStart, build_window_problem
+from .phases import Phase
+from .problem import Program, Solution
+
+
+@dataclass
+class StageReport:
+    """One IPOPT run: the stage's name, IPOPT's status, whether it converged, iterations, seconds, objective
+    and the largest constraint violation at the returned point."""
+
+    name: str
+    status: str
+    converged: bool
+    iterations: int
+    seconds: float
+    objective: float
+    max_violation: float
+    costs: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class WindowResult:
+    """The optimised reduced motion at the window's frames. com, euler: (n, 3); feet: (n, 4, 3) m;
+    forces: (n, 4, 3) N in the world; contacts: (n, 4) the phases finally used; converged: stage 2 converged;
+    chosen: the stage whose solution this is; stages: every IPOPT run; variables/constraints: program size;
+    build_seconds: time to assemble the programs."""
+
+    converged: bool
+    chosen: str
+    com: np.ndarray
+    euler: np.ndarray
+    feet: np.ndarray
+    forces: np.ndarray
+    contacts: np.ndarray
+    phases: list[list[Phase]]
+    stages: list[StageReport]
+    variables: int
+    constraints: int
+    build_seconds: float
+    _state_at: object = None
+
+    def state_at(self, t: float) -> WindowStart:
+        """The optimised state at time t (s), for the next window to start from."""
+        return self._state_at(t)
+
+
+def ipopt_options(settings: TrajoptSettings) -> dict:
+    return {
+        "tol": settings.tolerance,
+        "acceptable_tol": max(10 * settings.tolerance, 1e-3),
+        "max_iter": settings.max_iterations,
+        "max_wall_time": settings.max_seconds,
+        "linear_solver": "mumps",
+        "hessian_approximation": "exact",
+        "mu_strategy": "adaptive",
+    }
+
+
+def _program(problem: WindowProblem, settings: TrajoptSettings) -> Program:
+    return Program(problem.x, problem.variable_sets, list(problem.constraints.values()),
+                   list(problem.costs.values()), ipopt_options(settings))
+
+
+def _report(name: str, sol: Solution) -> StageReport:
+    return StageReport(name, sol.status, sol.converged, sol.iterations, sol.seconds, sol.objective,
+                       sol.max_violation, sol.costs)
+
+
+def _force_guess(problem: WindowProblem, program: Program, x: np.ndarray) -> np.ndarray:
+    """x with every free force node set to the net force the fitted COM motion needs (r''/g + z, body
+    weights), shared among the points in contact at the node's time and clipped into the friction pyramid."""
+    red, s = problem.window.reduced, problem.settings
+    times = red.times
+    acc = ca.Function("acc", [problem.x], [problem.sample(problem.com.position, times, 2)])
+    need = np.asarray(acc(x)).T / s.gravity + np.array([0.0, 0.0, 1.0])  # (n, 3)
+    count = np.maximum(problem.contacts().sum(axis=1), 1)
+    x = x.copy()
+    fmax = s.max_force / (red.mass * s.gravity)
+    for force in problem.forces:
+        lower, upper = force.set.lower, force.set.upper
+        base = program.var_slices[force.set.name].start
+        for t, a in zip(force.node_times, force.value_index):
+            local = a - base
+            if lower[local + 2] == upper[local + 2]:  # held: zero where the phase meets a flight, or a start
+                continue
+            f = np.array([np.interp(t, times, need[:, k]) for k in range(3)]) / np.interp(t, times, count)
+            f[2] = np.clip(f[2], 0.0, fmax)
+            f[:2] = np.clip(f[:2], -s.friction * f[2], s.friction * f[2])
+            x[a:a + 3] = f
+            x[a + 3:a + 6] = 0.0
+    return x
+
+
+def _outputs(problem: WindowProblem):
+    """Functions of x: the trajectories at the frames, and the state at one time."""
+    times = problem.window.reduced.times
+    com = problem.sample(problem.com.position, times)
+    euler = problem.sample(problem.com.orientation, times)
+    feet = ca.vertcat(*[problem.sample(f.trajectory, times) for f in problem.feet])
+    forces = ca.vertcat(*[problem.sample(f.trajectory, times) for f in problem.forces])
+    frames = ca.Function("frames", [problem.x], [com, euler, feet, forces])
+
+    def state(x: np.ndarray, t: float) -> WindowStart:
+        parts = [problem.sample(problem.com.position, [t], 0), problem.sample(problem.com.position, [t], 1),
+                 problem.sample(problem.com.orientation, [t], 0), problem.sample(problem.com.orientation, [t], 1)]
+        parts += [problem.sample(f.trajectory, [t], k) for k in (0, 1) for f in problem.feet]
+        parts += [problem.sample(f.trajectory, [t], k) for k in (0, 1) for f in problem.forces]
+        values = np.asarray(ca.Function("state", [problem.x], [ca.vertcat(*parts)])(x)).ravel()
+        v = values.reshape(-1, 3)
+        return WindowStart(v[0], v[1], v[2], v[3], v[4:8], v[8:12], v[12:16], v[16:20])
+
+    return frames, state
+
+
+def _schedule_from(problem: WindowProblem, x_durations: np.ndarray) -> list[list[Phase]]:
+    """The phases with the optimised boundary times."""
+    out = []
+    for i, phases in enumerate(problem.window.phases):
+        row = problem.durations.index[i]
+        bounds = [phases[0].start] + [p.start if k is None else float(x_durations[k])
+                                      for p, k in zip(phases[1:], row)]
+        bounds.append(phases[-1].end)
+        out.append([Phase(p.contact, bounds[j], bounds[j + 1]) for j, p in enumerate(phases)])
+    return out
+
+
+def solve_window(window: Window, settings: TrajoptSettings) -> WindowResult:
+    """Stages 1-3 on one window."""
+    start = time.perf_counter()
+    problem = build_window_problem(window, settings)
+    program = _program(problem, settings)
+    build = time.perf_counter() - start
+    stages = []
+    fit = program.solve(program.initial(), fixed=problem.force_set_names, relaxed=("dynamics",))
+    stages.append(_report("fit", fit))
+    x0 = _force_guess(problem, program, fit.x)
+    dyn = program.solve(x0)
+    stages.append(_report("dynamics", dyn))
+    chosen, chosen_problem, chosen_program, x = "dynamics", problem, program, dyn.x
+    phases = window.phases
+    if dyn.converged and settings.optimize_durations:
+        t = time.perf_counter()
+        dproblem = build_window_problem(window, settings, durations=True)
+        if dproblem.durations.set.size:
+            dprogram = _program(dproblem, settings)
+            build += time.perf_counter() - t
+            dur = dprogram.solve(np.concatenate([dyn.x, dproblem.durations.set.initial]))
+            stages.append(_report("durations", dur))
+            if dur.converged and dur.objective < dyn.objective:
+                chosen, chosen_problem, chosen_program, x = "durations", dproblem, dprogram, dur.x
+                phases = _schedule_from(dproblem, dur.values["durations"])
+    frames_fn, state_fn = _outputs(chosen_problem)
+    com, euler, feet, forces = (np.asarray(v) for v in frames_fn(x))
+    n = window.reduced.num_frames
+    weight = window.reduced.mass * settings.gravity
+    from .phases import flags_from_phases
+
+    contacts = np.stack([flags_from_phases(p, window.reduced.times) for p in phases], axis=1)
+    return WindowResult(
+        converged=dyn.converged, chosen=chosen, com=com.T, euler=euler.T,
+        feet=feet.reshape(4, 3, n).transpose(2, 0, 1), forces=weight * forces.reshape(4, 3, n).transpose(2, 0, 1),
+        contacts=contacts, phases=phases, stages=stages, variables=program.num_variables,
+        constraints=program.num_constraints, build_seconds=build, _state_at=lambda t: state_fn(x, t))
+
+
+__all__ = ["solve_window", "WindowResult", "StageReport", "POINT_NAMES"]

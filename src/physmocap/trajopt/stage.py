@@ -1,0 +1,205 @@
+"""The trajopt physics stage: Rempe et al. 2020's trajectory optimisation over a whole clip, in windows.
+
+Long clips are cut into windows of `window_seconds` that overlap by `window_overlap`: each window is solved
+(stages fit, dynamics, durations; solve.solve_window) but keeps only its part before the next window starts;
+the next window starts exactly in the state the previous one reached there (COM position, velocity,
+orientation and its rate; the contact points and forces), so the stitched motion stays continuous in position
+and velocity and obeys the dynamics across the junction, and the overlap lets each window see what follows.
+Time and memory grow linearly with the clip's length. (Blending two independent solutions over the overlap
+instead would break no-slip and the dynamics there.)
+
+Failures are loud: a window whose dynamics stage IPOPT does not converge keeps the kinematic motion for its
+frames, flagged in `converged`, and is logged as a warning; the next window starts afresh.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from ..body.model import BodyModel
+from ..config import TrajoptSettings
+from .formulation import Window
+from .ik import ik_targets, solve_ik
+from .phases import clean_flags, contact_phases
+from .reduced import boundary_velocity, reduced_motion
+from .solve import StageReport, solve_window
+
+log = logging.getLogger("physmocap")
+
+
+@dataclass
+class WindowReport:
+    """One window: frames [start, stop] solved, [start, keep) kept; converged; the stage whose solution was kept;
+    every IPOPT run; program size; seconds to build and in total."""
+
+    start: int
+    stop: int
+    keep: int
+    converged: bool
+    chosen: str
+    stages: list[StageReport]
+    variables: int
+    constraints: int
+    build_seconds: float
+    seconds: float
+
+
+@dataclass
+class TrajoptMotion:
+    """The trajopt stage's output, shaped like dynamics.stage.PhysicsMotion so the result file takes it as is.
+
+    qpos: (T, nq) final motion (world frame, floor z = 0); where the optimisation did not converge, the kinematic
+        motion, flagged;
+    grf: (T, 4, 3) N, contact forces of l heel, l toe, r heel, r toe in the world frame (zeros where not
+        converged);
+    residual: (T, 6) zeros: the formulation has no residual root actuation;
+    contacts: (T, 4) bool, the contact phases used (after the optional duration stage);
+    converged: (T,) bool, the frame's window converged (IPOPT's dynamics stage); the rest kept kinematic;
+    corrected: (T,) zeros (PhysCap's balance correction has no counterpart here);
+    qp_failures: (T,) int, 1 where not converged (so `qp_failures > 0` flags fallback frames as for PhysCap);
+    com, euler, feet: (T, 3), (T, 3), (T, 4, 3) the optimised reduced motion (nan where not converged);
+    windows: one report per window; seconds: time spent.
+    """
+
+    qpos: np.ndarray
+    grf: np.ndarray
+    residual: np.ndarray
+    contacts: np.ndarray
+    converged: np.ndarray
+    corrected: np.ndarray
+    qp_failures: np.ndarray
+    com: np.ndarray
+    euler: np.ndarray
+    feet: np.ndarray
+    windows: list[WindowReport] = field(default_factory=list)
+    seconds: float = 0.0
+
+    @property
+    def failed_frames(self) -> list[str]:
+        """Frame ranges where the optimisation did not converge, e.g. ['0-59', '120-179']."""
+        idx = np.flatnonzero(~self.converged)
+        out, start = [], None
+        for i, f in enumerate(idx):
+            start = f if start is None else start
+            if i + 1 == len(idx) or idx[i + 1] != f + 1:
+                out.append(str(start) if start == f else f"{start}-{f}")
+                start = None
+        return out
+
+    def summary(self) -> str:
+        """One line for the terminal."""
+        done = int(self.converged.sum())
+        line = (f"trajopt: {len(self.windows)} window(s), {done}/{len(self.converged)} frames converged, "
+                f"{self.seconds:.1f} s")
+        if done < len(self.converged):
+            line += f"; NOT converged (kinematic motion kept): frames {', '.join(self.failed_frames)}"
+        return line
+
+
+def window_ranges(frames: int, fps: float, settings: TrajoptSettings) -> list[tuple[int, int, int]]:
+    """(start, stop, keep) frame indices of the windows: frames start..stop (inclusive) are solved and start..keep-1
+    kept (the last window keeps to the end). Windows have equal strides and at most window_seconds."""
+    last = frames - 1
+    length = max(2, int(round(settings.window_seconds * fps)))  # frame intervals per window
+    overlap = min(int(round(settings.window_overlap * fps)), length // 2)
+    if last <= length:
+        return [(0, last, frames)]
+    count = math.ceil((last - overlap) / (length - overlap))
+    stride = math.ceil((last - overlap) / count)
+    out = []
+    for k in range(count):
+        start = k * stride
+        if k == count - 1:
+            out.append((start, last, frames))
+        else:
+            out.append((start, min(start + stride + overlap, last), (k + 1) * stride))
+    return out
+
+
+def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.ndarray,
+                settings: TrajoptSettings = TrajoptSettings(),
+                progress: Callable[[int, int], None] | None = None) -> TrajoptMotion:
+    """Physics by trajectory optimisation (Rempe et al. 2020, 3.1 and C) over a kinematic motion.
+
+    body: the calibrated body model (its de Leva masses and inertias give the COM and inertia over time);
+    qpos_kin: (T, nq) kinematic motion in the floor's world frame (Z up, floor z = 0), e.g. from
+        `refine_kinematics` (Rempe B.4) or the offline kinematic fit;
+    fps: frames per second; contacts: (T, 4) bool contact flags (l heel, l toe, r heel, r toe), e.g. the
+        centred contact network's, relabelled by `refine_kinematics`;
+    settings: TrajoptSettings; progress: called with (frames done, T) after each window.
+    Returns a TrajoptMotion (see there); never raises for a non-converged solve: it flags the frames.
+    """
+    start_time = time.perf_counter()
+    settings.check()
+    T = len(qpos_kin)
+    reduced = reduced_motion(body, qpos_kin, fps)
+    min_frames = max(1, math.ceil(settings.min_phase_seconds * fps - 1e-9))
+    flags = np.stack([clean_flags(contacts[:, i], min_frames) for i in range(4)], axis=1)
+    out = TrajoptMotion(
+        qpos=qpos_kin.copy(), grf=np.zeros((T, 4, 3)), residual=np.zeros((T, 6)), contacts=flags.copy(),
+        converged=np.zeros(T, bool), corrected=np.zeros(T, bool), qp_failures=np.ones(T, int),
+        com=np.full((T, 3), np.nan), euler=np.full((T, 3), np.nan), feet=np.full((T, 4, 3), np.nan))
+    if T < 3:
+        log.warning("trajopt: %d frame(s) are too few to optimise; the kinematic motion is kept.", T)
+        out.seconds = time.perf_counter() - start_time
+        return out
+    previous = None
+    for start, stop, keep in window_ranges(T, fps, settings):
+        t0 = time.perf_counter()
+        sl = slice(start, stop + 1)
+        red = reduced.frames(sl)
+        phases = [contact_phases(flags[sl, i], red.times) for i in range(4)]
+        window = Window(
+            red, phases,
+            start_velocity=boundary_velocity(reduced.com[start:], fps, settings.boundary_frames, end=False),
+            end_velocity=(boundary_velocity(reduced.com, fps, settings.boundary_frames, end=True)
+                          if stop == T - 1 else None),
+            start=previous.state_at(reduced.times[start]) if previous is not None else None,
+            freeze_after=reduced.times[keep] if keep < T else np.inf)
+        result = solve_window(window, settings)
+        kept = slice(start, keep)
+        n = keep - start
+        out.windows.append(WindowReport(start, stop, keep, result.converged, result.chosen, result.stages,
+                                        result.variables, result.constraints, result.build_seconds,
+                                        time.perf_counter() - t0))
+        if result.converged:
+            out.converged[kept] = True
+            out.com[kept], out.euler[kept], out.feet[kept] = result.com[:n], result.euler[:n], result.feet[:n]
+            out.grf[kept] = result.forces[:n]
+            out.contacts[kept] = result.contacts[:n]
+            previous = result
+        else:
+            statuses = ", ".join(f"{s.name}: {s.status}" for s in result.stages)
+            log.warning("trajopt: IPOPT did not converge on frames %d-%d (%s); the kinematic motion is kept there.",
+                        start, keep - 1, statuses)
+            previous = None
+        if progress:
+            progress(keep, T)
+    done = out.converged
+    if done.any():
+        targets = ik_targets(body, qpos_kin[done], reduced.frames(done), out.com[done], out.euler[done],
+                             out.feet[done], settings)
+        solved = np.array(qpos_kin)
+        solved[done] = targets.qpos
+        markers = np.zeros((T,) + targets.markers.shape[1:])
+        weights = np.zeros((T,) + targets.weights.shape[1:])
+        markers[done], weights[done] = targets.markers, targets.weights
+        # Frames kept kinematic are fitted to themselves (then restored exactly): the smoothing term links
+        # neighbours only across converged frames' edges.
+        if (~done).any():
+            own = ik_targets(body, qpos_kin[~done], reduced.frames(~done), reduced.com[~done], reduced.euler[~done],
+                             reduced.feet[~done], settings)
+            markers[~done], weights[~done] = own.markers, own.weights
+        from .ik import IkTargets
+
+        qpos = solve_ik(body, IkTargets(markers, weights, solved), fps, settings)
+        out.qpos[done] = qpos[done]
+    out.qp_failures = (~out.converged).astype(int)
+    out.seconds = time.perf_counter() - start_time
+    return out
