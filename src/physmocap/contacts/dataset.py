@@ -1,11 +1,12 @@
 """Synthetic training and test data for the contact networks: detector-like 2D keypoints from motion capture,
 labelled automatically, split by CMU subject.
 
-Every sequence is one clip of `../shared/data/mocap` (or a segment of a long one) with its own body proportions
-(`vary_proportions`), frame rate (resampled, 12-60 fps), static camera (Rempe A.1 via `random_camera`, random
+Every sequence is one clip of `../shared/data/mocap` (or a segment of a long one), played forwards or backwards
+at its own speed, with its own body proportions (`vary_proportions`), frame rate (resampled, 12-60 fps), static camera (Rempe A.1 via `random_camera`, random
 focal length, landscape or portrait image), left/right mirroring, and MediaPipe-like errors
-(`noise.MEDIAPIPE_NOISE`). The labels come from the original clip at its own frame rate (`labels.motion_labels`)
-and are carried to each resampled frame from the nearest original frame, so they do not depend on the rendering.
+(`noise.MEDIAPIPE_NOISE`). The labels come from the played motion at its own frame rate, before the body and the camera change
+(`labels.motion_labels`), and are carried to each resampled frame from the nearest original frame, so they do
+not depend on the rendering.
 
 Everything is deterministic given the seed: each sequence draws from its own generator seeded by (seed, clip
 name, variant), so adding clips or variants does not change the others.
@@ -25,13 +26,16 @@ from ..landmarks import MIRRORED
 from ..mocap.bvh_reader import JOINT_INDEX, MocapClip, cmu_subject, load_mocap
 from ..mocap.synthetic import NoiseModel, make_observations, random_camera, resample
 from .features import mirror_keypoints
-from .labels import LabelSettings, motion_labels
+from .labels import CONTACT_SITE_INDICES, LabelSettings, motion_labels, point_speed
 from .noise import MEDIAPIPE_NOISE
 
 TEST_SUBJECTS: tuple[str, ...] = ("6", "131")
 """CMU subjects held out for testing: basketball and walks (6: six clips, 25 s), start-walk-stop and hops (131:
 three clips, 28 s). Every other subject trains (1, 2, 5, 7: 35 usable clips, 4.1 minutes)."""
 
+HOVER_SPEED = 0.3  # m/s
+MAX_SINK = 0.03  # m below the floor
+MAX_IMPLAUSIBLE_FRACTION = 0.05
 # Contact columns (l heel, l toe, r heel, r toe) after a left/right mirror.
 MIRRORED_CONTACT_COLUMNS = (2, 3, 0, 1)
 _UPPER_BODY = tuple(JOINT_INDEX[n] for n in ("spine", "neck", "head", "left_shoulder", "left_elbow", "left_wrist",
@@ -47,6 +51,12 @@ class SyntheticSettings:
     fps_range: frames per second, uniform (issue 3: 12-60).
     max_seconds: longer clips are cut to a random segment of this length, s (a static camera must keep the
         whole segment in view; 8 s keeps the person large in the frame).
+    reverse_probability: chance of playing the motion backwards. A walk played backwards is a backward walk with
+        the same contacts; without it the networks learn that a foot ahead of the body is about to land, which
+        fails for backward and sideways steps (CMU 06_06 and 06_08, basketball dribbling backwards and sideways,
+        scored 0.64-0.68 without it).
+    playback_speed_range: the motion is played this much faster, uniform (slow and brisk versions of every
+        motion); the labels are computed after this, so a foot that moves too fast is not in contact.
     mirror_probability: chance of mirroring a sequence left/right.
     stature_scale_range: the whole body scaled about the floor by this factor, uniform (0.85-1.12 turns the
         CMU actors into people of about 1.45-1.95 m).
@@ -57,9 +67,11 @@ class SyntheticSettings:
     labels: the automatic label thresholds.
     """
 
-    variants_per_clip: int = 12
+    variants_per_clip: int = 24
     fps_range: tuple[float, float] = (12.0, 60.0)
     max_seconds: float = 8.0
+    reverse_probability: float = 0.5
+    playback_speed_range: tuple[float, float] = (0.8, 1.25)
     mirror_probability: float = 0.5
     stature_scale_range: tuple[float, float] = (0.85, 1.12)
     upper_body_scale_range: tuple[float, float] = (0.9, 1.1)
@@ -105,10 +117,25 @@ def mocap_files(mocap_root: str | os.PathLike) -> list[Path]:
     return files
 
 
-def usable_clip(clip: MocapClip) -> bool:
-    """False for clips on uneven ground (the loader could not level their floor): a height-above-floor label
-    means nothing there (CMU 03_01, 03_02, "walk on uneven terrain")."""
-    return not any("not levelled" in note for note in clip.notes)
+def usable_clip(clip: MocapClip, settings: LabelSettings = LabelSettings()) -> bool:
+    """False for clips whose automatic labels cannot be trusted:
+    - uneven ground (the loader could not level the floor: CMU 03_01, 03_02, "walk on uneven terrain");
+    - a still foot hovering above the floor with no contact anywhere (no site labelled in contact while a site
+      moves slower than HOVER_SPEED at 5-25 cm above the floor) in more than MAX_IMPLAUSIBLE_FRACTION of the
+      frames: the person must be standing on something, so the floor or the foot geometry is off (the dancer
+      on her toes in CMU 05_05, 05_06, 05_08, whose retargeted toe sites float 7-20 cm up);
+    - feet more than 3 cm below the floor in more than MAX_IMPLAUSIBLE_FRACTION of the frames (CMU 02_03, a run
+      retargeted without vertical root motion).
+    """
+    if any("not levelled" in note for note in clip.notes):
+        return False
+    contacts, _ = motion_labels(clip.positions, clip.fps, settings)
+    sites = clip.positions[:, CONTACT_SITE_INDICES]
+    speed = point_speed(sites, clip.fps, settings.contact_speed_interval, centred=False)
+    hovering = ((speed < HOVER_SPEED) & (sites[..., 2] > settings.contact_max_height) & (sites[..., 2] < 0.25)).any(axis=1)
+    unsupported = hovering & ~contacts.any(axis=1)
+    sunk = sites[..., 2].min(axis=1) < -MAX_SINK
+    return unsupported.mean() <= MAX_IMPLAUSIBLE_FRACTION and sunk.mean() <= MAX_IMPLAUSIBLE_FRACTION
 
 
 def split_by_subject(files: list[Path], test_subjects: tuple[str, ...] = TEST_SUBJECTS) -> tuple[list[Path], list[Path]]:
@@ -156,6 +183,10 @@ def synthesise(clip: MocapClip, variant: int, seed: int, settings: SyntheticSett
     """One synthetic sequence of `clip` (see the module docstring); deterministic in (seed, clip.name, variant)."""
     rng = _sequence_rng(seed, f"{clip.skeleton}:{clip.name}", variant)
     clip = _segment(clip, rng, settings.max_seconds)
+    if rng.random() < settings.reverse_probability:
+        clip = replace(clip, positions=clip.positions[::-1], head_rotation=clip.head_rotation[::-1],
+                       hand_rotations=clip.hand_rotations[::-1])
+    clip = replace(clip, fps=clip.fps * float(rng.uniform(*settings.playback_speed_range)))
     contacts, stationary = motion_labels(clip.positions, clip.fps, settings.labels)
     body = vary_proportions(clip, rng, settings)
     fps = float(rng.uniform(*settings.fps_range))

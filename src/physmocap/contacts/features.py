@@ -6,7 +6,12 @@ network, the centre one for the centred network) fixes the origin: the midpoint 
 Rempe et al. 3.2, so the window keeps the root's motion relative to the reference frame. Coordinates are divided
 by the person's size in the window (the median over its frames of shoulder-midpoint-to-hip-midpoint plus thigh
 plus shank, in pixels, about 0.8 of the stature for an upright person), which puts them mostly in [-1.5, 1.5]
-(Rempe: "largely between [-1, 1]") whatever the resolution and distance. Confidences pass unchanged.
+(Rempe: "largely between [-1, 1]") whatever the resolution and distance. Each point also carries its speed, the
+length of the change of its normalised position since the previous frame, per 1/30 s, and its confidence. The
+networks could compute speeds from the positions, but given explicitly, and without their direction (which
+depends on where the person walks relative to the camera, not on contact), they generalise across motions: on
+the 2 held-out CMU subjects the causal network scored 0.76 from positions alone, 0.80 with velocities, 0.835 with
+speeds; on the hand-labelled real frames 0.82 with velocities and 0.86 with speeds.
 
 One scalar joins every window: the frame interval in units of 1/30 s (REFERENCE_FPS / fps). The networks are
 trained at 12-60 fps, and the same foot speed is a 5x different displacement per frame at 12 and at 60 fps;
@@ -33,7 +38,7 @@ FEATURE_LANDMARKS: tuple[str, ...] = (
 carry the trunk's lean and the scale."""
 FEATURE_INDICES: tuple[int, ...] = tuple(LANDMARK_INDEX[name] for name in FEATURE_LANDMARKS)
 NUM_FEATURE_POINTS = len(FEATURE_LANDMARKS)
-VALUES_PER_POINT = 3  # x, y (normalised), confidence
+VALUES_PER_POINT = 4  # x, y (normalised), speed (normalised, per 1/30 s), confidence
 REFERENCE_FPS = 30.0
 MIN_SCALE_PIXELS = 1.0
 
@@ -70,7 +75,7 @@ class WindowSpec:
 
     @property
     def input_size(self) -> int:
-        """Length of a flattened input vector: length x 12 points x (x, y, c), plus the frame interval."""
+        """Length of a flattened input vector: length x 12 points x (x, y, speed, c), plus the frame interval."""
         return self.length * NUM_FEATURE_POINTS * VALUES_PER_POINT + 1
 
 
@@ -137,20 +142,41 @@ def normalise_windows(windows: np.ndarray, reference: int) -> np.ndarray:
     return normalised
 
 
+def inputs_from_windows(
+    windows: np.ndarray, reference: int, interval: np.ndarray, position_noise: np.ndarray | None = None
+) -> np.ndarray:
+    """Flattened network inputs from windows that start one frame early (for the first frame's velocity).
+
+    windows: (N, length + 1, 12, 3) `select_keypoints` rows; frame 0 only serves the velocities.
+    reference: index of the target frame within the length frames.
+    interval: (N,) frame interval in units of 1/30 s (REFERENCE_FPS / fps).
+    position_noise: optional (N, length + 1, 12, 2) added to the normalised positions (training augmentation).
+    Returns (N, length x 48 + 1) float32: per frame, per point, (x, y, speed, c) with positions from
+    `normalise_windows`, speeds the length of their change since the previous frame per 1/30 s, then the
+    interval.
+    """
+    normalised = normalise_windows(windows, reference + 1)
+    if position_noise is not None:
+        normalised[..., :2] += position_noise
+    speed = np.linalg.norm(np.diff(normalised[..., :2], axis=1), axis=-1, keepdims=True) / interval[:, None, None, None]
+    frames = np.concatenate([normalised[:, 1:, :, :2], speed, normalised[:, 1:, :, 2:]], axis=3)
+    inputs = np.empty((len(windows), frames[0].size + 1), dtype=np.float32)
+    inputs[:, :-1] = frames.reshape(len(windows), -1)
+    inputs[:, -1] = interval
+    return inputs
+
+
 def window_inputs(points: np.ndarray, fps: float, targets: np.ndarray, spec: WindowSpec) -> np.ndarray:
     """Flattened network inputs of the windows around target frames.
 
     points: (T, 12, 3) from `select_keypoints`. fps: frames per second. targets: (N,) frame indices.
-    Returns (N, spec.input_size) float32: per frame of the window, per point, (x, y, c) normalised by
-    `normalise_windows`, then REFERENCE_FPS / fps.
+    Returns (N, spec.input_size) float32 (`inputs_from_windows`).
     """
     if fps <= 0:
         raise InputError(f"window_inputs: fps is {fps}, expected a positive number.")
-    windows = normalise_windows(points[window_indices(len(points), targets, spec)], spec.reference)
-    inputs = np.empty((len(windows), spec.input_size), dtype=np.float32)
-    inputs[:, :-1] = windows.reshape(len(windows), -1)
-    inputs[:, -1] = REFERENCE_FPS / fps
-    return inputs
+    with_previous = WindowSpec(spec.length + 1, spec.reference + 1)
+    windows = points[window_indices(len(points), targets, with_previous)]
+    return inputs_from_windows(windows, spec.reference, np.full(len(windows), REFERENCE_FPS / fps, np.float32))
 
 
 def mirror_keypoints(keypoints_2d: np.ndarray, image_width: int) -> np.ndarray:

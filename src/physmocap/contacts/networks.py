@@ -25,7 +25,7 @@ from .features import CAUSAL_WINDOW, CENTRED_WINDOW, NUM_FEATURE_POINTS, VALUES_
 
 OUTPUT_NAMES: tuple[str, ...] = ("left_heel", "left_toe", "right_heel", "right_toe", "stationary")
 NUM_OUTPUTS = len(OUTPUT_NAMES)
-FRAME_CHANNELS = NUM_FEATURE_POINTS * VALUES_PER_POINT  # 36 values per frame
+FRAME_CHANNELS = NUM_FEATURE_POINTS * VALUES_PER_POINT  # 48 values per frame
 
 
 @dataclass(frozen=True)
@@ -62,7 +62,7 @@ def sigmoid(logits: np.ndarray) -> np.ndarray:
 
 
 def causal_forward(params: dict[str, np.ndarray], inputs: np.ndarray) -> np.ndarray:
-    """Logits (N, 5) of the causal network for inputs (N, 7 x 36 + 1) (`features.window_inputs`)."""
+    """Logits (N, 5) of the causal network for inputs (N, 7 x 48 + 1) (`features.window_inputs`)."""
     count = len(inputs)
     length = (inputs.shape[1] - 1) // FRAME_CHANNELS
     hidden = np.empty((count, length, FRAME_CHANNELS + 1), dtype=np.float32)
@@ -82,7 +82,7 @@ def causal_forward(params: dict[str, np.ndarray], inputs: np.ndarray) -> np.ndar
 
 
 def centred_forward(params: dict[str, np.ndarray], inputs: np.ndarray) -> np.ndarray:
-    """Logits (N, 5 frames, 5) of the centred network for inputs (N, 9 x 36 + 1); frames t-2 .. t+2."""
+    """Logits (N, 5 frames, 5) of the centred network for inputs (N, 9 x 48 + 1); frames t-2 .. t+2."""
     hidden = inputs
     layer = 0
     while f"linear{layer + 1}.weight" in params:

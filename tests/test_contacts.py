@@ -1,0 +1,307 @@
+"""Foot-contact stage: label rules, input representation, networks, prediction, baselines, training."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import physmocap  # noqa: F401 - single-threaded BLAS
+from physmocap.contacts.baselines import always_contact, velocity_2d, velocity_3d
+from physmocap.contacts.dataset import MIRRORED_CONTACT_COLUMNS, split_by_subject
+from physmocap.contacts.features import (
+    CAUSAL_WINDOW, CENTRED_WINDOW, FEATURE_INDICES, mirror_keypoints, normalise_windows, select_keypoints,
+    window_indices, window_inputs,
+)
+from physmocap.contacts.labels import LabelSettings, contact_labels, point_speed, stationary_labels
+from physmocap.contacts.networks import FRAME_CHANNELS, NUM_OUTPUTS, CausalNetSpec, CentredNetSpec, causal_forward, centred_forward
+from physmocap.contacts.predict import load_weights, network_probabilities, predict_contacts
+from physmocap.landmarks import LANDMARK_INDEX, MIRRORED
+from physmocap.motion import Observations
+
+SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+needs_shared = pytest.mark.skipif(not (SHARED_DATA / "mocap").is_dir(), reason="../shared/data is not here")
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Labels
+
+
+def sites_track(fps: float, seconds: float, height: float, speed: float) -> np.ndarray:
+    """(T, 4, 3): four sites at `height` m, moving along x at `speed` m/s."""
+    t = np.arange(int(round(seconds * fps))) / fps
+    sites = np.zeros((len(t), 4, 3))
+    sites[..., 0] = speed * t[:, None]
+    sites[..., 2] = height
+    return sites
+
+
+@pytest.mark.parametrize("fps", [12.0, 30.0, 120.0])
+def test_contact_rule_on_hand_made_cases(fps):
+    assert contact_labels(sites_track(fps, 1.0, 0.0, 0.0), fps).all()  # planted
+    assert contact_labels(sites_track(fps, 1.0, 0.01, 0.3), fps).all()  # rolling, under 0.6 m/s and 5 cm
+    assert not contact_labels(sites_track(fps, 1.0, 0.10, 0.0), fps).any()  # held still in the air
+    assert not contact_labels(sites_track(fps, 1.0, 0.0, 1.0), fps).any()  # sliding fast along the floor
+
+
+def test_contact_rule_thresholds_are_settings():
+    sites = sites_track(60.0, 1.0, 0.06, 0.0)
+    assert not contact_labels(sites, 60.0).any()
+    assert contact_labels(sites, 60.0, LabelSettings(contact_max_height=0.08)).all()
+
+
+def test_contact_labels_agree_across_frame_rates():
+    """A foot that stops for 0.5 s, labelled at 30 and 120 fps, gets the same labels at the same instants."""
+    def foot(fps: float) -> np.ndarray:
+        t = np.arange(int(2.0 * fps)) / fps
+        x = np.where(t < 0.75, 2.0 * t, np.where(t < 1.25, 1.5, 1.5 + 2.0 * (t - 1.25)))
+        sites = np.zeros((len(t), 4, 3))
+        sites[..., 0] = x[:, None]
+        return sites
+
+    slow, fast = contact_labels(foot(30.0), 30.0), contact_labels(foot(120.0), 120.0)
+    assert np.mean(slow[:, 0] == fast[::4, 0]) > 0.95
+    assert slow[:, 0].sum() == pytest.approx(15, abs=2)  # 0.5 s at 30 fps
+
+
+def test_point_speed_and_stationary():
+    fps = 50.0
+    t = np.arange(100) / fps
+    root = np.stack([0.1 * t, np.zeros_like(t), np.full_like(t, 0.9)], axis=1)
+    assert np.allclose(point_speed(root, fps, 0.2, centred=True), 0.1)
+    assert np.allclose(point_speed(root, fps, 1 / 30, centred=False), 0.1)
+    assert stationary_labels(root, fps).all()
+    assert not stationary_labels(10 * root, fps).any()  # 1 m/s walk
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Input representation
+
+
+def person_keypoints(num_frames: int, rng: np.random.Generator, offset=(400.0, 300.0), scale=100.0) -> np.ndarray:
+    """(T, 33, 3) a rough upright person: random points around a body shape, confidences 0.9."""
+    template = rng.uniform(-0.3, 0.3, (33, 2))
+    for name, xy in {"left_shoulder": (0.2, -0.5), "right_shoulder": (-0.2, -0.5), "left_hip": (0.1, 0.0),
+                     "right_hip": (-0.1, 0.0), "left_knee": (0.1, 0.45), "right_knee": (-0.1, 0.45),
+                     "left_ankle": (0.1, 0.9), "right_ankle": (-0.1, 0.9)}.items():
+        template[LANDMARK_INDEX[name]] = xy
+    xy = scale * (template + 0.01 * rng.standard_normal((num_frames, 33, 2))) + np.asarray(offset)
+    return np.concatenate([xy, np.full((num_frames, 33, 1), 0.9)], axis=2)
+
+
+def test_window_shapes_and_clamping():
+    assert CAUSAL_WINDOW.input_size == 7 * 12 * 4 + 1
+    assert CENTRED_WINDOW.input_size == 9 * 12 * 4 + 1
+    indices = window_indices(5, np.array([0, 4]), CENTRED_WINDOW)
+    assert indices.shape == (2, 9)
+    assert indices[0].tolist() == [0, 0, 0, 0, 0, 1, 2, 3, 4]
+    assert window_indices(5, np.array([2]), CAUSAL_WINDOW)[0].tolist() == [0, 0, 0, 0, 0, 1, 2]
+    points = select_keypoints(person_keypoints(20, np.random.default_rng(0)), np.ones(20, bool))
+    inputs = window_inputs(points, 30.0, np.arange(20), CAUSAL_WINDOW)
+    assert inputs.shape == (20, CAUSAL_WINDOW.input_size) and inputs.dtype == np.float32
+    assert np.allclose(inputs[:, -1], 1.0)  # 30 fps: one reference frame interval
+    frames = inputs[:, :-1].reshape(20, 7, 12, 4)
+    assert np.allclose(frames[0, :, :, 2], 0.0)  # the first frame repeats: no motion
+    speeds = np.linalg.norm(np.diff(frames[10, :, :, :2], axis=0), axis=-1)
+    assert np.allclose(frames[10, 1:, :, 2], speeds, atol=1e-6)
+    slower = window_inputs(points, 60.0, np.arange(20), CAUSAL_WINDOW).reshape(20, -1)
+    assert np.allclose(slower[:, -1], 0.5)
+
+
+def test_normalisation_is_root_centred_and_scale_free():
+    rng = np.random.default_rng(1)
+    keypoints = person_keypoints(9, rng)
+    points = select_keypoints(keypoints, np.ones(9, bool))[None]
+    normalised = normalise_windows(points, 4)
+    hips = normalised[0, 4, 2:4, :2].mean(axis=0)
+    assert np.allclose(hips, 0.0, atol=1e-6)
+    moved = points.copy()
+    moved[..., :2] = 3.0 * moved[..., :2] + np.array([250.0, -80.0])
+    assert np.allclose(normalise_windows(moved, 4), normalised, atol=1e-5)
+    assert np.abs(normalised[..., :2]).max() < 2.0
+
+
+def test_invalid_frames_are_filled_with_zero_confidence():
+    keypoints = person_keypoints(6, np.random.default_rng(2))
+    valid = np.array([True, False, False, True, True, False])
+    keypoints[~valid] = 0.0
+    points = select_keypoints(keypoints, valid)
+    assert np.array_equal(points[1, :, :2], points[0, :, :2]) and np.array_equal(points[2, :, :2], points[3, :, :2])
+    assert np.array_equal(points[5, :, :2], points[4, :, :2])
+    assert (points[~valid, :, 2] == 0).all() and (points[valid, :, 2] > 0).all()
+
+
+def test_mirroring_swaps_sides():
+    keypoints = person_keypoints(3, np.random.default_rng(3))
+    mirrored = mirror_keypoints(keypoints, 1000)
+    left, right = LANDMARK_INDEX["left_heel"], LANDMARK_INDEX["right_heel"]
+    assert np.allclose(mirrored[:, left, 0], 999 - keypoints[:, right, 0])
+    assert np.allclose(mirror_keypoints(mirrored, 1000), keypoints)
+    assert MIRRORED_CONTACT_COLUMNS == (2, 3, 0, 1)
+    assert all(MIRRORED[MIRRORED[i]] == i for i in FEATURE_INDICES)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Networks and prediction
+
+
+def random_params(spec, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """Random parameters with the layout of networks.py."""
+    if isinstance(spec, CausalNetSpec):
+        params, channels = {}, FRAME_CHANNELS + 1
+        for i, out in enumerate(spec.channels):
+            params[f"conv{i}.weight"] = rng.normal(0, 0.1, (spec.kernel, channels, out)).astype(np.float32)
+            params[f"conv{i}.bias"] = rng.normal(0, 0.1, out).astype(np.float32)
+            channels = out
+        params["fc.weight"] = rng.normal(0, 0.1, (channels, NUM_OUTPUTS)).astype(np.float32)
+        params["fc.bias"] = np.zeros(NUM_OUTPUTS, np.float32)
+        return params
+    sizes = (spec.window.input_size,) + spec.hidden + (spec.window.outputs * NUM_OUTPUTS,)
+    return {key: rng.normal(0, 0.05, shape).astype(np.float32)
+            for i in range(len(sizes) - 1)
+            for key, shape in ((f"linear{i}.weight", (sizes[i], sizes[i + 1])), (f"linear{i}.bias", (sizes[i + 1],)))}
+
+
+def test_numpy_forward_shapes():
+    rng = np.random.default_rng(4)
+    causal = random_params(CausalNetSpec(channels=(8, 8, 8)), rng)
+    centred = random_params(CentredNetSpec(hidden=(16, 8)), rng)
+    assert causal_forward(causal, rng.normal(size=(5, CAUSAL_WINDOW.input_size)).astype(np.float32)).shape == (5, 5)
+    assert centred_forward(centred, rng.normal(size=(5, CENTRED_WINDOW.input_size)).astype(np.float32)).shape == (5, 5, 5)
+
+
+def test_numpy_inference_matches_torch():
+    torch = pytest.importorskip("torch")
+    from physmocap.contacts.train import TorchCausalNet, TorchCentredNet
+
+    torch.manual_seed(0)
+    for model, size in ((TorchCausalNet(CausalNetSpec()), CAUSAL_WINDOW.input_size),
+                        (TorchCentredNet(CentredNetSpec(hidden=(64, 32, 16, 8))), CENTRED_WINDOW.input_size)):
+        for module in model.modules():
+            if isinstance(module, torch.nn.BatchNorm1d):  # non-trivial statistics to fold
+                module.running_mean.uniform_(-1, 1)
+                module.running_var.uniform_(0.5, 2)
+                module.weight.data.uniform_(0.5, 1.5)
+                module.bias.data.uniform_(-0.5, 0.5)
+        model.eval()
+        inputs = torch.randn(32, size)
+        with torch.no_grad():
+            expected = model(inputs).numpy()
+        forward = causal_forward if isinstance(model, TorchCausalNet) else centred_forward
+        assert np.allclose(forward(model.export(), inputs.numpy()).reshape(expected.shape), expected, atol=1e-4)
+
+
+@pytest.mark.parametrize("mode", ["causal", "centred"])
+def test_predict_contacts_with_shipped_weights(mode):
+    rng = np.random.default_rng(5)
+    keypoints = person_keypoints(40, rng)
+    valid = np.ones(40, bool)
+    valid[[10, 11, 30]] = False
+    keypoints[~valid] = 0.0
+    obs = Observations(keypoints_2d=keypoints, landmarks_3d=np.zeros((40, 33, 3)), fps=30.0, image_size=(800, 600),
+                       valid=valid)
+    contacts, stationary, probabilities = predict_contacts(obs, mode)
+    assert contacts.shape == (40, 4) and contacts.dtype == bool
+    assert stationary.shape == (40,) and probabilities.shape == (40, 5)
+    assert not contacts[~valid].any() and not stationary[~valid].any() and (probabilities[~valid] == 0).all()
+    assert ((probabilities >= 0) & (probabilities <= 1)).all()
+
+
+def test_causal_predictions_ignore_the_future():
+    rng = np.random.default_rng(6)
+    keypoints = person_keypoints(30, rng)
+    params = load_weights("causal")
+    before, _ = network_probabilities(keypoints, np.ones(30, bool), 30.0, params, "causal")
+    changed = keypoints.copy()
+    changed[20:, :, :2] += rng.normal(0, 30, changed[20:, :, :2].shape)
+    after, _ = network_probabilities(changed, np.ones(30, bool), 30.0, params, "causal")
+    assert np.array_equal(before[:20], after[:20]) and not np.array_equal(before[20:], after[20:])
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Baselines
+
+
+def test_baselines_on_a_planted_and_a_swinging_foot():
+    rng = np.random.default_rng(7)
+    keypoints = person_keypoints(30, rng)
+    keypoints[:, :, :2] = np.round(keypoints[0, :, :2])  # a still person
+    swinging = [LANDMARK_INDEX[name] for name in ("right_heel", "right_foot_index")]
+    keypoints[:, swinging, 0] += 40.0 * np.arange(30)[:, None]  # 40 px a frame: 12 person sizes per second
+    valid = np.ones(30, bool)
+    valid[5] = False
+    contacts, stationary = velocity_2d(keypoints, valid, 30.0)
+    assert contacts[10:, :2].all() and not contacts[10:, 2:].any() and stationary[10:].all()
+    assert not contacts[5].any() and not stationary[5]
+    landmarks = np.zeros((30, 33, 3))
+    landmarks[:, swinging, 0] = 0.1 * np.arange(30)[:, None]  # 3 m/s
+    assert velocity_3d(landmarks, valid, 30.0)[10:].tolist() == [[True, True, False, False]] * 20
+    always, still = always_contact(30, valid)
+    assert always.sum() == 4 * 29 and still.sum() == 29
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Data and training (need ../shared/data)
+
+
+def test_split_by_subject_never_shares_a_subject():
+    files = [Path(name) for name in ("02_01.bvh", "002_05.bvh", "006_01.bvh", "131_02.bvh", "007_01.bvh")]
+    train, test = split_by_subject(files, ("6", "131"))
+    assert [f.name for f in test] == ["006_01.bvh", "131_02.bvh"]
+    assert [f.name for f in train] == ["02_01.bvh", "002_05.bvh", "007_01.bvh"]
+
+
+@needs_shared
+def test_synthetic_sequences_are_deterministic_and_labelled():
+    from physmocap.contacts.dataset import SyntheticSettings, load_clips, make_sequences
+
+    clips = load_clips([SHARED_DATA / "mocap" / "cmu_iclone_cc3_retarget" / "007_01.bvh"])
+    settings = SyntheticSettings(variants_per_clip=3)
+    first, again = make_sequences(clips, 5, settings), make_sequences(clips, 5, settings)
+    assert all(np.array_equal(a.keypoints_2d, b.keypoints_2d) and np.array_equal(a.contacts, b.contacts)
+               for a, b in zip(first, again))
+    for sequence in first:
+        assert 12 <= sequence.fps <= 60
+        assert sequence.contacts.shape == (sequence.num_frames, 4) and sequence.stationary.shape == (sequence.num_frames,)
+        assert 0.3 < sequence.contacts.mean() < 0.8  # a walk: each site down about half the time
+        assert not sequence.stationary.any()
+
+
+@needs_shared
+def test_training_runs_a_few_steps(tmp_path):
+    pytest.importorskip("torch")
+    from physmocap.contacts.dataset import SyntheticSettings
+    from physmocap.contacts.train import ContactTrainingSettings, TrainSettings, train_contacts
+
+    settings = ContactTrainingSettings(
+        synthetic=SyntheticSettings(variants_per_clip=1), optimisation=TrainSettings(max_steps=3, batch_size=64),
+        causal=CausalNetSpec(channels=(16, 16, 16)), centred=CentredNetSpec(hidden=(32, 16)), test_variants_per_clip=1)
+    metadata = train_contacts(SHARED_DATA, tmp_path, seed=3, settings=settings, max_clips=1, log=lambda _: None)
+    assert metadata["causal"]["steps"] == 3 and set(metadata["test_subjects"]).isdisjoint(metadata["train_subjects"])
+    first = {mode: dict(np.load(tmp_path / f"{mode}.npz")) for mode in ("causal", "centred")}
+    train_contacts(SHARED_DATA, tmp_path, seed=3, settings=settings, max_clips=1, log=lambda _: None)
+    for mode, params in first.items():
+        again = load_weights(mode, tmp_path)
+        assert params.keys() == again.keys() and all(np.array_equal(params[k], again[k]) for k in params)
+
+
+@needs_shared
+def test_shipped_weights_beat_the_heuristics_on_held_out_subjects():
+    from physmocap.contacts.dataset import SyntheticSettings, load_clips, make_sequences
+
+    clips = load_clips([SHARED_DATA / "mocap" / "cmu_iclone_cc3_retarget" / name for name in ("006_01.bvh", "006_15.bvh")])
+    sequences = make_sequences(clips, 11, SyntheticSettings(), variants=2)
+    truth = np.concatenate([s.contacts for s in sequences])
+    accuracy = {}
+    for mode in ("causal", "centred"):
+        params = load_weights(mode)
+        predicted = np.concatenate([network_probabilities(s.keypoints_2d, s.valid, s.fps, params, mode)[1][:, :4]
+                                    for s in sequences])
+        accuracy[mode] = np.mean(predicted == truth)
+    always = truth.mean()
+    velocity = np.mean(np.concatenate([velocity_2d(s.keypoints_2d, s.valid, s.fps)[0] for s in sequences]) == truth)
+    velocity_3d_accuracy = np.mean(np.concatenate([velocity_3d(s.landmarks_3d, s.valid, s.fps) for s in sequences]) == truth)
+    for mode, value in accuracy.items():
+        assert value > max(always, velocity, velocity_3d_accuracy) + 0.03, (mode, accuracy, always, velocity)
