@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -195,6 +194,15 @@ def main() -> None:
     for method in METHODS:
         lines.append(f"| {method} | " + " | ".join(f"{per_video[name][method]['accuracy']:.3f} ({per_video[name][method]['f1']:.3f})"
                                                     for name in labels) + " |")
+    judged = [name for name in labels if (labels[name].stationary >= 0).any()]
+    lines += ["", "### Real frames per video: stationary accuracy (judged frames, of them stationary)", "",
+              "| method | " + " | ".join(f"{name} ({int((labels[name].stationary >= 0).sum())}, "
+                                        f"{int((labels[name].stationary == 1).sum())})" for name in judged) + " |",
+              "|---" * (len(judged) + 1) + "|"]
+    for method in METHODS:
+        if "stationary_accuracy" in per_video[judged[0]][method]:
+            lines.append(f"| {method} | " + " | ".join(f"{per_video[name][method]['stationary_accuracy']:.2f}"
+                                                        for name in judged) + " |")
     lines += ["", "### Inference", "",
               "| network | ms per frame (one core, features included) |", "|---|---|"]
     lines += [f"| {mode} | {ms:.3f} |" for mode, ms in timings.items()]

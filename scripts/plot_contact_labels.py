@@ -23,7 +23,7 @@ import numpy as np  # noqa: E402
 from physmocap.contacts.labels import (  # noqa: E402
     CONTACT_SITE_INDICES, CONTACT_SITES, LabelSettings, motion_labels, point_speed,
 )
-from physmocap.mocap.bvh_reader import JOINT_INDEX, load_mocap  # noqa: E402
+from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
 
 PHYSCAP_MAX_SPEED = 0.05  # m/s
 PHYSCAP_HEIGHT_MARGIN = 0.05  # m above the mean height of the first ten frames
