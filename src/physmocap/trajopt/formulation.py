@@ -5,9 +5,13 @@ variable sets
   com                 COM position and Z-Y-X Euler orientation: Hermite nodes (value, rate) every ~0.1 s
   foot_<point>        per heel/toe: one (x, y) per contact phase (z = 0: on the floor; constant: no slip), and
                       Hermite nodes through each flight (at least 6 polynomials per phase)
-  force_<point>       per heel/toe: Hermite nodes through each contact phase (at least 6 polynomials), in body
+  force_<point>       per heel/toe: Hermite nodes through each contact phase (at least 6 polynomials, none
+                      longer than the COM's), in body
                       weights; zero in flight by construction; zero where a contact phase meets a flight
-  durations           (last stage only) the times of the phase boundaries
+  durations           (last stage only) the phase boundary times, each within +-0.1 s (at most a quarter
+                      of either neighbouring phase); the polynomials next to a boundary are long
+                      enough that it never passes a node, so only samples near a boundary choose
+                      between two polynomials
 constraint sets (TrajoptSettings.constraints)
   dynamics            m r'' = sum f + m g; I_w w' + w x I_w w = sum (p - r) x f, I_w from the input's I_b(t);
                       Euler's equation every 0.1 s (the paper), Newton's at every frame (ours, see settings)
@@ -16,7 +20,6 @@ constraint sets (TrajoptSettings.constraints)
   leg_length          |point - hip| <= leg reach, the hip placed from the COM pose with the input's offset
   force_limits        0 <= f_n <= f_max and |f_t| <= mu f_n (friction pyramid) at force nodes and frames
   above_floor         z >= 0 for feet in flight
-  phase_order         (durations only) every phase keeps a minimum duration
 cost terms (TrajoptSettings.costs)
   data, velocity, acceleration   equations (1), (3), (4) at every frame
   duration                       equation (2)
@@ -52,8 +55,8 @@ FOOT_PAIRS = ((0, 1), (2, 3))  # (heel, toe) of the left and right foot
 @dataclass
 class WindowStart:
     """The state a window must start in, taken from the previous window's solution at the junction time.
-    com, com_rate, euler, euler_rate: (3,); feet, feet_rate: (4, 3) m, m/s; forces, force_rates: (4, 3) body
-    weights (zero for points in flight)."""
+    com, com_rate, euler, euler_rate: (3,); feet, feet_rate: (4, 3) m, m/s (held); forces, force_rates: (4, 3)
+    body weights (zero for points in flight; for information, not held)."""
 
     com: np.ndarray
     com_rate: np.ndarray
@@ -94,6 +97,15 @@ def sample_times(t0: float, t1: float, interval: float, frames: np.ndarray) -> n
         return np.asarray(frames, float)
     n = max(1, int(round((t1 - t0) / interval)))
     return np.linspace(t0, t1, n + 1)
+
+
+def free_times(window: "Window", times: np.ndarray) -> np.ndarray:
+    """`times` without the window's first instant when the window continues another: its state there is the
+    previous window's, fixed, and a kinematic constraint on fixed values (sampled elsewhere before) could be
+    unsatisfiable."""
+    if window.start is None:
+        return times
+    return times[times > window.t0 + 1e-9]
 
 
 def interpolate(times: np.ndarray, values: np.ndarray, t) -> np.ndarray:
@@ -194,24 +206,58 @@ class ComVariables:
                            for j in range(len(t) - 1)])
 
 
-class Schedule:
-    """The phase boundary times of one contact point: floats at the input timing, or expressions of the
-    `durations` variables. boundaries[j] is the start of phase j; boundaries[-1] the window's end."""
+def boundary_moves(phases: list[Phase], settings: TrajoptSettings, freeze_after: float = np.inf) -> np.ndarray:
+    """(len(phases) + 1,) how far (s) each phase boundary of one contact point may move in the duration stage:
+    max_duration_change, at most a quarter of either neighbouring phase (so no phase shrinks below half its
+    length), zero for the window's ends, for boundaries near or after the junction `freeze_after`, and for all
+    when durations are not optimised."""
+    moves = np.zeros(len(phases) + 1)
+    if not settings.optimize_durations or settings.max_duration_change <= 0:
+        return moves
+    for j in range(1, len(phases)):
+        b = phases[j].start
+        if b >= freeze_after - settings.max_duration_change:
+            continue
+        moves[j] = min(settings.max_duration_change, 0.25 * phases[j - 1].duration, 0.25 * phases[j].duration)
+    return moves
 
-    def __init__(self, phases: list[Phase], boundaries: list | None = None, slack: float = 0.0):
+
+def phase_layout(start: float, end: float, m: int, move_start: float, move_end: float) -> np.ndarray:
+    """(m + 1,) node times of a phase cut into m polynomials: evenly, except that the first and last polynomials
+    are at least 1.5 times as long as their boundary may move, so a moving boundary never passes a node."""
+    d = end - start
+    if m == 1:
+        return np.array([start, end])
+    first = max(d / m, 1.5 * move_start)
+    last = max(d / m, 1.5 * move_end)
+    if m == 2:
+        return np.array([start, start + 0.5 * d if first + last > d else start + first, end])
+    inner = np.linspace(start + first, end - last, m - 1)
+    return np.concatenate([[start], inner, [end]])
+
+
+class Schedule:
+    """The phases of one contact point and their boundary times: floats at the input timing, or expressions of
+    the `durations` variables; `moves` (len(phases) + 1,) how far each boundary may move (zero: fixed).
+    boundaries[j] is the start of phase j; boundaries[-1] the window's end."""
+
+    def __init__(self, phases: list[Phase], moves: np.ndarray, boundaries: list | None = None):
         self.phases = phases
+        self.moves = moves
         self.nominal = [p.start for p in phases] + [phases[-1].end]
         self.boundaries = list(self.nominal) if boundaries is None else boundaries
-        self.slack = slack
+
+    def nodes(self, j: int, m: int) -> np.ndarray:
+        """Nominal node times (m + 1,) of phase j cut into m polynomials."""
+        return phase_layout(self.nominal[j], self.nominal[j + 1], m, self.moves[j], self.moves[j + 1])
 
     def segment(self, j: int, k: int, m: int, first: Node, second: Node) -> Segment:
-        """Segment k of the m of phase j."""
-        b0, b1 = self.boundaries[j], self.boundaries[j + 1]
-        n0, n1 = self.nominal[j], self.nominal[j + 1]
-        start = b0 + (b1 - b0) * (k / m) if k else b0
-        end = b0 + (b1 - b0) * ((k + 1) / m) if k + 1 < m else b1
-        nominal = (n0 + (n1 - n0) * k / m, n0 + (n1 - n0) * (k + 1) / m)
-        return Segment(start, end, first, second, nominal, self.slack)
+        """Segment k of the m of phase j: its ends are the phase boundaries (which may move) or fixed nodes."""
+        nominal = self.nodes(j, m)
+        start = self.boundaries[j] if k == 0 else float(nominal[k])
+        end = self.boundaries[j + 1] if k + 1 == m else float(nominal[k + 1])
+        slack = (self.moves[j] if k == 0 else 0.0, self.moves[j + 1] if k + 1 == m else 0.0)
+        return Segment(start, end, first, second, (float(nominal[k]), float(nominal[k + 1])), slack)
 
 
 class _Packer:
@@ -261,7 +307,7 @@ class FootVariables:
             self.segment_counts.append(m)
             if p.contact:
                 continue
-            times = np.linspace(p.start, p.end, m + 1)
+            times = schedule.nodes(j, m)
             for k in range(m + 1):
                 if (k == 0 and j > 0) or (k == m and j < len(phases) - 1):
                     continue  # shared with the neighbouring contact phase
@@ -319,7 +365,11 @@ class ForceVariables:
                 self.segment_counts.append(1)
                 segments.append(schedule.segment(j, 0, 1, zero, zero))
                 continue
-            m = segment_count(p.duration, settings.segments_per_phase, settings.segment_phase_seconds)
+            # No force polynomial longer than the COM's: with Newton's equation at every frame the net force
+            # must follow the COM's piecewise-linear acceleration, which 6 cubics over a long stance cannot
+            # (measured: IPOPT reports the take-off of a 1.4 s stance infeasible).
+            m = segment_count(p.duration, settings.segments_per_phase, settings.segment_phase_seconds,
+                              settings.com_interval)
             self.segment_counts.append(m)
             times = np.linspace(p.start, p.end, m + 1)
             share = np.interp(times, window.reduced.times, support)
@@ -335,47 +385,42 @@ class ForceVariables:
                 self.value_index.append(a)
             segments += [schedule.segment(j, k, m, nodes[k], nodes[k + 1]) for k in range(m)]
         self.set = pack.variable_set(f"force_{POINT_NAMES[index]}")
-        if window.start is not None and phases[0].contact:
-            s = window.start
-            fixed = np.concatenate([s.forces[index], s.force_rates[index]])
-            self.set.lower[:6] = self.set.upper[:6] = self.set.initial[:6] = fixed
+        # A window that continues another starts from its state (COM, orientation, contact points) but not from
+        # its forces: forces may change at once, and holding them too made IPOPT report windows that start
+        # mid-push infeasible (the previous window's leg reach held only at its own samples).
         self.trajectory = Trajectory(segments)
         self.any_contact = bool(self.value_index)
 
 
 class DurationVariables:
-    """The interior phase boundaries of every contact point (Rempe's contact durations T_ij, as the times
-    between them: the durations then add up to the window by construction). Each may move by `max_change`
-    seconds; boundaries near or after the window's junction stay put."""
+    """The phase boundaries that may move (Rempe's contact durations T_ij, as the times between them: the
+    durations then add up to the window by construction), each within +-moves of its input time."""
 
-    def __init__(self, window: Window, settings: TrajoptSettings):
+    def __init__(self, moves: list[np.ndarray], phases: list[list[Phase]]):
         self.index: list[list[int | None]] = []
         nominal, lower, upper = [], [], []
-        change = settings.max_duration_change
-        for phases in window.phases:
+        for point_phases, point_moves in zip(phases, moves):
             row = []
-            for p in phases[1:]:
-                b = p.start
-                if change <= 0 or b >= window.freeze_after - change:
+            for j, p in enumerate(point_phases[1:], start=1):
+                if point_moves[j] <= 0:
                     row.append(None)
                     continue
                 row.append(len(nominal))
-                nominal.append(b)
-                lower.append(max(window.t0, b - change))
-                upper.append(min(window.t1, b + change))
+                nominal.append(p.start)
+                lower.append(p.start - point_moves[j])
+                upper.append(p.start + point_moves[j])
             self.index.append(row)
         self.set = VariableSet.create("durations", len(nominal))
         self.set.initial, self.set.lower, self.set.upper = (np.array(nominal, float), np.array(lower, float),
                                                             np.array(upper, float))
+        self.offset = 0
 
-    def boundaries(self, point: int, phases: list[Phase], x: ca.SX | None = None) -> list:
+    def boundaries(self, point: int, phases: list[Phase], x=None) -> list:
         """Phase boundary times of one point: floats, or entries of x (the program's variables)."""
         out = [phases[0].start]
         for p, k in zip(phases[1:], self.index[point]):
             out.append(p.start if k is None or x is None else x[self.offset + k])
         return out + [phases[-1].end]
-
-    offset: int = 0
 
 
 # ---- the problem of one window ---------------------------------------------------------------------------------
@@ -426,23 +471,25 @@ def support_shares(contacts: np.ndarray) -> np.ndarray:
 
 def build_window_problem(window: Window, settings: TrajoptSettings, durations: bool = False) -> WindowProblem:
     """All variable sets, constraint sets and cost terms of one window; with `durations`, the phase boundaries
-    are variables too (the last stage of the staged solve)."""
+    that may move are variables too (the last stage of the staged solve). Both programs share the layout of
+    every other variable, so a solution of one starts the other."""
     red = window.reduced
     contacts = np.stack([flags_from_phases(p, red.times) for p in window.phases], axis=1)
     shares = support_shares(contacts)
-    duration_vars = DurationVariables(window, settings) if durations else None
-    # Sizes first (they do not depend on the timing), then the symbols.
+    moves = [boundary_moves(p, settings, window.freeze_after) for p in window.phases]
+    fixed = [Schedule(p, m) for p, m in zip(window.phases, moves)]
     com = ComVariables(window, settings.com_interval, 0)
     offset = com.set.size
     feet, forces = [], []
-    fixed = [Schedule(p) for p in window.phases]
     for i in range(4):
         feet.append(FootVariables(i, window, fixed[i], settings, offset))
         offset += feet[-1].set.size
     for i in range(4):
         forces.append(ForceVariables(i, window, fixed[i], settings, shares[:, i], offset))
         offset += forces[-1].set.size
-    if duration_vars is not None:
+    duration_vars = None
+    if durations:
+        duration_vars = DurationVariables(moves, window.phases)
         duration_vars.offset = offset
         offset += duration_vars.set.size
     x = SYMBOL.sym("x", offset)
@@ -451,18 +498,15 @@ def build_window_problem(window: Window, settings: TrajoptSettings, durations: b
     for v in problem.variable_sets:
         v.symbols = x[start:start + v.size]
         start += v.size
-    if duration_vars is not None:  # the same variables, the trajectories re-timed by the boundary variables
-        slack = settings.max_duration_change
+    if duration_vars is not None:  # the same variables; the trajectories re-timed by the boundary variables
         for i in range(4):
-            moving = Schedule(window.phases[i], duration_vars.boundaries(i, window.phases[i], x), slack)
+            moving = Schedule(window.phases[i], moves[i], duration_vars.boundaries(i, window.phases[i], x))
             feet[i].trajectory = FootVariables(i, window, moving, settings,
                                                _offset_of(problem, feet[i].set)).trajectory
             forces[i].trajectory = ForceVariables(i, window, moving, settings, shares[:, i],
                                                   _offset_of(problem, forces[i].set)).trajectory
     for name in settings.constraints:
         problem.constraints[name] = CONSTRAINTS[name](problem)
-    if durations:
-        problem.constraints["phase_order"] = phase_order(problem)
     for name in settings.costs:
         if name == "duration" and not durations:
             continue
@@ -519,7 +563,7 @@ def dynamics(problem: WindowProblem) -> ConstraintSet:
 def velocity_boundaries(problem: WindowProblem) -> ConstraintSet:
     """COM velocity at the clip's first and last frame equals the input's mean over `boundary_frames` frames."""
     w = problem.window
-    out = ConstraintSet("velocity_boundaries")
+    out = ConstraintSet("velocity_boundaries", linear=True)
     if w.start_velocity is not None and w.start is None:
         out.add(problem.sample(problem.com.position, [w.t0], 1) - w.start_velocity.reshape(3, 1))
     if w.end_velocity is not None:
@@ -530,7 +574,7 @@ def velocity_boundaries(problem: WindowProblem) -> ConstraintSet:
 def foot_length(problem: WindowProblem) -> ConstraintSet:
     """|heel - toe|^2 / l_foot^2 = 1 for both feet at the kinematic samples."""
     s, w, red = problem.settings, problem.window, problem.window.reduced
-    times = sample_times(w.t0, w.t1, s.kinematic_interval, red.times)
+    times = free_times(w, sample_times(w.t0, w.t1, s.kinematic_interval, red.times))
     out = ConstraintSet("foot_length")
     for side, (heel, toe) in enumerate(FOOT_PAIRS):
         d = problem.sample(problem.feet[heel].trajectory, times) - problem.sample(problem.feet[toe].trajectory, times)
@@ -542,7 +586,7 @@ def leg_length(problem: WindowProblem) -> ConstraintSet:
     """|p_i - hip_i|^2 <= l_leg,i^2 at the kinematic samples; hip_i = r + R(theta) h_i(t), h_i the input's hip
     offset from the COM in the root frame."""
     s, w, red = problem.settings, problem.window, problem.window.reduced
-    times = sample_times(w.t0, w.t1, s.kinematic_interval, red.times)
+    times = free_times(w, sample_times(w.t0, w.t1, s.kinematic_interval, red.times))
     r = problem.sample(problem.com.position, times)
     e = problem.sample(problem.com.orientation, times)
     hips = interpolate(red.times, red.hips, times)  # (n, 4, 3)
@@ -564,13 +608,17 @@ def force_limits(problem: WindowProblem) -> ConstraintSet:
     variable bounds there) and at every frame in contact (the cubic between nodes could leave them)."""
     s, red = problem.settings, problem.window.reduced
     fmax = s.max_force / (red.mass * s.gravity)
-    out = ConstraintSet("force_limits")
+    out = ConstraintSet("force_limits", linear=not any(f.trajectory.symbolic_times for f in problem.forces))
     for i, force in enumerate(problem.forces):
         if not force.any_contact:
             continue
         _pyramid(out, problem.select(np.array(force.value_index)), s.friction)
         flags = flags_from_phases(problem.window.phases[i], red.times)
-        times = red.times if force.trajectory.symbolic_times else red.times[flags]
+        if force.trajectory.symbolic_times:  # also the frames a contact phase may grow over
+            reach = int(np.ceil(s.max_duration_change * (len(red.times) - 1) / max(red.times[-1] - red.times[0],
+                                                                                   1e-9)))
+            flags = np.convolve(flags, np.ones(2 * reach + 1), mode="same") > 0
+        times = red.times[flags]
         if len(times):
             f = problem.sample(force.trajectory, times)
             _pyramid(out, f, s.friction)
@@ -581,25 +629,10 @@ def force_limits(problem: WindowProblem) -> ConstraintSet:
 def above_floor(problem: WindowProblem) -> ConstraintSet:
     """z >= 0 of each heel and toe at the floor samples (in contact it is 0 by construction)."""
     s, w, red = problem.settings, problem.window, problem.window.reduced
-    times = sample_times(w.t0, w.t1, s.floor_interval, red.times)
-    out = ConstraintSet("above_floor")
+    times = free_times(w, sample_times(w.t0, w.t1, s.floor_interval, red.times))
+    out = ConstraintSet("above_floor", linear=not any(f.trajectory.symbolic_times for f in problem.feet))
     for foot in problem.feet:
         out.add(problem.sample(foot.trajectory, times)[2, :], 0.0, np.inf)
-    return out
-
-
-def phase_order(problem: WindowProblem) -> ConstraintSet:
-    """Phase boundaries keep their order with at least min_phase_seconds (half a frame if less) between them."""
-    s, w = problem.settings, problem.window
-    frame = w.reduced.times[1] - w.reduced.times[0] if w.reduced.num_frames > 1 else 0.0
-    gap = max(s.min_phase_seconds, 0.5 * frame)
-    out = ConstraintSet("phase_order")
-    for i, phases in enumerate(w.phases):
-        bounds = problem.durations.boundaries(i, phases, problem.x)
-        for a, b in zip(bounds[:-1], bounds[1:]):
-            if isinstance(a, float) and isinstance(b, float):
-                continue
-            out.add(b - a, gap, np.inf)
     return out
 
 

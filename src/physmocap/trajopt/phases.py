@@ -79,7 +79,10 @@ def flags_from_phases(phases: list[Phase], times: np.ndarray) -> np.ndarray:
     return out
 
 
-def segment_count(duration: float, minimum: int, per_seconds: float) -> int:
+def segment_count(duration: float, minimum: int, per_seconds: float, longest: float = np.inf) -> int:
     """Polynomials of a phase (Rempe C.1): at least `minimum`, more in proportion for phases longer than
-    `per_seconds`."""
-    return max(minimum, int(np.ceil(minimum * duration / per_seconds - 1e-9)))
+    `per_seconds`, and none longer than `longest` seconds."""
+    count = max(minimum, int(np.ceil(minimum * duration / per_seconds - 1e-9)))
+    if np.isfinite(longest) and longest > 0:
+        count = max(count, int(np.ceil(duration / longest - 1e-9)))
+    return count

@@ -36,9 +36,11 @@ class VariableSet:
 
 @dataclass
 class ConstraintSet:
-    """Constraints lower <= g(x) <= upper, collected row block by row block."""
+    """Constraints lower <= g(x) <= upper, collected row block by row block. `linear`: g is linear in x (its
+    Hessian is zero and is not built)."""
 
     name: str
+    linear: bool = False
     rows: list = field(default_factory=list)
     lower: list = field(default_factory=list)
     upper: list = field(default_factory=list)
@@ -120,9 +122,31 @@ class Program:
         options = {"ipopt": dict(ipopt_options), "print_time": False, "error_on_fail": False}
         options["ipopt"].setdefault("print_level", 0)
         options["ipopt"].setdefault("sb", "yes")
+        if isinstance(x, ca.SX):
+            options.update(self._derivatives())
         self.solver = ca.nlpsol("trajopt", "ipopt", {"x": self.x, "f": self.f, "g": self.g}, options)
         self.cost_values = ca.Function("costs", [self.x], [c.value for c in costs] or [zero])
         self.constraint_values = ca.Function("constraints", [self.x], [self.g])
+
+    def _derivatives(self) -> dict:
+        """Exact Jacobian of the constraints and Hessian of the Lagrangian, by CasADi's differentiation of each
+        piece on its own and summed: the pieces are small and sparse, so this builds several times faster than
+        differentiating the whole program at once (same values); linear constraint sets add no Hessian."""
+        x = self.x
+        no_parameters = ca.SX(0, 1)
+        lam_f, lam_g = ca.SX.sym("lam_f"), ca.SX.sym("lam_g", self.g.shape[0])
+        hessian = ca.SX(x.shape[0], x.shape[0])
+        for cost in self.costs:
+            hessian = hessian + lam_f * ca.hessian(cost.value, x)[0]
+        blocks = []
+        for c in self.constraints:
+            g = ca.densify(c.expression())
+            blocks.append(ca.jacobian(g, x))
+            if not c.linear:
+                hessian = hessian + ca.hessian(ca.dot(lam_g[self.con_slices[c.name]], g), x)[0]
+        jacobian = ca.vertcat(*blocks) if blocks else ca.SX(0, x.shape[0])
+        return {"hess_lag": ca.Function("hess_lag", [x, no_parameters, lam_f, lam_g], [ca.triu(hessian)]),
+                "jac_g": ca.Function("jac_g", [x, no_parameters], [self.g, jacobian])}
 
     @property
     def num_variables(self) -> int:
@@ -166,7 +190,7 @@ class Program:
         g = np.asarray(out["g"]).ravel()
         violation = np.maximum(lbg - g, 0) + np.maximum(g - ubg, 0)
         violation = float(violation[active].max()) if active.any() else 0.0
-        costs = [float(c) for c in self.cost_values(x)] if self.costs else []
+        costs = [float(c) for c in self.cost_values.call([x])] if self.costs else []
         status = str(stats.get("return_status", "unknown"))
         return Solution(x, {v.name: x[self.var_slices[v.name]] for v in self.variables}, float(out["f"]),
                         {c.name: v for c, v in zip(self.costs, costs)}, status, status in CONVERGED_STATUSES,

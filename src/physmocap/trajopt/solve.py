@@ -41,13 +41,15 @@ class StageReport:
 @dataclass
 class WindowResult:
     """The optimised reduced motion at the window's frames. com, euler: (n, 3); feet: (n, 4, 3) m;
-    forces: (n, 4, 3) N in the world; contacts: (n, 4) the phases finally used; converged: stage 2 converged;
+    forces: (n, 4, 3) N in the world; com_acceleration: (n, 3) m/s^2; contacts: (n, 4) the phases finally
+    used; converged: stage 2 converged;
     chosen: the stage whose solution this is; stages: every IPOPT run; variables/constraints: program size;
     build_seconds: time to assemble the programs."""
 
     converged: bool
     chosen: str
     com: np.ndarray
+    com_acceleration: np.ndarray
     euler: np.ndarray
     feet: np.ndarray
     forces: np.ndarray
@@ -115,10 +117,11 @@ def _outputs(problem: WindowProblem):
     """Functions of x: the trajectories at the frames, and the state at one time."""
     times = problem.window.reduced.times
     com = problem.sample(problem.com.position, times)
+    acc = problem.sample(problem.com.position, times, 2)
     euler = problem.sample(problem.com.orientation, times)
     feet = ca.vertcat(*[problem.sample(f.trajectory, times) for f in problem.feet])
     forces = ca.vertcat(*[problem.sample(f.trajectory, times) for f in problem.forces])
-    frames = ca.Function("frames", [problem.x], [com, euler, feet, forces])
+    frames = ca.Function("frames", [problem.x], [com, acc, euler, feet, forces])
 
     def state(x: np.ndarray, t: float) -> WindowStart:
         parts = [problem.sample(problem.com.position, [t], 0), problem.sample(problem.com.position, [t], 1),
@@ -170,14 +173,14 @@ def solve_window(window: Window, settings: TrajoptSettings) -> WindowResult:
                 chosen, chosen_problem, chosen_program, x = "durations", dproblem, dprogram, dur.x
                 phases = _schedule_from(dproblem, dur.values["durations"])
     frames_fn, state_fn = _outputs(chosen_problem)
-    com, euler, feet, forces = (np.asarray(v) for v in frames_fn(x))
+    com, acc, euler, feet, forces = (np.asarray(v) for v in frames_fn(x))
     n = window.reduced.num_frames
     weight = window.reduced.mass * settings.gravity
     from .phases import flags_from_phases
 
     contacts = np.stack([flags_from_phases(p, window.reduced.times) for p in phases], axis=1)
     return WindowResult(
-        converged=dyn.converged, chosen=chosen, com=com.T, euler=euler.T,
+        converged=dyn.converged, chosen=chosen, com=com.T, com_acceleration=acc.T, euler=euler.T,
         feet=feet.reshape(4, 3, n).transpose(2, 0, 1), forces=weight * forces.reshape(4, 3, n).transpose(2, 0, 1),
         contacts=contacts, phases=phases, stages=stages, variables=program.num_variables,
         constraints=program.num_constraints, build_seconds=build, _state_at=lambda t: state_fn(x, t))

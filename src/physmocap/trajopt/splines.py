@@ -65,20 +65,28 @@ class Node:
 @dataclass
 class Segment:
     """A cubic from `first` at time `start` to `second` at time `end`. Times are floats or CasADi scalars;
-    `nominal` holds their values at the input timing and `slack` how far (s) they may move from it."""
+    `nominal` holds their values at the input timing and `slack` how far (s) each may move from it."""
 
     start: Any
     end: Any
     first: Node
     second: Node
     nominal: tuple[float, float]
-    slack: float = 0.0
+    slack: tuple[float, float] = (0.0, 0.0)
 
-    def evaluate(self, x: ca.SX, t: float, order: int) -> ca.SX:
+    @property
+    def moves(self) -> bool:
+        return not (_is_number(self.start) and _is_number(self.end))
+
+    def evaluate(self, x, t: float, order: int):
         h = self.end - self.start
         w = hermite_weights((t - self.start) / h, h, order)
         (p0, v0), (p1, v1) = self.first.symbols(x), self.second.symbols(x)
         return w[0] * p0 + w[1] * v0 + w[2] * p1 + w[3] * v1
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (float, int, np.floating, np.integer))
 
 
 class Trajectory:
@@ -87,8 +95,7 @@ class Trajectory:
     def __init__(self, segments: list[Segment]):
         self.segments = segments
         self._starts = np.array([s.nominal[0] for s in segments])
-        self.symbolic_times = any(not isinstance(s.start, (float, int, np.floating)) or
-                                  not isinstance(s.end, (float, int, np.floating)) for s in segments)
+        self.symbolic_times = any(s.moves for s in segments)
 
     @property
     def start(self) -> float:
@@ -106,7 +113,7 @@ class Trajectory:
 
     def matrix(self, times: np.ndarray, order: int, size: int) -> sp.csr_matrix:
         """(DIM * n, size) sparse map from x to the samples at `times` (n,), rows ordered time-major (t0 x, t0 y,
-        t0 z, t1 x, ...). Fixed times only."""
+        t0 z, t1 x, ...), at the nominal timing."""
         times = np.asarray(times, float)
         seg = self.segment_at(times)
         t0 = np.array([self.segments[k].nominal[0] for k in seg])
@@ -114,9 +121,8 @@ class Trajectory:
         h = t1 - t0
         weights = hermite_weights((times - t0) / h, h, order)
         rows, cols, vals = [], [], []
-        for part, (w, pick) in enumerate(zip(weights, ("first.value", "first.derivative", "second.value",
-                                                          "second.derivative"))):
-            node_attr, field_name = pick.split(".")
+        for w, (node_attr, field_name) in zip(weights, (("first", "value"), ("first", "derivative"),
+                                                        ("second", "value"), ("second", "derivative"))):
             idx = np.stack([getattr(getattr(self.segments[k], node_attr), field_name) for k in seg])  # (n, DIM)
             r = DIM * np.arange(len(times))[:, None] + np.arange(DIM)
             keep = idx >= 0
@@ -126,29 +132,51 @@ class Trajectory:
         return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                              shape=(DIM * len(times), size))
 
-    def sample(self, x: ca.SX, times: np.ndarray, order: int = 0) -> ca.SX:
-        """(DIM, n) samples at `times` (n,) of the value or a time derivative."""
-        times = np.asarray(times, float)
-        if not self.symbolic_times:
-            M = self.matrix(times, order, int(x.shape[0]))
-            return ca.reshape(ca.mtimes(ca.DM(M), x), DIM, len(times))
-        return ca.horzcat(*[self._evaluate_moving(x, float(t), order) for t in times])
+    def candidates(self, t: float) -> list[int]:
+        """Segments that may hold time t when their ends move within their slack."""
+        return [k for k, s in enumerate(self.segments)
+                if s.nominal[0] - s.slack[0] - 1e-9 <= t <= s.nominal[1] + s.slack[1] + 1e-9]
 
-    def _evaluate_moving(self, x: ca.SX, t: float, order: int) -> ca.SX:
-        candidates = [k for k, s in enumerate(self.segments)
-                      if s.nominal[0] - s.slack - 1e-9 <= t <= s.nominal[1] + s.slack + 1e-9]
-        if len(candidates) == 1:
-            return self.segments[candidates[0]].evaluate(x, t, order)
-        out = type(x).zeros(DIM, 1)
-        last = len(self.segments) - 1
-        for k in candidates:
+    def sample(self, x, times: np.ndarray, order: int = 0):
+        """(DIM, n) samples at `times` (n,) of the value or a time derivative. Samples that only fixed segments
+        can hold are one sparse product with x; the others are built per group of samples with the same
+        candidate segments, the segment holding each sample chosen in the expression graph."""
+        times = np.asarray(times, float)
+        M = self.matrix(times, order, int(x.shape[0]))
+        fixed = ca.reshape(ca.mtimes(ca.DM(M), x), DIM, len(times))
+        if not self.symbolic_times:
+            return fixed
+        groups: dict[tuple[int, ...], list[int]] = {}
+        for k, t in enumerate(times):
+            cands = tuple(self.candidates(t))
+            if len(cands) == 1 and not self.segments[cands[0]].moves:
+                continue
+            groups.setdefault(cands, []).append(k)
+        if not groups:
+            return fixed
+        columns = [fixed[:, k] for k in range(len(times))]
+        for cands, ks in groups.items():
+            values = self._evaluate_moving(x, times[ks], cands, order)
+            for j, k in enumerate(ks):
+                columns[k] = values[:, j]
+        return ca.horzcat(*columns)
+
+    def _evaluate_moving(self, x, times: np.ndarray, cands: tuple[int, ...], order: int):
+        """(DIM, n) values at `times` held by one of the consecutive segments `cands`: the last one started."""
+        t = ca.DM(times).T  # (1, n)
+        ones = ca.DM.ones(DIM, 1)
+        out = self._segment_rows(x, self.segments[cands[0]], t, order)
+        for k in cands[1:]:
             seg = self.segments[k]
-            inside = (t >= seg.start) if k > 0 else True
-            if k < last:
-                inside = ca.logic_and(inside, t < seg.end) if not isinstance(inside, bool) else (t < seg.end)
-            if isinstance(inside, (bool, np.bool_)):  # both ends fixed: decided here
-                if inside:
-                    out = out + seg.evaluate(x, t, order)
-            else:
-                out = out + ca.if_else(inside, seg.evaluate(x, t, order), type(x).zeros(DIM, 1))
+            started = t >= seg.start  # (1, n) 0/1
+            value = self._segment_rows(x, seg, t, order)
+            out = out + ca.mtimes(ones, started) * (value - out)
         return out
+
+    @staticmethod
+    def _segment_rows(x, seg: Segment, t, order: int):
+        """(DIM, n) one segment's cubic at times t (1, n), extrapolated beyond its ends."""
+        h = seg.end - seg.start
+        w = hermite_weights((t - seg.start) / h, h, order)
+        (p0, v0), (p1, v1) = seg.first.symbols(x), seg.second.symbols(x)
+        return p0 @ w[0] + v0 @ w[1] + p1 @ w[2] + v1 @ w[3]

@@ -63,7 +63,8 @@ class TrajoptMotion:
     converged: (T,) bool, the frame's window converged (IPOPT's dynamics stage); the rest kept kinematic;
     corrected: (T,) zeros (PhysCap's balance correction has no counterpart here);
     qp_failures: (T,) int, 1 where not converged (so `qp_failures > 0` flags fallback frames as for PhysCap);
-    com, euler, feet: (T, 3), (T, 3), (T, 4, 3) the optimised reduced motion (nan where not converged);
+    com, com_acceleration, euler, feet: (T, 3), (T, 3), (T, 3), (T, 4, 3) the optimised reduced motion (m,
+        m/s^2, Z-Y-X Euler angles in rad, m; nan where not converged);
     windows: one report per window; seconds: time spent.
     """
 
@@ -75,6 +76,7 @@ class TrajoptMotion:
     corrected: np.ndarray
     qp_failures: np.ndarray
     com: np.ndarray
+    com_acceleration: np.ndarray
     euler: np.ndarray
     feet: np.ndarray
     windows: list[WindowReport] = field(default_factory=list)
@@ -144,7 +146,8 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     out = TrajoptMotion(
         qpos=qpos_kin.copy(), grf=np.zeros((T, 4, 3)), residual=np.zeros((T, 6)), contacts=flags.copy(),
         converged=np.zeros(T, bool), corrected=np.zeros(T, bool), qp_failures=np.ones(T, int),
-        com=np.full((T, 3), np.nan), euler=np.full((T, 3), np.nan), feet=np.full((T, 4, 3), np.nan))
+        com=np.full((T, 3), np.nan), com_acceleration=np.full((T, 3), np.nan), euler=np.full((T, 3), np.nan),
+        feet=np.full((T, 4, 3), np.nan))
     if T < 3:
         log.warning("trajopt: %d frame(s) are too few to optimise; the kinematic motion is kept.", T)
         out.seconds = time.perf_counter() - start_time
@@ -171,6 +174,7 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
         if result.converged:
             out.converged[kept] = True
             out.com[kept], out.euler[kept], out.feet[kept] = result.com[:n], result.euler[:n], result.feet[:n]
+            out.com_acceleration[kept] = result.com_acceleration[:n]
             out.grf[kept] = result.forces[:n]
             out.contacts[kept] = result.contacts[:n]
             previous = result

@@ -1,0 +1,353 @@
+"""Rempe et al. trajectory optimisation (physmocap.trajopt): the pieces against independent computations, and
+the solutions against physics (Newton at every frame, forces in the pyramid, still feet, ballistic flight)."""
+
+import logging
+
+import casadi as ca
+import mujoco
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from physmocap.body import kinematics as kin
+from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
+from physmocap.config import TrajoptSettings
+from physmocap.errors import InputError
+from physmocap.trajopt.formulation import (Window, angular_velocity, build_window_problem, euler_torque,
+                                          phase_layout, rotate)
+from physmocap.trajopt.phases import Phase, clean_flags, contact_phases, flags_from_phases, segment_count
+from physmocap.trajopt.problem import ConstraintSet, CostTerm, Program, VariableSet
+from physmocap.trajopt.reduced import (boundary_velocity, euler_to_matrix, matrix_to_euler, reduced_motion,
+                                       world_inertia)
+from physmocap.trajopt.splines import Node, Segment, Trajectory, hermite_weights
+from physmocap.trajopt.stage import run_trajopt, window_ranges
+
+FPS = 30.0
+G = 9.81
+QUICK = TrajoptSettings(optimize_durations=False)
+
+
+@pytest.fixture(scope="module")
+def body():
+    return build_body_model(template_lengths(1.75), 72.0)
+
+
+def standing(body, frames):
+    q = np.repeat(body.rest_qpos[None], frames, axis=0)
+    for side, sign in (("left", 1.0), ("right", -1.0)):  # arms down, as people stand
+        a = body.qpos_address[body.joint_index[f"{side}_shoulder"]]
+        q[:, a:a + 4] = [np.cos(sign * 0.7), np.sin(sign * 0.7), 0.0, 0.0]
+    return q
+
+
+def jump(body, frames=45, takeoff=15, flight=0.4):
+    """Stand, a ballistic flight of `flight` seconds (root and feet on the parabola), stand again."""
+    q = standing(body, frames)
+    t = (np.arange(frames) - takeoff) / FPS
+    in_air = (t > 0) & (t < flight)
+    v0 = G * flight / 2
+    q[in_air, 2] += v0 * t[in_air] - 0.5 * G * t[in_air] ** 2
+    return q, in_air
+
+
+# ---- pieces -----------------------------------------------------------------------------------------------
+def test_hermite_weights_are_consistent_derivatives():
+    h = 0.7
+    for s in np.linspace(0.05, 0.95, 7):
+        eps = 1e-6
+        for order in (0, 1):
+            lo, hi = hermite_weights(s - eps, h, order), hermite_weights(s + eps, h, order)
+            d = hermite_weights(s, h, order + 1)
+            assert np.allclose((np.array(hi) - np.array(lo)) / (2 * eps * h), d, atol=1e-5)
+    # Interpolation at the ends: value and velocity of each node.
+    assert np.allclose(hermite_weights(0.0, h, 0), [1, 0, 0, 0])
+    assert np.allclose(hermite_weights(1.0, h, 0), [0, 0, 1, 0])
+    assert np.allclose(hermite_weights(0.0, h, 1), [0, 1, 0, 0])
+    assert np.allclose(hermite_weights(1.0, h, 1), [0, 0, 0, 1])
+
+
+def test_sampling_matrix_matches_the_expression_and_is_continuous():
+    rng = np.random.default_rng(0)
+    times = np.array([0.0, 0.3, 0.5, 1.1])
+    x = ca.SX.sym("x", 6 * len(times))
+    nodes = [Node.at(6 * k, 6 * k + 3) for k in range(len(times))]
+    traj = Trajectory([Segment(float(times[k]), float(times[k + 1]), nodes[k], nodes[k + 1],
+                               (times[k], times[k + 1])) for k in range(len(times) - 1)])
+    values = rng.normal(size=x.shape[0])
+    samples = np.linspace(0, 1.1, 23)
+    for order in (0, 1, 2):
+        by_matrix = traj.matrix(samples, order, x.shape[0]) @ values
+        by_graph = np.asarray(ca.Function("f", [x], [traj.sample(x, samples, order)])(values)).T.ravel()
+        assert np.allclose(by_matrix, by_graph)
+    # Value and velocity continuous across the inner nodes; nodes reproduce their values.
+    f = ca.Function("f", [x], [traj.sample(x, np.array([0.3 - 1e-9, 0.3 + 1e-9, 0.5]), 0),
+                               traj.sample(x, np.array([0.3 - 1e-9, 0.3 + 1e-9]), 1)])
+    value, velocity = (np.asarray(v) for v in f(values))
+    assert np.allclose(value[:, 0], value[:, 1], atol=1e-6) and np.allclose(velocity[:, 0], velocity[:, 1], atol=1e-6)
+    assert np.allclose(value[:, 2], values[12:15])
+
+
+def test_moving_segment_ends_choose_the_right_polynomial():
+    """With a boundary time as a variable, a sample on either side of it is evaluated by its own polynomial."""
+    x = ca.SX.sym("x", 13)  # nodes 0..1 (6 each), boundary time x[12]
+    a, b, c = Node.at(0, 3), Node.at(6, 9), Node.zero()
+    traj = Trajectory([Segment(0.0, x[12], a, b, (0.0, 0.5), (0.0, 0.2)),
+                       Segment(x[12], 1.0, b, c, (0.5, 1.0), (0.2, 0.0))])
+    values = np.concatenate([np.arange(12.0) / 10, [0.6]])
+    out = np.asarray(ca.Function("f", [x], [traj.sample(x, np.array([0.55, 0.65]), 0)])(values))
+    fixed = Trajectory([Segment(0.0, 0.6, a, b, (0.0, 0.6)), Segment(0.6, 1.0, b, c, (0.6, 1.0))])
+    expected = fixed.matrix(np.array([0.55, 0.65]), 0, 13) @ values
+    assert np.allclose(out.T.ravel(), expected)
+
+
+def test_contact_phases_from_flags():
+    flags = np.array([1, 1, 1, 0, 1, 0, 0, 0, 1, 1], bool)
+    cleaned = clean_flags(flags, 2)
+    assert np.array_equal(cleaned, [1, 1, 1, 1, 1, 0, 0, 0, 1, 1])  # the lone frames merge
+    times = np.arange(10) / FPS
+    phases = contact_phases(cleaned, times)
+    assert [p.contact for p in phases] == [True, False, True]
+    assert phases[0].start == 0.0 and phases[-1].end == times[-1]
+    assert np.isclose(phases[1].start, 4.5 / FPS) and np.isclose(phases[1].end, 7.5 / FPS)
+    assert np.array_equal(flags_from_phases(phases, times), cleaned)
+    assert segment_count(0.3, 6, 2.0) == 6 and segment_count(5.0, 6, 2.0) == 15
+
+
+def test_phase_layout_keeps_nodes_clear_of_moving_boundaries():
+    nodes = phase_layout(1.0, 1.6, 6, 0.1, 0.05)
+    assert np.isclose(nodes[0], 1.0) and np.isclose(nodes[-1], 1.6) and np.all(np.diff(nodes) > 0)
+    assert nodes[1] - nodes[0] >= 0.15 - 1e-12 and nodes[-1] - nodes[-2] >= 0.1 - 1e-12
+    assert np.allclose(phase_layout(0.0, 0.6, 6, 0.0, 0.0), np.linspace(0, 0.6, 7))
+
+
+def test_euler_angles_round_trip_and_unwrap():
+    yaw = np.linspace(0, 4 * np.pi, 50)  # two full turns
+    euler = np.stack([yaw, 0.2 * np.sin(yaw), 0.1 * np.cos(yaw)], axis=1)
+    back = matrix_to_euler(euler_to_matrix(euler))
+    assert np.allclose(back - back[0] + euler[0], euler, atol=1e-9)
+    R = Rotation.from_euler("ZYX", euler[7]).as_matrix()
+    v = np.array([0.3, -0.2, 0.9])
+    assert np.allclose(np.asarray(rotate(ca.DM(euler[7]), ca.DM(v))).ravel(), R @ v)
+    assert np.allclose(np.asarray(rotate(ca.DM(euler[7]), ca.DM(v), inverse=True)).ravel(), R.T @ v)
+
+
+def test_angular_velocity_and_euler_torque_against_finite_differences():
+    def theta(t):
+        return np.array([0.3 + 1.1 * t + 0.4 * np.sin(2 * t), 0.2 * np.cos(3 * t), -0.5 + 0.7 * np.sin(1.3 * t)])
+
+    def rates(t, h=1e-5):
+        return (theta(t + h) - theta(t - h)) / (2 * h), (theta(t + h) - 2 * theta(t) + theta(t - h)) / h**2
+
+    def R(t):
+        return euler_to_matrix(theta(t)[None])[0]
+
+    t, h = 0.37, 1e-5
+    de, dde = rates(t)
+    W = (R(t + h) - R(t - h)) / (2 * h) @ R(t).T
+    w, _ = angular_velocity(ca.DM(theta(t)), ca.DM(de), ca.DM(dde))
+    assert np.allclose(np.asarray(w).ravel(), [W[2, 1], W[0, 2], W[1, 0]], atol=1e-6)
+    inertia = np.array([[2.0, 0.1, 0.2], [0.1, 3.0, -0.3], [0.2, -0.3, 1.5]])
+
+    def momentum(t):
+        d, _ = rates(t)
+        omega = np.asarray(angular_velocity(ca.DM(theta(t)), ca.DM(d), ca.DM(d))[0]).ravel()
+        return R(t) @ inertia @ R(t).T @ omega
+
+    dL = (momentum(t + 1e-4) - momentum(t - 1e-4)) / 2e-4
+    torque = np.asarray(euler_torque(ca.DM(theta(t)), ca.DM(de), ca.DM(dde), inertia[None])).ravel()
+    assert np.allclose(torque, dL, atol=1e-4)
+
+
+def test_reduced_model_com_and_inertia_match_mujoco(body):
+    rng = np.random.default_rng(1)
+    q = kin.integrate(body, np.repeat(body.rest_qpos[None], 3, axis=0), rng.normal(scale=0.4, size=(3, body.nv)))
+    red = reduced_motion(body, q, FPS)
+    m = body.mujoco_model()
+    d = mujoco.MjData(m)
+    for t in range(3):
+        d.qpos[:] = q[t]
+        mujoco.mj_forward(m, d)
+        assert np.allclose(red.com[t], d.subtree_com[1], atol=1e-9)
+        inertia = np.zeros((3, 3))
+        for b in range(1, m.nbody):
+            Rb = d.ximat[b].reshape(3, 3)
+            r = d.xipos[b] - d.subtree_com[1]
+            inertia += Rb @ np.diag(m.body_inertia[b]) @ Rb.T + m.body_mass[b] * (r @ r * np.eye(3) - np.outer(r, r))
+        root = d.xmat[1].reshape(3, 3)
+        assert np.allclose(red.inertia[t], root.T @ inertia @ root, atol=1e-9)
+    assert np.all(np.linalg.eigvalsh(red.inertia) > 0)
+    # Hips relative to the COM in the root frame, feet at the contact sites.
+    pts = kin.forward_kinematics(body, q).points
+    hip = pts[:, body.point_index(["left_hip"])[0]]
+    assert np.allclose(red.rotation[0] @ red.hips[0, 0] + red.com[0], hip[0])
+    assert np.allclose(red.feet, pts[:, body.point_index(CONTACT_POINTS)])
+    assert np.allclose(world_inertia(body, kin.forward_kinematics(body, q), red.com)[0],
+                       red.rotation[0] @ red.inertia[0] @ red.rotation[0].T)
+
+
+def test_boundary_velocity_is_the_mean_of_the_first_frames():
+    com = np.stack([np.arange(20) * 0.04, np.zeros(20), np.ones(20)], axis=1)
+    com[0, 0] += 0.01  # a noisy first frame
+    assert np.allclose(boundary_velocity(com, FPS, 5, end=True), [1.2, 0, 0])
+    assert np.allclose(boundary_velocity(com, FPS, 5, end=False), [(0.2 - 0.01) * FPS / 5, 0, 0])
+
+
+def test_settings_name_the_pieces():
+    with pytest.raises(InputError):
+        TrajoptSettings(constraints=("dynamics", "levitation")).check()
+    with pytest.raises(InputError):
+        TrajoptSettings(costs=("data", "beauty")).check()
+    TrajoptSettings().check()
+
+
+def test_program_derivatives_equal_casadis_whole_program_ones():
+    """The per-piece Jacobian and Hessian handed to IPOPT equal CasADi's of the whole program."""
+    x = ca.SX.sym("x", 3)
+    v = VariableSet("v", 3, -np.inf * np.ones(3), np.inf * np.ones(3), np.zeros(3), x)
+    nonlinear, linear = ConstraintSet("round"), ConstraintSet("flat", linear=True)
+    nonlinear.add(ca.vertcat(x[0] * x[1] - 1, ca.sin(x[2]) * x[0]), [0, -1], [0, 1])
+    linear.add(x[0] + 2 * x[2], -np.inf, 3)
+    cost = CostTerm("c", (x[0] - 2) ** 2 + x[1] ** 4 + x[0] * x[2])
+    program = Program(x, [v], [nonlinear, linear], [cost], {})
+    opts = program._derivatives()
+    g = program.g
+    lam_f, lam_g = ca.SX.sym("lf"), ca.SX.sym("lg", g.shape[0])
+    expected_h = ca.Function("h", [x, lam_f, lam_g], [ca.triu(ca.hessian(lam_f * program.f + ca.dot(lam_g, g), x)[0])])
+    expected_j = ca.Function("j", [x], [ca.jacobian(g, x)])
+    rng = np.random.default_rng(2)
+    for _ in range(3):
+        xv, lf, lg = rng.normal(size=3), rng.normal(), rng.normal(size=g.shape[0])
+        assert np.allclose(np.asarray(opts["hess_lag"](xv, [], lf, lg)), np.asarray(expected_h(xv, lf, lg)))
+        assert np.allclose(np.asarray(opts["jac_g"](xv, [])[1]), np.asarray(expected_j(xv)))
+    sol = program.solve(np.array([1.0, 1.0, 0.1]))
+    assert sol.converged and abs(sol.x[0] * sol.x[1] - 1) < 1e-6
+
+
+def test_window_ranges_cover_the_clip_with_overlap():
+    s = TrajoptSettings(window_seconds=2.0, window_overlap=0.5)
+    ranges = window_ranges(301, FPS, s)
+    assert ranges[0][0] == 0 and ranges[-1][1] == 300 and ranges[-1][2] == 301
+    for (a, b, keep), (a2, _, _) in zip(ranges[:-1], ranges[1:]):
+        assert keep == a2 and b - keep >= 14 and b - a <= 60
+    assert window_ranges(50, FPS, s) == [(0, 49, 50)]
+
+
+# ---- solutions ------------------------------------------------------------------------------------------------
+def check_physics(body, result, settings):
+    """Newton at every frame with the COM spline's acceleration; forces in the pyramid; contact points
+    still and on the floor while in contact; zero force in flight."""
+    weight = body.mass * G
+    f = result.grf
+    assert np.all(f[..., 2] >= -1e-3 * weight)
+    assert np.all(f[..., 2] <= settings.max_force + 1e-3 * weight)
+    assert np.all(np.abs(f[..., :2]) <= settings.friction * f[..., 2:3] + 1e-3 * weight)
+    assert np.all(f[~result.contacts] == 0)
+    newton = body.mass * result.com_acceleration - (f.sum(axis=1) + np.array([0, 0, -body.mass * G]))
+    assert np.abs(newton).max() < 1e-3 * weight
+    # The acceleration is the COM trajectory's (second differences of the cubic spline agree on average).
+    acc = (result.com[2:] - 2 * result.com[1:-1] + result.com[:-2]) * FPS**2
+    assert np.median(np.abs(acc - result.com_acceleration[1:-1])) < 0.5
+    for i in range(4):
+        c = result.contacts[:, i]
+        assert np.all(np.abs(result.feet[c, i, 2]) < 1e-6)
+        still = c[1:] & c[:-1]
+        assert np.all(np.linalg.norm(np.diff(result.feet[:, i], axis=0)[still], axis=-1) < 1e-6)
+        assert np.all(result.feet[~c, i, 2] > -1e-4)
+
+
+def test_standing_is_carried_by_the_feet(body):
+    q = standing(body, 40)
+    result = run_trajopt(body, q, FPS, np.ones((40, 4), bool), QUICK)
+    assert result.converged.all() and len(result.windows) == 1
+    check_physics(body, result, QUICK)
+    vertical = result.grf[..., 2].sum(axis=1)
+    assert np.allclose(vertical, body.mass * G, rtol=0.02)
+    # The output barely moves from a motion that is already physical.
+    pts_in = kin.forward_kinematics(body, q).points
+    pts_out = kin.forward_kinematics(body, result.qpos).points
+    assert np.abs(pts_out - pts_in).max() < 0.02
+    assert np.all(result.residual == 0) and np.all(result.qp_failures == 0)
+
+
+def test_jump_has_no_force_in_flight_and_a_ballistic_com(body):
+    q, in_air = jump(body)
+    contacts = np.repeat(~in_air[:, None], 4, axis=1)
+    result = run_trajopt(body, q, FPS, contacts, QUICK)
+    assert result.converged.all()
+    check_physics(body, result, QUICK)
+    flight = np.flatnonzero(in_air)[1:-1]
+    assert np.all(result.grf[flight] == 0)
+    acc = (result.com[flight + 1] - 2 * result.com[flight] + result.com[flight - 1]) * FPS**2
+    assert np.allclose(acc, [0, 0, -G], atol=0.3)
+    # The take-off pushes harder than the weight.
+    assert result.grf[..., 2].sum(axis=1).max() > 1.2 * body.mass * G
+
+
+def test_sliding_sinking_input_is_planted(body):
+    """A kinematic motion whose feet slide 20 cm and sink 2 cm while labelled in contact comes out still and
+    on the floor, the upper body near the input."""
+    q = standing(body, 36)
+    q[:, 0] += np.linspace(0, 0.2, 36)
+    q[:, 2] -= 0.02
+    result = run_trajopt(body, q, FPS, np.ones((36, 4), bool), QUICK)
+    assert result.converged.all()
+    soles = kin.forward_kinematics(body, result.qpos).points[:, body.point_index(CONTACT_POINTS)]
+    assert np.abs(soles[..., 2]).max() < 0.01
+    assert np.linalg.norm(np.diff(soles, axis=0), axis=-1).max() < 0.005
+    head = body.point_index(["head"])[0]
+    assert np.abs(kin.forward_kinematics(body, result.qpos).points[:, head]
+                  - kin.forward_kinematics(body, q).points[:, head]).max() < 0.15
+
+
+def test_long_clips_are_windowed_and_stitched_continuously(body):
+    q, in_air = jump(body, frames=100, takeoff=40)
+    contacts = np.repeat(~in_air[:, None], 4, axis=1)
+    s = TrajoptSettings(optimize_durations=False, window_seconds=1.5, window_overlap=0.5)
+    result = run_trajopt(body, q, FPS, contacts, s)
+    assert len(result.windows) >= 3 and result.converged.all()
+    check_physics(body, result, s)
+    # Position and velocity continue across the junctions: the second differences there agree with the
+    # optimised acceleration as well as anywhere else (a jump in velocity would show as an impulse).
+    fd = (result.com[2:] - 2 * result.com[1:-1] + result.com[:-2]) * FPS**2
+    error = np.linalg.norm(fd - result.com_acceleration[1:-1], axis=1)
+    junctions = [w.start - 1 for w in result.windows[1:]]
+    assert error[junctions].max() <= np.delete(error, junctions).max() + 1.0
+
+
+def test_failure_is_loud_and_keeps_the_kinematic_motion(body, caplog):
+    q, in_air = jump(body, frames=40)
+    contacts = np.repeat(~in_air[:, None], 4, axis=1)
+    s = TrajoptSettings(optimize_durations=False, max_iterations=2)
+    with caplog.at_level(logging.WARNING, logger="physmocap"):
+        result = run_trajopt(body, q, FPS, contacts, s)
+    assert not result.converged.any()
+    assert np.array_equal(result.qpos, q) and np.all(result.grf == 0) and np.all(result.qp_failures == 1)
+    assert "did not converge" in caplog.text and "NOT converged" in result.summary()
+    assert result.failed_frames == ["0-39"]
+
+
+def test_duration_stage_keeps_the_better_solution(body):
+    q, in_air = jump(body, frames=40, takeoff=12)
+    contacts = np.repeat(~in_air[:, None], 4, axis=1)
+    contacts[11:13] = False  # the labels lift off two frames early
+    s = TrajoptSettings(optimize_durations=True)
+    result = run_trajopt(body, q, FPS, contacts, s)
+    assert result.converged.all()
+    report = result.windows[0]
+    names = [st.name for st in report.stages]
+    assert names[:2] == ["fit", "dynamics"]
+    if report.chosen == "durations":
+        assert report.stages[2].converged and report.stages[2].objective < report.stages[1].objective
+    check_physics(body, result, s)
+
+
+def test_durations_program_shares_the_layout(body):
+    q, in_air = jump(body, frames=30, takeoff=8, flight=0.3)
+    red = reduced_motion(body, q, FPS)
+    phases = [contact_phases(~in_air, red.times) for _ in range(4)]
+    window = Window(red, phases)
+    s = TrajoptSettings()
+    fixed, moving = build_window_problem(window, s), build_window_problem(window, s, durations=True)
+    assert [v.size for v in fixed.variable_sets] == [v.size for v in moving.variable_sets[:-1]]
+    assert moving.durations.set.size == 4 * 2  # lift-off and touch-down of each point
+    assert np.all(moving.durations.set.upper - moving.durations.set.lower <= 2 * s.max_duration_change + 1e-12)
