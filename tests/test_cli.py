@@ -163,4 +163,8 @@ def test_online_capture_of_a_video_streams_and_caches(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["online"] and summary["cached_stages"] == []
     proc = physmocap("capture", DEMO_VIDEO, "-o", out, "--online", "--no-overlay")
-    assert json.loads((out / "summary.json").read_text())["cached_stages"] == ["detect", "kinematics"]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["physics"] == "physcap"  # the default online
+    assert summary["cached_stages"] == ["detect", "kinematics", "physics"]
+    result = load_result(out / "result.npz")
+    assert np.abs(result["grf"]).sum() > 0 and result["grf"][..., 2].min() >= -1e-6  # feet push, never pull

@@ -100,6 +100,16 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("-o", "--output", type=Path, default=None,
                     help="evaluation JSON to write (default: evaluation.json beside the result)")
 
+    train = sub.add_parser("train-contacts", help="rebuild the contact networks' weights from motion capture",
+                           formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                           description="Deterministic training of the causal and centred contact networks on "
+                                       "synthetic observations of CMU motion capture (needs torch; about 6 "
+                                       "minutes on one core).")
+    train.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[3] / "shared" / "data",
+                       help="the shared data folder (with mocap/)")
+    train.add_argument("--out", type=Path, default=None, help="weights folder (default: the shipped weights)")
+    train.add_argument("--seed", type=int, default=0)
+
     det = sub.add_parser("detect", help="run only the 2D/3D keypoint detector and write an observations file",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     det.add_argument("video", type=Path)
@@ -311,6 +321,18 @@ def _number(value) -> str:
     return "-" if value is None or value != value else f"{value:.4g}"
 
 
+def cmd_train_contacts(args) -> int:
+    from .contacts.predict import WEIGHTS_DIR
+    from .contacts.train import train_contacts
+    from .errors import InputError
+
+    if not (args.data / "mocap").is_dir():
+        raise InputError(f"{args.data}: no mocap/ folder of training data here (give --data).")
+    train_contacts(args.data, args.out or WEIGHTS_DIR, seed=args.seed)
+    print(f"weights written to {args.out or WEIGHTS_DIR}")
+    return 0
+
+
 def cmd_detect(args) -> int:
     from .config import DetectSettings
     from .detect.mediapipe_pose import detect_video
@@ -335,7 +357,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         commands = {"capture": cmd_capture, "live": cmd_live, "export": cmd_export, "evaluate": cmd_evaluate,
-                    "detect": cmd_detect}
+                    "train-contacts": cmd_train_contacts, "detect": cmd_detect}
         return commands[args.command](args)
     except InputError as exc:
         print(f"physmocap: error: {exc}", file=sys.stderr)
