@@ -80,6 +80,26 @@ def kinematics_section() -> list[str]:
     return lines
 
 
+NO_TRUTH = (("mean_acceleration", "jitter: mean joint accel. m/s²"), ("floating_percent", "float %"),
+            ("penetration_percent", "penetr. %"), ("skate_percent", "skate %"), ("mpe", "MPE mm"),
+            ("pnp_percent", "PNP %"), ("implied_grf_mean_percent_bw", "implied GRF mean % BW"),
+            ("implied_grf_max_percent_bw", "implied GRF max % BW"),
+            ("implied_grf_ballistic_percent_bw", "implied GRF in flight % BW"),
+            ("com_over_support_percent", "CoM over support %"), ("reprojection_error", "reprojection px"))
+
+
+def no_truth_section() -> list[str]:
+    data = _load("kinematics_real")
+    if not data:
+        return ["(not run)"]
+    lines = ["| video, kinematic method | " + " | ".join(t for _, t in NO_TRUTH) + " |", "|---" * (len(NO_TRUTH) + 1) + "|"]
+    for video, row in data.items():
+        for mode in ("offline", "online"):
+            report = row[mode].get("report", {})
+            lines.append(f"| {video}, {mode} | " + " | ".join(_f(report.get(k)) for k, _ in NO_TRUTH) + " |")
+    return lines
+
+
 def _live_physics(row: dict) -> str:
     live = row.get("live_640_physcap")
     if not live:
@@ -177,6 +197,11 @@ def compose(seconds: dict[str, float]) -> str:
         "frames.",
         "",
         *kinematics_section(),
+        "",
+        "Metrics without ground truth (the run report's, `physmocap evaluate`): floor errors against the estimated "
+        "floor and the detected contacts (centred network), the forces the motion's centre of mass implies.",
+        "",
+        *no_truth_section(),
         "",
         "## Synthetic set with ground truth: kinematic and physics methods",
         "",
