@@ -9,7 +9,9 @@ model's own definition, so that the numbers measure the method and not how a hei
 taken in the camera frame (independent of the world each side chose); floor metrics use the TRUE floor and the
 true contacts (Rempe 3.2 labels of the motion capture).
 
-    .venv/bin/python benchmarks/bench_synthetic.py [--quick] [--json OUT.json]
+    .venv/bin/python benchmarks/bench_synthetic.py [--quick] [--plots-only] [--json OUT.json]
+
+Per-clip plots (foot heights with contact flags, forces against body weight) go to benchmarks/results/plots/.
 """
 
 from __future__ import annotations
@@ -36,6 +38,8 @@ from physmocap.kinematics.calibration import measure_lengths  # noqa: E402
 from physmocap.kinematics.stage import fit_motion  # noqa: E402
 from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
 from physmocap.mocap.synthetic import NoiseModel, make_observations, random_camera, resample  # noqa: E402
+from physmocap.result import build_result  # noqa: E402
+from physmocap.viz.plots import write_plots  # noqa: E402
 
 # Only the contact networks' held-out CMU subjects (6 and 131, physmocap.contacts.dataset.TEST_SUBJECTS), since
 # the physics rows use predicted contacts; both skeletons; walking, starting and stopping, hopping, dribbling.
@@ -64,7 +68,9 @@ def first_seconds(clip, seconds):
 
 
 def evaluate_case(name: str, seed: int, noise: NoiseModel = MEDIAPIPE_NOISE, methods=METHODS,
-                  height_error: float = 0.0) -> list[dict]:
+                  height_error: float = 0.0, plots_dir: Path | None = None) -> list[dict]:
+    """One clip seen by one random camera, scored for each method; with `plots_dir`, the plots of the run
+    report (forces against body weight, contacts, foot heights) of the physics-on-online method go there."""
     clip = first_seconds(resample(load_mocap(MOCAP / name), FPS), SECONDS)
     rng = np.random.default_rng(seed)
     K, R, t = random_camera(clip, rng)
@@ -83,6 +89,9 @@ def evaluate_case(name: str, seed: int, noise: NoiseModel = MEDIAPIPE_NOISE, met
             physics = run_physcap(motion.body, motion.qpos, FPS, contacts, stationary, settings.physics)
             qpos, grf, residual = physics.qpos, physics.grf, physics.residual
             seconds = physics.seconds
+            if plots_dir is not None and method == "physcap on online":
+                result = build_result(obs, motion, {}, {}, contacts, stationary, physics)
+                write_plots(result, plots_dir / name.split("/")[-1].replace(".bvh", ""))
         else:
             seconds = motion.seconds
         pose = kin.forward_kinematics(motion.body, qpos)
@@ -114,13 +123,19 @@ def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="three clips, one seed")
     parser.add_argument("--json", default=str(RESULTS / "synthetic.json"))
+    parser.add_argument("--plots-only", action="store_true",
+                        help="only the per-clip plots (PhysCap on the online fit, first seed)")
     args = parser.parse_args(argv)
     clips = CLIPS[:3] if args.quick else CLIPS
     seeds = (0,) if args.quick else (0, 1)
+    if args.plots_only:
+        for name in clips:
+            evaluate_case(name, 0, methods=("physcap on online",), plots_dir=RESULTS / "plots")
+        return {}
     rows = []
     for name in clips:
         for seed in seeds:
-            for row in evaluate_case(name, seed):
+            for row in evaluate_case(name, seed, plots_dir=RESULTS / "plots" if seed == 0 else None):
                 rows.append(row)
                 print(f"{row['method']:>20} {row['clip']:>10} seed {seed}: root-rel {row['mpjpe_root_mm']:5.1f} "
                       f"global root {row['global_root_mm']:6.1f} mm, e_smooth {row['e_smooth_mm']:4.1f}, "
