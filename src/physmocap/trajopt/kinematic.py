@@ -17,7 +17,7 @@ import numpy as np
 
 from ..body import kinematics as kin
 from ..body.model import CONTACT_POINTS
-from ..camera import fit_floor
+from ..camera import Floor
 from ..config import FitSettings, TrajoptSettings
 from ..kinematics.fit import KinematicFitter
 from ..kinematics.stage import (KinematicMotion, make_targets, move_world_to_floor, raw_depth,
@@ -25,6 +25,47 @@ from ..kinematics.stage import (KinematicMotion, make_targets, move_world_to_flo
 from ..motion import Observations
 
 MIN_FLOOR_POINTS = 8  # fewer contact points than this leave the floor as it was
+HUBER_SCALE = 0.02  # m: contact points farther from the plane than this pull linearly (Huber)
+TILT_PRIOR = 0.05  # weight of the plane's tilt from the prior, relative to one point at 1 m, per point
+
+
+def fit_contact_floor(points: np.ndarray, up_prior: np.ndarray, outlier_distance: float,
+                      iterations: int = 10) -> tuple[Floor, np.ndarray]:
+    """Robust plane through the heel and toe positions labelled in contact (Rempe B.4): Huber weights by
+    iteratively reweighted least squares on the points only, the tilt from `up_prior` penalised quadratically
+    (a person standing still touches the floor along a line, which leaves the tilt to the prior). points:
+    (N, 3) camera frame; returns the floor (camera frame) and the (N,) inliers within outlier_distance.
+
+    (camera.fit_floor passes its prior through the Huber loss too, where it pulls only linearly: measured, a
+    wrongly labelled lifted foot tilted its plane by 30 degrees.)"""
+    up = up_prior / np.linalg.norm(up_prior)
+    a = np.cross(up, [1.0, 0.0, 0.0])
+    if np.linalg.norm(a) < 0.1:
+        a = np.cross(up, [0.0, 0.0, 1.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(up, a)
+    tilt, d = np.zeros(2), -float(np.median(points @ up))
+    weights = np.ones(len(points))
+    prior = np.sqrt(TILT_PRIOR * len(points))
+    for _ in range(iterations):
+        n = up + tilt[0] * a + tilt[1] * b
+        scale = np.linalg.norm(n)
+        dist = (points @ n) / scale + d
+        weights = np.minimum(1.0, HUBER_SCALE / np.maximum(np.abs(dist), 1e-12))
+        # Linearised in (tilt, d): d dist / d tilt_k = (p . e_k) / |n| (the normalisation is second order).
+        w = np.sqrt(weights)
+        A = np.concatenate([np.stack([w * (points @ a), w * (points @ b), w], axis=1),
+                            np.array([[prior, 0.0, 0.0], [0.0, prior, 0.0]])])
+        rhs = np.concatenate([-w * dist, -prior * tilt])
+        step = np.linalg.lstsq(A, rhs, rcond=None)[0]
+        tilt, d = tilt + step[:2], d + step[2]
+        if np.abs(step).max() < 1e-7:
+            break
+    n = up + tilt[0] * a + tilt[1] * b
+    scale = np.linalg.norm(n)
+    dist = np.abs(points @ (n / scale) + d)
+    inliers = dist < outlier_distance
+    return Floor(n / scale, float(d), float(inliers.mean())), inliers
 
 
 @dataclasses.dataclass
@@ -77,8 +118,7 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
         if keep_floor:
             inliers = np.abs(floor.height(soles[contacts])) < settings.floor_outlier_distance
         else:
-            floor, inliers = fit_floor(soles[contacts], camera.R[:, 2],
-                                       outlier_distance=settings.floor_outlier_distance)
+            floor, inliers = fit_contact_floor(soles[contacts], camera.R[:, 2], settings.floor_outlier_distance)
         kept[contacts] = inliers
     anchor = int(np.argmax(obs.valid))
     qpos, camera = move_world_to_floor(qpos, camera, floor, anchor)

@@ -1,0 +1,103 @@
+"""Rempe's kinematic stage before the trajectory optimisation (B.4, on the shared fitter) and the full-body IK
+after it (C.4)."""
+
+import numpy as np
+import pytest
+
+from physmocap.body import kinematics as kin
+from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
+from physmocap.camera import Camera
+from physmocap.config import FitSettings, Settings, TrajoptSettings
+from physmocap.kinematics.stage import fit_motion
+from physmocap.trajopt.ik import ik_targets, solve_ik
+from physmocap.trajopt.kinematic import fit_contact_floor, refine_kinematics
+from physmocap.trajopt.reduced import reduced_motion
+from test_fit import observe
+
+FPS = 30.0
+
+
+@pytest.fixture(scope="module")
+def body():
+    return build_body_model(template_lengths(1.75), 72.0)
+
+
+@pytest.fixture(scope="module")
+def camera():
+    cam = Camera.from_settings((1280, 720), fov=60)
+    pitch = np.radians(8)
+    R = np.array([[1, 0, 0], [0, -np.sin(pitch), -np.cos(pitch)], [0, np.cos(pitch), -np.sin(pitch)]])
+    return cam.with_extrinsics(R, -R @ np.array([0.3, -4.0, 1.2]))
+
+
+def one_leg_stance(body, frames):
+    """Standing on the right foot, the left foot lifted 20-30 cm (hip and knee bent), arms swinging."""
+    q = np.repeat(body.rest_qpos[None], frames, axis=0)
+    step = np.zeros((frames, body.nv))
+    t = np.arange(frames) / FPS
+    step[:, body.dof_address[body.joint_index["left_hip"]] + 1] = -0.9
+    step[:, body.dof_address[body.joint_index["left_knee"]]] = 1.6
+    step[:, body.dof_address[body.joint_index["left_ankle"]] + 1] = 0.5
+    for side, sign in (("left", 1.0), ("right", -1.0)):
+        step[:, body.dof_address[body.joint_index[f"{side}_shoulder"]]] = sign * (1.2 + 0.3 * np.sin(4 * t))
+    return kin.integrate(body, q, step)
+
+
+def test_refine_puts_contacts_on_a_refitted_floor_and_drops_outliers(body, camera):
+    rng = np.random.default_rng(0)
+    truth = one_leg_stance(body, 45)
+    obs = observe(body, truth, camera)
+    obs.keypoints_2d[..., :2] += rng.normal(scale=2.0, size=obs.keypoints_2d[..., :2].shape)
+    obs.landmarks_3d += rng.normal(scale=0.02, size=obs.landmarks_3d.shape)
+    motion = fit_motion(obs, Settings().replace("body", height=body.height, mass=body.mass))
+    contacts = np.ones((45, 4), bool)
+    contacts[15:, :2] = False  # the lifted left foot wrongly labelled in contact for the first 15 frames
+    refined = refine_kinematics(obs, motion, contacts, FitSettings(), TrajoptSettings())
+    # The lifted foot's labels (13-30 cm up) are the floor's outliers and are dropped; the standing foot's kept.
+    assert refined.contacts[:, 2:].mean() > 0.9 and not refined.contacts[:, :2].any()
+    assert np.array_equal(refined.relabelled, contacts & ~refined.contacts)
+    m = refined.motion
+    soles = kin.forward_kinematics(m.body, m.qpos).points[:, m.body.point_index(CONTACT_POINTS)]
+    kept = refined.contacts
+    assert np.abs(soles[kept][:, 2]).max() < 0.015  # on the new floor z = 0
+    before = kin.forward_kinematics(motion.body, motion.qpos).points[:, motion.body.point_index(CONTACT_POINTS)]
+    still = lambda p: np.linalg.norm(np.diff(p[:, 2:], axis=0), axis=-1).mean()  # noqa: E731
+    assert still(soles) < 0.5 * still(before)
+    # The refitted floor is the true one: the world's up seen from the camera agrees.
+    assert np.degrees(np.arccos(np.clip(m.camera.R[:, 2] @ camera.R[:, 2], -1, 1))) < 3.0
+    # The pose stays as close to the observations as before.
+    assert np.nanmedian(m.reprojection_error) < np.nanmedian(motion.reprojection_error) + 1.0
+
+
+def test_ik_reaches_the_contact_points_and_keeps_the_upper_body(body):
+    rng = np.random.default_rng(1)
+    q = one_leg_stance(body, 20)
+    red = reduced_motion(body, q, FPS)
+    com = red.com + np.array([0.03, -0.02, -0.02])  # the optimiser moved the COM
+    feet = red.feet.copy()
+    feet[:, 2:] += rng.normal(scale=0.005, size=feet[:, 2:].shape) + np.array([0.02, 0.0, 0.0])
+    settings = TrajoptSettings()
+    targets = ik_targets(body, q, red, com, red.euler, feet, settings)
+    out = solve_ik(body, targets, FPS, settings)
+    pts = kin.forward_kinematics(body, out).points
+    assert np.abs(pts[:, body.point_index(CONTACT_POINTS)] - feet).max() < 0.01
+    head, wrist = body.point_index(["head", "left_wrist"])
+    for k in (head, wrist):  # the upper body follows the COM's move
+        expected = kin.forward_kinematics(body, q).points[:, k] + (com - red.com)
+        assert np.abs(pts[:, k] - expected).max() < 0.01
+
+
+def test_contact_floor_is_robust_and_keeps_its_tilt_when_points_lie_on_a_line():
+    rng = np.random.default_rng(2)
+    normal = np.array([0.1, -0.95, -0.2])
+    normal /= np.linalg.norm(normal)
+    # Points along one line on the plane n . x + 3 = 0 (one planted foot), plus 20% lifted 15-30 cm.
+    along = np.cross(normal, [1.0, 0.0, 0.0])
+    base = -3.0 * normal + 0.5 * np.cross(normal, along)
+    line = base + np.outer(rng.uniform(-0.1, 0.1, 80), along) + rng.normal(scale=0.005, size=(80, 3))
+    lifted = base + 0.3 * along + np.outer(rng.uniform(0.15, 0.3, 20), normal)
+    points = np.concatenate([line, lifted])
+    floor, inliers = fit_contact_floor(points, normal + np.array([0.02, 0.0, 0.03]), 0.1)
+    assert np.degrees(np.arccos(floor.normal @ normal)) < 3.0
+    assert abs(floor.offset - 3.0) < 0.02
+    assert inliers[:80].all() and not inliers[80:].any()
