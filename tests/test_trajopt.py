@@ -24,7 +24,7 @@ from physmocap.trajopt.stage import run_trajopt, window_ranges
 
 FPS = 30.0
 G = 9.81
-QUICK = TrajoptSettings(optimize_durations=False)
+QUICK = TrajoptSettings()  # the defaults: no duration stage
 
 
 @pytest.fixture(scope="module")
@@ -346,7 +346,7 @@ def test_durations_program_shares_the_layout(body):
     red = reduced_motion(body, q, FPS)
     phases = [contact_phases(~in_air, red.times) for _ in range(4)]
     window = Window(red, phases)
-    s = TrajoptSettings()
+    s = TrajoptSettings(optimize_durations=True)
     fixed, moving = build_window_problem(window, s), build_window_problem(window, s, durations=True)
     assert [v.size for v in fixed.variable_sets] == [v.size for v in moving.variable_sets[:-1]]
     assert moving.durations.set.size == 4 * 2  # lift-off and touch-down of each point
