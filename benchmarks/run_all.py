@@ -177,14 +177,87 @@ def include(name: str) -> list[str]:
     return [line if not line.startswith("#") else "#" + line for line in text]
 
 
+def _check(ok: bool | None) -> str:
+    return "n/a" if ok is None else ("met" if ok else "**not met**")
+
+
+def targets_section() -> list[str]:
+    """The issues' targets against the latest measurements (timings on a shared 2-core machine)."""
+    rows = []
+    real, synth = _load("kinematics_real"), _load("synthetic")
+    if real:
+        live = min(r["live_640"]["fps"] for r in real.values())
+        offline = max(r["fit_ms_per_frame_offline"] for r in real.values())
+        reproj = max(r["offline"]["reprojection_percent_height"] for r in real.values())
+        rows += [("2", "online capture at 640 px", ">= 25 fps", f"{_f(live)} fps (slowest video)", live >= 25),
+                 ("2", "offline fit", "<= 5 ms/frame", f"{_f(offline)} ms/frame (slowest video)", offline <= 5),
+                 ("2", "median reprojection error", "<= 2% of height", f"{_f(reproj, 2)}% (worst video)", reproj <= 2)]
+        physics_live = [r.get("live_640_physcap") for r in real.values() if r.get("live_640_physcap")]
+        if physics_live:
+            fps = min(p["fps"] for p in physics_live)
+            latency = max(p["latency_median_ms"] for p in physics_live)
+            rows += [("5", "live pipeline with physics, 640 px", ">= 25 fps", f"{_f(fps)} fps", fps >= 25),
+                     ("5", "live latency (median)", "< 100 ms", f"{_f(latency, 0)} ms", latency < 100)]
+    if synth:
+        kin, phys = synth["summary"]["kinematic offline"], synth["summary"].get("physcap on online")
+        rows += [("2", "synthetic root-relative error", "<= 30 mm", f"{_f(kin['mpjpe_root_mm'])} mm",
+                  kin["mpjpe_root_mm"] <= 30),
+                 ("2", "synthetic global root error", "<= 100 mm", f"{_f(kin['global_root_mm'])} mm",
+                  kin["global_root_mm"] <= 100)]
+        base = synth["summary"]["kinematic online"]
+        if phys:
+            reduction = 100 * (1 - phys["e_smooth_mm"] / base["e_smooth_mm"])
+            worse = 100 * (phys["mpjpe_root_mm"] / base["mpjpe_root_mm"] - 1)
+            rows += [
+                ("5", "e_smooth reduced", ">= 40%", f"{_f(reduction)}%", reduction >= 40),
+                ("5", "PNP", ">= 95%", f"{_f(phys['pnp_percent'])}%", phys["pnp_percent"] >= 95),
+                ("5", "MPE", "< 28 mm", f"{_f(phys['mpe_mm'])} mm", phys["mpe_mm"] < 28),
+                ("5", "penetration and skate below the input", "lower", f"{_f(phys['penetration_percent'])}% / "
+                 f"{_f(phys['skate_percent'])}% vs {_f(base['penetration_percent'])}% / {_f(base['skate_percent'])}%",
+                 phys["penetration_percent"] < base["penetration_percent"]
+                 and phys["skate_percent"] < base["skate_percent"]),
+                ("5", "ballistic GRF", "0", f"{_f(phys['grf_ballistic_percent_bw'])}% BW",
+                 phys["grf_ballistic_percent_bw"] < 1),
+                ("5", "mean GRF on walks", "95-105% BW", f"{_f(phys['grf_mean_percent_bw_walking'])}% BW",
+                 95 <= phys["grf_mean_percent_bw_walking"] <= 105),
+                ("5", "root-relative MPJPE against the input", "<= 10% worse", f"{_f(worse)}% worse", worse <= 10)]
+    speed = _load("physics_speed")
+    if speed:
+        rows.append(("5", "physics stage alone, one core", ">= 1000 fps", f"{_f(speed['frames_per_second'], 0)} fps",
+                     speed["frames_per_second"] >= 1000))
+    contacts = _load("contacts")
+    if contacts:
+        best = max(contacts["synthetic"].values(), key=lambda r: r.get("accuracy", 0))
+        real_best = max((v for k, v in contacts["real"].items() if "network" in k), key=lambda r: r["accuracy"])
+        baselines = max(v["accuracy"] for k, v in contacts["real"].items() if "network" not in k)
+        rows += [("3", "held-out synthetic accuracy / F1", ">= 0.95 / 0.96",
+                  f"{_f(best['accuracy'], 3)} / {_f(best['f1'], 3)}", best["accuracy"] >= 0.95 and best["f1"] >= 0.96),
+                 ("3", "hand-labelled real accuracy, better than baselines", ">= 0.93",
+                  f"{_f(real_best['accuracy'], 3)} (best baseline {_f(baselines, 3)})",
+                  real_best["accuracy"] >= 0.93 and real_best["accuracy"] > baselines),
+                 ("3", "inference", "<= 1 ms/frame", f"{_f(max(contacts['inference_ms_per_frame'].values()), 3)} ms",
+                  max(contacts["inference_ms_per_frame"].values()) <= 1)]
+    if not rows:
+        return ["(nothing measured yet)"]
+    lines = ["| issue | target | asked | measured | |", "|---|---|---|---|---|"]
+    lines += [f"| {i} | {what} | {asked} | {measured} | {_check(ok)} |" for i, what, asked, measured, ok in rows]
+    return lines
+
+
 def compose(seconds: dict[str, float]) -> str:
     today = datetime.date.today().isoformat()
     parts = [
         "# Benchmarks",
         "",
         f"Machine: {machine_description()}; shared with other work, so timings are medians over several runs and "
-        f"comparisons are measured side by side. Git {git_revision()}, {today}. Regenerate everything with "
+        f"comparisons are measured side by side (load average {os.getloadavg()[0]:.1f} when this page was written; "
+        "the run of 2026-11-23 shared the two cores with a trajectory-optimisation job, load 3-4, so its timings are "
+        f"pessimistic). Git {git_revision()}, {today}. Regenerate everything with "
         "`make bench` (benchmarks/run_all.py, about half an hour); each section names its own script.",
+        "",
+        "## Targets of the issues",
+        "",
+        *targets_section(),
         "",
         "## Kinematic capture on real videos",
         "",
