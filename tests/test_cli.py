@@ -168,3 +168,14 @@ def test_online_capture_of_a_video_streams_and_caches(tmp_path):
     assert summary["cached_stages"] == ["detect", "kinematics", "physics"]
     result = load_result(out / "result.npz")
     assert np.abs(result["grf"]).sum() > 0 and result["grf"][..., 2].min() >= -1e-6  # feet push, never pull
+
+
+def test_export_command_writes_each_format_and_rejects_bad_input(demo_run, tmp_path):
+    out, _ = demo_run
+    for fmt, name in (("bvh", "motion.bvh"), ("glb", "motion.glb"), ("opensim", "grf.mot")):
+        proc = physmocap("export", out / "result.npz", "--to", fmt, "-o", tmp_path / fmt)
+        assert proc.returncode == 0, proc.stderr
+        assert (tmp_path / fmt / name).is_file()
+    proc = physmocap("export", out / "result.npz", "--to", "bvh", "--units", "furlongs", "-o", tmp_path / "x")
+    assert_clean_failure(proc, "units")
+    assert_clean_failure(physmocap("export", tmp_path / "none.npz", "--to", "glb"), "none.npz")
