@@ -20,3 +20,16 @@ def random_poses(body, count, rng, scale=0.4):
     """Random poses around the rest pose, moved on the manifold."""
     q = np.repeat(body.rest_qpos[None], count, axis=0)
     return kin.integrate(body, q, rng.normal(scale=scale, size=(count, body.nv)))
+
+
+def assert_frame_terms_jacobian(fitter, q, targets, atol=2e-6):
+    """The fitter's per-frame residual Jacobian against central finite differences on the manifold."""
+    r, J = fitter.frame_terms(q, *fitter.evaluate(q), targets)
+    eps = 1e-6
+    for k in range(J.shape[-1]):
+        step = np.zeros((len(q), J.shape[-1]))
+        step[:, k] = eps
+        qp, qm = fitter.integrate(q, step), fitter.integrate(q, -step)
+        rp, _ = fitter.frame_terms(qp, *fitter.evaluate(qp), targets)
+        rm, _ = fitter.frame_terms(qm, *fitter.evaluate(qm), targets)
+        assert np.allclose((rp - rm) / (2 * eps), J[..., k], atol=atol), k

@@ -8,7 +8,7 @@ from physmocap.kinematics.fit import MARKER_LANDMARKS, MARKERS, FitTargets, Kine
 from physmocap.kinematics.stage import fit_motion, make_targets, reprojection_errors
 from physmocap.kinematics.calibration import calibrate
 from physmocap.motion import Observations
-from conftest import random_poses
+from conftest import assert_frame_terms_jacobian, random_poses
 
 
 def walking_motion(body, frames, fps=30.0):
@@ -69,15 +69,7 @@ def test_frame_terms_jacobian_matches_finite_differences(body, camera):
     targets = _targets(body, q, camera, rng)
     # push some hinges beyond their limits so that the limit term is active
     q[:, body.qpos_address[body.joint_index["left_knee"]]] = -0.3
-    r, J = fitter.frame_terms(q, *fitter.evaluate(q), targets)
-    eps = 1e-6
-    for k in range(body.nv):
-        step = np.zeros((3, body.nv))
-        step[:, k] = eps
-        qp, qm = fitter.integrate(q, step), fitter.integrate(q, -step)
-        rp, _ = fitter.frame_terms(qp, *fitter.evaluate(qp), targets)
-        rm, _ = fitter.frame_terms(qm, *fitter.evaluate(qm), targets)
-        assert np.allclose((rp - rm) / (2 * eps), J[..., k], atol=2e-6), k
+    assert_frame_terms_jacobian(fitter, q, targets)
 
 
 def test_temporal_signal_jacobians_match_finite_differences(body, camera):

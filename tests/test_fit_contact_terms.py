@@ -10,7 +10,7 @@ from physmocap.body.model import CONTACT_POINTS
 from physmocap.camera import Camera
 from physmocap.config import FitSettings
 from physmocap.kinematics.fit import MARKERS, FitTargets, KinematicFitter
-from conftest import random_poses
+from conftest import assert_frame_terms_jacobian, random_poses
 
 ALL_TERMS = FitSettings(weight_contact_velocity=10.0, weight_floor=10.0, weight_velocity=0.1,
                         weight_angle_velocity=0.1, robust_2d=0, robust_3d=0)
@@ -65,15 +65,7 @@ def test_frame_terms_with_floor_jacobian_matches_finite_differences(body, camera
     q = random_poses(body, 3, rng, scale=0.5)
     fitter = KinematicFitter(body, camera, ALL_TERMS, 30.0)
     targets = targets_for(body, q, camera, rng, contacts=np.ones((3, 4)))
-    r, J = fitter.frame_terms(q, *fitter.evaluate(q), targets)
-    eps = 1e-6
-    for k in range(body.nv):
-        step = np.zeros((3, body.nv))
-        step[:, k] = eps
-        qp, qm = fitter.integrate(q, step), fitter.integrate(q, -step)
-        rp, _ = fitter.frame_terms(qp, *fitter.evaluate(qp), targets)
-        rm, _ = fitter.frame_terms(qm, *fitter.evaluate(qm), targets)
-        assert np.allclose((rp - rm) / (2 * eps), J[..., k], atol=2e-6), k
+    assert_frame_terms_jacobian(fitter, q, targets)
 
 
 def test_velocity_and_angle_signal_jacobians_match_finite_differences(body, camera):

@@ -167,6 +167,18 @@ def _format_row(values: np.ndarray) -> str:
     return " ".join(f"{v:.6f}" for v in np.round(values, 6) + 0.0)
 
 
+def checked_motion(body: BodyModel, qpos, fps: float, file_format: str) -> np.ndarray:
+    """qpos as a (T >= 1, nq) float array; ValueError for a bad frame rate, shape or non-finite values."""
+    if not np.isfinite(fps) or fps <= 0:
+        raise ValueError(f"fps must be positive, got {fps}.")
+    qpos = np.atleast_2d(np.asarray(qpos, dtype=float))
+    if qpos.ndim != 2 or qpos.shape[1] != body.nq or len(qpos) == 0:
+        raise ValueError(f"qpos must have shape (T >= 1, {body.nq}), got {qpos.shape}.")
+    if not np.all(np.isfinite(qpos)):
+        raise ValueError(f"qpos holds non-finite values; {file_format} cannot represent missing frames.")
+    return qpos
+
+
 def write_bvh(
     path: str | os.PathLike,
     body: BodyModel,
@@ -184,13 +196,7 @@ def write_bvh(
     """
     if units not in UNIT_SCALE:
         raise ValueError(f"units must be one of {sorted(UNIT_SCALE)}, got {units!r}.")
-    if not np.isfinite(fps) or fps <= 0:
-        raise ValueError(f"fps must be positive, got {fps}.")
-    qpos = np.atleast_2d(np.asarray(qpos, dtype=float))
-    if qpos.ndim != 2 or qpos.shape[1] != body.nq or len(qpos) == 0:
-        raise ValueError(f"qpos must have shape (T >= 1, {body.nq}), got {qpos.shape}.")
-    if not np.all(np.isfinite(qpos)):
-        raise ValueError("qpos holds non-finite values; BVH cannot represent missing frames.")
+    qpos = checked_motion(body, qpos, fps, "BVH")
     scale = UNIT_SCALE[units]
 
     joints = bvh_hierarchy(body)

@@ -32,7 +32,7 @@ import physmocap
 from ..body.kinematics import forward_kinematics
 from ..body.model import BodyModel
 from .atomic import atomic_path
-from .bvh_export import WORLD_TO_BVH, BvhJoint, bvh_hierarchy, local_rotations
+from .bvh_export import WORLD_TO_BVH, BvhJoint, bvh_hierarchy, checked_motion, local_rotations
 
 # glTF axes are the BVH export's axes (see the module docstring).
 WORLD_TO_GLTF = WORLD_TO_BVH
@@ -295,13 +295,7 @@ def write_glb(path: str | os.PathLike, body: BodyModel, qpos: np.ndarray, fps: f
     Metres, Y up (see the module docstring). root_at_origin: shift the motion horizontally so that the root starts
     above the origin; its height is kept. The file is written atomically.
     """
-    if not np.isfinite(fps) or fps <= 0:
-        raise ValueError(f"fps must be positive, got {fps}.")
-    qpos = np.atleast_2d(np.asarray(qpos, dtype=float))
-    if qpos.ndim != 2 or qpos.shape[1] != body.nq or len(qpos) == 0:
-        raise ValueError(f"qpos must have shape (T >= 1, {body.nq}), got {qpos.shape}.")
-    if not np.all(np.isfinite(qpos)):
-        raise ValueError("qpos holds non-finite values; glTF animation cannot represent missing frames.")
+    qpos = checked_motion(body, qpos, fps, "glTF animation")
     document, binary = glb_document(body, qpos, fps, root_at_origin=root_at_origin)
     with atomic_path(path) as tmp:
         tmp.write_bytes(glb_bytes(document, binary))
