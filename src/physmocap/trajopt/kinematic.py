@@ -11,6 +11,7 @@ project's one kinematic fitter with its optional contact terms switched on:
 from __future__ import annotations
 
 import dataclasses
+import logging
 import time
 
 import numpy as np
@@ -24,7 +25,10 @@ from ..kinematics.stage import (KinematicMotion, make_targets, move_world_to_flo
                                 reprojection_errors, smooth_depth)
 from ..motion import Observations
 
+log = logging.getLogger("physmocap")
+
 MIN_FLOOR_POINTS = 8  # fewer contact points than this leave the floor as it was
+SINK_PERCENTILE, SINK_DEPTH = 5.0, 0.03  # a refitted floor with 5% of all foot points 3 cm below it is rejected
 HUBER_SCALE = 0.02  # m: contact points farther from the plane than this pull linearly (Huber)
 TILT_PRIOR = 0.05  # weight of the plane's tilt from the prior, relative to one point at 1 m, per point
 
@@ -115,10 +119,17 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
     floor = motion.floor
     kept = contacts.copy()
     if contacts.sum() >= MIN_FLOOR_POINTS:
-        if keep_floor:
-            inliers = np.abs(floor.height(soles[contacts])) < settings.floor_outlier_distance
-        else:
-            floor, inliers = fit_contact_floor(soles[contacts], camera.R[:, 2], settings.floor_outlier_distance)
+        if not keep_floor:
+            fitted, _ = fit_contact_floor(soles[contacts], camera.R[:, 2], settings.floor_outlier_distance)
+            # A floor that many feet would sink through is made of wrong labels (feet labelled in contact in
+            # the air): keep the kinematic stage's floor, fitted to the lowest slow foot points, instead (ours).
+            sunk = np.percentile(fitted.height(soles[obs.valid].reshape(-1, 3)), SINK_PERCENTILE)
+            if sunk > -SINK_DEPTH:
+                floor = fitted
+            else:
+                log.info("trajopt: the floor through the labelled contacts lies above %.0f%% of the foot points "
+                         "(by %.0f cm); the kinematic floor is kept.", SINK_PERCENTILE, -100 * sunk)
+        inliers = np.abs(floor.height(soles[contacts])) < settings.floor_outlier_distance
         kept[contacts] = inliers
     anchor = int(np.argmax(obs.valid))
     qpos, camera = move_world_to_floor(qpos, camera, floor, anchor)

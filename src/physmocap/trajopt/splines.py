@@ -132,6 +132,26 @@ class Trajectory:
         return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                              shape=(DIM * len(times), size))
 
+    def knot_jumps(self, order: int, size: int) -> sp.csr_matrix:
+        """(DIM * (segments - 1), size) sparse map from x to the jump of the `order`-th derivative at every inner
+        node (left limit minus right limit); fixed times only. Zero jumps of the second derivative make the
+        trajectory C2."""
+        rows, cols, vals = [], [], []
+        pairs = (("first", "value"), ("first", "derivative"), ("second", "value"), ("second", "derivative"))
+        for j in range(1, len(self.segments)):
+            for seg, s, sign in ((self.segments[j - 1], 1.0, 1.0), (self.segments[j], 0.0, -1.0)):
+                h = seg.nominal[1] - seg.nominal[0]
+                for w, (node_attr, field_name) in zip(hermite_weights(s, h, order), pairs):
+                    idx = getattr(getattr(seg, node_attr), field_name)
+                    keep = idx >= 0
+                    rows.append(DIM * (j - 1) + np.arange(DIM)[keep])
+                    cols.append(idx[keep])
+                    vals.append(np.full(keep.sum(), sign * w))
+        if not rows:
+            return sp.csr_matrix((0, size))
+        return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                             shape=(DIM * (len(self.segments) - 1), size))
+
     def candidates(self, t: float) -> list[int]:
         """Segments that may hold time t when their ends move within their slack."""
         return [k for k, s in enumerate(self.segments)

@@ -33,10 +33,16 @@ from .solve import StageReport, solve_window
 log = logging.getLogger("physmocap")
 
 
+# A converged window whose motion departs this far from its input (mean over the kept frames) is reported: the
+# physics could only be met far from the observations, typically because of wrong contact labels (ours).
+DEPARTURE_COM, DEPARTURE_FEET = 0.10, 0.15  # m
+
+
 @dataclass
 class WindowReport:
     """One window: frames [start, stop] solved, [start, keep) kept; converged; the stage whose solution was kept;
-    every IPOPT run; program size; seconds to build and in total."""
+    every IPOPT run; program size; seconds to build and in total; com_departure, feet_departure: mean distance
+    (m) of the optimised COM and contact points from the input over the kept frames (nan if not converged)."""
 
     start: int
     stop: int
@@ -48,6 +54,8 @@ class WindowReport:
     constraints: int
     build_seconds: float
     seconds: float
+    com_departure: float = float("nan")
+    feet_departure: float = float("nan")
 
 
 @dataclass
@@ -172,6 +180,13 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
                                         result.variables, result.constraints, result.build_seconds,
                                         time.perf_counter() - t0))
         if result.converged:
+            report = out.windows[-1]
+            report.com_departure = float(np.linalg.norm(result.com[:n] - red.com[:n], axis=-1).mean())
+            report.feet_departure = float(np.linalg.norm(result.feet[:n] - red.feet[:n], axis=-1).mean())
+            if report.com_departure > DEPARTURE_COM or report.feet_departure > DEPARTURE_FEET:
+                log.warning("trajopt: on frames %d-%d the physical motion departs from the kinematic one by %.0f cm "
+                            "(COM) and %.0f cm (feet) on average: the contact labels may be wrong there.", start,
+                            keep - 1, 100 * report.com_departure, 100 * report.feet_departure)
             out.converged[kept] = True
             out.com[kept], out.euler[kept], out.feet[kept] = result.com[:n], result.euler[:n], result.feet[:n]
             out.com_acceleration[kept] = result.com_acceleration[:n]

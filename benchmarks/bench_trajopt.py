@@ -1,0 +1,218 @@
+"""Trajectory optimisation (Rempe et al. 2020) on the synthetic ground-truth set: the metrics of Rempe tables 2
+and 3 for the kinematic motion, the B.4-refined kinematic motion, PhysCap on the offline kinematics and trajopt;
+the share of clips whose optimisation converges; and solve time against clip length.
+
+Synthetic set: the clips of bench_synthetic (held-out CMU subjects 6 and 131), its observations (MediaPipe-like
+noise, true intrinsics, true height), the offline kinematic fit, the centred contact network's predictions, then
+refine_kinematics (B.4) and run_trajopt. Convergence is counted as the paper counts it, on 2-second clips at
+30 fps: the refined motion of every case is cut into 2 s pieces, each optimised on its own; a piece converges
+when IPOPT converges on it. Scaling: the 22.9 s CMU clip 001_01 (jumps and turns) fitted the same way, trajopt on
+its first 2, 5, 10 and 20 s (wall time of run_trajopt alone, median of --repeats runs).
+
+    .venv/bin/python benchmarks/bench_trajopt.py [--quick] [--repeats 1] [--json OUT.json]
+
+Writes benchmarks/results/trajopt.json and trajopt.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import logging
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_synthetic import CLIPS, FPS, SECONDS, first_seconds, model_height  # noqa: E402
+from common import MOCAP, RESULTS, git_revision, machine_description  # noqa: E402
+from physmocap.body import kinematics as kin  # noqa: E402
+from physmocap.config import Settings, TrajoptSettings  # noqa: E402
+from physmocap.contacts.noise import MEDIAPIPE_NOISE  # noqa: E402
+from physmocap.contacts.predict import predict_contacts  # noqa: E402
+from physmocap.dynamics.stage import run_physcap  # noqa: E402
+from physmocap.evaluation import score_against_truth, to_truth_world  # noqa: E402
+from physmocap.kinematics.stage import fit_motion  # noqa: E402
+from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
+from physmocap.mocap.synthetic import make_observations, random_camera, resample  # noqa: E402
+from physmocap.trajopt import refine_kinematics, run_trajopt  # noqa: E402
+
+METHODS = ("kinematic offline", "kinematic refined (B.4)", "physcap on offline", "trajopt")
+PIECE_SECONDS = 2.0
+SCALING_CLIP = "cmu_iclone_cc3_retarget/001_01.bvh"
+SCALING_SECONDS = (2.0, 5.0, 10.0, 20.0)
+KEYS = ("global_mpjpe_mm", "first_frame_aligned_mm", "mpjpe_root_mm", "floating_percent", "penetration_percent",
+        "skate_percent", "grf_mean_percent_bw", "grf_max_percent_bw", "grf_ballistic_percent_bw", "e_smooth_mm")
+
+
+def observe(name: str, seed: int, seconds: float):
+    clip = first_seconds(resample(load_mocap(MOCAP / name), FPS), seconds)
+    rng = np.random.default_rng(seed)
+    K, R, t = random_camera(clip, rng)
+    obs, truth = make_observations(clip, K, R, t, rng, MEDIAPIPE_NOISE)
+    settings = Settings().replace("body", height=model_height(truth["landmarks_world"]))
+    return obs, truth, settings
+
+
+def score(motion, qpos, truth, grf=None, residual=None) -> dict:
+    pose = kin.forward_kinematics(motion.body, qpos)
+    points = to_truth_world(pose.points, motion.camera.R, motion.camera.t, truth)
+    com = to_truth_world(kin.center_of_mass(motion.body, pose), motion.camera.R, motion.camera.t, truth)
+    return score_against_truth(points, motion.body.point_names, com, truth, motion.body.mass, grf, residual)
+
+
+def evaluate_case(name: str, seed: int, settings_trajopt: TrajoptSettings) -> dict:
+    obs, truth, settings = observe(name, seed, SECONDS)
+    motion = fit_motion(obs, settings)
+    contacts, stationary, _ = predict_contacts(obs, "centred")
+    start = time.perf_counter()
+    refined = refine_kinematics(obs, motion, contacts, settings.fit, settings_trajopt)
+    refine_seconds = time.perf_counter() - start
+    physcap = run_physcap(motion.body, motion.qpos, obs.fps, contacts, stationary, settings.physics)
+    start = time.perf_counter()
+    result = run_trajopt(refined.motion.body, refined.motion.qpos, obs.fps, refined.contacts, settings_trajopt)
+    trajopt_seconds = time.perf_counter() - start
+    rows = {
+        "kinematic offline": score(motion, motion.qpos, truth),
+        "kinematic refined (B.4)": score(refined.motion, refined.motion.qpos, truth),
+        "physcap on offline": score(motion, physcap.qpos, truth, physcap.grf, physcap.residual),
+        # Forces only where the optimisation converged; elsewhere the kinematic motion (and its implied forces).
+        "trajopt": score(refined.motion, result.qpos, truth, result.grf if result.converged.all() else None),
+    }
+    # The paper's protocol: 2 s pieces of the refined motion, each on its own.
+    step = int(round(PIECE_SECONDS * obs.fps))
+    pieces = []
+    for a in range(0, len(refined.motion.qpos) - step // 2, step):
+        sl = slice(a, min(a + step, len(refined.motion.qpos)))
+        t0 = time.perf_counter()
+        piece = run_trajopt(refined.motion.body, refined.motion.qpos[sl], obs.fps, refined.contacts[sl],
+                            settings_trajopt)
+        pieces.append(dict(start=a, frames=sl.stop - a, converged=bool(piece.converged.all()),
+                           seconds=time.perf_counter() - t0,
+                           statuses=[s.status for w in piece.windows for s in w.stages]))
+    return dict(
+        clip=name.split("/")[-1], seed=seed, frames=len(motion.qpos), rows=rows,
+        converged_fraction=float(result.converged.mean()), refine_seconds=refine_seconds,
+        trajopt_seconds=trajopt_seconds, trajopt_ms_per_frame=1000 * trajopt_seconds / len(motion.qpos),
+        windows=[dict(start=w.start, stop=w.stop, keep=w.keep, converged=w.converged,
+                                              seconds=w.seconds, build_seconds=w.build_seconds,
+                                              variables=w.variables, constraints=w.constraints,
+                                              com_departure_m=w.com_departure, feet_departure_m=w.feet_departure,
+                                              stages=[dataclasses.asdict(s) for s in w.stages])
+                                         for w in result.windows],
+        pieces=pieces)
+
+
+def scaling(settings_trajopt: TrajoptSettings, repeats: int) -> list[dict]:
+    obs, truth, settings = observe(SCALING_CLIP, 0, max(SCALING_SECONDS) + 0.5)
+    motion = fit_motion(obs, settings)
+    contacts, _, _ = predict_contacts(obs, "centred")
+    refined = refine_kinematics(obs, motion, contacts, settings.fit, settings_trajopt)
+    out = []
+    for seconds in SCALING_SECONDS:
+        n = int(round(seconds * obs.fps))
+        times, result = [], None
+        for _ in range(repeats):
+            start = time.perf_counter()
+            result = run_trajopt(refined.motion.body, refined.motion.qpos[:n], obs.fps, refined.contacts[:n],
+                                 settings_trajopt)
+            times.append(time.perf_counter() - start)
+        out.append(dict(seconds=seconds, frames=n, wall_seconds=statistics.median(times), runs=times,
+                        windows=len(result.windows), converged_fraction=float(result.converged.mean()),
+                        largest_program_variables=max(w.variables for w in result.windows),
+                        largest_program_constraints=max(w.constraints for w in result.windows),
+                        ipopt_seconds=sum(s.seconds for w in result.windows for s in w.stages),
+                        build_seconds=sum(w.build_seconds for w in result.windows)))
+        print(f"scaling {seconds:4.1f} s: {out[-1]['wall_seconds']:.1f} s wall, {out[-1]['windows']} window(s), "
+              f"converged {out[-1]['converged_fraction']:.2f}", flush=True)
+    return out
+
+
+def summarise(cases: list[dict]) -> dict:
+    summary = {}
+    for method in METHODS:
+        summary[method] = {k: float(np.nanmean([c["rows"][method][k] for c in cases])) for k in KEYS}
+    pieces = [p for c in cases for p in c["pieces"]]
+    summary["convergence"] = dict(
+        pieces=len(pieces), converged=int(sum(p["converged"] for p in pieces)),
+        share=float(np.mean([p["converged"] for p in pieces])) if pieces else float("nan"),
+        piece_seconds_median=float(np.median([p["seconds"] for p in pieces])) if pieces else float("nan"),
+        whole_clips_converged=float(np.mean([c["converged_fraction"] == 1.0 for c in cases])))
+    return summary
+
+
+def markdown(out: dict) -> str:
+    s = out["summary"]
+    lines = [f"# Trajectory optimisation (Rempe et al. 2020) on the synthetic set", "",
+             f"{out['machine']}, revision {out['revision']}. {len(out['cases'])} cases (clips x seeds), "
+             f"{SECONDS:.0f} s each at most, {FPS:.0f} fps; contacts from the centred network; floor metrics "
+             "against the true floor and true contacts.", "",
+             "| method | global MPJPE mm | first-frame aligned mm | root-rel. MPJPE mm | floating % | penetration % "
+             "| skate % | GRF mean % BW | GRF max % BW | ballistic GRF % BW | e_smooth mm |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for method in METHODS:
+        r = s[method]
+        lines.append(f"| {method} | " + " | ".join(f"{r[k]:.1f}" for k in KEYS) + " |")
+    c = s["convergence"]
+    lines += ["", f"Converged: {c['converged']} of {c['pieces']} two-second clips ({100 * c['share']:.1f}%; the paper: "
+              f"94.9%), median {c['piece_seconds_median']:.1f} s per 2 s clip; whole {SECONDS:.0f} s clips fully "
+              f"converged: {100 * c['whole_clips_converged']:.0f}%.", "",
+              "| clip length s | frames | wall s | windows | converged | largest window program (variables / "
+              "constraints) | IPOPT s | build s |", "|---|---|---|---|---|---|---|---|"]
+    for r in out["scaling"]:
+        lines.append(f"| {r['seconds']:.0f} | {r['frames']} | {r['wall_seconds']:.1f} | {r['windows']} | "
+                     f"{100 * r['converged_fraction']:.0f}% | {r['largest_program_variables']} / "
+                     f"{r['largest_program_constraints']} | {r['ipopt_seconds']:.1f} | {r['build_seconds']:.1f} |")
+    lines += ["", "Per case:", "", "| clip | seed | frames | trajopt s | converged frames | global MPJPE kin / refined / "
+              "trajopt mm | 2 s pieces converged |", "|---|---|---|---|---|---|---|"]
+    for case in out["cases"]:
+        g = [case["rows"][m]["global_mpjpe_mm"] for m in ("kinematic offline", "kinematic refined (B.4)", "trajopt")]
+        done = sum(p["converged"] for p in case["pieces"])
+        lines.append(f"| {case['clip']} | {case['seed']} | {case['frames']} | {case['trajopt_seconds']:.1f} | "
+                     f"{100 * case['converged_fraction']:.0f}% | {g[0]:.0f} / {g[1]:.0f} / {g[2]:.0f} | "
+                     f"{done}/{len(case['pieces'])} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true", help="three clips, one seed, scaling to 10 s")
+    parser.add_argument("--repeats", type=int, default=1, help="runs per scaling length (median reported)")
+    parser.add_argument("--json", default=str(RESULTS / "trajopt.json"))
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(message)s")
+    global SCALING_SECONDS
+    if args.quick:
+        SCALING_SECONDS = SCALING_SECONDS[:3]
+    settings = TrajoptSettings()
+    clips = CLIPS[:3] if args.quick else CLIPS
+    seeds = (0,) if args.quick else (0, 1)
+    cases = []
+    for name in clips:
+        for seed in seeds:
+            case = evaluate_case(name, seed, settings)
+            cases.append(case)
+            r = case["rows"]
+            print(f"{case['clip']:>11} seed {seed}: trajopt {case['trajopt_seconds']:5.1f} s, converged "
+                  f"{case['converged_fraction']:.2f}, pieces {sum(p['converged'] for p in case['pieces'])}/"
+                  f"{len(case['pieces'])} | global mm kin {r['kinematic offline']['global_mpjpe_mm']:.0f} refined "
+                  f"{r['kinematic refined (B.4)']['global_mpjpe_mm']:.0f} trajopt {r['trajopt']['global_mpjpe_mm']:.0f}"
+                  f" | GRF mean {r['trajopt']['grf_mean_percent_bw']:.0f}% max {r['trajopt']['grf_max_percent_bw']:.0f}%",
+                  flush=True)
+    out = dict(machine=machine_description(), revision=git_revision(), settings=dataclasses.asdict(settings),
+               fps=FPS, seconds=SECONDS, clips=list(clips), seeds=list(seeds), cases=cases)
+    out["summary"] = summarise(cases)
+    out["scaling"] = scaling(settings, args.repeats)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    Path(args.json).write_text(json.dumps(out, indent=2, default=float))
+    Path(args.json).with_suffix(".md").write_text(markdown(out))
+    print(markdown(out))
+    return out
+
+
+if __name__ == "__main__":
+    main()
