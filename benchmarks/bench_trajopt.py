@@ -167,8 +167,8 @@ def markdown(out: dict) -> str:
         lines.append(f"| {r['seconds']:.0f} | {r['frames']} | {r['wall_seconds']:.1f} | {r['windows']} | "
                      f"{100 * r['converged_fraction']:.0f}% | {r['largest_program_variables']} / "
                      f"{r['largest_program_constraints']} | {r['ipopt_seconds']:.1f} | {r['build_seconds']:.1f} |")
-    lines += ["", "Per case:", "", "| clip | seed | frames | trajopt s | converged frames | global MPJPE kin / refined / "
-              "trajopt mm | 2 s pieces converged |", "|---|---|---|---|---|---|---|"]
+    lines += ["", "Per case:", "", "| clip | seed | frames | trajopt s | converged frames | global MPJPE kin / "
+              "refined / trajopt mm | 2 s pieces converged |", "|---|---|---|---|---|---|---|"]
     for case in out["cases"]:
         g = [case["rows"][m]["global_mpjpe_mm"] for m in ("kinematic offline", "kinematic refined (B.4)", "trajopt")]
         done = sum(p["converged"] for p in case["pieces"])
@@ -197,12 +197,12 @@ def main(argv=None) -> dict:
             case = evaluate_case(name, seed, settings)
             cases.append(case)
             r = case["rows"]
+            kin, ref, traj = (r[m] for m in ("kinematic offline", "kinematic refined (B.4)", "trajopt"))
             print(f"{case['clip']:>11} seed {seed}: trajopt {case['trajopt_seconds']:5.1f} s, converged "
                   f"{case['converged_fraction']:.2f}, pieces {sum(p['converged'] for p in case['pieces'])}/"
-                  f"{len(case['pieces'])} | global mm kin {r['kinematic offline']['global_mpjpe_mm']:.0f} refined "
-                  f"{r['kinematic refined (B.4)']['global_mpjpe_mm']:.0f} trajopt {r['trajopt']['global_mpjpe_mm']:.0f}"
-                  f" | GRF mean {r['trajopt']['grf_mean_percent_bw']:.0f}% max {r['trajopt']['grf_max_percent_bw']:.0f}%",
-                  flush=True)
+                  f"{len(case['pieces'])} | global mm kin {kin['global_mpjpe_mm']:.0f} refined "
+                  f"{ref['global_mpjpe_mm']:.0f} trajopt {traj['global_mpjpe_mm']:.0f} | GRF mean "
+                  f"{traj['grf_mean_percent_bw']:.0f}% max {traj['grf_max_percent_bw']:.0f}%", flush=True)
     out = dict(machine=machine_description(), revision=git_revision(), settings=dataclasses.asdict(settings),
                fps=FPS, seconds=SECONDS, clips=list(clips), seeds=list(seeds), cases=cases)
     out["summary"] = summarise(cases)

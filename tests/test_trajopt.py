@@ -15,7 +15,7 @@ from physmocap.config import TrajoptSettings
 from physmocap.errors import InputError
 from physmocap.trajopt.formulation import (Window, angular_velocity, build_window_problem, euler_torque,
                                           phase_layout, rotate)
-from physmocap.trajopt.phases import Phase, clean_flags, contact_phases, flags_from_phases, segment_count
+from physmocap.trajopt.phases import clean_flags, contact_phases, flags_from_phases, segment_count
 from physmocap.trajopt.problem import ConstraintSet, CostTerm, Program, VariableSet
 from physmocap.trajopt.reduced import (boundary_velocity, euler_to_matrix, matrix_to_euler, reduced_motion,
                                        world_inertia)
@@ -378,3 +378,16 @@ def test_durations_program_shares_the_layout(body):
     assert [v.size for v in fixed.variable_sets] == [v.size for v in moving.variable_sets[:-1]]
     assert moving.durations.set.size == 4 * 2  # lift-off and touch-down of each point
     assert np.all(moving.durations.set.upper - moving.durations.set.lower <= 2 * s.max_duration_change + 1e-12)
+
+
+def test_frames_without_observations_split_the_clip(body):
+    q = sway(body, 70)
+    valid = np.ones(70, bool)
+    valid[30:36] = False
+    result = run_trajopt(body, q, FPS, np.ones((70, 4), bool), QUICK, valid=valid)
+    assert len(result.windows) == 2
+    assert result.converged[:30].all() and result.converged[36:].all() and not result.converged[30:36].any()
+    assert np.array_equal(result.qpos[30:36], q[30:36]) and not result.contacts[30:36].any()
+    assert result.failed_frames == ["30-35"]
+    tiny = run_trajopt(body, q[:2], FPS, np.ones((2, 4), bool), QUICK)
+    assert not tiny.converged.any() and np.array_equal(tiny.qpos, q[:2])

@@ -1,33 +1,33 @@
 """The centroidal trajectory optimisation of Rempe et al. 2020 (section 3.1, figure 3, appendix C) for one window
-of frames, as named pieces:
+of frames, as named pieces (chosen by name in TrajoptSettings, as ifopt/TOWR assemble theirs):
 
 variable sets
-  com                 COM position and Z-Y-X Euler orientation: Hermite nodes (value, rate) every ~0.1 s
+  com                 COM position and Z-Y-X Euler orientation: Hermite nodes (value, rate) every com_interval
+                      (0.05 s; the paper 0.1 s)
   foot_<point>        per heel/toe: one (x, y) per contact phase (z = 0: on the floor; constant: no slip), and
                       Hermite nodes through each flight (at least 6 polynomials per phase)
-  force_<point>       per heel/toe: Hermite nodes through each contact phase (at least 6 polynomials, none
-                      longer than the COM's), in body
-                      weights; zero in flight by construction; zero where a contact phase meets a flight
-  durations           (last stage only) the phase boundary times, each within +-0.1 s (at most a quarter
-                      of either neighbouring phase); the polynomials next to a boundary are long
-                      enough that it never passes a node, so only samples near a boundary choose
-                      between two polynomials
-constraint sets (TrajoptSettings.constraints)
+  force_<point>       per heel/toe, in body weights: Hermite nodes through each contact phase (at least 6
+                      polynomials, none longer than the COM's); zero in flight by construction; zero where a
+                      contact phase meets a flight
+  durations           (last stage only) the phase boundary times, each within +-0.1 s (at most a quarter of either
+                      neighbouring phase); the polynomials next to a boundary are long enough that it never
+                      passes a node, so only samples near a boundary choose between two polynomials
+constraint sets
   dynamics            m r'' = sum f + m g; I_w w' + w x I_w w = sum (p - r) x f, I_w from the input's I_b(t);
-                      Euler's equation every 0.1 s (the paper), Newton's at every frame (ours, see settings)
+                      Euler's equation every 0.1 s (the paper), Newton's twice per frame (ours, see settings)
   acceleration_continuity  COM position and orientation C2 at their nodes (ours, see there)
   velocity_boundaries COM velocity at the clip's first and last frame = mean input velocity of 5 frames
   foot_length         |heel - toe| = foot length
   leg_length          |point - hip| <= leg reach, the hip placed from the COM pose with the input's offset
   force_limits        0 <= f_n <= f_max and |f_t| <= mu f_n (friction pyramid) at force nodes and frames
   above_floor         z >= 0 for feet in flight
-cost terms (TrajoptSettings.costs)
-  data, velocity, acceleration   equations (1), (3), (4) at every frame
-  duration                       equation (2)
+cost terms
+  data, velocity, acceleration   equations (1), (3), (4) at every frame (derivatives per 1/30 s step)
+  duration                       equation (2) (last stage only)
 
 Everything is written on whole rows of samples (3, n): a trajectory sampled at fixed times is one sparse
 product with x, so building the program costs little more than its size. World frame: Z up, floor z = 0 (the
-kinematic stage moves the world there). Times in seconds, absolute.
+kinematic stage moves the world there). Times in seconds, absolute (frame k at k / fps).
 """
 
 from __future__ import annotations

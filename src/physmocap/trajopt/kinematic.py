@@ -4,7 +4,8 @@ project's one kinematic fitter with its optional contact terms switched on:
 1. the offline fit with contact velocity, joint velocity and joint-angle velocity terms (no floor term), from
    the kinematic stage's motion;
 2. a robust (Huber) plane fit to the heel and toe positions labelled in contact; contacts farther than
-   `floor_outlier_distance` from it become no contact; the world is moved onto the plane (z = 0);
+   `floor_outlier_distance` from it become no contact; the world is moved onto the plane (z = 0); runs of
+   frames labelled all in the air while the body does not fall get their lowest points back in contact (ours);
 3. the fit again with the floor term, which puts the feet in contact on the floor.
 """
 
@@ -75,12 +76,39 @@ def fit_contact_floor(points: np.ndarray, up_prior: np.ndarray, outlier_distance
 @dataclasses.dataclass
 class RefinedKinematics:
     """motion: the refined kinematic motion (world frame moved onto the refitted floor); contacts: (T, 4) the
-    contact flags with the floor's outliers removed; relabelled: (T, 4) flags that were removed; seconds."""
+    contact flags after relabelling; relabelled: (T, 4) flags removed (the floor's outliers); added: (T, 4)
+    flags added (false flights, see `false_flights`); seconds."""
 
     motion: KinematicMotion
     contacts: np.ndarray
     relabelled: np.ndarray
+    added: np.ndarray
     seconds: float
+
+
+def false_flights(body, qpos: np.ndarray, fps: float, contacts: np.ndarray, valid: np.ndarray,
+                  near_floor: float, gravity: float = 9.81) -> np.ndarray:
+    """(T, 4) contact flags to add where the labels have every point in the air but the kinematic COM does not
+    fall freely: over such a run (and a frame either side) the COM's vertical velocity drops by less than half
+    of what gravity alone would take (ours: a contact network's false flight makes the optimiser launch the
+    body on a ballistic arc it never flew). The points within `near_floor` of the floor (z = 0) in those frames,
+    and at least each frame's lowest, are marked in contact."""
+    pose = kin.forward_kinematics(body, qpos)
+    vz = np.gradient(kin.center_of_mass(body, pose)[:, 2]) * fps
+    heights = pose.points[:, body.point_index(CONTACT_POINTS), 2]
+    added = np.zeros_like(contacts, dtype=bool)
+    airborne = ~contacts.any(axis=1) & valid
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], airborne.astype(int), [0]])))
+    T = len(qpos)
+    for a, b in zip(edges[::2], edges[1::2]):
+        lo, hi = max(a - 1, 0), min(b, T - 1)
+        if hi - lo < 2:
+            continue
+        if vz[hi] - vz[lo] > -0.5 * gravity * (hi - lo) / fps:
+            near = heights[a:b] < near_floor
+            near[np.arange(b - a), np.argmin(heights[a:b], axis=1)] = True
+            added[a:b] = near
+    return added
 
 
 def contact_fit_settings(fit: FitSettings, settings: TrajoptSettings, floor: bool) -> FitSettings:
@@ -133,6 +161,12 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
         kept[contacts] = inliers
     anchor = int(np.argmax(obs.valid))
     qpos, camera = move_world_to_floor(qpos, camera, floor, anchor)
+    removed = contacts & ~kept
+    added = false_flights(body, qpos, fps, kept, obs.valid, settings.floor_outlier_distance)
+    if added.any():
+        log.info("trajopt: %d frame(s) labelled all in the air while the body does not fall: contacts added.",
+                 int(added.any(axis=1).sum()))
+    kept |= added
     # 3. Again, with the feet in contact on the floor (z = 0 in the new world).
     qpos = KinematicFitter(body, camera, contact_fit_settings(fit, settings, True), fps).fit_offline(
         qpos, targets_in(camera, kept, np.array([0.0, 0.0, 1.0, 0.0]))).qpos
@@ -140,4 +174,4 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
     refined = KinematicMotion(body, motion.calibration, camera, floor, qpos,
                               reprojection_errors(body, camera, qpos, obs), motion.valid.copy(),
                               motion.seconds + seconds, False)
-    return RefinedKinematics(refined, kept, contacts & ~kept, seconds)
+    return RefinedKinematics(refined, kept, removed, added, seconds)

@@ -18,7 +18,7 @@ import casadi as ca
 import numpy as np
 
 from ..config import TrajoptSettings
-from .formulation import POINT_NAMES, Window, WindowProblem, WindowStart, build_window_problem
+from .formulation import Window, WindowProblem, WindowStart, build_window_problem
 from .phases import Phase
 from .problem import Program, Solution
 
@@ -42,9 +42,8 @@ class StageReport:
 class WindowResult:
     """The optimised reduced motion at the window's frames. com, euler: (n, 3); feet: (n, 4, 3) m;
     forces: (n, 4, 3) N in the world; com_acceleration: (n, 3) m/s^2; contacts: (n, 4) the phases finally
-    used; converged: stage 2 converged;
-    chosen: the stage whose solution this is; stages: every IPOPT run; variables/constraints: program size;
-    build_seconds: time to assemble the programs."""
+    used; converged: stage 2 converged; chosen: the stage whose solution this is; stages: every IPOPT run;
+    variables/constraints: program size; build_seconds: time to assemble the programs."""
 
     converged: bool
     chosen: str
@@ -185,5 +184,3 @@ def solve_window(window: Window, settings: TrajoptSettings) -> WindowResult:
         contacts=contacts, phases=phases, stages=stages, variables=program.num_variables,
         constraints=program.num_constraints, build_seconds=build, _state_at=lambda t: state_fn(x, t))
 
-
-__all__ = ["solve_window", "WindowResult", "StageReport", "POINT_NAMES"]

@@ -14,6 +14,7 @@ frames, flagged in `converged`, and is logged as a warning; the next window star
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -25,7 +26,7 @@ import numpy as np
 from ..body.model import BodyModel
 from ..config import TrajoptSettings
 from .formulation import Window
-from .ik import ik_targets, solve_ik
+from .ik import IkTargets, ik_targets, solve_ik
 from .phases import clean_flags, contact_phases
 from .reduced import boundary_velocity, reduced_motion
 from .solve import StageReport, solve_window
@@ -36,13 +37,15 @@ log = logging.getLogger("physmocap")
 # A converged window whose motion departs this far from its input (mean over the kept frames) is reported: the
 # physics could only be met far from the observations, typically because of wrong contact labels (ours).
 DEPARTURE_COM, DEPARTURE_FEET = 0.10, 0.15  # m
+MIN_FRAMES = 3  # a run of valid frames shorter than this keeps the kinematic motion
 
 
 @dataclass
 class WindowReport:
     """One window: frames [start, stop] solved, [start, keep) kept; converged; the stage whose solution was kept;
     every IPOPT run; program size; seconds to build and in total; com_departure, feet_departure: mean distance
-    (m) of the optimised COM and contact points from the input over the kept frames (nan if not converged)."""
+    (m) of the optimised COM and contact points from the input over the kept frames (nan if not converged);
+    restarted: the window could not continue the previous one's state and was solved from a free start."""
 
     start: int
     stop: int
@@ -56,6 +59,7 @@ class WindowReport:
     seconds: float
     com_departure: float = float("nan")
     feet_departure: float = float("nan")
+    restarted: bool = False
 
 
 @dataclass
@@ -132,9 +136,16 @@ def window_ranges(frames: int, fps: float, settings: TrajoptSettings) -> list[tu
     return out
 
 
+def valid_runs(valid: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) of every run of valid frames."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], valid.astype(int), [0]])))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist()))
+
+
 def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.ndarray,
                 settings: TrajoptSettings = TrajoptSettings(),
-                progress: Callable[[int, int], None] | None = None) -> TrajoptMotion:
+                progress: Callable[[int, int], None] | None = None,
+                valid: np.ndarray | None = None) -> TrajoptMotion:
     """Physics by trajectory optimisation (Rempe et al. 2020, 3.1 and C) over a kinematic motion.
 
     body: the calibrated body model (its de Leva masses and inertias give the COM and inertia over time);
@@ -142,43 +153,91 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
         `refine_kinematics` (Rempe B.4) or the offline kinematic fit;
     fps: frames per second; contacts: (T, 4) bool contact flags (l heel, l toe, r heel, r toe), e.g. the
         centred contact network's, relabelled by `refine_kinematics`;
-    settings: TrajoptSettings; progress: called with (frames done, T) after each window.
+    settings: TrajoptSettings; progress: called with (frames done, T) after each window;
+    valid: (T,) bool, frames with observations (None: all). Each run of valid frames is optimised on its own
+        (a gap without observations has no contact labels and would read as a long flight); invalid frames
+        keep the kinematic motion and count as not converged.
     Returns a TrajoptMotion (see there); never raises for a non-converged solve: it flags the frames.
     """
     start_time = time.perf_counter()
     settings.check()
     T = len(qpos_kin)
+    valid = np.ones(T, bool) if valid is None else np.asarray(valid, bool)
     reduced = reduced_motion(body, qpos_kin, fps)
     min_frames = max(1, math.ceil(settings.min_phase_seconds * fps - 1e-9))
-    flags = np.stack([clean_flags(contacts[:, i], min_frames) for i in range(4)], axis=1)
+    flags = np.stack([clean_flags(contacts[:, i], min_frames) for i in range(4)], axis=1) & valid[:, None]
     out = TrajoptMotion(
         qpos=qpos_kin.copy(), grf=np.zeros((T, 4, 3)), residual=np.zeros((T, 6)), contacts=flags.copy(),
         converged=np.zeros(T, bool), corrected=np.zeros(T, bool), qp_failures=np.ones(T, int),
         com=np.full((T, 3), np.nan), com_acceleration=np.full((T, 3), np.nan), euler=np.full((T, 3), np.nan),
         feet=np.full((T, 4, 3), np.nan))
-    if T < 3:
-        log.warning("trajopt: %d frame(s) are too few to optimise; the kinematic motion is kept.", T)
-        out.seconds = time.perf_counter() - start_time
-        return out
+    for first, end in valid_runs(valid):
+        if end - first < MIN_FRAMES:
+            log.warning("trajopt: frames %d-%d are too few to optimise; the kinematic motion is kept there.",
+                        first, end - 1)
+            continue
+        _solve_run(out, reduced, flags, first, end, fps, settings, progress)
+    done = out.converged
+    done = out.converged
+    if done.any():
+        targets = ik_targets(body, qpos_kin[done], reduced.frames(done), out.com[done], out.euler[done],
+                             out.feet[done], settings)
+        solved = np.array(qpos_kin)
+        solved[done] = targets.qpos
+        markers = np.zeros((T,) + targets.markers.shape[1:])
+        weights = np.zeros((T,) + targets.weights.shape[1:])
+        markers[done], weights[done] = targets.markers, targets.weights
+        # Frames kept kinematic are fitted to themselves (then restored exactly): the smoothing term links
+        # neighbours only across converged frames' edges.
+        if (~done).any():
+            own = ik_targets(body, qpos_kin[~done], reduced.frames(~done), reduced.com[~done], reduced.euler[~done],
+                             reduced.feet[~done], settings)
+            markers[~done], weights[~done] = own.markers, own.weights
+        qpos = solve_ik(body, IkTargets(markers, weights, solved), fps, settings)
+        out.qpos[done] = qpos[done]
+    out.qp_failures = (~out.converged).astype(int)
+    out.seconds = time.perf_counter() - start_time
+    return out
+
+
+def _solve_run(out: TrajoptMotion, reduced, flags: np.ndarray, first: int, end: int, fps: float,
+               settings: TrajoptSettings, progress) -> None:
+    """The windows of frames [first, end), each starting where the previous one arrived; results into `out`."""
+    T = len(flags)
+    run_com = reduced.com[first:end]
     previous = None
-    for start, stop, keep in window_ranges(T, fps, settings):
+    for start, stop, keep in window_ranges(end - first, fps, settings):
+        start, stop, keep = start + first, stop + first, keep + first
         t0 = time.perf_counter()
         sl = slice(start, stop + 1)
         red = reduced.frames(sl)
         phases = [contact_phases(flags[sl, i], red.times) for i in range(4)]
         window = Window(
             red, phases,
-            start_velocity=boundary_velocity(reduced.com[start:], fps, settings.boundary_frames, end=False),
-            end_velocity=(boundary_velocity(reduced.com, fps, settings.boundary_frames, end=True)
-                          if stop == T - 1 else None),
+            start_velocity=boundary_velocity(run_com, fps, settings.boundary_frames, end=False),
+            end_velocity=(boundary_velocity(run_com, fps, settings.boundary_frames, end=True)
+                          if stop == end - 1 else None),
             start=previous.state_at(reduced.times[start]) if previous is not None else None,
-            freeze_after=reduced.times[keep] if keep < T else np.inf)
+            freeze_after=reduced.times[keep] if keep < end else np.inf)
         result = solve_window(window, settings)
+        restarted = False
+        if not result.converged and window.start is not None:
+            # No physical continuation of the previous window's state: solve this window afresh (its start
+            # velocity the input's), breaking continuity at the junction rather than losing the window.
+            retry = solve_window(dataclasses.replace(
+                window, start=None,
+                start_velocity=boundary_velocity(reduced.com[start:end], fps, settings.boundary_frames, end=False)),
+                settings)
+            retry.stages = result.stages + [dataclasses.replace(st, name=f"restart {st.name}") for st in retry.stages]
+            result, restarted = retry, True
+            if result.converged:
+                log.warning("trajopt: frames %d-%d could not continue the previous window's motion and were solved "
+                            "afresh: the motion may jump at frame %d.", start, keep - 1, start)
         kept = slice(start, keep)
         n = keep - start
         out.windows.append(WindowReport(start, stop, keep, result.converged, result.chosen, result.stages,
                                         result.variables, result.constraints, result.build_seconds,
-                                        time.perf_counter() - t0))
+                                        time.perf_counter() - t0, restarted=restarted))
         if result.converged:
             report = out.windows[-1]
             report.com_departure = float(np.linalg.norm(result.com[:n] - red.com[:n], axis=-1).mean())
@@ -200,25 +259,3 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
             previous = None
         if progress:
             progress(keep, T)
-    done = out.converged
-    if done.any():
-        targets = ik_targets(body, qpos_kin[done], reduced.frames(done), out.com[done], out.euler[done],
-                             out.feet[done], settings)
-        solved = np.array(qpos_kin)
-        solved[done] = targets.qpos
-        markers = np.zeros((T,) + targets.markers.shape[1:])
-        weights = np.zeros((T,) + targets.weights.shape[1:])
-        markers[done], weights[done] = targets.markers, targets.weights
-        # Frames kept kinematic are fitted to themselves (then restored exactly): the smoothing term links
-        # neighbours only across converged frames' edges.
-        if (~done).any():
-            own = ik_targets(body, qpos_kin[~done], reduced.frames(~done), reduced.com[~done], reduced.euler[~done],
-                             reduced.feet[~done], settings)
-            markers[~done], weights[~done] = own.markers, own.weights
-        from .ik import IkTargets
-
-        qpos = solve_ik(body, IkTargets(markers, weights, solved), fps, settings)
-        out.qpos[done] = qpos[done]
-    out.qp_failures = (~out.converged).astype(int)
-    out.seconds = time.perf_counter() - start_time
-    return out
