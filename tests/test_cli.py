@@ -179,3 +179,18 @@ def test_export_command_writes_each_format_and_rejects_bad_input(demo_run, tmp_p
     proc = physmocap("export", out / "result.npz", "--to", "bvh", "--units", "furlongs", "-o", tmp_path / "x")
     assert_clean_failure(proc, "units")
     assert_clean_failure(physmocap("export", tmp_path / "none.npz", "--to", "glb"), "none.npz")
+
+
+def test_trajectory_optimisation_physics(demo_run, tmp_path):
+    out, _ = demo_run
+    obs = out / "cache" / "observations.npz"
+    proc = physmocap("capture", "--observations", obs, "-o", tmp_path / "t", "--physics", "trajopt")
+    assert proc.returncode == 0, proc.stderr
+    result = load_result(tmp_path / "t" / "result.npz")
+    assert str(result["physics"]) == "trajopt"
+    converged = ~result["physics_fallback"]
+    assert converged.mean() > 0.9
+    # pushing only, to IPOPT's tolerance (a millinewton)
+    assert result["grf"][converged][..., 2].min() >= -1e-3 and result["grf"][converged].any()
+    assert_clean_failure(physmocap("capture", "--observations", obs, "-o", tmp_path / "u", "--physics", "trajopt",
+                                   "--online"), "trajopt")

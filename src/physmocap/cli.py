@@ -61,9 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="run folder (default: runs/<video name>)")
     cap.add_argument("--observations", type=Path, help="fit this observations .npz instead of detecting")
     cap.add_argument("--online", action="store_true", help="causal frame-by-frame fit (live use)")
-    cap.add_argument("--physics", choices=("none", "physcap"), default=None,
-                     help="physics after the kinematic fit: PhysCap's real-time tracker (default with --online) "
-                          "or none (default offline)")
+    cap.add_argument("--physics", choices=("none", "physcap", "trajopt"), default=None,
+                     help="physics after the kinematic fit: PhysCap's real-time tracker (default with --online), "
+                          "Rempe et al.'s trajectory optimisation of the whole clip, or none (default offline)")
     _add_settings_arguments(cap)
     cap.add_argument("--no-overlay", action="store_true", help="skip rendering overlay.mp4")
     cap.add_argument("--accept-truncated", action="store_true",
@@ -221,7 +221,9 @@ def cmd_capture(args) -> int:
         print("note: implausible detector lengths replaced by template proportions: "
               + ", ".join(summary.skeleton_scale_replaced))
     if summary.physics_fallback_frames:
-        print("warning: the physics QP failed and fell back on frames "
+        what = ("the trajectory optimisation did not converge (kinematic motion kept) on frames "
+                if summary.physics == "trajopt" else "the physics QP failed and fell back on frames ")
+        print("warning: " + what
               + ", ".join(summary.physics_fallback_frames[:6]) + (" ..." if len(summary.physics_fallback_frames) > 6 else ""))
     print(f"median reprojection error {summary.median_reprojection_error_px:.1f} px "
           f"({summary.median_reprojection_error_percent_of_height:.2f}% of the person's height)")

@@ -107,7 +107,7 @@ class FitSettings:
 class PhysicsSettings:
     """Physics after the kinematic fit. PhysCap stage III (Shimada et al. 2020, 4.3 and 5.1) for "physcap"."""
 
-    method: str = "none"  # "none" or "physcap"
+    method: str = "none"  # "none", "physcap" (per frame, real time) or "trajopt" (Rempe et al., whole clip)
     kp_joint: float = 300.0  # 1/s^2, PD gains of the joints (paper 5.1); 0 .. 1e4
     kd_joint: float = 20.0  # 1/s
     kp_root_rotation: float = 340.0  # 1/s^2
@@ -131,8 +131,8 @@ class PhysicsSettings:
     correction_rate: float = 0.1  # fraction of the remaining lean corrected per frame (paper: theta / 10); 0 .. 1
 
     def check(self) -> None:
-        if self.method not in ("none", "physcap"):
-            raise InputError(f"physics.method must be none or physcap, got '{self.method}'.")
+        if self.method not in ("none", "physcap", "trajopt"):
+            raise InputError(f"physics.method must be none, physcap or trajopt, got '{self.method}'.")
         if self.foot_lock not in ("auto", "always", "never"):
             raise InputError(f"physics.foot_lock must be auto, always or never, got '{self.foot_lock}'.")
         for name in ("kp_joint", "kd_joint", "kp_root_rotation", "kd_root_rotation", "kp_root_translation",
@@ -261,11 +261,14 @@ class Settings:
     detect: DetectSettings = field(default_factory=DetectSettings)
     fit: FitSettings = field(default_factory=FitSettings)
     physics: PhysicsSettings = field(default_factory=PhysicsSettings)
+    trajopt: TrajoptSettings = field(default_factory=TrajoptSettings)
     online: bool = False  # causal per-frame fit (live use) instead of the whole clip at once
 
     def check(self) -> "Settings":
-        for section in (self.body, self.camera, self.detect, self.fit, self.physics):
+        for section in (self.body, self.camera, self.detect, self.fit, self.physics, self.trajopt):
             section.check()
+        if self.physics.method == "trajopt" and self.online:
+            raise InputError("physics trajopt optimises the whole clip: it cannot run --online (use physcap).")
         return self
 
     def replace(self, section: str | None = None, **values) -> "Settings":

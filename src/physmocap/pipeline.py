@@ -235,6 +235,23 @@ def physics_stage(obs: Observations, motion: KinematicMotion, contacts: np.ndarr
     return physics, False
 
 
+def trajopt_stage(obs: Observations, motion: KinematicMotion, contacts: np.ndarray, settings: Settings,
+                  progress: ProgressFactory | None = None):
+    """Rempe et al.: the three-stage kinematic refinement (B.4), then the trajectory optimisation over the whole
+    clip. Returns the physics motion, the refined kinematic motion (its world sits on the refitted floor, and the
+    physics motion is expressed in it) and the contact flags after relabelling. Frames whose optimisation did not
+    converge keep the kinematic motion and are flagged (qp_failures > 0)."""
+    from .trajopt.kinematic import refine_kinematics
+    from .trajopt.stage import run_trajopt
+
+    refined = refine_kinematics(obs, motion, contacts, settings.fit, settings.trajopt,
+                                keep_floor=settings.camera.floor is not None)
+    bar = progress("trajopt", obs.num_frames) if progress else None
+    physics = run_trajopt(refined.motion.body, refined.motion.qpos, obs.fps, refined.contacts, settings.trajopt, bar,
+                          obs.valid)
+    return physics, refined.motion, refined.contacts
+
+
 def run_capture(out_dir: str | os.PathLike, settings: Settings, *, video: str | os.PathLike | None = None,
                 observations: str | os.PathLike | None = None, overlay: bool = True,
                 progress: ProgressFactory | None = None) -> RunSummary:
@@ -271,7 +288,11 @@ def run_capture(out_dir: str | os.PathLike, settings: Settings, *, video: str | 
     predicted, stationary = contacts_stage(obs, settings)
     contacts = lock_feet(predicted, motion, settings)
     seconds["contacts"] = time.perf_counter() - started
-    physics, physics_cached = physics_stage(obs, motion, contacts, stationary, out_dir, settings, progress)
+    if settings.physics.method == "trajopt":
+        physics, motion, contacts = trajopt_stage(obs, motion, contacts, settings, progress)
+        physics_cached = False
+    else:
+        physics, physics_cached = physics_stage(obs, motion, contacts, stationary, out_dir, settings, progress)
     if physics is not None:
         seconds["physics"] = physics.seconds
         if physics_cached:
@@ -301,7 +322,8 @@ def write_outputs(out_dir: Path, source: str, obs: Observations, motion: Kinemat
     from .viz.viewer import write_viewer
 
     started = time.perf_counter()
-    result = build_result(obs, motion, seconds, settings.as_dict(), contacts, stationary, physics, predicted)
+    result = build_result(obs, motion, seconds, settings.as_dict(), contacts, stationary, physics, predicted,
+                          settings.physics.method)
     files = {"result": str(out_dir / "result.npz"), "bvh": str(out_dir / "motion.bvh"),
              "glb": str(out_dir / "motion.glb")}
     save_result(files["result"], result)

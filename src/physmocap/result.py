@@ -33,7 +33,8 @@ def person_height_pixels(motion: KinematicMotion) -> np.ndarray:
 
 def build_result(obs: Observations, motion: KinematicMotion, stage_seconds: dict[str, float],
                  settings: dict, contacts: np.ndarray, stationary: np.ndarray,
-                 physics: PhysicsMotion | None = None, predicted: np.ndarray | None = None) -> dict[str, np.ndarray]:
+                 physics: PhysicsMotion | None = None, predicted: np.ndarray | None = None,
+                 physics_method: str = "physcap") -> dict[str, np.ndarray]:
     """All arrays of result.npz. `contacts`: the flags after foot-lock; `predicted`: the contact network's
     (default: the same). Without physics the final motion is the kinematic one and the force keys are zeros;
     with physics, `contacts` become the flags the physics used."""
@@ -54,7 +55,7 @@ def build_result(obs: Observations, motion: KinematicMotion, stage_seconds: dict
         stationary=stationary,
         grf=np.zeros((T, 4, 3)) if physics is None else physics.grf,
         residual_root_force=np.zeros((T, 6)) if physics is None else physics.residual,
-        physics=np.str_("none" if physics is None else "physcap"),
+        physics=np.str_("none" if physics is None else physics_method),
         physics_fallback=np.zeros(T, bool) if physics is None else physics.qp_failures > 0,
         balance_corrected=np.zeros(T, bool) if physics is None else physics.corrected,
         camera_K=motion.camera.K,
