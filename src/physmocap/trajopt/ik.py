@@ -2,9 +2,10 @@
 
 The upper body (and the pelvis) keeps its offsets from the COM of the input motion, added to the optimised COM
 (turned by the change of orientation when `rotate_upper_body`); heels and toes go to their optimised positions;
-knees and ankles follow from the IK. The fitter (kinematics.fit.KinematicFitter) runs with only its 3D term
-(pelvis-relative marker targets), the pose prior and joint limits, and the joint-angle velocity term: the root
-starts at its target and no term moves its translation, so the pelvis lands where the COM puts it.
+knees and ankles follow from the IK, pulled to their input offsets too (`ik_leg_weight`, ours) so that they do
+not swivel away. The fitter (kinematics.fit.KinematicFitter) runs with only its 3D term (pelvis-relative
+targets), the pose prior and joint limits, and the joint-angle velocity term: the root starts at its target and
+no term moves its translation, so the pelvis lands where the COM puts it.
 """
 
 from __future__ import annotations
@@ -21,7 +22,9 @@ from ..config import FitSettings, TrajoptSettings
 from ..kinematics.fit import MARKERS, FitTargets, KinematicFitter
 from .reduced import ReducedMotion, euler_to_matrix
 
-# Markers the IK leaves free (the legs bend as they must) and those it sends to the optimised contact points.
+# Knee and ankle markers (their weight is ik_leg_weight: the legs bend as the contact points require, the pull to
+# where the input's knees and ankles sit relative to the COM settles the knees' swivel) and the markers sent to
+# the optimised contact points.
 FREE_MARKERS = ("left_knee", "right_knee", "left_ankle", "right_ankle")
 FOOT_MARKERS = {"left_heel": 0, "left_toe": 1, "right_heel": 2, "right_toe": 3}  # model point -> CONTACT index
 
@@ -50,7 +53,7 @@ def ik_targets(body: BodyModel, qpos_in: np.ndarray, reduced: ReducedMotion, com
     markers = com[:, None] + np.einsum("tij,tmj->tmi", turn, offsets)
     weights = np.ones((len(com), len(names)))
     for name in FREE_MARKERS:
-        weights[:, names.index(name)] = 0.0
+        weights[:, names.index(name)] = np.sqrt(settings.ik_leg_weight)
     for name, k in FOOT_MARKERS.items():
         markers[:, names.index(name)] = feet[:, k]
         weights[:, names.index(name)] = np.sqrt(settings.ik_feet_weight)
