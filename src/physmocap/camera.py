@@ -106,6 +106,15 @@ class Floor:
         return points_camera @ self.normal + self.offset
 
 
+def tangent_basis(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors (3,) orthogonal to the unit vector `up` and to each other."""
+    a = np.cross(up, [1.0, 0.0, 0.0])
+    if np.linalg.norm(a) < 0.1:
+        a = np.cross(up, [0.0, 0.0, 1.0])
+    a /= np.linalg.norm(a)
+    return a, np.cross(up, a)
+
+
 def fit_floor(points_camera: np.ndarray, up_prior: np.ndarray, prior_weight: float = 0.05,
               huber_scale: float = 0.02, outlier_distance: float = 0.10) -> tuple[Floor, np.ndarray]:
     """Robust (Huber) plane fit to foot points believed to touch the floor (Rempe et al. B.4).
@@ -116,12 +125,7 @@ def fit_floor(points_camera: np.ndarray, up_prior: np.ndarray, prior_weight: flo
     mask of inliers (points within `outlier_distance` of the plane).
     """
     up = up_prior / np.linalg.norm(up_prior)
-    # Basis around the prior: the normal is up rotated by two small angles.
-    a = np.cross(up, [1.0, 0.0, 0.0])
-    if np.linalg.norm(a) < 0.1:
-        a = np.cross(up, [0.0, 0.0, 1.0])
-    a /= np.linalg.norm(a)
-    b = np.cross(up, a)
+    a, b = tangent_basis(up)  # the normal is up tilted by two small amounts along these
 
     def normal_of(x):
         n = up + x[0] * a + x[1] * b

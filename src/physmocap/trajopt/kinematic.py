@@ -19,7 +19,7 @@ import numpy as np
 
 from ..body import kinematics as kin
 from ..body.model import CONTACT_POINTS
-from ..camera import Floor
+from ..camera import Floor, tangent_basis
 from ..config import FitSettings, TrajoptSettings
 from ..kinematics.fit import KinematicFitter
 from ..kinematics.stage import (KinematicMotion, make_targets, move_world_to_floor, raw_depth,
@@ -44,11 +44,7 @@ def fit_contact_floor(points: np.ndarray, up_prior: np.ndarray, outlier_distance
     (camera.fit_floor passes its prior through the Huber loss too, where it pulls only linearly: measured, a
     wrongly labelled lifted foot tilted its plane by 30 degrees.)"""
     up = up_prior / np.linalg.norm(up_prior)
-    a = np.cross(up, [1.0, 0.0, 0.0])
-    if np.linalg.norm(a) < 0.1:
-        a = np.cross(up, [0.0, 0.0, 1.0])
-    a /= np.linalg.norm(a)
-    b = np.cross(up, a)
+    a, b = tangent_basis(up)
     tilt, d = np.zeros(2), -float(np.median(points @ up))
     weights = np.ones(len(points))
     prior = np.sqrt(TILT_PRIOR * len(points))
