@@ -121,11 +121,14 @@ def fit_floor(points_camera: np.ndarray, up_prior: np.ndarray, prior_weight: flo
 
     points_camera: (N, 3) candidate points; up_prior: (3,) rough up direction (e.g. the body's mean vertical
     axis), which also regularises the tilt when the points are clustered (a person standing still).
-    prior_weight: strength of that regulariser relative to one point at 1 m. Returns the floor and a (N,)
-    mask of inliers (points within `outlier_distance` of the plane).
+    prior_weight: strength of that regulariser relative to one point at 1 m; it is a plain quadratic, outside
+    the robust loss (under Huber it would pull only linearly, and one wrongly labelled lifted foot far from the
+    others could tilt the plane by 15 degrees). Returns the floor and a (N,) mask of inliers (points within
+    `outlier_distance` of the plane).
     """
     up = up_prior / np.linalg.norm(up_prior)
     a, b = tangent_basis(up)  # the normal is up tilted by two small amounts along these
+    n_points = len(points_camera)
 
     def normal_of(x):
         n = up + x[0] * a + x[1] * b
@@ -134,10 +137,19 @@ def fit_floor(points_camera: np.ndarray, up_prior: np.ndarray, prior_weight: flo
     def residuals(x):
         n = normal_of(x)
         dist = points_camera @ n + x[2]
-        return np.concatenate([dist, np.sqrt(prior_weight * len(points_camera)) * x[:2]])
+        return np.concatenate([dist / huber_scale, np.sqrt(prior_weight * n_points) * x[:2] / huber_scale])
+
+    def huber_on_points(z):
+        """least_squares' loss on squared residuals z (in units of huber_scale): Huber on the points,
+        quadratic (identity) on the two prior residuals."""
+        rho = np.stack([z, np.ones_like(z), np.zeros_like(z)])
+        far = np.flatnonzero(z[:n_points] > 1.0)
+        root = np.sqrt(z[far])
+        rho[0, far], rho[1, far], rho[2, far] = 2 * root - 1, 1 / root, -0.5 / (z[far] * root)
+        return rho
 
     d0 = -np.median(points_camera @ up)
-    sol = least_squares(residuals, np.array([0.0, 0.0, d0]), loss="huber", f_scale=huber_scale)
+    sol = least_squares(residuals, np.array([0.0, 0.0, d0]), loss=huber_on_points)
     n = normal_of(sol.x)
     dist = np.abs(points_camera @ n + sol.x[2])
     inliers = dist < outlier_distance
