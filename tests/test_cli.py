@@ -192,5 +192,35 @@ def test_trajectory_optimisation_physics(demo_run, tmp_path):
     assert converged.mean() > 0.9
     # pushing only, to IPOPT's tolerance (a millinewton)
     assert result["grf"][converged][..., 2].min() >= -1e-3 and result["grf"][converged].any()
+    # Every window's solver report in summary.json and in the terminal.
+    report = json.loads((tmp_path / "t" / "summary.json").read_text())["physics_report"]
+    assert report["converged_frames"] == converged.sum() and report["summary"] in proc.stdout
+    kept = np.zeros(len(converged), int)
+    for window in report["windows"]:
+        kept[window["start"]:window["keep"]] += 1
+        assert window["chosen"] == "dynamics" and [s["name"] for s in window["stages"]][:2] == ["fit", "dynamics"]
+        assert f"frames {window['start']}-{window['keep'] - 1} (solved to {window['stop']})" in proc.stdout
+        assert all(s["iterations"] > 0 and np.isfinite(s["objective"]) for s in window["stages"])
+    assert (kept == 1).all()  # the windows' kept parts tile the clip
+    # The same inputs and settings again: the stage comes from its cache, with the same motion and reports.
+    again = physmocap("capture", "--observations", obs, "-o", tmp_path / "t", "--physics", "trajopt")
+    assert again.returncode == 0, again.stderr
+    assert "physics" in json.loads((tmp_path / "t" / "summary.json").read_text())["cached_stages"]
+    assert np.array_equal(load_result(tmp_path / "t" / "result.npz")["qpos"], result["qpos"])
+    assert report["summary"] in again.stdout
+    # A changed setting recomputes; one IPOPT iteration converges nowhere, which must be loud: every frame flagged
+    # and kinematic, no forces handed out, said in the terminal and summary.json.
+    config = tmp_path / "one_iteration.toml"
+    config.write_text("[trajopt]\nmax_iterations = 1\n")
+    failed = physmocap("capture", "--observations", obs, "-o", tmp_path / "t", "--physics", "trajopt",
+                       "--config", config)
+    assert failed.returncode == 0, failed.stderr
+    summary = json.loads((tmp_path / "t" / "summary.json").read_text())
+    assert "physics" not in summary["cached_stages"] and summary["physics_report"]["converged_frames"] == 0
+    assert summary["physics_fallback_frames"] == [f"0-{len(converged) - 1}"]
+    result = load_result(tmp_path / "t" / "result.npz")
+    assert result["physics_fallback"].all() and not result["grf"].any()
+    assert np.array_equal(result["qpos"], result["qpos_kinematic"])
+    assert "NOT converged" in failed.stdout and "did not converge" in failed.stdout
     assert_clean_failure(physmocap("capture", "--observations", obs, "-o", tmp_path / "u", "--physics", "trajopt",
                                    "--online"), "trajopt")

@@ -220,6 +220,13 @@ def cmd_capture(args) -> int:
     if summary.skeleton_scale_replaced:
         print("note: implausible detector lengths replaced by template proportions: "
               + ", ".join(summary.skeleton_scale_replaced))
+    report = summary.physics_report
+    if report.get("windows"):
+        from .trajopt.stage import WindowReport
+
+        print(report["summary"])
+        for window in report["windows"]:
+            print("  " + WindowReport.from_dict(window).describe())
     if summary.physics_fallback_frames:
         what = ("the trajectory optimisation did not converge (kinematic motion kept) on frames "
                 if summary.physics == "trajopt" else "the physics QP failed and fell back on frames ")

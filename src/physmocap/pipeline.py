@@ -3,6 +3,7 @@
     OUT/
       cache/observations.npz  detection (skipped on re-run while the video and detect settings are unchanged)
       cache/kinematics.npz    calibrated skeleton, camera, floor and fitted motion
+      cache/physics.npz       the PhysCap motion, or cache/trajopt.npz: the refined kinematics and trajopt motion
       result.npz              the contract of DESIGN.md
       motion.bvh              Mixamo-named skeleton, Y up, metres
       overlay.mp4             the fit drawn on the input video (H.264)
@@ -67,6 +68,7 @@ class RunSummary:
     skeleton_scale_replaced: list[str]
     physics: str
     physics_fallback_frames: list[str]
+    physics_report: dict = field(default_factory=dict)  # trajopt: summary line, per-window solver reports
     files: dict[str, str] = field(default_factory=dict)
 
     def to_json(self) -> str:
@@ -171,13 +173,18 @@ def _kinematics_cache(out_dir: Path, obs: Observations, settings: Settings) -> t
 
 def _save_motion(out_dir: Path, obs: Observations, settings: Settings, motion: KinematicMotion) -> None:
     cache, key = _kinematics_cache(out_dir, obs, settings)
-    save_npz(cache, key=np.str_(key), qpos=motion.qpos, lengths=np.str_(json.dumps(motion.body.lengths.__dict__)),
-             mass=motion.body.mass, camera_K=motion.camera.K, camera_R=motion.camera.R, camera_t=motion.camera.t,
-             image_size=np.array(motion.camera.image_size), floor=motion.floor.plane,
-             floor_inliers=motion.floor.inlier_fraction, reprojection_error=motion.reprojection_error,
-             valid=motion.valid, seconds=motion.seconds, online=motion.online,
-             landmark_scale=motion.calibration.landmark_scale, frames_used=motion.calibration.frames_used,
-             replaced=np.array(motion.calibration.replaced, dtype=str))
+    save_npz(cache, key=np.str_(key), **_motion_arrays(motion))
+
+
+def _motion_arrays(motion: KinematicMotion) -> dict:
+    """The arrays `_motion_from_cache` rebuilds a kinematic motion from."""
+    return dict(qpos=motion.qpos, lengths=np.str_(json.dumps(motion.body.lengths.__dict__)),
+                mass=motion.body.mass, camera_K=motion.camera.K, camera_R=motion.camera.R, camera_t=motion.camera.t,
+                image_size=np.array(motion.camera.image_size), floor=motion.floor.plane,
+                floor_inliers=motion.floor.inlier_fraction, reprojection_error=motion.reprojection_error,
+                valid=motion.valid, seconds=motion.seconds, online=motion.online,
+                landmark_scale=motion.calibration.landmark_scale, frames_used=motion.calibration.frames_used,
+                replaced=np.array(motion.calibration.replaced, dtype=str))
 
 
 def _motion_from_cache(data) -> KinematicMotion:
@@ -235,21 +242,52 @@ def physics_stage(obs: Observations, motion: KinematicMotion, contacts: np.ndarr
     return physics, False
 
 
-def trajopt_stage(obs: Observations, motion: KinematicMotion, contacts: np.ndarray, settings: Settings,
-                  progress: ProgressFactory | None = None):
+def trajopt_stage(obs: Observations, motion: KinematicMotion, contacts: np.ndarray, out_dir: Path,
+                  settings: Settings, progress: ProgressFactory | None = None):
     """Rempe et al.: the three-stage kinematic refinement (B.4), then the trajectory optimisation over the whole
-    clip. Returns the physics motion, the refined kinematic motion (its world sits on the refitted floor, and the
-    physics motion is expressed in it) and the contact flags after relabelling. Frames whose optimisation did not
-    converge keep the kinematic motion and are flagged (qp_failures > 0)."""
+    clip, from the cache when observations, contacts and settings are unchanged. Returns the physics motion, the
+    refined kinematic motion (its world sits on the refitted floor, and the physics motion is expressed in it),
+    the contact flags after relabelling, the report for the run summary and whether it came from the cache.
+    Frames whose optimisation did not converge keep the kinematic motion and are flagged (qp_failures > 0)."""
     from .trajopt.kinematic import refine_kinematics
-    from .trajopt.stage import run_trajopt
+    from .trajopt.stage import TrajoptMotion, WindowReport, run_trajopt
 
+    cache = out_dir / "cache" / "trajopt.npz"
+    key = _digest("trajopt", 1, _kinematics_cache(out_dir, obs, settings)[1],
+                  hashlib.sha256(np.asarray(contacts, bool).tobytes()).hexdigest(), asdict(settings.trajopt))
+    arrays = ("qpos", "grf", "residual", "contacts", "converged", "corrected", "qp_failures", "com",
+              "com_acceleration", "euler", "feet")
+    if cache.is_file():
+        try:
+            with np.load(cache, allow_pickle=False) as data:
+                if str(data["key"]) == key:
+                    physics = TrajoptMotion(**{k: data[f"trajopt_{k}"] for k in arrays},
+                                            windows=[WindowReport.from_dict(w)
+                                                     for w in json.loads(str(data["trajopt_windows"]))],
+                                            seconds=float(data["trajopt_seconds"]))
+                    refinement = json.loads(str(data["refinement"]))
+                    return (physics, _motion_from_cache(data), data["refined_contacts"],
+                            _trajopt_report(physics, refinement), True)
+        except (OSError, ValueError, KeyError, TypeError):
+            pass  # recomputed below
     refined = refine_kinematics(obs, motion, contacts, settings.fit, settings.trajopt,
                                 keep_floor=settings.camera.floor is not None)
     bar = progress("trajopt", obs.num_frames) if progress else None
     physics = run_trajopt(refined.motion.body, refined.motion.qpos, obs.fps, refined.contacts, settings.trajopt, bar,
                           obs.valid)
-    return physics, refined.motion, refined.contacts
+    refinement = dict(seconds=refined.seconds, contacts_removed=int(refined.relabelled.sum()),
+                      contacts_added=int(refined.added.sum()), floor=refined.motion.floor.plane.tolist())
+    save_npz(cache, key=np.str_(key), **_motion_arrays(refined.motion), refined_contacts=refined.contacts,
+             refinement=np.str_(json.dumps(refinement)), trajopt_seconds=physics.seconds,
+             trajopt_windows=np.str_(json.dumps([w.to_dict() for w in physics.windows])),
+             **{f"trajopt_{k}": getattr(physics, k) for k in arrays})
+    return physics, refined.motion, refined.contacts, _trajopt_report(physics, refinement), False
+
+
+def _trajopt_report(physics, refinement: dict) -> dict:
+    """summary.json's physics report: the optimisation's, and what the B.4 refinement changed (contact flags
+    removed as floor outliers or added in false flights, the floor's plane in the camera frame)."""
+    return {**physics.report(), "refinement": refinement}
 
 
 def run_capture(out_dir: str | os.PathLike, settings: Settings, *, video: str | os.PathLike | None = None,
@@ -288,9 +326,11 @@ def run_capture(out_dir: str | os.PathLike, settings: Settings, *, video: str | 
     predicted, stationary = contacts_stage(obs, settings)
     contacts = lock_feet(predicted, motion, settings)
     seconds["contacts"] = time.perf_counter() - started
+    physics_report: dict = {}
     if settings.physics.method == "trajopt":
-        physics, motion, contacts = trajopt_stage(obs, motion, contacts, settings, progress)
-        physics_cached = False
+        physics, motion, contacts, physics_report, physics_cached = trajopt_stage(obs, motion, contacts, out_dir,
+                                                                                  settings, progress)
+        seconds["refine"] = physics_report["refinement"]["seconds"]
     else:
         physics, physics_cached = physics_stage(obs, motion, contacts, stationary, out_dir, settings, progress)
     if physics is not None:
@@ -298,7 +338,7 @@ def run_capture(out_dir: str | os.PathLike, settings: Settings, *, video: str | 
         if physics_cached:
             cached.append("physics")
     return write_outputs(out_dir, source, obs, motion, contacts, stationary, physics, settings, seconds, cached,
-                         video if overlay else None, progress, predicted)
+                         video if overlay else None, progress, predicted, physics_report)
 
 
 def lock_feet(predicted: np.ndarray, motion: KinematicMotion, settings: Settings) -> np.ndarray:
@@ -312,9 +352,10 @@ def lock_feet(predicted: np.ndarray, motion: KinematicMotion, settings: Settings
 def write_outputs(out_dir: Path, source: str, obs: Observations, motion: KinematicMotion, contacts: np.ndarray,
                   stationary: np.ndarray, physics, settings: Settings, seconds: dict[str, float], cached: list[str],
                   overlay_video: Path | None = None, progress: ProgressFactory | None = None,
-                  predicted: np.ndarray | None = None) -> RunSummary:
+                  predicted: np.ndarray | None = None, physics_report: dict | None = None) -> RunSummary:
     """result.npz, the exports (motion.bvh, motion.glb, OpenSim markers.trc, grf.mot, external_loads.xml),
-    overlay.mp4 (when `overlay_video` is given), viewer.html, summary.json and report.html."""
+    overlay.mp4 (when `overlay_video` is given), viewer.html, summary.json (with `physics_report`, the physics
+    stage's own account, e.g. trajopt's solver reports) and report.html."""
     from .export import export_result
     from .io.bvh_export import write_bvh
     from .io.glb import write_glb
@@ -360,7 +401,8 @@ def write_outputs(out_dir: Path, source: str, obs: Observations, motion: Kinemat
         median_reprojection_error_px=_nanmedian(error),
         median_reprojection_error_percent_of_height=_nanmedian(relative),
         skeleton_scale_replaced=list(motion.calibration.replaced), physics=settings.physics.method,
-        physics_fallback_frames=_frame_ranges(np.flatnonzero(result["physics_fallback"])), files=files)
+        physics_fallback_frames=_frame_ranges(np.flatnonzero(result["physics_fallback"])),
+        physics_report=physics_report or {}, files=files)
     files["summary"] = str(out_dir / "summary.json")
     write_text(files["summary"], summary.to_json())
     write_report(out_dir, result)  # last: it links every output that exists

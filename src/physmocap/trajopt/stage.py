@@ -61,6 +61,21 @@ class WindowReport:
     feet_departure: float = float("nan")
     restarted: bool = False
 
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: dict) -> "WindowReport":
+        return cls(**{**values, "stages": [StageReport(**s) for s in values["stages"]]})
+
+    def describe(self) -> str:
+        """One line: the frames, whether it converged, the solution kept, and every IPOPT run."""
+        runs = "; ".join(f"{s.name} {s.status}, {s.iterations} iterations, objective {s.objective:.4g}"
+                         for s in self.stages)
+        verdict = f"converged, kept {self.chosen}" if self.converged else "NOT converged, kinematic motion kept"
+        restart = " (solved afresh)" if self.restarted else ""
+        return f"frames {self.start}-{self.keep - 1} (solved to {self.stop}): {verdict}{restart}; {runs}"
+
 
 @dataclass
 class TrajoptMotion:
@@ -105,6 +120,13 @@ class TrajoptMotion:
                 out.append(str(start) if start == f else f"{start}-{f}")
                 start = None
         return out
+
+    def report(self) -> dict:
+        """What the run summary (summary.json) says about the optimisation: the summary line, converged frames,
+        the ranges kept kinematic and every window's report."""
+        return dict(summary=self.summary(), converged_frames=int(self.converged.sum()),
+                    frames=len(self.converged), not_converged_frames=self.failed_frames,
+                    windows=[w.to_dict() for w in self.windows], seconds=self.seconds)
 
     def summary(self) -> str:
         """One line for the terminal."""
@@ -177,7 +199,6 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
                         first, end - 1)
             continue
         _solve_run(out, reduced, flags, first, end, fps, settings, progress)
-    done = out.converged
     done = out.converged
     if done.any():
         targets = ik_targets(body, qpos_kin[done], reduced.frames(done), out.com[done], out.euler[done],
