@@ -23,6 +23,7 @@ from ..body.model import CONTACT_POINTS, BodyModel
 from ..config import PhysicsSettings
 
 INF = 1e20  # daqp's "no bound"
+MAX_ACCELERATION = 1e4  # m/s^2 or rad/s^2, about 50 times the fastest human limb motions: the state diverged
 
 
 @dataclass
@@ -80,6 +81,7 @@ class PhysCapTracker:
         self.contact_jacobian = np.zeros((4, 3, nv))
         self.qpos = np.zeros(self.model.nq)
         self.qvel = np.zeros(nv)
+        self.target_data = mujoco.MjData(self.model)  # kinematics of the frame's target pose
 
     def reset(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
         self.qpos[:] = qpos
@@ -138,10 +140,12 @@ class PhysCapTracker:
             self._bounds[key] = (upper, lower)
         return self._bounds[key]
 
-    def pose_accelerations(self, qdd_des, bias, forces, active, heights) -> tuple[np.ndarray, np.ndarray, bool]:
+    def pose_accelerations(self, qdd_des, bias, forces, active, heights,
+                           released=np.zeros(4, bool)) -> tuple[np.ndarray, np.ndarray, bool]:
         """Eq. (10): qdd minimising |qdd - qdd_des|^2 + tau' W tau with tau = M qdd + c - J^T lambda (the
         equation of motion, eq. 2), subject to eq. (9) at the active contacts after the step: the normal
-        velocity keeps the point on or above the floor, tangential speeds stay within sigma.
+        velocity keeps the point on or above the floor, tangential speeds stay within sigma (except at released
+        contacts, which slide freely but still do not sink).
         Returns qdd, tau, and whether the QP solved (else the unconstrained optimum is used)."""
         M, dt = self.mass_matrix, self.dt
         external = self.contact_jacobian.reshape(12, -1).T @ forces.ravel()
@@ -153,8 +157,11 @@ class PhysCapTracker:
             rows = self.contact_jacobian[active].reshape(-1, M.shape[0])  # x, y, z rows of each contact
             velocity = rows @ self.qvel
             sigma = self.settings.slide_speed
-            lower, upper = -sigma - velocity, sigma - velocity
-            lower[2::3] = -heights[active] / dt - velocity[2::3]  # end the step on or above the floor
+            slide = np.where(released[active], INF, sigma).repeat(3)
+            lower, upper = -slide - velocity, slide - velocity
+            # Above the floor: reach it at most by the end of the step; below: rise back gently.
+            depth_rate = heights[active] / np.where(heights[active] > 0, dt, max(dt, self.settings.penetration_recovery))
+            lower[2::3] = -depth_rate - velocity[2::3]
             upper[2::3] = INF
             qdd, _, exitflag, _ = daqp.solve(H, f, dt * rows, upper, lower)
             solved = exitflag == 1
@@ -162,6 +169,19 @@ class PhysCapTracker:
             qdd = np.linalg.solve(H, -f)
         torque = M @ qdd + bias - external
         return qdd, torque, solved
+
+    def _released_contacts(self, q_kin: np.ndarray) -> np.ndarray:
+        """(4,) contact points whose target has moved more than release_distance along the floor from where the
+        character holds them: the kinematic foot has gone (a wrong contact label or the detector swapping the
+        feet), and holding on would drag the whole body after it."""
+        if self.settings.release_distance is None:
+            return np.zeros(4, bool)
+        self.target_data.qpos[:] = q_kin
+        mujoco.mj_kinematics(self.model, self.target_data)
+        self.data.qpos[:] = self.qpos
+        mujoco.mj_kinematics(self.model, self.data)
+        offset = self.target_data.site_xpos[self.sites, :2] - self.data.site_xpos[self.sites, :2]
+        return np.linalg.norm(offset, axis=1) > self.settings.release_distance
 
     # ---- one video frame ----------------------------------------------------------------------------------
     def track(self, q_kin: np.ndarray, qd_kin: np.ndarray, qdd_kin: np.ndarray,
@@ -172,21 +192,27 @@ class PhysCapTracker:
         records = []
         active = np.zeros(4, bool)
         target = np.empty_like(q_kin)
+        released = self._released_contacts(q_kin)
         for i in range(s.iterations):
             # The steps advance the character through the frame: step i aims at where the kinematic motion is
             # at its end time, moving along the kinematic velocity, so that the last step lands on frame t.
             target[:] = q_kin
             mujoco.mj_integratePos(self.model, target, qd_kin, -(s.iterations - 1 - i) * self.dt)
             bias, heights, touching = self._dynamics()
-            active = predicted_contacts & (heights < s.contact_height)  # eq. (5)
+            active = predicted_contacts & (heights < s.contact_height) & ~released  # eq. (5)
             if s.foot_lock != "never":  # airborne or swimming motion: the floor does not push back
                 active |= touching
             qdd_des = self.desired_acceleration(target, qd_kin, qdd_kin)
             forces, grf_ok = self.ground_reaction_forces(qdd_des, bias, active)
-            qdd, torque, pose_ok = self.pose_accelerations(qdd_des, bias, forces, active, heights)
+            qdd, torque, pose_ok = self.pose_accelerations(qdd_des, bias, forces, active, heights, released)
             failures += (not grf_ok) + (not pose_ok)
             if self.record:
                 records.append(SubstepRecord(self.qpos.copy(), self.qvel.copy(), qdd, torque, forces, active.copy()))
+            if not (np.all(np.isfinite(qdd)) and np.all(np.abs(qdd) < MAX_ACCELERATION)):
+                # Diverging (a wildly implausible target): restart from the target at rest, counted as a fallback.
+                failures += 1
+                self.reset(target, np.zeros_like(self.qvel))
+                continue
             self.qvel += self.dt * qdd  # eq. (1): velocity first, then position with the new velocity
             mujoco.mj_integratePos(self.model, self.qpos, self.qvel, self.dt)
             forces_sum += forces
