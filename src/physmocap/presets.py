@@ -38,28 +38,28 @@ class Preset:
 PRESETS: dict[str, Preset] = {
     "walking": Preset(
         {"fit": {"weight_smooth": 0.1, "weight_depth": 0.03},
-         "physics": {"contact_height": 0.1, "slide_speed": 0.05, "balance_correction": True}},
-        "The defaults, stated: the fit weights were tuned on CMU walks and the contact height and slide speed are "
-        "PhysCap's, whose test clips are mostly walking.",
+         "physics": {"contact_height": 0.1, "slide_speed": 0.3, "balance_correction": True}},
+        "The defaults, stated: the fit weights and the slide speed were tuned on CMU walks and the contact height "
+        "is PhysCap's, whose test clips are mostly walking.",
     ),
     "running": Preset(
         {"fit": {"weight_smooth": 0.03, "weight_depth": 0.01},
-         "physics": {"contact_height": 0.05, "slide_speed": 0.05, "balance_correction": False}},
+         "physics": {"contact_height": 0.05, "balance_correction": False}},
         "Limbs accelerate hard, so a third of the smoothing keeps the swing peaks; stances are short and the feet "
         "pass close to the floor in flight, so a lower contact height keeps flight frames free of contacts; a "
         "runner is never stationary, so balance correction is off.",
     ),
     "jumping": Preset(
         {"fit": {"weight_smooth": 0.02, "weight_depth": 0.01},
-         "physics": {"contact_height": 0.05, "slide_speed": 0.05, "balance_correction": False}},
+         "physics": {"contact_height": 0.05, "balance_correction": False}},
         "Take-off and landing are real impulses that acceleration smoothing would spread out, so it is the "
         "weakest; flight must have no contact at all (low contact height); crouches before a jump are "
         "deliberately off-balance, so balance correction stays off.",
     ),
     "dancing": Preset(
         {"fit": {"weight_smooth": 0.05, "weight_depth": 0.02},
-         "physics": {"contact_height": 0.08, "slide_speed": 0.2, "friction": 0.5, "balance_correction": False}},
-        "Dancers pivot and slide on the balls of their feet, so a contact may keep 20 cm/s of sliding on a "
+         "physics": {"contact_height": 0.08, "slide_speed": 0.5, "friction": 0.5, "balance_correction": False}},
+        "Dancers pivot and slide on the balls of their feet, so a contact may keep 50 cm/s of sliding on a "
         "smoother floor; held poses such as dips and leans are off-balance on purpose, so balance correction "
         "is off; moderate smoothing keeps sharp accents.",
     ),
