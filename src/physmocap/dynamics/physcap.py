@@ -109,10 +109,11 @@ class PhysCapTracker:
         return self.bias, d.site_xpos[self.sites, 2].copy(), touching
 
     def desired_acceleration(self, q_kin, qd_kin, qdd_kin) -> np.ndarray:
-        """Eq. (4): PD control towards the kinematic pose; the pose error is taken on the manifold."""
+        """Eq. (4): PD control towards the kinematic pose; the pose error is taken on the manifold, and the
+        kinematic acceleration is fed forward scaled by settings.acceleration_feedforward."""
         error = np.zeros(self.model.nv)
         mujoco.mj_differentiatePos(self.model, error, 1.0, self.qpos, q_kin)
-        return qdd_kin + self.kp * error + self.kd * (qd_kin - self.qvel)
+        return self.settings.acceleration_feedforward * qdd_kin + self.kp * error + self.kd * (qd_kin - self.qvel)
 
     def ground_reaction_forces(self, qdd_des, bias, active) -> tuple[np.ndarray, bool]:
         """Eq. (6-7): forces (4, 3) at the active contacts that best produce the root's desired acceleration,
@@ -146,29 +147,28 @@ class PhysCapTracker:
         equation of motion, eq. 2), subject to eq. (9) at the active contacts after the step: the normal
         velocity keeps the point on or above the floor, tangential speeds stay within sigma (except at released
         contacts, which slide freely but still do not sink).
-        Returns qdd, tau, and whether the QP solved (else the unconstrained optimum is used)."""
-        M, dt = self.mass_matrix, self.dt
+        Returns qdd, tau and whether the QP solved (else the unconstrained optimum is used)."""
+        M, dt, nv = self.mass_matrix, self.dt, self.model.nv
+        W = self.torque_weights
         external = self.contact_jacobian.reshape(12, -1).T @ forces.ravel()
-        WM = self.torque_weights[:, None] * M
-        H = 2.0 * (self.identity + M @ WM)
-        f = 2.0 * (M @ (self.torque_weights * (bias - external)) - qdd_des)
-        solved = True
-        if active.any():
-            rows = self.contact_jacobian[active].reshape(-1, M.shape[0])  # x, y, z rows of each contact
-            velocity = rows @ self.qvel
-            sigma = self.settings.slide_speed
-            slide = np.where(released[active], INF, sigma).repeat(3)
-            lower, upper = -slide - velocity, slide - velocity
-            # Above the floor: reach it at most by the end of the step; below: rise back gently.
-            depth_rate = heights[active] / np.where(heights[active] > 0, dt, max(dt, self.settings.penetration_recovery))
-            lower[2::3] = -depth_rate - velocity[2::3]
-            upper[2::3] = INF
-            qdd, _, exitflag, _ = daqp.solve(H, f, dt * rows, upper, lower)
-            solved = exitflag == 1
-        if not active.any() or not solved:
+        H = 2.0 * (self.identity + M @ (W[:, None] * M))
+        f = 2.0 * (M @ (W * (bias - external)) - qdd_des)
+        if not active.any():
             qdd = np.linalg.solve(H, -f)
-        torque = M @ qdd + bias - external
-        return qdd, torque, solved
+            return qdd, M @ qdd + bias - external, True
+        rows = self.contact_jacobian[active].reshape(-1, nv)  # x, y, z rows of each active contact
+        velocity = rows @ self.qvel
+        slide = np.where(released[active], INF, self.settings.slide_speed).repeat(3)
+        lower, upper = -slide - velocity, slide - velocity
+        # Above the floor: reach it at most by the end of the step; below: rise back gently.
+        depth_rate = heights[active] / np.where(heights[active] > 0, dt, max(dt, self.settings.penetration_recovery))
+        lower[2::3] = -depth_rate - velocity[2::3]
+        upper[2::3] = INF
+        qdd, _, exitflag, _ = daqp.solve(H, f, dt * rows, upper, lower)
+        if exitflag == 1:
+            return qdd, M @ qdd + bias - external, True
+        qdd = np.linalg.solve(H, -f)
+        return qdd, M @ qdd + bias - external, False
 
     def _released_contacts(self, q_kin: np.ndarray) -> np.ndarray:
         """(4,) contact points whose target has moved more than release_distance along the floor from where the
