@@ -14,7 +14,7 @@ from physmocap.contacts.features import (
     CAUSAL_WINDOW, CENTRED_WINDOW, FEATURE_INDICES, mirror_keypoints, normalise_windows, select_keypoints,
     window_indices, window_inputs,
 )
-from physmocap.contacts.labels import LabelSettings, contact_labels, point_speed, stationary_labels
+from physmocap.contacts.labels import LabelSettings, contact_labels, point_speed, stationary_labels, without_short_phases
 from physmocap.contacts.networks import FRAME_CHANNELS, NUM_OUTPUTS, CausalNetSpec, CentredNetSpec, causal_forward, centred_forward
 from physmocap.contacts.predict import load_weights, network_probabilities, predict_contacts
 from physmocap.landmarks import LANDMARK_INDEX, MIRRORED
@@ -63,6 +63,22 @@ def test_contact_labels_agree_across_frame_rates():
     slow, fast = contact_labels(foot(30.0), 30.0), contact_labels(foot(120.0), 120.0)
     assert np.mean(slow[:, 0] == fast[::4, 0]) > 0.95
     assert slow[:, 0].sum() == pytest.approx(15, abs=2)  # 0.5 s at 30 fps
+
+
+def test_short_phases_merge_into_their_neighbours():
+    flags = np.array([1, 0, 1, 1, 1, 0, 0, 0, 1, 0, 0, 0, 1, 1], dtype=bool)[:, None]
+    expected = np.array([1, 1, 1, 1, 1, 0, 0, 0, 0, 0, 0, 0, 1, 1], dtype=bool)[:, None]
+    assert np.array_equal(without_short_phases(flags, 3), expected)  # 1-frame gap filled, 1-frame contact dropped
+    assert np.array_equal(without_short_phases(flags, 1), flags)
+
+
+def test_a_one_frame_flicker_is_not_a_contact_change():
+    """A planted foot whose measured speed crosses the threshold for one frame stays in contact."""
+    fps = 60.0
+    sites = sites_track(fps, 1.0, 0.0, 0.0)
+    sites[30:, :, 0] += 0.03  # a 3 cm jump between two frames: 0.9 m/s over the 1/30 s of frames 30 and 31
+    assert contact_labels(sites, fps).all()
+    assert not contact_labels(sites, fps, LabelSettings(min_phase_seconds=0.0))[30:32].all()
 
 
 def test_point_speed_and_stationary():

@@ -31,6 +31,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
 from ..errors import InputError
 from ..mocap.bvh_reader import JOINT_INDEX
@@ -53,6 +54,10 @@ class LabelSettings:
     stationary_max_speed: m/s the root may move for the pose to count as stationary (PhysCap's phi_v, no value
         given). 0.25; range 0.1-0.5.
     stationary_speed_interval: s over which the root's displacement is measured, centred on the frame: 0.2.
+    min_phase_seconds: contact and no-contact runs shorter than this are merged into their neighbours (ours, the
+        papers label frame by frame): a planted foot whose speed crosses 0.6 m/s for one frame while it rolls, or a
+        swinging toe that grazes the 5 cm band for one frame, flickers, and no detector could follow it. 0.1 s
+        changes 0.3 % of the training subjects' labels and 0.9 % of the held-out subjects'. Range 0 (off) to 0.2.
     """
 
     contact_max_height: float = 0.05
@@ -60,6 +65,7 @@ class LabelSettings:
     contact_speed_interval: float = 1.0 / 30.0
     stationary_max_speed: float = 0.25
     stationary_speed_interval: float = 0.2
+    min_phase_seconds: float = 0.1
 
     def check(self) -> None:
         for name in ("contact_max_height", "contact_max_speed", "contact_speed_interval", "stationary_max_speed",
@@ -67,6 +73,8 @@ class LabelSettings:
             value = getattr(self, name)
             if not np.isfinite(value) or value <= 0:
                 raise InputError(f"LabelSettings.{name} is {value}, expected a positive number.")
+        if not np.isfinite(self.min_phase_seconds) or self.min_phase_seconds < 0:
+            raise InputError(f"LabelSettings.min_phase_seconds is {self.min_phase_seconds}, expected 0 or more.")
 
 
 def point_speed(points: np.ndarray, fps: float, interval: float, centred: bool) -> np.ndarray:
@@ -102,19 +110,33 @@ def _interpolate(points: np.ndarray, frame_positions: np.ndarray) -> np.ndarray:
     return (1.0 - weight) * points[lower] + weight * points[lower + 1]
 
 
+def without_short_phases(flags: np.ndarray, min_frames: int) -> np.ndarray:
+    """flags (T, K) bool with runs shorter than min_frames removed along axis 0: short gaps in a contact are filled
+    first (morphological closing), then short contacts dropped (opening). The clip's ends count as continuing
+    their first and last runs, so a run that only touches an end is kept. Returns a new array."""
+    flags = np.asarray(flags, dtype=bool)
+    if min_frames < 2 or len(flags) == 0:
+        return flags.copy()
+    padded = np.pad(flags, ((min_frames, min_frames), (0, 0)), mode="edge")
+    run = np.ones((min_frames, 1), dtype=bool)
+    padded = ndimage.binary_opening(ndimage.binary_closing(padded, run), run)
+    return padded[min_frames:-min_frames]
+
+
 def contact_labels(sites: np.ndarray, fps: float, settings: LabelSettings = LabelSettings()) -> np.ndarray:
     """Rempe 3.2 contact labels of the four sole sites.
 
     sites: (T, 4, 3) world positions of left heel, left toe, right heel, right toe, metres, floor z = 0.
     Returns (T, 4) bool, True where the site is within `contact_max_height` of the floor and moved slower than
-    `contact_max_speed` over the last `contact_speed_interval`.
+    `contact_max_speed` over the last `contact_speed_interval`, then without runs shorter than `min_phase_seconds`.
     """
     settings.check()
     sites = np.asarray(sites, dtype=float)
     if sites.ndim != 3 or sites.shape[1:] != (4, 3):
         raise InputError(f"contact_labels: sites has shape {sites.shape}, expected (T, 4, 3).")
     speed = point_speed(sites, fps, settings.contact_speed_interval, centred=False)
-    return (sites[..., 2] < settings.contact_max_height) & (speed < settings.contact_max_speed)
+    touching = (sites[..., 2] < settings.contact_max_height) & (speed < settings.contact_max_speed)
+    return without_short_phases(touching, int(round(settings.min_phase_seconds * fps)))
 
 
 def stationary_labels(root: np.ndarray, fps: float, settings: LabelSettings = LabelSettings()) -> np.ndarray:
