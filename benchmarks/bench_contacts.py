@@ -11,6 +11,8 @@ contacts.json).
 - Baselines: always contact; 2D velocity (foot keypoints' image speed in person sizes per second); 3D velocity
   (MediaPipe's hip-relative 3D landmarks, m/s; it has no stationary flag). Their thresholds are tuned for the best
   accuracy on the training subjects' synthetic data (seed 0, 2 sequences per clip).
+- Where the errors are: both networks' held-out synthetic accuracy per CMU subject and by the distance of an
+  entry to the nearest change of its site's label.
 - Inference: ms per frame of `predict_contacts` (features and network, one core) on a 3000-frame video, median of
   5 runs.
 """
@@ -132,6 +134,41 @@ def inference_ms(weights: Path) -> dict[str, float]:
     return timings
 
 
+TRANSITION_BINS = (0.0, 0.05, 0.1, 0.2, np.inf)  # s from the nearest change of a site's label
+
+
+def seconds_to_label_change(contacts: np.ndarray, fps: float) -> np.ndarray:
+    """(T, 4) seconds from each entry to the nearest change of its site's label (inf where it never changes)."""
+    frames = np.arange(len(contacts))
+    distance = np.full(contacts.shape, np.inf)
+    for site in range(contacts.shape[1]):
+        changes = np.flatnonzero(np.diff(contacts[:, site].astype(np.int8))) + 0.5
+        if len(changes):
+            distance[:, site] = np.abs(frames[:, None] - changes[None]).min(axis=1) / fps
+    return distance
+
+
+def error_locations(sequences: list[SyntheticSequence], weights: Path) -> dict[str, dict[str, dict[str, float]]]:
+    """Where the networks' held-out synthetic errors are: accuracy and share of the errors per CMU subject and per
+    distance to the nearest label change."""
+    result: dict[str, dict[str, dict[str, float]]] = {}
+    for mode in MODES:
+        wrong, distance, subject = [], [], []
+        for s in sequences:
+            contacts, _, _ = predict_contacts(as_observations(s), mode, weights)
+            wrong.append(contacts != s.contacts)
+            distance.append(seconds_to_label_change(s.contacts, s.fps))
+            subject.append(np.full(s.contacts.shape, s.subject))
+        wrong, distance, subject = map(np.concatenate, (wrong, distance, subject))
+        groups = {f"subject {name}": subject == name for name in TEST_SUBJECTS}
+        groups.update({f"{low}-{high} s from a label change": (distance >= low) & (distance < high)
+                       for low, high in zip(TRANSITION_BINS[:-1], TRANSITION_BINS[1:])})
+        result[mode] = {name: {"entries": float(inside.mean()), "accuracy": float(1.0 - wrong[inside].mean()),
+                               "errors": float(wrong[inside].sum() / max(wrong.sum(), 1))}
+                        for name, inside in groups.items()}
+    return result
+
+
 def table(title: str, results: dict[str, dict], with_stationary: bool = True) -> list[str]:
     lines = [f"### {title}", "",
              "| method | accuracy | precision | recall | F1 | stationary accuracy | " +
@@ -167,6 +204,7 @@ def main() -> None:
     real = {m: evaluate(m, real_cases, args.weights, heuristics) for m in METHODS}
     per_video = {name: {m: evaluate(m, [case], args.weights, heuristics) for m in METHODS}
                  for name, case in zip(labels, real_cases)}
+    locations = error_locations(test, args.weights)
     timings = inference_ms(args.weights)
     training = json.loads((args.weights / "training.json").read_text()) if (args.weights / "training.json").exists() else {}
 
@@ -203,6 +241,13 @@ def main() -> None:
         if "stationary_accuracy" in per_video[judged[0]][method]:
             lines.append(f"| {method} | " + " | ".join(f"{per_video[name][method]['stationary_accuracy']:.2f}"
                                                         for name in judged) + " |")
+    lines += ["", "### Where the held-out synthetic errors are (share of the contact entries, accuracy, share of the "
+              "errors)", "",
+              "| group | " + " | ".join(f"{mode} network" for mode in MODES) + " |", "|---" * (len(MODES) + 1) + "|"]
+    for group in locations[MODES[0]]:
+        lines.append(f"| {group} | " + " | ".join(
+            f"{locations[m][group]['entries']:.2f} / {locations[m][group]['accuracy']:.3f} / {locations[m][group]['errors']:.2f}"
+            for m in MODES) + " |")
     lines += ["", "### Inference", "",
               "| network | ms per frame (one core, features included) |", "|---|---|"]
     lines += [f"| {mode} | {ms:.3f} |" for mode, ms in timings.items()]
@@ -210,7 +255,8 @@ def main() -> None:
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "contacts.md").write_text("\n".join(lines))
     (RESULTS / "contacts.json").write_text(json.dumps(dict(
-        synthetic=synthetic, real=real, real_per_video=per_video, inference_ms_per_frame=timings,
+        synthetic=synthetic, real=real, real_per_video=per_video, synthetic_error_locations=locations,
+        inference_ms_per_frame=timings,
         heuristics=heuristics.__dict__, git=git_revision()), indent=1, default=float))
     print("\n".join(lines))
 
