@@ -77,6 +77,10 @@ class FitSettings:
     robust_3d: float = 0.10  # m (weighted): 3D landmark errors beyond this count linearly; 0 disables; 0 .. 1
     offline_iterations: int = 8  # Levenberg-Marquardt iterations over the whole clip; 1 .. 200
     online_iterations: int = 4  # Levenberg-Marquardt iterations per frame when causal; 1 .. 50
+    undo_foot_swaps: bool = True  # offline: find where the detector swapped the left and right feet (detect.
+    # foot_swaps: knees joined to the other side's ankles, feet jumping to each other's place) and fit them back
+    offline_chunk: int = 32  # frames: the offline fit starts from causal fits of runs this long, all run side by
+    # side (one batched step per frame; shorter runs: more cold starts, fewer steps); 2 .. 100000
     one_euro: bool = False  # One-Euro filter on the fitted pose (Casiez et al. 2012)
     one_euro_min_cutoff: float = 1.5  # Hz; 0.01 .. 30
     one_euro_beta: float = 0.3  # speed coefficient; 0 .. 10
@@ -99,6 +103,7 @@ class FitSettings:
         _within("fit.robust_3d", self.robust_3d, 0.0, 1.0, "m")
         _within("fit.offline_iterations", self.offline_iterations, 1, 200, "")
         _within("fit.online_iterations", self.online_iterations, 1, 50, "")
+        _within("fit.offline_chunk", self.offline_chunk, 2, 100000, "frames")
         _within("fit.one_euro_min_cutoff", self.one_euro_min_cutoff, 0.01, 30.0, "Hz")
         _within("fit.one_euro_beta", self.one_euro_beta, 0.0, 10.0, "")
 
@@ -183,6 +188,12 @@ class TrajoptSettings:
     kinematic_angle_velocity: float = 0.1  # alpha_ang; 0 .. 100
     floor_outlier_distance: float = 0.10  # m: contacts farther from the fitted floor become no contact (ours);
     # 0.01 .. 1
+    contact_slip_speed: float = 1.2  # m/s: contacts whose point slides faster than this in the kinematic motion
+    # become no contact (ours: twice the labels' own 0.6 m/s, for the fit's noise); 0 (off) .. 100
+    contact_slip_interval: float = 0.1  # s over which that speed is measured; 0.01 .. 1
+    rest_height: float = 0.02  # m: points labelled in the air but this near the floor and slower than rest_speed
+    # for min_phase_seconds become contacts (ours: under half the labels' 5 cm and 0.6 m/s); 0 (off) .. 0.5
+    rest_speed: float = 0.3  # m/s; 0 .. 10
     # Parameterisation (C.1).
     com_interval: float = 0.05  # s between the knots of the COM position and orientation polynomials (the paper:
     # 0.1; with the C2 COM of `acceleration_continuity`, 0.1 s knots cost 12% body error where contact labels are
@@ -245,6 +256,10 @@ class TrajoptSettings:
                      "kinematic_angle_velocity"):
             _within(f"trajopt.{name}", getattr(self, name), 0.0, 1000.0, "")
         _within("trajopt.floor_outlier_distance", self.floor_outlier_distance, 0.01, 1.0, "m")
+        _within("trajopt.contact_slip_speed", self.contact_slip_speed, 0.0, 100.0, "m/s")
+        _within("trajopt.contact_slip_interval", self.contact_slip_interval, 0.01, 1.0, "s")
+        _within("trajopt.rest_height", self.rest_height, 0.0, 0.5, "m")
+        _within("trajopt.rest_speed", self.rest_speed, 0.0, 10.0, "m/s")
         _within("trajopt.com_interval", self.com_interval, 0.02, 1.0, "s")
         _within("trajopt.segments_per_phase", self.segments_per_phase, 1, 50, "")
         _within("trajopt.segment_phase_seconds", self.segment_phase_seconds, 0.1, 60.0, "s")

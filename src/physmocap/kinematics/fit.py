@@ -73,7 +73,7 @@ class FitTargets:
     contacts: np.ndarray | None = None
     floor: np.ndarray | None = None
 
-    def frames(self, sl: slice) -> "FitTargets":
+    def frames(self, sl: slice | np.ndarray) -> "FitTargets":
         return FitTargets(self.keypoints[sl], self.weight_2d[sl], self.targets_3d[sl], self.weight_3d[sl],
                           self.depth[sl], None if self.contacts is None else self.contacts[sl], self.floor)
 
@@ -83,6 +83,7 @@ class FitResult:
     qpos: np.ndarray  # (T, nq)
     iterations: int
     cost: float
+    signals: list[np.ndarray] | None = None  # fit_frames: the temporal signals' values (T, n) at qpos
 
 
 class KinematicFitter:
@@ -161,14 +162,17 @@ class KinematicFitter:
         pixel_error = uv @ K2.T + cam.K[:2, 2] - targets.keypoints  # (T, M, 2)
         scale = scale * self._robust_weight(scale[..., None] * pixel_error, self.settings.robust_2d)
         r[:, :2 * M] = (scale[..., None] * pixel_error).reshape(T, -1)
-        cam_jac = cam.R @ mj  # (T, M, 3, nv): d(camera-frame point)
-        d_uv = (cam_jac[:, :, :2] - uv[..., None] * cam_jac[:, :, 2:3]) * (scale * inv_z)[..., None, None]
-        J[:, :2 * M] = (K2 @ d_uv).reshape(T, -1, nv)
+        # d(pixels) / d(world point) = K2 (R[:2] - uv R[2]) / z, scaled: (T, M, 2, 3), then through the point
+        # Jacobians, written in place (these arrays are the bulk of the offline fit's memory traffic).
+        d_uv = (K2 @ cam.R[:2] - (uv @ K2.T)[..., None] * cam.R[2]) * (scale * inv_z)[..., None, None]
+        J[:, :2 * M] = (d_uv @ mj).reshape(T, -1, nv)
         # Root-relative 3D landmarks.
         offset = mp - points[:, self.pelvis_point, None] - targets.targets_3d
         w3 = targets.weight_3d * self._robust_weight(targets.weight_3d[..., None] * offset, self.settings.robust_3d)
         r[:, 2 * M:5 * M] = (w3[..., None] * offset).reshape(T, -1)
-        J[:, 2 * M:5 * M] = (w3[..., None, None] * (mj - jac[:, self.pelvis_point, None])).reshape(T, -1, nv)
+        J3 = J[:, 2 * M:5 * M].reshape(T, M, 3, nv)
+        np.subtract(mj, jac[:, self.pelvis_point, None], out=J3)
+        J3 *= w3[..., None, None]
         # Ball joints towards the neutral pose: residual 2 vec(q) for q the rotation away from it (the rotation
         # vector to first order, sign-fixed so that q and -q agree); its derivative along a local step is
         # q_w I + [q_v]x.
@@ -286,26 +290,20 @@ class KinematicFitter:
             n = T - K + 1
             if n <= 0:
                 continue
+            # rho_u = w_u * sum_a c_a v_(u+a): frame s enters rho_(s-a) with c_a, so the block of frames
+            # (s, s + d) is J_s^T diag(sum_a c_a c_(a+d) w_(s-a)^2) J_(s+d), one product per band.
             rho = sum(c * values[k:k + n] for k, c in enumerate(coeffs))
-            if pair_weights is not None:  # rho_t scaled per difference: d rho_t / d x_(t+a) = c_a w_t J_(t+a)
-                rho = rho * pair_weights
-                weighted = [coeffs[a] * pair_weights[..., None] * jacobians[a:a + n] for a in range(K)]
-            cost += float(np.sum(rho * rho))
-            Jt = jacobians.transpose(0, 2, 1)
+            squared = 1.0 if pair_weights is None else pair_weights**2
+            cost += float(np.sum(squared * rho * rho))
+            pull = np.zeros_like(values)
             for a in range(K):
-                if pair_weights is None:
-                    g[a:a + n] += coeffs[a] * (Jt[a:a + n] @ rho[..., None])[..., 0]
-                else:
-                    g[a:a + n] += (weighted[a].transpose(0, 2, 1) @ rho[..., None])[..., 0]
-                for b in range(a, K):
-                    if pair_weights is None:
-                        block = coeffs[a] * coeffs[b] * (Jt[a:a + n] @ jacobians[b:b + n])
-                    else:
-                        block = weighted[a].transpose(0, 2, 1) @ weighted[b]
-                    if a == b:
-                        H[0, a:a + n] += block
-                    else:
-                        H[b - a, a:a + n] += block
+                pull[a:a + n] += coeffs[a] * squared * rho
+            g += (jacobians.transpose(0, 2, 1) @ pull[..., None])[..., 0]
+            for d in range(K):
+                row_weights = np.zeros((T - d,) + values.shape[1:])
+                for a in range(K - d):
+                    row_weights[a:a + n] += coeffs[a] * coeffs[a + d] * squared
+                H[d, :T - d] += (row_weights[..., None] * jacobians[:T - d]).transpose(0, 2, 1) @ jacobians[d:]
         return cost, g, H
 
     @staticmethod
@@ -359,38 +357,77 @@ class KinematicFitter:
             lambda system, damping: self._solve_banded(system[1], system[2], damping),
             self.integrate, qpos_init, self.settings.offline_iterations, damping=OFFLINE_DAMPING)
 
-    # ---- online: one frame, the past fixed ---------------------------------------------------------------
-    def _online_system(self, qpos, targets, history):
+    # ---- online: frames each with its own fixed past ---------------------------------------------------
+    def _frames_system(self, qpos, targets, history):
+        """K independent frames, each with its past fixed: costs (K,), gradients g (K, nv), Gauss-Newton
+        matrices H (K, nv, nv) and the temporal signals' values (K, n) at qpos. history: per temporal signal
+        the values of the frames before (K, h, n), oldest first, or None."""
         points, jac = self.evaluate(qpos)
         r, J = self.frame_terms(qpos, points, jac, targets)
-        r, J = r[0], J[0]
-        H = J.T @ J
-        g = J.T @ r
-        cost = float(r @ r)
-        for (values, jacobians, coeffs), past in zip(self.temporal_signals(points, jac, qpos), history):
-            if past is None or len(past) < len(coeffs) - 1:
+        Jt = J.transpose(0, 2, 1)
+        H = Jt @ J
+        g = (Jt @ r[..., None])[..., 0]
+        cost = np.einsum("km,km->k", r, r)
+        signals = self.temporal_signals(points, jac, qpos)
+        for (values, jacobians, coeffs), past in zip(signals, history or [None] * len(signals)):
+            if past is None or past.shape[1] < len(coeffs) - 1:
                 continue
-            rho = coeffs[-1] * values[0] + sum(c * v for c, v in zip(coeffs[:-1], past[-(len(coeffs) - 1):]))
-            Jc = coeffs[-1] * jacobians[0]
-            H += Jc.T @ Jc
-            g += Jc.T @ rho
-            cost += float(rho @ rho)
-        return cost, g, H
+            rho = coeffs[-1] * values + np.einsum("j,kjn->kn", coeffs[:-1], past[:, 1 - len(coeffs):])
+            Jc = coeffs[-1] * jacobians
+            Jct = Jc.transpose(0, 2, 1)
+            H += Jct @ Jc
+            g += (Jct @ rho[..., None])[..., 0]
+            cost += np.einsum("kn,kn->k", rho, rho)
+        return cost, g, H, [values for values, _, _ in signals]
 
-    def fit_frame(self, qpos_init: np.ndarray, targets: FitTargets, history, iterations: int) -> FitResult:
-        """One frame (qpos_init (1, nq), targets for one frame); history: for each temporal signal the values
-        of the previous frames (k, n) already fitted, or None."""
-
-        def solve(system, damping):
-            _, g, H = system
-            A = H + damping * np.diag(np.diag(H)) + 1e-9 * np.eye(len(g))
-            return np.linalg.solve(A, -g)[None]
-
-        return _levenberg_marquardt(lambda q: self._online_system(q, targets, history), solve,
-                                    self.integrate, qpos_init, iterations, damping=ONLINE_DAMPING)
+    def fit_frames(self, qpos_init: np.ndarray, targets: FitTargets, history, iterations: int,
+                   tolerance: float = 1e-3) -> FitResult:
+        """Fit K independent frames side by side (qpos_init (K, nq), targets of K frames), each with its own
+        past (history: per temporal signal (K, h, n) values of the frames already fitted, or None): one
+        Levenberg-Marquardt per frame, batched, each frame with its own damping and stopping as
+        `_levenberg_marquardt` does. The online fit is K = 1; the offline fit's initial pass runs many causal
+        streams at once. Returns the poses, the most steps any frame took, the summed cost and the temporal
+        signals' values at the result."""
+        q = np.array(qpos_init, dtype=float)
+        K, nv = len(q), self.body.nv
+        cost, g, H, signals = self._frames_system(q, targets, history)
+        damping = np.full(K, ONLINE_DAMPING)
+        steps = np.zeros(K, dtype=int)
+        active = np.ones(K, dtype=bool)
+        diagonal = np.arange(nv)
+        while active.any():
+            rows = np.flatnonzero(active)
+            every = len(rows) == K  # no copies of the targets and the past while every frame is still going
+            A = H[rows]
+            A[:, diagonal, diagonal] *= 1 + damping[rows, None]
+            A[:, diagonal, diagonal] += 1e-9
+            try:
+                step = np.linalg.solve(A, -g[rows, :, None])[..., 0]
+            except np.linalg.LinAlgError:
+                damping[rows] *= 10
+                active[rows] = damping[rows] < 1e8
+                continue
+            q_new = self.integrate(q[rows], step)
+            past = history if every or history is None else [None if h is None else h[rows] for h in history]
+            c_new, g_new, H_new, s_new = self._frames_system(q_new, targets if every else targets.frames(rows), past)
+            better = c_new < cost[rows]
+            won, lost = rows[better], rows[~better]
+            decrease = (cost[won] - c_new[better]) / np.maximum(cost[won], 1e-12)
+            if every and better.all():
+                q, cost, g, H, signals = q_new, c_new, g_new, H_new, s_new
+            else:
+                q[won], cost[won], g[won], H[won] = q_new[better], c_new[better], g_new[better], H_new[better]
+                for values, new in zip(signals, s_new):
+                    values[won] = new[better]
+            steps[won] += 1
+            damping[won] = np.maximum(damping[won] / 3, 1e-7)
+            damping[lost] *= 4
+            active[won] = (steps[won] < iterations) & (decrease >= tolerance)
+            active[lost] = damping[lost] < 1e8
+        return FitResult(q, int(steps.max()), float(cost.sum()), signals)
 
     def signal_values(self, qpos: np.ndarray) -> list[np.ndarray]:
-        """The temporal signals' values at fitted frames (for the online history). The contact velocity term
+        """The temporal signals' values at fitted frames (for a causal fit's history). The contact velocity term
         is offline only: the online fit does not use it."""
         points, jac = self.evaluate(qpos)
         return [values for values, _, _ in self.temporal_signals(points, jac, qpos)]

@@ -1,8 +1,11 @@
-"""Causal kinematic fit of a stream of detections: constant cost per frame, for live capture."""
+"""Causal kinematic fit of a stream of detections: constant cost per frame, for live capture; and many such
+streams side by side, the offline fit's starting point."""
 
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -12,11 +15,83 @@ from ..camera import Camera, Floor, world_from_floor
 from ..config import Settings
 from ..motion import Observations
 from .calibration import calibrate
-from .fit import KinematicFitter, initial_qpos
+from .fit import FitTargets, KinematicFitter, initial_qpos
 from .stage import estimate_floor, make_targets, move_world_to_floor, raw_depth
 
 FIRST_FRAME_ITERATIONS = 60  # the first frame starts from a generic pose and needs more steps
 DEPTH_WINDOW = 9  # frames in the causal running median of the person's distance
+
+
+@dataclass
+class CausalPast:
+    """The past of K causal fits run side by side: the last (up to two) fitted poses, oldest first, each
+    (K, nq), and per temporal signal their values (K, h, n). Empty: the next frame is a cold start."""
+
+    poses: list[np.ndarray]
+    signals: list[np.ndarray]
+
+    @staticmethod
+    def of(fitter: KinematicFitter, poses: list[np.ndarray]) -> "CausalPast":
+        """The past made of fitted poses (each (K, nq)), e.g. after the world has moved."""
+        values = [fitter.signal_values(q) for q in poses]
+        return CausalPast(list(poses), [np.stack(v, axis=1) for v in zip(*values)])
+
+    def rows(self, rows: np.ndarray) -> "CausalPast":
+        return CausalPast([q[rows] for q in self.poses], [v[rows] for v in self.signals])
+
+
+def causal_step(fitter: KinematicFitter, targets: FitTargets, past: CausalPast,
+                iterations: int) -> tuple[np.ndarray, CausalPast]:
+    """Fit the next frame of each of K causal streams (targets of K frames) from its past only: warm-started
+    by constant velocity from the last two poses, or from a generic pose without a past. Returns the poses
+    (K, nq) and the past that includes them."""
+    if not past.poses:
+        K = len(targets.depth)
+        q0 = np.concatenate([initial_qpos(fitter.body, fitter.camera, targets, k) for k in range(K)])
+        result = fitter.fit_frames(q0, targets, None, FIRST_FRAME_ITERATIONS)
+    else:
+        q0 = past.poses[-1]
+        if len(past.poses) == 2:
+            q0 = kin.integrate(fitter.body, q0, kin.difference(fitter.body, past.poses[0], q0))
+        result = fitter.fit_frames(q0, targets, past.signals, iterations)
+    signals = [v[:, None] for v in result.signals]
+    if past.signals:
+        signals = [np.concatenate([h[:, -1:], v], axis=1) for h, v in zip(past.signals, signals)]
+    return result.qpos, CausalPast(past.poses[-1:] + [result.qpos], signals)
+
+
+def fit_streams(fitter: KinematicFitter, targets: FitTargets, valid: np.ndarray, chunk: int, iterations: int,
+                progress: Callable[[int, int], None] | None = None) -> np.ndarray:
+    """The offline fit's starting point: the causal fit run over runs of at most `chunk` valid frames, all runs
+    side by side (one batched step per frame of the longest), at a fraction of one stream's cost. A run also
+    starts after every gap of invalid frames, which are interpolated between their fitted neighbours, not
+    extrapolated. valid: (T,) bool, at least one frame; returns qpos (T, nq)."""
+    frames = np.flatnonzero(valid)
+    gap_ends = np.flatnonzero(np.diff(frames, prepend=-2) > 1)  # positions in `frames` where a run begins
+    starts = np.concatenate([np.arange(a, b, chunk) for a, b in zip(gap_ends, np.append(gap_ends[1:], len(frames)))])
+    ends = np.append(starts[1:], len(frames))
+    fitted = np.zeros((len(frames), fitter.body.nq))
+    past, rows = CausalPast([], []), np.arange(len(starts))
+    steps = int((ends - starts).max())
+    for i in range(steps):
+        running = starts[rows] + i < ends[rows]  # runs end, none begins
+        rows, past = rows[running], past.rows(running)
+        index = starts[rows] + i
+        fitted[index], past = causal_step(fitter, targets.frames(frames[index]), past, iterations)
+        if progress:
+            progress(i + 1, steps)
+    return _fill_gaps(fitter.body, frames, fitted, len(valid))
+
+
+def _fill_gaps(body, frames: np.ndarray, qpos: np.ndarray, T: int) -> np.ndarray:
+    """Poses at `frames` (sorted) -> (T, nq): frames between two of them interpolated on the manifold, frames
+    before the first and after the last holding the nearest."""
+    t = np.arange(T)
+    before = np.maximum(np.searchsorted(frames, t, side="right") - 1, 0)
+    after = np.minimum(before + 1, len(frames) - 1)
+    span = frames[after] - frames[before]
+    weight = np.where(span > 0, np.clip(t - frames[before], 0, None) / np.maximum(span, 1), 0.0)
+    return kin.integrate(body, qpos[before], weight[:, None] * kin.difference(body, qpos[before], qpos[after]))
 
 
 class OnlineFitter:
@@ -39,8 +114,7 @@ class OnlineFitter:
         self._pending: list[tuple[np.ndarray, np.ndarray, bool]] = []
         self._frames = 0
         self._depths: deque[float] = deque(maxlen=DEPTH_WINDOW)
-        self._recent: deque[np.ndarray] = deque(maxlen=2)
-        self._history: list[deque] = []
+        self._past = CausalPast([], [])
 
     def push(self, keypoints_2d: np.ndarray, landmarks_3d: np.ndarray, valid: bool) -> list[tuple[int, np.ndarray]]:
         """Add one frame (33, 3) + (33, 3); returns the (frame index, qpos) pairs that became ready."""
@@ -85,30 +159,16 @@ class OnlineFitter:
             self.floor = estimate_floor(self.body, qpos, self.camera, self.fps, valid)
             qpos, self.camera = move_world_to_floor(qpos, self.camera, self.floor, first)
             self.fitter = KinematicFitter(self.body, self.camera, s.fit, self.fps)
-            self._recent = deque(qpos[-2:], maxlen=2)
-            self._history = [deque(v, maxlen=2) for v in self.fitter.signal_values(qpos[-2:])]
+            self._past = CausalPast.of(self.fitter, [q[None] for q in qpos[-2:]])
         return list(zip(range(first_index, first_index + len(qpos)), qpos))
 
     def _fit(self, keypoints_2d: np.ndarray, landmarks_3d: np.ndarray, valid: bool) -> np.ndarray:
-        s, body = self.settings, self.body
+        s = self.settings
         k2, k3, v = keypoints_2d[None], landmarks_3d[None], np.array([valid])
         depth = raw_depth(k2, k3, v, self.camera.focal, self.calibration, s.fit.min_confidence)[0]
         if np.isfinite(depth):
             self._depths.append(float(depth))
         targets = make_targets(k2, k3, v, np.array([np.median(self._depths)]), self.camera, self.calibration,
                                s.fit)
-        if not self._recent:
-            q0, steps = initial_qpos(body, self.camera, targets, 0), FIRST_FRAME_ITERATIONS
-        else:
-            q0, steps = self._recent[-1][None], s.fit.online_iterations
-            if len(self._recent) == 2:
-                q0 = kin.integrate(body, q0, kin.difference(body, self._recent[0][None], q0))
-        past = [np.array(h) if h else None for h in self._history] if self._history else [None, None]
-        q = self.fitter.fit_frame(q0, targets, past, steps).qpos[0]
-        values = self.fitter.signal_values(q[None])
-        if not self._history:
-            self._history = [deque(maxlen=2) for _ in values]
-        for h, value in zip(self._history, values):
-            h.append(value[0])
-        self._recent.append(q)
-        return q
+        q, self._past = causal_step(self.fitter, targets, self._past, s.fit.online_iterations)
+        return q[0]

@@ -3,6 +3,7 @@ express the motion in the world frame (Z up, floor z = 0)."""
 
 from __future__ import annotations
 
+import dataclasses
 import time
 import warnings
 from dataclasses import dataclass
@@ -11,13 +12,14 @@ from typing import Callable
 import numpy as np
 
 from ..body import kinematics as kin
-from ..body.model import CONTACT_POINTS, BodyModel
+from ..body.model import CONTACT_POINTS, BodyModel, build_body_model
 from ..body.rotations import matrix_to_quat, quat_multiply
 from ..camera import Camera, Floor, fit_floor, world_from_floor
 from ..config import FitSettings, Settings
+from ..detect.foot_swaps import find_foot_swaps, undo_foot_swaps
 from ..errors import ReconstructionError
 from ..motion import Observations
-from .calibration import Calibration
+from .calibration import Calibration, calibrate
 from .filters import one_euro_qpos
 from .fit import MARKER_LANDMARKS, MARKERS, FitTargets, KinematicFitter
 
@@ -28,7 +30,8 @@ class KinematicMotion:
 
     qpos: (T, nq) world frame; camera: intrinsics and world -> camera extrinsics; floor: in the camera frame;
     reprojection_error: (T,) median pixel distance of the fitted markers to confident keypoints (nan if none);
-    valid: (T,) frames with observations; seconds: time spent fitting.
+    valid: (T,) frames with observations; seconds: time spent fitting; foot_swaps: (T,) frames whose feet the
+    offline fit took the other way round from the detector (None online).
     """
 
     body: BodyModel
@@ -40,6 +43,7 @@ class KinematicMotion:
     valid: np.ndarray
     seconds: float
     online: bool
+    foot_swaps: np.ndarray | None = None
 
 
 def make_targets(keypoints_2d: np.ndarray, landmarks_3d: np.ndarray, valid: np.ndarray, depth: np.ndarray,
@@ -120,12 +124,24 @@ def fit_motion(obs: Observations, settings: Settings,
                progress: Callable[[int, int], None] | None = None) -> KinematicMotion:
     """Calibrate, fit, find the floor and express everything in the world frame.
 
-    Online: frame by frame through OnlineFitter, exactly as a live stream is fitted. Offline: that causal
-    result starts a joint optimisation over the whole clip, after which the floor is refitted from all frames.
+    Online: frame by frame through OnlineFitter, exactly as a live stream is fitted. Offline: causal fits of
+    short runs of frames, all side by side, start a joint optimisation over the whole clip, after which the
+    floor is found from all frames.
     """
+    start = time.perf_counter()
+    if not obs.valid.any():
+        raise ReconstructionError(f"{obs.source}: no frame shows a person to fit.")
+    motion = (_fit_online if settings.online else _fit_offline)(obs, settings, progress)
+    qpos = motion.qpos
+    if settings.fit.one_euro:
+        qpos = one_euro_qpos(motion.body, qpos, obs.fps, settings.fit.one_euro_min_cutoff, settings.fit.one_euro_beta)
+    error = reprojection_errors(motion.body, motion.camera, qpos, obs)
+    return dataclasses.replace(motion, qpos=qpos, reprojection_error=error, seconds=time.perf_counter() - start)
+
+
+def _fit_online(obs: Observations, settings: Settings, progress) -> KinematicMotion:
     from .online import OnlineFitter
 
-    start = time.perf_counter()
     online = OnlineFitter(settings, obs.fps, obs.image_size, obs.camera_K)
     qpos: np.ndarray | None = None
 
@@ -141,23 +157,30 @@ def fit_motion(obs: Observations, settings: Settings,
         if progress:
             progress(t + 1, obs.num_frames)
     store(online.finish())
-    if qpos is None or online.body is None:
-        raise ReconstructionError(f"{obs.source}: no frame shows a person to fit.")
-    body, camera, floor, calibration = online.body, online.camera, online.floor, online.calibration
-    if not settings.online:
-        depth = smooth_depth(raw_depth(obs.keypoints_2d, obs.landmarks_3d, obs.valid, camera.focal, calibration,
-                                       settings.fit.min_confidence))
-        targets = make_targets(obs.keypoints_2d, obs.landmarks_3d, obs.valid, depth, camera, calibration,
-                               settings.fit)
-        qpos = KinematicFitter(body, camera, settings.fit, obs.fps).fit_offline(qpos, targets).qpos
-        if settings.camera.floor is None:  # all frames now: a better floor than the warm-up's
-            floor = estimate_floor(body, qpos, camera, obs.fps, obs.valid)
-            qpos, camera = move_world_to_floor(qpos, camera, floor, int(np.argmax(obs.valid)))
-    if settings.fit.one_euro:
-        qpos = one_euro_qpos(body, qpos, obs.fps, settings.fit.one_euro_min_cutoff, settings.fit.one_euro_beta)
-    error = reprojection_errors(body, camera, qpos, obs)
-    return KinematicMotion(body, calibration, camera, floor, qpos, error, obs.valid.copy(),
-                           time.perf_counter() - start, settings.online)
+    return KinematicMotion(online.body, online.calibration, online.camera, online.floor, qpos, None,
+                           obs.valid.copy(), 0.0, True)
+
+
+def _fit_offline(obs: Observations, settings: Settings, progress) -> KinematicMotion:
+    from .online import fit_streams
+
+    s = settings
+    swaps = find_foot_swaps(obs) if s.fit.undo_foot_swaps else np.zeros(obs.num_frames, dtype=bool)
+    obs = undo_foot_swaps(obs, swaps)
+    camera = Camera.from_settings(obs.image_size, s.camera.focal, s.camera.fov,
+                                  None if (s.camera.focal or s.camera.fov) else obs.camera_K)
+    calibration = calibrate(obs, s.body.height, frames=s.body.calibration_frames)
+    body = build_body_model(calibration.lengths, s.body.mass)
+    depth = smooth_depth(raw_depth(obs.keypoints_2d, obs.landmarks_3d, obs.valid, camera.focal, calibration,
+                                   s.fit.min_confidence))
+    targets = make_targets(obs.keypoints_2d, obs.landmarks_3d, obs.valid, depth, camera, calibration, s.fit)
+    fitter = KinematicFitter(body, camera, s.fit, obs.fps)
+    qpos = fit_streams(fitter, targets, obs.valid, s.fit.offline_chunk, s.fit.online_iterations, progress)
+    qpos = fitter.fit_offline(qpos, targets).qpos
+    floor = (Floor.from_plane(s.camera.floor) if s.camera.floor is not None
+             else estimate_floor(body, qpos, camera, obs.fps, obs.valid))
+    qpos, camera = move_world_to_floor(qpos, camera, floor, int(np.argmax(obs.valid)))
+    return KinematicMotion(body, calibration, camera, floor, qpos, None, obs.valid.copy(), 0.0, False, swaps)
 
 
 def reprojection_errors(body: BodyModel, camera: Camera, qpos: np.ndarray, obs: Observations,
