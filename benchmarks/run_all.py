@@ -29,6 +29,8 @@ BENCHMARKS = {  # name: (script, arguments)
     "multiview_none": ("bench_multiview.py", ["--physics", "none"]),
     "multiview_physcap": ("bench_multiview.py", ["--physics", "physcap"]),
     "contacts": ("bench_contacts.py", []),
+    # One seed per clip (8 cases, about 10 minutes); the full set (both seeds) is `bench_trajopt.py` run alone.
+    "trajopt": ("bench_trajopt.py", ["--seeds", "0"]),
 }
 
 
@@ -237,11 +239,50 @@ def targets_section() -> list[str]:
                   real_best["accuracy"] >= 0.93 and real_best["accuracy"] > baselines),
                  ("3", "inference", "<= 1 ms/frame", f"{_f(max(contacts['inference_ms_per_frame'].values()), 3)} ms",
                   max(contacts["inference_ms_per_frame"].values()) <= 1)]
+    rows += trajopt_targets()
     if not rows:
         return ["(nothing measured yet)"]
     lines = ["| issue | target | asked | measured | |", "|---|---|---|---|---|"]
     lines += [f"| {i} | {what} | {asked} | {measured} | {_check(ok)} |" for i, what, asked, measured, ok in rows]
     return lines
+
+
+def trajopt_targets() -> list[tuple]:
+    """Issue 6's targets against benchmarks/results/trajopt.json."""
+    data = _load("trajopt")
+    if not data:
+        return []
+    s, c = data["summary"], data["summary"]["convergence"]
+    traj, floored, given = s["trajopt"], s["trajopt, true floor"], s["kinematic refined (B.4)"]
+    lengths = data["scaling"]
+    slopes = [(b["wall_seconds"] - a["wall_seconds"]) / (b["seconds"] - a["seconds"]) for a, b in zip(lengths, lengths[1:])]
+    linear = max(slopes) <= 1.5 * min(slopes) if slopes else None
+    worse = 100 * (traj["global_mpjpe_mm"] / given["global_mpjpe_mm"] - 1)
+    worse_rr = 100 * (traj["mpjpe_root_mm"] / given["mpjpe_root_mm"] - 1)
+
+    def both(key, digits=1):
+        return f"{_f(traj[key], digits)}% (true floor {_f(floored[key], digits)}%)"
+
+    return [
+        ("6", "2 s clip at 30 fps solved", "<= 10 s", f"{_f(c['piece_seconds_median'])} s (median of {c['pieces']})",
+         c["piece_seconds_median"] <= 10),
+        ("6", "time linear in clip length", "linear", " / ".join(f"{_f(r['wall_seconds'])}" for r in lengths)
+         + " s for " + " / ".join(f"{r['seconds']:.0f}" for r in lengths) + " s clips", linear),
+        ("6", "2 s synthetic clips converged", ">= 95%", f"{_f(100 * c['share'])}% of {c['pieces']}",
+         c["share"] >= 0.95),
+        ("6", "ballistic GRF", "0", f"{_f(traj['grf_ballistic_percent_bw'])}% BW", traj["grf_ballistic_percent_bw"] < 1),
+        ("6", "mean GRF", "95-105% BW", f"{_f(traj['grf_mean_percent_bw'])}% BW",
+         95 <= traj["grf_mean_percent_bw"] <= 105),
+        ("6", "max GRF", "< 340% BW", f"{_f(traj['grf_max_percent_bw'])}% BW", traj["grf_max_percent_bw"] < 340),
+        ("6", "penetration", "<= 0.3%", both("penetration_percent"), traj["penetration_percent"] <= 0.3),
+        ("6", "skate", "<= 3.6%", both("skate_percent"), traj["skate_percent"] <= 3.6),
+        ("6", "floating, estimated floor", "<= 8.2%", both("floating_percent"), traj["floating_percent"] <= 8.2),
+        ("6", "floating, true floor (Rempe table 2 protocol)", "<= 8.2%", f"{_f(floored['floating_percent'])}%",
+         floored["floating_percent"] <= 8.2),
+        ("6", "global MPJPE against the kinematic input (B.4)", "<= 5% worse",
+         f"{_f(worse)}% ({_f(traj['global_mpjpe_mm'])} vs {_f(given['global_mpjpe_mm'])} mm; root-relative "
+         f"{_f(worse_rr)}%)", worse <= 5),
+    ]
 
 
 def compose(seconds: dict[str, float]) -> str:

@@ -10,7 +10,7 @@ from physmocap.camera import Camera
 from physmocap.config import FitSettings, Settings, TrajoptSettings
 from physmocap.kinematics.stage import fit_motion
 from physmocap.trajopt.ik import ik_targets, solve_ik
-from physmocap.trajopt.kinematic import fit_contact_floor, refine_kinematics
+from physmocap.trajopt.kinematic import fit_contact_floor, refine_kinematics, resting_points, slipping_contacts
 from physmocap.trajopt.reduced import reduced_motion
 from test_fit import observe
 
@@ -101,3 +101,52 @@ def test_contact_floor_is_robust_and_keeps_its_tilt_when_points_lie_on_a_line():
     assert np.degrees(np.arccos(floor.normal @ normal)) < 3.0
     assert abs(floor.offset - 3.0) < 0.02
     assert inliers[:80].all() and not inliers[80:].any()
+
+
+def on_floor(body, q):
+    """q moved up or down so that its lowest heel or toe touches z = 0."""
+    soles = kin.forward_kinematics(body, q).points[:, body.point_index(CONTACT_POINTS), 2]
+    q = q.copy()
+    q[:, 2] -= soles.min()
+    return q
+
+
+def test_sliding_contacts_are_dropped_and_still_ones_kept(body):
+    frames = 30
+    q = on_floor(body, np.repeat(body.rest_qpos[None], frames, axis=0))
+    settings = TrajoptSettings()
+    labelled = np.ones((frames, 4), bool)
+    assert not slipping_contacts(body, q, FPS, labelled, settings).any()
+    # The body glides at twice the slip speed from frame 10 on (a hop labelled as standing, say).
+    glide = q.copy()
+    glide[10:, 0] += 2 * settings.contact_slip_speed * np.arange(1, frames - 9) / FPS
+    slipping = slipping_contacts(body, glide, FPS, labelled, settings)
+    assert slipping[12:].all() and not slipping[:9].any()
+    # Only labelled contacts are ever dropped; a slower glide keeps them.
+    assert not slipping_contacts(body, glide, FPS, np.zeros_like(labelled), settings).any()
+    slow = q.copy()
+    slow[:, 0] += 0.8 * settings.contact_slip_speed * np.arange(frames) / FPS
+    assert not slipping_contacts(body, slow, FPS, labelled, settings).any()
+
+
+def test_points_resting_on_the_floor_are_added_as_contacts(body):
+    frames = 30
+    q = on_floor(body, np.repeat(body.rest_qpos[None], frames, axis=0))
+    settings = TrajoptSettings()
+    valid = np.ones(frames, bool)
+    unlabelled = np.zeros((frames, 4), bool)
+    heights = kin.forward_kinematics(body, q).points[0, body.point_index(CONTACT_POINTS), 2]
+    low = heights < settings.rest_height
+    added = resting_points(body, q, FPS, unlabelled, valid, settings)
+    assert low.any() and (added == low).all()  # every sole point near the floor, at every frame
+    assert not resting_points(body, q, FPS, ~unlabelled, valid, settings).any()  # nothing already labelled
+    lifted = q.copy()
+    lifted[:, 2] += 2 * settings.rest_height
+    assert not resting_points(body, lifted, FPS, unlabelled, valid, settings).any()
+    # Resting for fewer frames than a phase lasts is not a contact.
+    brief = lifted.copy()
+    brief[10] = q[10]
+    assert not resting_points(body, brief, FPS, unlabelled, valid, settings).any()
+    moving = q.copy()
+    moving[:, 0] += 2 * settings.rest_speed * np.arange(frames) / FPS
+    assert not resting_points(body, moving, FPS, unlabelled, valid, settings).any()

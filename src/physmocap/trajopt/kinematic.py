@@ -1,11 +1,13 @@
 """The kinematic optimisation before the trajectory optimisation (Rempe et al. 2020, 3.3 and B.3-B.4), on the
 project's one kinematic fitter with its optional contact terms switched on:
 
+0. contacts whose point slides along the floor in the kinematic stage's motion become no contact (ours);
 1. the offline fit with contact velocity, joint velocity and joint-angle velocity terms (no floor term), from
    the kinematic stage's motion;
 2. a robust (Huber) plane fit to the heel and toe positions labelled in contact; contacts farther than
    `floor_outlier_distance` from it become no contact; the world is moved onto the plane (z = 0); runs of
-   frames labelled all in the air while the body does not fall get their lowest points back in contact (ours);
+   frames labelled all in the air while the body does not fall get their lowest points back in contact, and
+   points resting on the floor are labelled in contact (ours);
 3. the fit again with the floor term, which puts the feet in contact on the floor.
 """
 
@@ -13,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import time
 
 import numpy as np
@@ -72,8 +75,8 @@ def fit_contact_floor(points: np.ndarray, up_prior: np.ndarray, outlier_distance
 @dataclasses.dataclass
 class RefinedKinematics:
     """motion: the refined kinematic motion (world frame moved onto the refitted floor); contacts: (T, 4) the
-    contact flags after relabelling; relabelled: (T, 4) flags removed (the floor's outliers); added: (T, 4)
-    flags added (false flights, see `false_flights`); seconds."""
+    contact flags after relabelling; relabelled: (T, 4) flags removed (sliding points and the floor's outliers);
+    added: (T, 4) flags added (see `false_flights` and `resting_points`); seconds."""
 
     motion: KinematicMotion
     contacts: np.ndarray
@@ -107,6 +110,48 @@ def false_flights(body, qpos: np.ndarray, fps: float, contacts: np.ndarray, vali
     return added
 
 
+def floor_motion(body, qpos: np.ndarray, fps: float, interval: float) -> tuple[np.ndarray, np.ndarray]:
+    """(T, 4) heights above the floor (z = 0) and (T, 4) speeds along it (m/s, over `interval` s centred on each
+    frame) of the heel and toe points of the motion qpos (world on its floor, z up)."""
+    points = kin.forward_kinematics(body, qpos).points[:, body.point_index(CONTACT_POINTS)]
+    half = max(1, int(round(0.5 * interval * fps)))
+    frames = np.arange(len(points))
+    behind, ahead = np.maximum(frames - half, 0), np.minimum(frames + half, len(points) - 1)
+    step = points[ahead, :, :2] - points[behind, :, :2]
+    return points[..., 2], np.linalg.norm(step, axis=-1) * fps / np.maximum(ahead - behind, 1)[:, None]
+
+
+def slipping_contacts(body, qpos: np.ndarray, fps: float, contacts: np.ndarray,
+                      settings: TrajoptSettings) -> np.ndarray:
+    """(T, 4) contact flags whose point slides along the floor faster than `contact_slip_speed` in the kinematic
+    motion qpos: a contact holds its point still (the labels' own definition: under 0.6 m/s, Rempe 3.2), so such
+    a flag is wrong, e.g. a hop labelled as standing, which no-slip would pin to the floor (ours)."""
+    _, speed = floor_motion(body, qpos, fps, settings.contact_slip_interval)
+    return contacts & (speed > settings.contact_slip_speed)
+
+
+def resting_points(body, qpos: np.ndarray, fps: float, contacts: np.ndarray, valid: np.ndarray,
+                   settings: TrajoptSettings) -> np.ndarray:
+    """(T, 4) flags to add for points labelled in the air that rest on the floor in the kinematic motion qpos
+    (world on its floor): within `rest_height` of it and slower than `rest_speed`, for at least
+    `min_phase_seconds` (ours: a missed contact leaves the body on fewer supports than it stands on, and the
+    optimiser moves it far from the observations to balance it there)."""
+    height, speed = floor_motion(body, qpos, fps, settings.contact_slip_interval)
+    resting = (np.abs(height) < settings.rest_height) & (speed < settings.rest_speed) & valid[:, None]
+    min_frames = max(1, math.ceil(settings.min_phase_seconds * fps - 1e-9))
+    resting = np.stack([clean_runs(resting[:, i], min_frames) for i in range(4)], axis=1)
+    return resting & ~contacts
+
+
+def clean_runs(flags: np.ndarray, min_frames: int) -> np.ndarray:
+    """flags without the runs of True shorter than min_frames."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], flags.astype(int), [0]])))
+    out = np.zeros_like(flags, dtype=bool)
+    for a, b in zip(edges[::2], edges[1::2]):
+        out[a:b] = b - a >= min_frames
+    return out
+
+
 def contact_fit_settings(fit: FitSettings, settings: TrajoptSettings, floor: bool) -> FitSettings:
     """The fit's settings with Rempe's optional terms at their trajopt weights (the floor term only if `floor`)."""
     return dataclasses.replace(fit, weight_contact_velocity=settings.kinematic_contact_velocity,
@@ -127,7 +172,10 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
     """
     start = time.perf_counter()
     body, camera, fps = motion.body, motion.camera, obs.fps
-    contacts = np.asarray(contacts, bool) & obs.valid[:, None]
+    labelled = np.asarray(contacts, bool) & obs.valid[:, None]
+    contacts = labelled
+    if settings.contact_slip_speed > 0:
+        contacts = labelled & ~slipping_contacts(body, motion.qpos, fps, labelled, settings)
     depth = smooth_depth(raw_depth(obs.keypoints_2d, obs.landmarks_3d, obs.valid, camera.focal, motion.calibration,
                                    fit.min_confidence))
 
@@ -157,12 +205,16 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
         kept[contacts] = inliers
     anchor = int(np.argmax(obs.valid))
     qpos, camera = move_world_to_floor(qpos, camera, floor, anchor)
-    removed = contacts & ~kept
+    removed = labelled & ~kept
     added = false_flights(body, qpos, fps, kept, obs.valid, settings.floor_outlier_distance)
     if added.any():
         log.info("trajopt: %d frame(s) labelled all in the air while the body does not fall: contacts added.",
                  int(added.any(axis=1).sum()))
     kept |= added
+    if settings.rest_height > 0:
+        resting = resting_points(body, qpos, fps, kept, obs.valid, settings)
+        added |= resting
+        kept |= resting
     # 3. Again, with the feet in contact on the floor (z = 0 in the new world).
     qpos = KinematicFitter(body, camera, contact_fit_settings(fit, settings, True), fps).fit_offline(
         qpos, targets_in(camera, kept, np.array([0.0, 0.0, 1.0, 0.0]))).qpos
