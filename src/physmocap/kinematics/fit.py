@@ -23,7 +23,8 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
-from scipy.linalg import LinAlgError, cholesky, solve_triangular
+from scipy.linalg import LinAlgError
+from scipy.linalg.lapack import dpotrf, dtrtrs
 
 from ..body import kinematics as kin
 from ..body.model import CONTACT_POINTS, JOINT_NAMES, BodyModel
@@ -332,22 +333,25 @@ class KinematicFitter:
         b = np.zeros(2 * pairs * nv)
         b[:T * nv] = -g.ravel()
         b = b.reshape(pairs, n)
+        # LAPACK called directly: the loop is sequential, and scipy's checking wrappers cost as much as the
+        # 80 x 80 factorisations themselves.
         L = np.empty_like(D)
         W = np.empty_like(C)
         y = np.empty_like(b)
         for s_ in range(pairs):
+            rhs = b[s_]
             if s_:
-                W[s_] = solve_triangular(L[s_ - 1], C[s_ - 1], lower=True, check_finite=False)
+                W[s_] = _triangular_solve(L[s_ - 1], C[s_ - 1])
                 D[s_] -= W[s_].T @ W[s_]
-                rhs = b[s_] - W[s_].T @ y[s_ - 1]
-            else:
-                rhs = b[0]
-            L[s_] = cholesky(D[s_], lower=True, check_finite=False)
-            y[s_] = solve_triangular(L[s_], rhs, lower=True, check_finite=False)
+                rhs = rhs - W[s_].T @ y[s_ - 1]
+            L[s_], info = dpotrf(D[s_], lower=1, clean=1)
+            if info:
+                raise LinAlgError("the damped normal matrix is not positive definite")
+            y[s_] = _triangular_solve(L[s_], rhs)
         x = np.empty_like(b)
         for s_ in range(pairs - 1, -1, -1):
-            rhs = y[s_] - (W[s_ + 1] @ x[s_ + 1] if s_ + 1 < pairs else 0.0)
-            x[s_] = solve_triangular(L[s_], rhs, lower=True, trans="T", check_finite=False)
+            rhs = y[s_] - W[s_ + 1] @ x[s_ + 1] if s_ + 1 < pairs else y[s_]
+            x[s_] = _triangular_solve(L[s_], rhs, transpose=1)
         return x.ravel()[:T * nv].reshape(T, nv)
 
     def fit_offline(self, qpos_init: np.ndarray, targets: FitTargets) -> FitResult:
@@ -431,6 +435,14 @@ class KinematicFitter:
         is offline only: the online fit does not use it."""
         points, jac = self.evaluate(qpos)
         return [values for values, _, _ in self.temporal_signals(points, jac, qpos)]
+
+
+def _triangular_solve(L: np.ndarray, b: np.ndarray, transpose: int = 0) -> np.ndarray:
+    """L^-1 b (or L^-T b) for a lower triangular L (n, n) and b (n,) or (n, k)."""
+    x, info = dtrtrs(L, b, lower=1, trans=transpose)
+    if info:
+        raise LinAlgError("singular triangular factor")
+    return x
 
 
 def _levenberg_marquardt(system_at, solve, integrate, q0, iterations, damping, tolerance=1e-3):
