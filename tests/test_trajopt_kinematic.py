@@ -10,7 +10,8 @@ from physmocap.camera import Camera
 from physmocap.config import FitSettings, Settings, TrajoptSettings
 from physmocap.kinematics.stage import fit_motion
 from physmocap.trajopt.ik import ik_targets, solve_ik
-from physmocap.trajopt.kinematic import fit_contact_floor, refine_kinematics, resting_points, slipping_contacts
+from physmocap.trajopt.kinematic import (false_flights, fit_contact_floor, refine_kinematics, resting_points,
+                                         slipping_contacts)
 from physmocap.trajopt.reduced import reduced_motion
 from test_fit import observe
 
@@ -150,3 +151,25 @@ def test_points_resting_on_the_floor_are_added_as_contacts(body):
     moving = q.copy()
     moving[:, 0] += 2 * settings.rest_speed * np.arange(frames) / FPS
     assert not resting_points(body, moving, FPS, unlabelled, valid, settings).any()
+
+
+def test_false_flights_get_the_points_near_the_floor_back(body):
+    frames = 30
+    q = on_floor(body, np.repeat(body.rest_qpos[None], frames, axis=0))
+    valid = np.ones(frames, bool)
+    near = TrajoptSettings().floor_outlier_distance
+    labelled = np.ones((frames, 4), bool)
+    labelled[10:20] = False  # labelled in the air while the body stands still
+    heights = kin.forward_kinematics(body, q).points[0, body.point_index(CONTACT_POINTS), 2]
+    added = false_flights(body, q, FPS, labelled, valid, near)
+    assert (added[10:20] == (heights < near)).all() and not added[:10].any() and not added[20:].any()
+    # Standing on nothing (every point far above the floor) stays in the air: no contact off the floor.
+    raised = q.copy()
+    raised[:, 2] += 2 * near
+    assert not false_flights(body, raised, FPS, labelled, valid, near).any()
+    # A real flight: the body falls freely over the run (and the frames around it, a jump's last push and first
+    # landing frames), so its labels stand.
+    t = np.arange(frames) / FPS - 14.5 / FPS
+    flight = q.copy()
+    flight[6:24, 2] += 0.5 * 9.81 * ((8.5 / FPS) ** 2 - t[6:24] ** 2)
+    assert not false_flights(body, flight, FPS, labelled, valid, near).any()
