@@ -190,7 +190,7 @@ class TrajoptSettings:
     # 0.01 .. 1
     contact_slip_speed: float = 1.2  # m/s: contacts whose point slides faster than this in the kinematic motion
     # become no contact (ours: twice the labels' own 0.6 m/s, for the fit's noise); 0 (off) .. 100
-    contact_slip_interval: float = 0.1  # s over which that speed is measured; 0.01 .. 1
+    contact_slip_interval: float = 0.1  # s over which that speed (and rest_speed) is measured; 0.01 .. 1
     rest_height: float = 0.02  # m: points labelled in the air but this near the floor and slower than rest_speed
     # for min_phase_seconds become contacts (ours: under half the labels' 5 cm and 0.6 m/s); 0 (off) .. 0.5
     rest_speed: float = 0.3  # m/s; 0 .. 10

@@ -6,8 +6,8 @@ project's one kinematic fitter with its optional contact terms switched on:
    the kinematic stage's motion;
 2. a robust (Huber) plane fit to the heel and toe positions labelled in contact; contacts farther than
    `floor_outlier_distance` from it become no contact; the world is moved onto the plane (z = 0); runs of
-   frames labelled all in the air while the body does not fall get their lowest points back in contact, and
-   points resting on the floor are labelled in contact (ours);
+   frames labelled all in the air while the body does not fall get their points near the floor back in
+   contact, and points resting on the floor are labelled in contact (ours);
 3. the fit again with the floor term, which puts the feet in contact on the floor.
 """
 
