@@ -41,14 +41,16 @@ from physmocap.mocap.synthetic import NoiseModel, make_observations, random_came
 
 DEFAULTS = PhysicsSettings()
 PAPER = dataclasses.replace(DEFAULTS, slide_speed=0.05, release_distance=None, penetration_recovery=1e-3,
-                            acceleration_feedforward=1.0)
+                            acceleration_feedforward=1.0, residual_weight_vertical=DEFAULTS.residual_weight)
 LADDER = (  # label, settings: each row adds one departure to the row above
     ("paper settings", PAPER),
     ("+ gentle penetration recovery", dataclasses.replace(PAPER, penetration_recovery=DEFAULTS.penetration_recovery)),
     ("+ slide speed", dataclasses.replace(PAPER, penetration_recovery=DEFAULTS.penetration_recovery,
                                           slide_speed=DEFAULTS.slide_speed)),
-    ("+ contact release", dataclasses.replace(DEFAULTS, acceleration_feedforward=1.0)),
-    ("+ half feed-forward (defaults)", DEFAULTS),
+    ("+ contact release", dataclasses.replace(DEFAULTS, acceleration_feedforward=1.0,
+                                              residual_weight_vertical=DEFAULTS.residual_weight)),
+    ("+ half feed-forward", dataclasses.replace(DEFAULTS, residual_weight_vertical=DEFAULTS.residual_weight)),
+    ("+ weight on the feet (defaults)", DEFAULTS),
 )
 COLUMNS = (("mpjpe_root_mm", "root-rel. mm"), ("global_root_mm", "global root mm"), ("e_smooth_mm", "e_smooth mm"),
            ("mpe_mm", "MPE mm"), ("pnp_percent", "PNP %"), ("floating_percent", "float %"),

@@ -68,6 +68,7 @@ class PhysCapTracker:
             self.contact_of_geom[self.model.geom(f"{name}_collision").id] = j
         self.torque_weights = np.full(nv, settings.torque_weight)
         self.torque_weights[:6] = settings.residual_weight
+        self.torque_weights[2] = settings.residual_weight_vertical
         mu = settings.friction / np.sqrt(2.0)
         # Friction pyramid rows per contact: mu*fz -+ fx >= 0, mu*fz -+ fy >= 0.
         self.pyramid = np.array([[-1.0, 0.0, mu], [1.0, 0.0, mu], [0.0, -1.0, mu], [0.0, 1.0, mu]])
