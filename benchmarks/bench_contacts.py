@@ -19,6 +19,8 @@ contacts.json).
 
 from __future__ import annotations
 
+import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
+
 import argparse
 import json
 import time

@@ -14,6 +14,8 @@ a 640-pixel-wide copy; and the whole live pipeline with contacts and PhysCap phy
 
 from __future__ import annotations
 
+import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
+
 import argparse
 import json
 import statistics

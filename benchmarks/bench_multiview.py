@@ -27,6 +27,8 @@ the rows of the others already in the JSON.
 
 from __future__ import annotations
 
+import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
+
 import argparse
 import dataclasses
 import json

@@ -9,6 +9,8 @@ for a core while other jobs run is not counted).
 
 from __future__ import annotations
 
+import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
+
 import argparse
 import json
 import os

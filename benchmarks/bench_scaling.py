@@ -12,6 +12,8 @@
 
 from __future__ import annotations
 
+import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
+
 import argparse
 import json
 import subprocess
@@ -66,8 +68,8 @@ print(json.dumps(dict(seconds=seconds, frames=frames,
 """
 
 LENGTH_SCRIPT = r"""
+import physmocap  # first: one BLAS thread
 import json, resource, sys, time, dataclasses, numpy as np
-import physmocap
 from physmocap.config import Settings
 from physmocap.contacts.noise import MEDIAPIPE_NOISE
 from physmocap.contacts.predict import predict_contacts

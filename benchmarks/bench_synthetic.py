@@ -16,6 +16,8 @@ Per-clip plots (foot heights with contact flags, forces against body weight) go 
 
 from __future__ import annotations
 
+import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
+
 import argparse
 import dataclasses
 import json

@@ -17,6 +17,8 @@ Writes benchmarks/results/trajopt.json and trajopt.md.
 
 from __future__ import annotations
 
+import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
+
 import argparse
 import dataclasses
 import json
