@@ -79,6 +79,8 @@ class FitSettings:
     online_iterations: int = 4  # Levenberg-Marquardt iterations per frame when causal; 1 .. 50
     undo_foot_swaps: bool = True  # offline: find where the detector swapped the left and right feet (detect.
     # foot_swaps: knees joined to the other side's ankles, feet jumping to each other's place) and fit them back
+    rescale_landmark_depth: bool = True  # offline: undo the detector's per-frame stretch of its 3D landmarks along
+    # the camera axis, measured against the initial fit (stage.landmark_depth_scale)
     offline_chunk: int = 32  # frames: the offline fit starts from causal fits of runs this long, all run side by
     # side (one batched step per frame; shorter runs: more cold starts, fewer steps); 2 .. 100000
     one_euro: bool = False  # One-Euro filter on the fitted pose (Casiez et al. 2012)
