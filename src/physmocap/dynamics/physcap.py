@@ -75,10 +75,10 @@ class PhysCapTracker:
         self.mass_matrix = np.zeros((nv, nv))
         self.bias = np.zeros(nv)
         self.identity = np.eye(nv)
-        self.grf_rows = np.kron(np.eye(4), self.pyramid)  # (16, 12)
+        self.grf_rows = np.kron(np.eye(4), self.pyramid)  # (16, 12); the first 4k rows, 3k columns for k contacts
+        self._pyramid_upper, self._pyramid_lower = np.full(16, INF), np.zeros(16)  # each row >= 0
         self.grf_regularisation = 1e-4 * np.eye(12)  # H = A A^T has rank 6: at 1e-6 daqp called 8% of
         # the demo clip's frames infeasible; 1e-4 N^-2 costs a bias of 1e-4 of the force
-        self._bounds: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.contact_jacobian = np.zeros((4, 3, nv))
         self.qpos = np.zeros(self.model.nq)
         self.qvel = np.zeros(nv)
@@ -120,28 +120,19 @@ class PhysCapTracker:
     def ground_reaction_forces(self, qdd_des, bias, active) -> tuple[np.ndarray, bool]:
         """Eq. (6-7): forces (4, 3) at the active contacts that best produce the root's desired acceleration,
         pushing only, inside the friction pyramid. Returns the forces and whether the QP solved."""
+        forces = np.zeros((4, 3))
         if not active.any():
-            return np.zeros((4, 3)), True
-        root_rows = self.contact_jacobian[:, :, :6].reshape(12, 6)  # J^T restricted to the root: its transpose
+            return forces, True
+        k = int(active.sum())
+        root_rows = self.contact_jacobian[active][:, :, :6].reshape(3 * k, 6)  # (J^T restricted to the root)^T
         target = self.mass_matrix[:6] @ qdd_des + bias[:6]
-        H = root_rows @ root_rows.T + self.grf_regularisation
-        upper, lower = self._grf_bounds(active)
-        x, _, exitflag, _ = daqp.solve(H, -root_rows @ target, self.grf_rows, upper, lower)
+        H = root_rows @ root_rows.T + self.grf_regularisation[:3 * k, :3 * k]
+        x, _, exitflag, _ = daqp.solve(H, -root_rows @ target, self.grf_rows[:4 * k, :3 * k], self._pyramid_upper[:4 * k],
+                                       self._pyramid_lower[:4 * k])
         if exitflag != 1:
-            return np.zeros((4, 3)), False
-        return x.reshape(4, 3) * active[:, None], True  # exact zeros where the bounds pin the force to 0
-
-    def _grf_bounds(self, active) -> tuple[np.ndarray, np.ndarray]:
-        """daqp bounds (12 simple + 16 pyramid rows) for a contact pattern: inactive contacts carry no force."""
-        key = int(active @ (1, 2, 4, 8))
-        if key not in self._bounds:
-            upper, lower = np.zeros(28), np.zeros(28)
-            upper[12:] = INF
-            for j in np.flatnonzero(active):
-                upper[3 * j:3 * j + 3] = INF
-                lower[3 * j:3 * j + 2] = -INF  # tangential free (the pyramid bounds it), normal >= 0
-            self._bounds[key] = (upper, lower)
-        return self._bounds[key]
+            return forces, False
+        forces[active] = x.reshape(k, 3)
+        return forces, True
 
     def pose_accelerations(self, qdd_des, bias, forces, active, heights,
                            released=np.zeros(4, bool)) -> tuple[np.ndarray, np.ndarray, bool]:
