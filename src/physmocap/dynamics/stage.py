@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
+import mujoco
 import numpy as np
 
 from ..body import kinematics as kin
@@ -51,7 +52,7 @@ class PhysicsStream:
         if self._previous is None:
             self.tracker.reset(q_kin, velocity)
         else:
-            velocity = kin.difference(self.body, self._previous[None], q_kin[None])[0] * self.fps
+            mujoco.mj_differentiatePos(self.tracker.model, velocity, 1.0 / self.fps, self._previous, q_kin)
             if self._frames >= 2:
                 acceleration = (velocity - self._velocity) * self.fps
         self._previous, self._velocity = q_kin, velocity
