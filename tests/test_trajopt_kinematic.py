@@ -10,8 +10,8 @@ from physmocap.camera import Camera
 from physmocap.config import FitSettings, Settings, TrajoptSettings
 from physmocap.kinematics.stage import fit_motion
 from physmocap.trajopt.ik import ik_targets, solve_ik
-from physmocap.trajopt.kinematic import (false_flights, fit_contact_floor, refine_kinematics, resting_points,
-                                         slipping_contacts)
+from physmocap.trajopt.kinematic import (false_flights, fit_contact_floor, fitted_observations, refine_kinematics,
+                                         resting_points, slipping_contacts)
 from physmocap.trajopt.reduced import reduced_motion
 from test_fit import observe
 
@@ -144,6 +144,9 @@ def test_points_resting_on_the_floor_are_added_as_contacts(body):
     lifted = q.copy()
     lifted[:, 2] += 2 * settings.rest_height
     assert not resting_points(body, lifted, FPS, unlabelled, valid, settings).any()
+    sunk = q.copy()  # under the floor is not in the air either
+    sunk[:, 2] -= 0.05
+    assert resting_points(body, sunk, FPS, unlabelled, valid, settings).all()
     # Resting for fewer frames than a phase lasts is not a contact.
     brief = lifted.copy()
     brief[10] = q[10]
@@ -173,3 +176,20 @@ def test_false_flights_get_the_points_near_the_floor_back(body):
     flight = q.copy()
     flight[6:24, 2] += 0.5 * 9.81 * ((8.5 / FPS) ** 2 - t[6:24] ** 2)
     assert not false_flights(body, flight, FPS, labelled, valid, near).any()
+
+
+def test_refinement_fits_the_observations_the_kinematic_stage_corrected():
+    from types import SimpleNamespace
+
+    from physmocap.landmarks import LANDMARK_INDEX
+    from physmocap.motion import Observations
+
+    rng = np.random.default_rng(3)
+    obs = Observations(rng.uniform(0, 500, (6, 33, 3)), rng.normal(size=(6, 33, 3)), FPS, (640, 480))
+    swaps = np.array([False, True, True, False, False, False])
+    fit = FitSettings(rescale_landmark_depth=False)
+    out = fitted_observations(obs, SimpleNamespace(foot_swaps=swaps), fit)
+    left, right = LANDMARK_INDEX["left_heel"], LANDMARK_INDEX["right_heel"]
+    assert np.array_equal(out.keypoints_2d[swaps, left], obs.keypoints_2d[swaps, right])
+    assert np.array_equal(out.landmarks_3d[swaps, right], obs.landmarks_3d[swaps, left])
+    assert np.array_equal(out.keypoints_2d[~swaps], obs.keypoints_2d[~swaps])
