@@ -47,7 +47,10 @@ _ARMS = {side: tuple(JOINT_INDEX[f"{side}_{part}"] for part in ("elbow", "wrist"
 class SyntheticSettings:
     """How synthetic sequences are made.
 
-    variants_per_clip: sequences made from each clip (different cameras, rates, bodies, noise).
+    variants_per_clip: sequences made from each clip (different cameras, rates, bodies, noise). Variety is what
+        the few training subjects lack: with subjects 1 and 7 held out for validation (centred network, the same
+        number of steps), 48 variants scored 0.943 on them, 96 0.947, 192 0.951; 8, 24 and 48 variants at 4 epochs
+        0.871, 0.930 and 0.943.
     fps_range: frames per second, uniform (issue 3: 12-60).
     max_seconds: longer clips are cut to a random segment of this length, s (a static camera must keep the
         whole segment in view; 8 s keeps the person large in the frame).
@@ -66,7 +69,7 @@ class SyntheticSettings:
     labels: the automatic label thresholds.
     """
 
-    variants_per_clip: int = 24
+    variants_per_clip: int = 256
     fps_range: tuple[float, float] = (12.0, 60.0)
     max_seconds: float = 8.0
     reverse_probability: float = 0.5
