@@ -12,8 +12,9 @@ Energy terms (each a small named piece with its residual and analytic Jacobian, 
   pelvis-relative joints (B2) and change of the joint angles (B3). Contact labels and the floor plane come with
   the targets (FitTargets.contacts, FitTargets.floor).
 
-Two solvers share these terms: offline over the whole clip (block-banded normal equations, LAPACK banded
-Cholesky), and online, causal, one frame at a time with the previous two frames fixed (constant cost per frame).
+Two solvers share these terms: offline over the whole clip (block-banded normal equations, block Cholesky by
+pairs of frames), and per frame with the previous two frames fixed (`fit_frames`, constant cost per frame),
+batched over independent frames: the online fit is one causal stream, the offline fit starts from many at once.
 Variables are steps in MuJoCo's velocity space applied on the manifold.
 """
 

@@ -19,6 +19,7 @@ from .fit import FitTargets, KinematicFitter, initial_qpos
 from .stage import estimate_floor, make_targets, move_world_to_floor, raw_depth
 
 FIRST_FRAME_ITERATIONS = 60  # the first frame starts from a generic pose and needs more steps
+WARMUP_FRAMES = 30  # frames held back to calibrate when body.calibration_frames is 0 (all: offline only)
 DEPTH_WINDOW = 9  # frames in the causal running median of the person's distance
 
 
@@ -97,10 +98,10 @@ def _fill_gaps(body, frames: np.ndarray, qpos: np.ndarray, T: int) -> np.ndarray
 class OnlineFitter:
     """Fits pushed frames one at a time, each from the past only.
 
-    The first `body.calibration_frames` frames that show a person are held back: they calibrate the bone
-    lengths, are fitted, and place the floor (unless it is given). From then on every pushed frame is fitted at
-    once, warm-started from the previous two frames with constant velocity. After warm-up, `body`, `camera`,
-    `floor` and `calibration` are fixed.
+    The first `body.calibration_frames` (WARMUP_FRAMES if 0) frames that show a person are held back: they
+    calibrate the bone lengths, are fitted, and place the floor (unless it is given). From then on every pushed
+    frame is fitted at once, warm-started from the previous two frames with constant velocity. After warm-up,
+    `body`, `camera`, `floor` and `calibration` are fixed.
     """
 
     def __init__(self, settings: Settings, fps: float, image_size: tuple[int, int],
@@ -109,7 +110,7 @@ class OnlineFitter:
         cam = settings.camera
         self.camera = Camera.from_settings(image_size, cam.focal, cam.fov,
                                            None if (cam.focal or cam.fov) else camera_K)
-        self.warmup = settings.body.calibration_frames or 30
+        self.warmup = settings.body.calibration_frames or WARMUP_FRAMES
         self.body = self.calibration = self.floor = self.fitter = None
         self._pending: list[tuple[np.ndarray, np.ndarray, bool]] = []
         self._frames = 0
