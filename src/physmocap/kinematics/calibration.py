@@ -14,6 +14,11 @@ from ..motion import Observations
 # offsets (under 5% of the height) are instead checked against an absolute margin, in fractions of height.
 PLAUSIBLE_RATIO = (0.6, 1.6)
 PLAUSIBLE_MARGIN = 0.03
+# Lengths taken as the template's share of the height: the top of the head has no landmark, and the ankle's height
+# above the sole (about 5 cm) is as short as the detector's 3D error, which lengthened it by 27% on average
+# (synthetic, MediaPipe's measured noise) and, through the height, shortened every other bone (global root error
+# 69 -> 45 mm with the template's value).
+TEMPLATE_ONLY = ("head_top", "ankle_height")
 
 
 @dataclass(frozen=True)
@@ -113,7 +118,7 @@ def calibrate(obs: Observations, height: float, frames: int = 30, min_confidence
     unit = np.median([measured[k] / getattr(template, k) for k in core]) if measured else 1.0
     values, replaced = {}, []
     for name in TEMPLATE_RATIOS:
-        if name == "head_top":  # not observable: the template's share of the height
+        if name in TEMPLATE_ONLY:
             continue
         value, expected = measured.get(name, np.nan) / unit, getattr(template, name)
         if abs(expected) >= 0.05:
@@ -125,7 +130,7 @@ def calibrate(obs: Observations, height: float, frames: int = 30, min_confidence
         else:
             values[name] = getattr(template, name)
             replaced.append(name)
-    values["head_top"] = template.head_top
+    values.update({name: getattr(template, name) for name in TEMPLATE_ONLY})
     unscaled = SkeletonLengths(**values)
     factor = height / unscaled.standing_height
     return Calibration(unscaled.scaled(factor), factor / unit, len(usable), tuple(replaced))
