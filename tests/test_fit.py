@@ -169,3 +169,31 @@ def test_one_euro_filter_removes_jitter_and_keeps_orientations_valid(body):
     lag = np.abs(one_euro_qpos(body, moving, fps=30.0)[30:, 0] - moving[30:, 0]).max()
     fixed_lag = np.abs(one_euro_qpos(body, moving, fps=30.0, beta=0.0)[30:, 0] - moving[30:, 0]).max()
     assert lag < 0.6 * fixed_lag
+
+
+def test_batched_frames_are_fitted_as_if_each_were_alone(body, camera):
+    """fit_frames runs one Levenberg-Marquardt per frame side by side: the same poses as one at a time."""
+    rng = np.random.default_rng(6)
+    truth = walking_motion(body, 6)
+    targets = _targets(body, truth, camera, rng)
+    fitter = KinematicFitter(body, camera, FitSettings(), 30.0)
+    start = kin.integrate(body, truth, rng.normal(scale=0.05, size=(6, body.nv)))
+    history = [v[:, None] for v in fitter.signal_values(truth)]  # each frame's own one-frame past
+    together = fitter.fit_frames(start, targets, history, 4)
+    for k in range(6):
+        alone = fitter.fit_frames(start[k:k + 1], targets.frames(slice(k, k + 1)), [h[k:k + 1] for h in history], 4)
+        assert np.allclose(alone.qpos, together.qpos[k:k + 1], atol=1e-9)
+        assert np.allclose(alone.signals[0], together.signals[0][k:k + 1], atol=1e-9)
+
+
+def test_offline_fit_bridges_a_gap_without_extrapolating(body, camera):
+    """Frames without a person are interpolated between their fitted neighbours, never run off."""
+    truth = walking_motion(body, 40)
+    obs = observe(body, truth, camera)
+    obs.valid[15:22] = False
+    up = camera.R[:, 2]
+    settings = Settings().replace("body", height=body.height, mass=body.mass)
+    motion = fit_motion(obs, settings.replace("camera", floor=tuple(np.append(up, -up @ camera.t))))
+    pelvis = motion.camera.to_camera(motion.qpos[:, :3])
+    true = camera.to_camera(truth[:, :3])
+    assert np.linalg.norm(pelvis - true, axis=1)[15:22].max() < 0.1
