@@ -4,7 +4,7 @@ several runs; the stage is single-threaded (BLAS pinned to one thread by `import
 wall clock, and by the process's CPU time, which on a shared machine is the one-core figure (time spent waiting
 for a core while other jobs run is not counted).
 
-    .venv/bin/python benchmarks/bench_physics.py [--repeats 5] [--json OUT.json]
+    .venv/bin/python benchmarks/bench_physics.py [--repeats 30] [--json OUT.json]
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ DEMO = REPO / "src" / "physmocap" / "data" / "demo" / "taiji_demo.mp4"
 
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--repeats", type=int, default=30)  # runs of 0.1-0.2 s: many, for a stable median
     parser.add_argument("--json", default=str(RESULTS / "physics_speed.json"))
     args = parser.parse_args(argv)
     obs = detect_video(DEMO)
