@@ -49,3 +49,16 @@ def test_whole_body_flip_is_not_a_foot_swap(walk):
     """A detector that takes the front for the back mirrors every landmark; the feet stay with their knees."""
     flipped = mirrored(walk, slice(40, 52), np.arange(33))
     assert not find_foot_swaps(flipped)[40:52].any()
+
+
+def test_capture_reports_the_swapped_frames(walk, tmp_path):
+    """The run's summary.json names the frames whose feet were swapped and undone, also from a cached fit."""
+    from physmocap.config import Settings
+    from physmocap.pipeline import run_capture
+
+    path = tmp_path / "observations.npz"
+    mirrored(walk, slice(20, 32), FOOT_LANDMARKS).save(path)
+    for _ in range(2):  # the second run takes the fit from the cache
+        summary = run_capture(tmp_path / "run", Settings().replace("body", height=1.75), observations=path)
+        assert summary.foot_swap_frames == ["20-31"]
+    assert "kinematics" in summary.cached_stages

@@ -68,6 +68,7 @@ class RunSummary:
     skeleton_scale_replaced: list[str]
     physics: str
     physics_fallback_frames: list[str]
+    foot_swap_frames: list[str]  # offline: frames whose left and right feet the detector swapped, undone
     physics_report: dict = field(default_factory=dict)  # trajopt: summary line, per-window solver reports
     files: dict[str, str] = field(default_factory=dict)
 
@@ -184,7 +185,8 @@ def _motion_arrays(motion: KinematicMotion) -> dict:
                 floor_inliers=motion.floor.inlier_fraction, reprojection_error=motion.reprojection_error,
                 valid=motion.valid, seconds=motion.seconds, online=motion.online,
                 landmark_scale=motion.calibration.landmark_scale, frames_used=motion.calibration.frames_used,
-                replaced=np.array(motion.calibration.replaced, dtype=str))
+                replaced=np.array(motion.calibration.replaced, dtype=str),
+                foot_swaps=np.zeros(len(motion.qpos), bool) if motion.foot_swaps is None else motion.foot_swaps)
 
 
 def _motion_from_cache(data) -> KinematicMotion:
@@ -197,7 +199,7 @@ def _motion_from_cache(data) -> KinematicMotion:
                               tuple(str(x) for x in data["replaced"]))
     return KinematicMotion(body, calibration, camera, Floor(floor.normal, floor.offset, float(data["floor_inliers"])),
                            data["qpos"], data["reprojection_error"], data["valid"], float(data["seconds"]),
-                           bool(data["online"]))
+                           bool(data["online"]), foot_swaps=data.get("foot_swaps"))
 
 
 def contacts_stage(obs: Observations, settings: Settings) -> tuple[np.ndarray, np.ndarray]:
@@ -402,6 +404,7 @@ def write_outputs(out_dir: Path, source: str, obs: Observations, motion: Kinemat
         median_reprojection_error_percent_of_height=_nanmedian(relative),
         skeleton_scale_replaced=list(motion.calibration.replaced), physics=settings.physics.method,
         physics_fallback_frames=_frame_ranges(np.flatnonzero(result["physics_fallback"])),
+        foot_swap_frames=_frame_ranges(np.flatnonzero(motion.foot_swaps)) if motion.foot_swaps is not None else [],
         physics_report=physics_report or {}, files=files)
     files["summary"] = str(out_dir / "summary.json")
     write_text(files["summary"], summary.to_json())
