@@ -20,7 +20,7 @@ class BodySettings:
     height: float = 1.70  # m, the person's standing height; 1.0 .. 2.3
     mass: float = 70.0  # kg, the person's mass; 20 .. 250
     calibration_frames: int = 0  # frames whose 3D landmarks set the bone lengths; 0: all (offline; the online fit
-    # calibrates on its first 30); 1 .. 10000. All frames: synthetic root-relative error 37.1 -> 33.5 mm (measured)
+    # calibrates on its first 3 s); 1 .. 10000. All frames: synthetic root-relative error 37.1 -> 33.5 mm (measured)
 
     def check(self) -> None:
         _within("body.height", self.height, 1.0, 2.3, "m")

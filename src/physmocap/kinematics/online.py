@@ -19,7 +19,9 @@ from .fit import FitTargets, KinematicFitter, initial_qpos
 from .stage import estimate_floor, make_targets, move_world_to_floor, raw_depth
 
 FIRST_FRAME_ITERATIONS = 60  # the first frame starts from a generic pose and needs more steps
-WARMUP_FRAMES = 30  # frames held back to calibrate when body.calibration_frames is 0 (all: offline only)
+WARMUP_SECONDS = 3.0  # held back to calibrate and find the floor when body.calibration_frames is 0 (all: offline
+# only). On the synthetic set (8 clips, online fit) 1 s -> 3 s took the root-relative error from 56.6 to 52.5 mm and,
+# through a better floor, PhysCap's from 71.5 to 60.6 mm, its MPE from 45 to 34 mm and penetration from 5.7% to 1.4%
 DEPTH_WINDOW = 9  # frames in the causal running median of the person's distance
 
 
@@ -98,7 +100,7 @@ def _fill_gaps(body, frames: np.ndarray, qpos: np.ndarray, T: int) -> np.ndarray
 class OnlineFitter:
     """Fits pushed frames one at a time, each from the past only.
 
-    The first `body.calibration_frames` (WARMUP_FRAMES if 0) frames that show a person are held back: they
+    The first `body.calibration_frames` (WARMUP_SECONDS' worth if 0) frames that show a person are held back: they
     calibrate the bone lengths, are fitted, and place the floor (unless it is given). From then on every pushed
     frame is fitted at once, warm-started from the previous two frames with constant velocity. After warm-up,
     `body`, `camera`, `floor` and `calibration` are fixed.
@@ -110,7 +112,7 @@ class OnlineFitter:
         cam = settings.camera
         self.camera = Camera.from_settings(image_size, cam.focal, cam.fov,
                                            None if (cam.focal or cam.fov) else camera_K)
-        self.warmup = settings.body.calibration_frames or WARMUP_FRAMES
+        self.warmup = settings.body.calibration_frames or max(1, round(WARMUP_SECONDS * fps))
         self.body = self.calibration = self.floor = self.fitter = None
         self._pending: list[tuple[np.ndarray, np.ndarray, bool]] = []
         self._frames = 0
