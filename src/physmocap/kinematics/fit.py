@@ -48,9 +48,11 @@ MARKERS: tuple[tuple[str, str], ...] = (
 MARKER_LANDMARKS = np.array([LANDMARK_INDEX[a] for a, _ in MARKERS])
 
 # Initial Levenberg-Marquardt damping (relative to the normal matrix's diagonal). The whole-clip problem starts
-# far from its optimum and overshoots with less (measured: 9 instead of 24 evaluations to the same cost); one
-# warm-started frame starts close and converges fastest with little.
-OFFLINE_DAMPING = 1.0
+# far from its optimum and overshoots with less (measured: 9 instead of 24 evaluations to the same cost; from the
+# batched causal start, 1.0 still had 3 of 11 steps rejected on taiji, 3.0 none: offline CPU ms/frame 5.28 -> 4.64
+# taiji, 5.68 -> 5.03 sports2d, reprojection 5.46 -> 5.39 / 5.29 -> 5.20 px, synthetic root-relative 32.3 -> 32.4
+# mm); one warm-started frame starts close and converges fastest with little.
+OFFLINE_DAMPING = 3.0
 ONLINE_DAMPING = 1e-3
 
 
