@@ -135,7 +135,7 @@ class PhysCapTracker:
         return forces, True
 
     def pose_accelerations(self, qdd_des, bias, forces, active, heights,
-                           released=np.zeros(4, bool)) -> tuple[np.ndarray, np.ndarray, bool]:
+                           released) -> tuple[np.ndarray, np.ndarray, bool]:
         """Eq. (10): qdd minimising |qdd - qdd_des|^2 + tau' W tau with tau = M qdd + c - J^T lambda (the
         equation of motion, eq. 2), subject to eq. (9) at the active contacts after the step: the normal
         velocity keeps the point on or above the floor, tangential speeds stay within sigma (except at released
@@ -146,22 +146,22 @@ class PhysCapTracker:
         external = self.contact_jacobian.reshape(12, -1).T @ forces.ravel()
         H = 2.0 * (self.identity + M @ (W[:, None] * M))
         f = 2.0 * (M @ (W * (bias - external)) - qdd_des)
-        if not active.any():
+        solved = True
+        if active.any():
+            rows = self.contact_jacobian[active].reshape(-1, nv)  # x, y, z rows of each active contact
+            velocity = rows @ self.qvel
+            slide = np.where(released[active], INF, self.settings.slide_speed).repeat(3)
+            lower, upper = -slide - velocity, slide - velocity
+            # Above the floor: reach it at most by the end of the step; below: rise back gently.
+            depth_rate = heights[active] / np.where(heights[active] > 0, dt,
+                                                    max(dt, self.settings.penetration_recovery))
+            lower[2::3] = -depth_rate - velocity[2::3]
+            upper[2::3] = INF
+            qdd, _, exitflag, _ = daqp.solve(H, f, dt * rows, upper, lower)
+            solved = exitflag == 1
+        if not active.any() or not solved:
             qdd = self._unconstrained(H, f)
-            return qdd, M @ qdd + bias - external, True
-        rows = self.contact_jacobian[active].reshape(-1, nv)  # x, y, z rows of each active contact
-        velocity = rows @ self.qvel
-        slide = np.where(released[active], INF, self.settings.slide_speed).repeat(3)
-        lower, upper = -slide - velocity, slide - velocity
-        # Above the floor: reach it at most by the end of the step; below: rise back gently.
-        depth_rate = heights[active] / np.where(heights[active] > 0, dt, max(dt, self.settings.penetration_recovery))
-        lower[2::3] = -depth_rate - velocity[2::3]
-        upper[2::3] = INF
-        qdd, _, exitflag, _ = daqp.solve(H, f, dt * rows, upper, lower)
-        if exitflag == 1:
-            return qdd, M @ qdd + bias - external, True
-        qdd = self._unconstrained(H, f)
-        return qdd, M @ qdd + bias - external, False
+        return qdd, M @ qdd + bias - external, solved
 
     def _unconstrained(self, H: np.ndarray, f: np.ndarray) -> np.ndarray:
         """argmin 1/2 x'Hx + f'x by daqp's own factorisation: LAPACK's solve for a 40x40 system took 0.6 ms when
@@ -172,13 +172,12 @@ class PhysCapTracker:
     def _released_contacts(self, q_kin: np.ndarray) -> np.ndarray:
         """(4,) contact points whose target has moved more than release_distance along the floor from where the
         character holds them: the kinematic foot has gone (a wrong contact label or the detector swapping the
-        feet), and holding on would drag the whole body after it."""
+        feet), and holding on would drag the whole body after it. Reads the character's contact points from
+        `_dynamics`, which must have run at the current state."""
         if self.settings.release_distance is None:
             return np.zeros(4, bool)
         self.target_data.qpos[:] = q_kin
         mujoco.mj_kinematics(self.model, self.target_data)
-        self.data.qpos[:] = self.qpos
-        mujoco.mj_kinematics(self.model, self.data)
         offset = self.target_data.site_xpos[self.sites, :2] - self.data.site_xpos[self.sites, :2]
         return np.linalg.norm(offset, axis=1) > self.settings.release_distance
 
@@ -191,13 +190,14 @@ class PhysCapTracker:
         records = []
         active = np.zeros(4, bool)
         target = np.empty_like(q_kin)
-        released = self._released_contacts(q_kin)
         for i in range(s.iterations):
             # The steps advance the character through the frame: step i aims at where the kinematic motion is
             # at its end time, moving along the kinematic velocity, so that the last step lands on frame t.
             target[:] = q_kin
             mujoco.mj_integratePos(self.model, target, qd_kin, -(s.iterations - 1 - i) * self.dt)
             bias, heights, touching = self._dynamics()
+            if i == 0:  # judged once per frame, where the character stands at its start
+                released = self._released_contacts(q_kin)
             active = predicted_contacts & (heights < s.contact_height) & ~released  # eq. (5)
             if s.foot_lock != "never":  # airborne or swimming motion: the floor does not push back
                 active |= touching
