@@ -42,18 +42,25 @@ from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
 from physmocap.mocap.synthetic import NoiseModel, make_observations, random_camera, resample  # noqa: E402
 
 DEFAULTS = PhysicsSettings()
-PAPER = dataclasses.replace(DEFAULTS, slide_speed=0.05, release_distance=None, penetration_recovery=1e-3,
-                            acceleration_feedforward=1.0, residual_weight_vertical=DEFAULTS.residual_weight)
-LADDER = (  # label, settings: each row adds one departure to the row above
-    ("paper settings", PAPER),
-    ("+ gentle penetration recovery", dataclasses.replace(PAPER, penetration_recovery=DEFAULTS.penetration_recovery)),
-    ("+ slide speed", dataclasses.replace(PAPER, penetration_recovery=DEFAULTS.penetration_recovery,
-                                          slide_speed=DEFAULTS.slide_speed)),
-    ("+ contact release", dataclasses.replace(DEFAULTS, acceleration_feedforward=1.0,
-                                              residual_weight_vertical=DEFAULTS.residual_weight)),
-    ("+ half feed-forward", dataclasses.replace(DEFAULTS, residual_weight_vertical=DEFAULTS.residual_weight)),
-    ("+ weight on the feet (defaults)", DEFAULTS),
+DEPARTURES = (  # label, field, the paper's value (or the nearest setting where the paper has none); in ladder order
+    ("+ gentle penetration recovery", "penetration_recovery", 1e-3),  # pushed out within one step
+    ("+ slide speed", "slide_speed", 0.05),  # sigma: PhysCap's contact-labelling speed
+    ("+ contact release", "release_distance", None),  # contacts are never released
+    ("+ half feed-forward", "acceleration_feedforward", 1.0),  # eq. (4) as written
+    ("+ weight on the feet (defaults)", "residual_weight_vertical", DEFAULTS.residual_weight),  # one root weight
 )
+PAPER = dataclasses.replace(DEFAULTS, **{field: value for _, field, value in DEPARTURES})
+
+
+def ladder() -> list[tuple[str, PhysicsSettings]]:
+    """(label, settings): the paper's settings, then each departure added to the row above, ending at DEFAULTS."""
+    rungs = [("paper settings", PAPER)]
+    for label, field, _ in DEPARTURES:
+        rungs.append((label, dataclasses.replace(rungs[-1][1], **{field: getattr(DEFAULTS, field)})))
+    return rungs
+
+
+LADDER = ladder()
 COLUMNS = (("mpjpe_root_mm", "root-rel. mm"), ("global_root_mm", "global root mm"), ("e_smooth_mm", "e_smooth mm"),
            ("mpe_mm", "MPE mm"), ("pnp_percent", "PNP %"), ("floating_percent", "float %"),
            ("penetration_percent", "penetr. %"), ("skate_percent", "skate %"), ("grf_mean_percent_bw", "GRF % BW"),
