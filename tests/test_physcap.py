@@ -177,3 +177,62 @@ def test_contact_released_when_the_kinematic_foot_leaves(body):
             assert np.all(along_floor > 0.5)
         else:
             assert np.all(along_floor <= np.sqrt(2) * settings.slide_speed + 1e-6)
+
+def _on_tilted_floor(body, frames, degrees):
+    """Standing poses sliding along a winding path on a floor tilted by `degrees` about the world x axis (the
+    whole body moved rigidly, so the soles trace the tilted floor). Returns poses and the floor's normal."""
+    from physmocap.body.rotations import axis_angle_matrix
+
+    tilt = axis_angle_matrix(np.array([1.0, 0.0, 0.0]), np.radians(degrees))
+    q = standing(body, frames)
+    q[:, 0] += np.sin(np.linspace(0.0, 2 * np.pi, frames))  # a winding walk: the feet cover 2 x 2 m of floor
+    q[:, 1] += np.linspace(0.0, 2.0, frames)
+    return rigid_transform_qpos(q, tilt, np.zeros(3)), tilt @ np.array([0.0, 0.0, 1.0])
+
+
+def test_floor_refiner_finds_a_tilted_floor_and_turns_gently(body):
+    from physmocap.dynamics.floor import FloorRefiner
+
+    q, normal = _on_tilted_floor(body, 200, 3.0)
+    refiner = FloorRefiner(body, FPS, refit_interval=0.5, tilt_rate=np.radians(1.0), lift_rate=0.05,
+                           first_refit=1.0)
+    turns = []
+    for pose in q:
+        before = refiner.normal.copy()
+        refiner.push(pose, np.ones(4, bool))
+        turns.append(np.arccos(np.clip(before @ refiner.normal, -1, 1)))
+    assert np.degrees(np.arccos(refiner.normal @ normal)) < 0.3  # of 3: the prior towards the warm-up floor
+    assert max(turns) <= np.radians(1.0) / FPS + 1e-9
+    # The maps: the floor goes to z = 0 in the physics frame, and back.
+    soles = kin.forward_kinematics(body, refiner.to_physics(q[-1])[None]).points[0, body.point_index(CONTACT_POINTS)]
+    assert np.abs(soles[:, 2]).max() < 0.01
+    assert np.allclose(refiner.to_kinematic(refiner.to_physics(q[-1])), q[-1])
+    assert np.allclose(refiner.vector_to_kinematic(np.array([0.0, 0.0, 1.0])), refiner.normal)
+
+
+def test_online_physics_keeps_the_feet_on_a_refined_tilted_floor(body):
+    q, normal = _on_tilted_floor(body, 150, 2.0)
+    contacts = np.ones((150, 4), bool)
+    fixed = run_physcap(body, q, FPS, contacts, np.ones(150, bool), PhysicsSettings())
+    refined = run_physcap(body, q, FPS, contacts, np.ones(150, bool), PhysicsSettings(), refine_floor=True)
+
+    def sole_heights(motion):  # above the tilted floor, over the last second
+        soles = kin.forward_kinematics(body, motion.qpos[-25:]).points[:, body.point_index(CONTACT_POINTS)]
+        return soles @ normal
+
+    assert np.abs(sole_heights(refined)).max() < 0.005
+    assert np.abs(sole_heights(fixed)).max() > 0.02  # held on z = 0, the feet leave the tilted floor
+
+
+def test_resting_contacts_do_not_dip_under_the_floor_while_the_feet_roll(body):
+    """Feet pitching and rolling while all four points are in contact never take a point under the floor."""
+    names = [b.joint for b in body.bodies]
+    roll = np.zeros((60, body.nv))
+    for ankle in ("left_ankle", "right_ankle"):  # both feet pitch and roll slowly back and forth
+        dof = body.dof_address[names.index(ankle)]
+        roll[:, dof:dof + 2] = 0.25 * np.sin(np.arange(60) / 5.0)[:, None]
+    q = kin.integrate(body, standing(body, 60), roll)
+    _, _, records = track(body, q, np.ones((60, 4), bool))
+    soles = kin.forward_kinematics(body, np.array([r.qpos for r in records])).points[
+        :, body.point_index(CONTACT_POINTS)]
+    assert soles[:, :, 2].min() >= 0.0

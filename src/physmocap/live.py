@@ -143,7 +143,7 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
             final = q
             if physics_on:
                 if physics is None:
-                    physics = PhysicsStream(fitter.body, settings.physics, fps)
+                    physics = PhysicsStream(fitter.body, settings.physics, fps, settings.camera.floor is None)
                 final, frame, corrected = physics.push(q, contacts, stationary)
                 physics_frames[index] = (final, frame, corrected)
                 details.update(grf=frame.contact_forces, residual=frame.residual)

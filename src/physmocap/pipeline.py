@@ -226,7 +226,7 @@ def physics_stage(obs: Observations, motion: KinematicMotion, contacts: np.ndarr
     if settings.physics.method == "none":
         return None, False
     cache = out_dir / "cache" / "physics.npz"
-    key = _digest("physics", 1, _kinematics_cache(out_dir, obs, settings)[1],
+    key = _digest("physics", 2, _kinematics_cache(out_dir, obs, settings)[1],
                   hashlib.sha256(contacts.tobytes() + stationary.tobytes()).hexdigest(), asdict(settings.physics))
     if cache.is_file():
         try:
@@ -237,7 +237,10 @@ def physics_stage(obs: Observations, motion: KinematicMotion, contacts: np.ndarr
         except (OSError, ValueError, KeyError):
             pass  # recomputed below
     bar = progress("physics", obs.num_frames) if progress else None
-    physics = run_physcap(motion.body, motion.qpos, obs.fps, contacts, stationary, settings.physics, bar)
+    # The online floor comes from the warm-up alone; the offline one already from every frame.
+    refine_floor = settings.online and settings.camera.floor is None
+    physics = run_physcap(motion.body, motion.qpos, obs.fps, contacts, stationary, settings.physics, bar,
+                          refine_floor)
     save_npz(cache, key=np.str_(key), qpos=physics.qpos, grf=physics.grf, residual=physics.residual,
              contacts=physics.contacts, corrected=physics.corrected, qp_failures=physics.qp_failures,
              seconds=physics.seconds)

@@ -84,6 +84,14 @@ def axis_angle_matrix(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
     return np.eye(3) + s * K + (1 - c) * (K @ K)
 
 
+def rotation_between(source: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """(3, 3) the smallest rotation taking unit vector `source` to unit vector `target` (not opposite)."""
+    axis = np.cross(source, target)
+    cos = float(source @ target)
+    skew = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + skew + skew @ skew / (1.0 + cos)
+
+
 def so3_right_jacobian_inverse(rotvec: np.ndarray) -> np.ndarray:
     """(..., 3) -> (..., 3, 3): d log(exp(phi) exp(delta)) / d delta at delta = 0."""
     angle = np.linalg.norm(rotvec, axis=-1)[..., None, None]

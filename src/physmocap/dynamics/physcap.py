@@ -13,6 +13,7 @@ world, root angular velocity in the pelvis frame); forces in newtons.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 
 import daqp
@@ -54,7 +55,7 @@ class PhysCapTracker:
 
     def __init__(self, body: BodyModel, settings: PhysicsSettings, fps: float, record: bool = False):
         self.body, self.settings, self.record = body, settings, record
-        self.model = body.mujoco_model()
+        self.model = copy.copy(body.mujoco_model())  # its own: the foot geoms get the touch margin
         self.data = mujoco.MjData(self.model)
         nv = self.model.nv
         self.dt = settings.step if settings.step is not None else 1.0 / (fps * settings.iterations)
@@ -65,7 +66,9 @@ class PhysCapTracker:
         self.sites = np.array([self.model.site(n).id for n in CONTACT_POINTS])
         self.contact_of_geom = np.full(self.model.ngeom, -1)  # geom id -> contact point index, -1 for others
         for j, name in enumerate(CONTACT_POINTS):
-            self.contact_of_geom[self.model.geom(f"{name}_collision").id] = j
+            geom = self.model.geom(f"{name}_collision").id
+            self.contact_of_geom[geom] = j
+            self.model.geom_margin[geom] = settings.touch_margin
         self.torque_weights = np.full(nv, settings.torque_weight)
         self.torque_weights[:6] = settings.residual_weight
         self.torque_weights[2] = settings.residual_weight_vertical
@@ -152,10 +155,12 @@ class PhysCapTracker:
             velocity = rows @ self.qvel
             slide = np.where(released[active], INF, self.settings.slide_speed).repeat(3)
             lower, upper = -slide - velocity, slide - velocity
-            # Above the floor: reach it at most by the end of the step; below: rise back gently.
-            depth_rate = heights[active] / np.where(heights[active] > 0, dt,
-                                                    max(dt, self.settings.penetration_recovery))
-            lower[2::3] = -depth_rate - velocity[2::3]
+            # Above the floor: come down at most to the clearance by the end of the step (the step's rotation
+            # may dip the point by less than that); within it: do not descend; below the floor: rise back gently.
+            h, clearance = heights[active], self.settings.floor_clearance
+            normal_speed = np.where(h > clearance, -(h - clearance) / dt,
+                                    np.where(h >= 0, 0.0, -h / max(dt, self.settings.penetration_recovery)))
+            lower[2::3] = normal_speed - velocity[2::3]
             upper[2::3] = INF
             qdd, _, exitflag, _ = daqp.solve(H, f, dt * rows, upper, lower)
             solved = exitflag == 1

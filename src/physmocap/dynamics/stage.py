@@ -12,6 +12,7 @@ from ..body import kinematics as kin
 from ..body.model import BodyModel
 from ..config import PhysicsSettings
 from .balance import BalanceCorrector
+from .floor import FloorRefiner
 from .physcap import FrameOutput, PhysCapTracker
 
 
@@ -33,10 +34,15 @@ class PhysicsMotion:
 
 class PhysicsStream:
     """The physics stage one frame at a time (live capture, and `run_physcap` frame by frame): estimates the
-    kinematic velocities causally, corrects balance, and tracks."""
+    kinematic velocities causally, corrects balance, and tracks. With refine_floor (an online fit whose floor
+    was estimated, not given) the floor is refined as frames arrive and the character runs on the refined floor;
+    poses and forces come back in the kinematic world."""
 
-    def __init__(self, body: BodyModel, settings: PhysicsSettings, fps: float):
+    def __init__(self, body: BodyModel, settings: PhysicsSettings, fps: float, refine_floor: bool = False):
         self.body, self.settings, self.fps = body, settings, fps
+        self.floor = (FloorRefiner(body, fps, settings.floor_refit_interval, np.radians(settings.floor_tilt_rate),
+                                   settings.floor_lift_rate, settings.floor_refine_after)
+                      if refine_floor and settings.floor_refit_interval is not None else None)
         self.tracker = PhysCapTracker(body, settings, fps)
         self.balance = BalanceCorrector(body, settings.correction_rate)
         self._previous: np.ndarray | None = None  # last kinematic pose
@@ -47,6 +53,9 @@ class PhysicsStream:
              stationary: bool) -> tuple[np.ndarray, FrameOutput, bool]:
         """One frame's kinematic pose (nq,), contacts (4,) and stationary flag -> tracked pose, forces, and
         whether the balance correction changed the target."""
+        if self.floor is not None:
+            self.floor.push(q_kin, contacts)
+            q_kin = self.floor.to_physics(q_kin)
         # The same backward differences as kinematic_derivatives: no acceleration before the third frame.
         velocity, acceleration = np.zeros(self.body.nv), np.zeros(self.body.nv)
         if self._previous is None:
@@ -61,7 +70,11 @@ class PhysicsStream:
         if self.settings.balance_correction:
             target, corrected = self.balance.correct(q_kin, stationary, contacts)
         frame = self.tracker.track(target, velocity, acceleration, contacts)
-        return self.tracker.qpos.copy(), frame, corrected
+        if self.floor is None:
+            return self.tracker.qpos.copy(), frame, corrected
+        frame.contact_forces = self.floor.vector_to_kinematic(frame.contact_forces)
+        frame.residual[:3] = self.floor.vector_to_kinematic(frame.residual[:3])
+        return self.floor.to_kinematic(self.tracker.qpos), frame, corrected
 
 
 def kinematic_derivatives(body: BodyModel, qpos: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
@@ -74,12 +87,12 @@ def kinematic_derivatives(body: BodyModel, qpos: np.ndarray, fps: float) -> tupl
 
 
 def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.ndarray, stationary: np.ndarray,
-                settings: PhysicsSettings, progress=None) -> PhysicsMotion:
+                settings: PhysicsSettings, progress=None, refine_floor: bool = False) -> PhysicsMotion:
     """Track the kinematic motion (T, nq) with the physics character; contacts (T, 4) and stationary (T,)
-    come from the contact stage. Causal: frame t uses frames up to t only."""
+    come from the contact stage. Causal: frame t uses frames up to t only. refine_floor: see PhysicsStream."""
     start = time.perf_counter()
     T = len(qpos_kin)
-    stream = PhysicsStream(body, settings, fps)
+    stream = PhysicsStream(body, settings, fps, refine_floor)
     out = PhysicsMotion(np.empty_like(qpos_kin), np.zeros((T, 4, 3)), np.zeros((T, 6)), np.zeros((T, 4), bool),
                         np.zeros(T, bool), np.zeros(T, int), 0.0)
     for t in range(T):

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..body.rotations import rotation_between
 from ..errors import InputError
 
 # The project's named points, in this order everywhere (see DESIGN.md, "The result file").
@@ -523,14 +524,6 @@ def floor_tilt(toe_bases: np.ndarray, fps: float) -> np.ndarray | None:
         keep = np.abs(residuals - centre) < max(3.0 * spread, 0.01)
         coefficients = fit(keep)
     return _unit(np.array([-coefficients[0], -coefficients[1], 1.0]))
-
-
-def rotation_between(source: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """(3, 3) the smallest rotation taking unit vector `source` to unit vector `target` (not opposite)."""
-    axis = np.cross(source, target)
-    cos = float(source @ target)
-    skew = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    return np.eye(3) + skew + skew @ skew / (1.0 + cos)
 
 
 def _frames_per_second(frame_time: float) -> float:
