@@ -88,7 +88,8 @@ def evaluate_case(name: str, seed: int, noise: NoiseModel = MEDIAPIPE_NOISE, met
         qpos, grf, residual = motion.qpos, None, None
         if method.startswith("physcap"):
             contacts, stationary, _ = predict_contacts(obs, "causal" if online else "centred")
-            physics = run_physcap(motion.body, motion.qpos, FPS, contacts, stationary, settings.physics)
+            physics = run_physcap(motion.body, motion.qpos, FPS, contacts, stationary, settings.physics,
+                                  refine_floor=online)  # as the pipeline: the online floor is refined
             qpos, grf, residual = physics.qpos, physics.grf, physics.residual
             seconds = physics.seconds
             if plots_dir is not None and method == "physcap on online":
