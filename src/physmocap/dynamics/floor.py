@@ -16,7 +16,6 @@ import numpy as np
 from ..body.model import CONTACT_POINTS, BodyModel
 from ..body.rotations import axis_angle_matrix, rotation_between
 from ..camera import fit_floor
-from ..kinematics.stage import rigid_transform_qpos
 
 UP = np.array([0.0, 0.0, 1.0])
 MIN_POINTS = 40  # contact points before a refit: ten frames of both feet flat on the floor
@@ -46,6 +45,7 @@ class FloorRefiner:
         self._points = np.empty((MAX_POINTS, 3))
         self._count = self._frames = 0
         self.rotation, self.shift = np.eye(3), np.zeros(3)  # kinematic world -> physics frame: x' = R x + shift
+        self.quat, self.inverse_quat = np.array([1.0, 0.0, 0.0, 0.0]), np.array([1.0, 0.0, 0.0, 0.0])  # of R, R'
 
     def push(self, q_kin: np.ndarray, contacts: np.ndarray) -> None:
         """Add a frame's kinematic pose (nq,) and its predicted contacts (4,); refit and step the estimate."""
@@ -77,15 +77,24 @@ class FloorRefiner:
         # The plane's point nearest the world origin goes to the origin; the plane goes to z = 0.
         self.rotation = rotation_between(self.normal, UP)
         self.shift = self.rotation @ (self.offset * self.normal)
+        mujoco.mju_mat2Quat(self.quat, self.rotation.ravel())
+        mujoco.mju_negQuat(self.inverse_quat, self.quat)
 
     # ---- maps between the kinematic world and the physics frame ---------------------------------------------
+    # Per frame, so MuJoCo's quaternion functions rather than the batched rigid_transform_qpos (0.7 ms a call).
     def to_physics(self, qpos: np.ndarray) -> np.ndarray:
         """A pose (nq,) of the kinematic world in the physics frame."""
-        return rigid_transform_qpos(qpos[None], self.rotation, self.shift)[0]
+        out = qpos.copy()
+        out[:3] = self.rotation @ qpos[:3] + self.shift
+        mujoco.mju_mulQuat(out[3:7], self.quat, qpos[3:7])
+        return out
 
     def to_kinematic(self, qpos: np.ndarray) -> np.ndarray:
         """A pose (nq,) of the physics frame in the kinematic world."""
-        return rigid_transform_qpos(qpos[None], self.rotation.T, -self.rotation.T @ self.shift)[0]
+        out = qpos.copy()
+        out[:3] = self.rotation.T @ (qpos[:3] - self.shift)
+        mujoco.mju_mulQuat(out[3:7], self.inverse_quat, qpos[3:7])
+        return out
 
     def vector_to_kinematic(self, vectors: np.ndarray) -> np.ndarray:
         """(..., 3) forces or directions of the physics frame in the kinematic world."""
