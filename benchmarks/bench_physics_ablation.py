@@ -42,24 +42,26 @@ from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
 from physmocap.mocap.synthetic import NoiseModel, make_observations, random_camera, resample  # noqa: E402
 
 DEFAULTS = PhysicsSettings()
-DEPARTURES = (  # label, field, the paper's value (or the nearest setting where the paper has none); in ladder order
-    ("+ gentle penetration recovery", "penetration_recovery", 1e-3),  # pushed out within one step
-    ("+ slide speed", "slide_speed", 0.05),  # sigma: PhysCap's contact-labelling speed
-    ("+ contact release", "release_distance", None),  # contacts are never released
-    ("+ half feed-forward", "acceleration_feedforward", 1.0),  # eq. (4) as written
-    ("+ weight on the feet", "residual_weight_vertical", DEFAULTS.residual_weight),  # one root weight
-    ("+ touch margin", "touch_margin", 0.0),  # a foot point collides only once under the floor
-    ("+ floor clearance", "floor_clearance", 0.0),  # resting contacts land exactly on the floor
-    ("+ online floor refinement (defaults)", "floor_refit_interval", None),  # the warm-up's floor kept (online)
+DEPARTURES = (  # label, {field: the paper's value (or the nearest setting where the paper has none)}; in order
+    ("+ gentle penetration recovery", {"penetration_recovery": 1e-3}),  # pushed out within one step
+    ("+ slide speed", {"slide_speed": 0.05}),  # sigma: PhysCap's contact-labelling speed
+    ("+ contact release", {"release_distance": None}),  # contacts are never released
+    ("+ half feed-forward", {"acceleration_feedforward": 1.0}),  # eq. (4) as written
+    ("+ stiffer, critically damped gains", {"kp_joint": 300.0, "kd_joint": 20.0,  # section 5.1
+                                            "kp_root_rotation": 340.0, "kd_root_rotation": 30.0}),
+    ("+ weight on the feet", {"residual_weight_vertical": DEFAULTS.residual_weight}),  # one root weight
+    ("+ touch margin", {"touch_margin": 0.0}),  # a foot point collides only once under the floor
+    ("+ floor clearance", {"floor_clearance": 0.0}),  # resting contacts land exactly on the floor
+    ("+ online floor refinement (defaults)", {"floor_refit_interval": None}),  # the warm-up's floor kept (online)
 )
-PAPER = dataclasses.replace(DEFAULTS, **{field: value for _, field, value in DEPARTURES})
+PAPER = dataclasses.replace(DEFAULTS, **{f: v for _, fields in DEPARTURES for f, v in fields.items()})
 
 
 def ladder() -> list[tuple[str, PhysicsSettings]]:
     """(label, settings): the paper's settings, then each departure added to the row above, ending at DEFAULTS."""
     rungs = [("paper settings", PAPER)]
-    for label, field, _ in DEPARTURES:
-        rungs.append((label, dataclasses.replace(rungs[-1][1], **{field: getattr(DEFAULTS, field)})))
+    for label, fields in DEPARTURES:
+        rungs.append((label, dataclasses.replace(rungs[-1][1], **{f: getattr(DEFAULTS, f) for f in fields})))
     return rungs
 
 

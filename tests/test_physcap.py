@@ -236,3 +236,18 @@ def test_resting_contacts_do_not_dip_under_the_floor_while_the_feet_roll(body):
     soles = kin.forward_kinematics(body, np.array([r.qpos for r in records])).points[
         :, body.point_index(CONTACT_POINTS)]
     assert soles[:, :, 2].min() >= 0.0
+
+
+def test_a_joint_flipping_between_frames_is_followed_gently_without_fallbacks(body):
+    """A fit that flips a wrist back and forth each frame (seen on real video) asks the PD for accelerations far
+    beyond any human motion; the tracker bounds them instead of diverging and restarting."""
+    names = [b.joint for b in body.bodies]
+    flip = np.zeros((50, body.nv))
+    dof = body.dof_address[names.index("left_wrist")]
+    flip[:, dof] = 1.2 * (-1.0) ** np.arange(50)  # +-1.2 rad about one axis, alternating every frame
+    q = kin.integrate(body, standing(body, 50), flip)
+    _, frames, records = track(body, q, np.ones((50, 4), bool))
+    assert sum(f.qp_failures for f in frames) == 0
+    from physmocap.dynamics.physcap import MAX_DESIRED_ACCELERATION
+
+    assert max(np.abs(r.qacc[dof]).max() for r in records) <= 1.01 * MAX_DESIRED_ACCELERATION

@@ -25,6 +25,9 @@ from ..config import PhysicsSettings
 
 INF = 1e20  # daqp's "no bound"
 MAX_ACCELERATION = 1e4  # m/s^2 or rad/s^2, about 50 times the fastest human limb motions: the state diverged
+MAX_DESIRED_ACCELERATION = 2e3  # m/s^2 or rad/s^2, the PD targets' bound: about ten times the fastest human limb
+# motions. A fit that flips a wrist back and forth between frames (60 rad/s each way, seen on real video) would
+# otherwise ask the stiff PD for 1e4 and trip the divergence guard.
 
 
 @dataclass
@@ -115,10 +118,12 @@ class PhysCapTracker:
 
     def desired_acceleration(self, q_kin, qd_kin, qdd_kin) -> np.ndarray:
         """Eq. (4): PD control towards the kinematic pose; the pose error is taken on the manifold, and the
-        kinematic acceleration is fed forward scaled by settings.acceleration_feedforward."""
+        kinematic acceleration is fed forward scaled by settings.acceleration_feedforward; bounded by
+        MAX_DESIRED_ACCELERATION."""
         error = np.zeros(self.model.nv)
         mujoco.mj_differentiatePos(self.model, error, 1.0, self.qpos, q_kin)
-        return self.settings.acceleration_feedforward * qdd_kin + self.kp * error + self.kd * (qd_kin - self.qvel)
+        desired = self.settings.acceleration_feedforward * qdd_kin + self.kp * error + self.kd * (qd_kin - self.qvel)
+        return np.clip(desired, -MAX_DESIRED_ACCELERATION, MAX_DESIRED_ACCELERATION, out=desired)
 
     def ground_reaction_forces(self, qdd_des, bias, active) -> tuple[np.ndarray, bool]:
         """Eq. (6-7): forces (4, 3) at the active contacts that best produce the root's desired acceleration,
