@@ -251,3 +251,32 @@ def test_a_joint_flipping_between_frames_is_followed_gently_without_fallbacks(bo
     from physmocap.dynamics.physcap import MAX_DESIRED_ACCELERATION
 
     assert max(np.abs(r.qacc[dof]).max() for r in records) <= 1.01 * MAX_DESIRED_ACCELERATION
+
+
+def test_the_result_world_moves_onto_the_refined_floor_and_the_camera_follows(body):
+    from physmocap.camera import Camera, Floor, world_from_floor
+    from physmocap.dynamics.stage import onto_refined_floor
+    from physmocap.kinematics.stage import KinematicMotion
+
+    q, normal = _on_tilted_floor(body, 150, 2.0)
+    contacts = np.ones((150, 4), bool)
+    physics = run_physcap(body, q, FPS, contacts, np.ones(150, bool), PhysicsSettings(), refine_floor=True)
+    camera = Camera.from_settings((1280, 720), fov=60.0)
+    camera = camera.with_extrinsics(*world_from_floor(Floor(np.array([0.0, -1.0, 0.0]), 1.2), np.array([0, 0, 4.0])))
+    floor = Floor(camera.R[:, 2], -float(camera.R[:, 2] @ camera.t))  # the kinematic world's z = 0
+    motion = KinematicMotion(body, None, camera, floor, q, np.zeros(150), np.ones(150, bool), 0.0, True)
+    moved, moved_physics = onto_refined_floor(motion, physics)
+
+    def points(m, qpos):
+        return m.camera.to_camera(kin.forward_kinematics(body, qpos).points)
+
+    # The same motion seen by the camera; the soles now rest on z = 0, and the floor in the camera frame with them.
+    assert np.allclose(points(moved, moved.qpos), points(motion, q), atol=1e-9)
+    assert np.allclose(points(moved, moved_physics.qpos), points(motion, physics.qpos), atol=1e-9)
+    soles = kin.forward_kinematics(body, moved_physics.qpos[-25:]).points[:, body.point_index(CONTACT_POINTS)]
+    assert np.abs(soles[..., 2]).max() < 0.01
+    camera_soles = moved.camera.to_camera(soles)
+    assert np.allclose(moved.floor.height(camera_soles), soles[..., 2], atol=1e-9)
+    assert moved_physics.floor_plane is None
+    assert np.allclose(moved_physics.grf.sum(1)[-1] @ np.array([0, 0, 1.0]),
+                       physics.grf.sum(1)[-1] @ physics.floor_plane[:3], atol=1e-6)

@@ -18,7 +18,7 @@ import numpy as np
 from .config import Settings
 from .contacts.features import CAUSAL_WINDOW
 from .contacts.predict import load_weights, network_probabilities
-from .dynamics.stage import PhysicsMotion, PhysicsStream
+from .dynamics.stage import PhysicsMotion, PhysicsStream, onto_refined_floor
 from .errors import InputError
 from .kinematics.online import OnlineFitter
 from .kinematics.stage import KinematicMotion, reprojection_errors
@@ -190,10 +190,12 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
                                        np.stack([f[1].contact_forces for f in frames]),
                                        np.stack([f[1].residual for f in frames]), np.stack([f[1].active for f in frames]),
                                        np.array([f[2] for f in frames]), np.array([f[1].qp_failures for f in frames]),
-                                       after_fit_seconds)
+                                       after_fit_seconds, physics.floor_plane if physics is not None else None)
     motion = KinematicMotion(fitter.body, fitter.calibration, fitter.camera, fitter.floor, q,
                              reprojection_errors(fitter.body, fitter.camera, q, obs), obs.valid.copy(), fit_seconds,
                              True)
+    if physics_motion is not None:  # both on the floor the physics refined, which becomes z = 0
+        motion, physics_motion = onto_refined_floor(motion, physics_motion)
     warmup = min(T, int(np.argmax(np.cumsum(obs.valid) >= fitter.warmup)) + 1) if obs.valid.any() else T
     steady = np.array([latency[i] for i in range(warmup, T)]) * 1000
     return LiveReport(obs, motion, contacts, stationary, physics_motion, wall, T / wall, float(np.median(steady)) if len(steady) else float("nan"),

@@ -220,31 +220,40 @@ def contacts_stage(obs: Observations, settings: Settings) -> tuple[np.ndarray, n
 
 def physics_stage(obs: Observations, motion: KinematicMotion, contacts: np.ndarray, stationary: np.ndarray,
                   out_dir: Path, settings: Settings, progress: ProgressFactory | None = None):
-    """The physically tracked motion (None without physics), from the cache when nothing changed."""
-    from .dynamics.stage import PhysicsMotion, run_physcap
+    """The physically tracked motion (None without physics), from the cache when nothing changed. Returns it,
+    whether it came from the cache, and the kinematic motion, re-expressed on the floor the physics refined
+    (online, when the floor was estimated) so that both stand on z = 0."""
+    from .dynamics.stage import PhysicsMotion, onto_refined_floor, run_physcap
 
     if settings.physics.method == "none":
-        return None, False
+        return None, False, motion
     cache = out_dir / "cache" / "physics.npz"
-    key = _digest("physics", 2, _kinematics_cache(out_dir, obs, settings)[1],
+    key = _digest("physics", 3, _kinematics_cache(out_dir, obs, settings)[1],
                   hashlib.sha256(contacts.tobytes() + stationary.tobytes()).hexdigest(), asdict(settings.physics))
+    physics = None
     if cache.is_file():
         try:
             with np.load(cache, allow_pickle=False) as data:
                 if str(data["key"]) == key:
-                    return PhysicsMotion(data["qpos"], data["grf"], data["residual"], data["contacts"],
-                                         data["corrected"], data["qp_failures"], float(data["seconds"])), True
+                    plane = data["floor_plane"]
+                    physics = PhysicsMotion(data["qpos"], data["grf"], data["residual"], data["contacts"],
+                                            data["corrected"], data["qp_failures"], float(data["seconds"]),
+                                            None if np.isnan(plane).any() else plane)
         except (OSError, ValueError, KeyError):
             pass  # recomputed below
-    bar = progress("physics", obs.num_frames) if progress else None
-    # The online floor comes from the warm-up alone; the offline one already from every frame.
-    refine_floor = settings.online and settings.camera.floor is None
-    physics = run_physcap(motion.body, motion.qpos, obs.fps, contacts, stationary, settings.physics, bar,
-                          refine_floor)
-    save_npz(cache, key=np.str_(key), qpos=physics.qpos, grf=physics.grf, residual=physics.residual,
-             contacts=physics.contacts, corrected=physics.corrected, qp_failures=physics.qp_failures,
-             seconds=physics.seconds)
-    return physics, False
+    cached = physics is not None
+    if not cached:
+        bar = progress("physics", obs.num_frames) if progress else None
+        # The online floor comes from the warm-up alone; the offline one already from every frame.
+        refine_floor = settings.online and settings.camera.floor is None
+        physics = run_physcap(motion.body, motion.qpos, obs.fps, contacts, stationary, settings.physics, bar,
+                              refine_floor)
+        plane = np.full(4, np.nan) if physics.floor_plane is None else physics.floor_plane
+        save_npz(cache, key=np.str_(key), qpos=physics.qpos, grf=physics.grf, residual=physics.residual,
+                 contacts=physics.contacts, corrected=physics.corrected, qp_failures=physics.qp_failures,
+                 seconds=physics.seconds, floor_plane=plane)
+    motion, physics = onto_refined_floor(motion, physics)
+    return physics, cached, motion
 
 
 def trajopt_stage(obs: Observations, motion: KinematicMotion, contacts: np.ndarray, out_dir: Path,
@@ -337,7 +346,8 @@ def run_capture(out_dir: str | os.PathLike, settings: Settings, *, video: str | 
                                                                                   settings, progress)
         seconds["refine"] = physics_report["refinement"]["seconds"]
     else:
-        physics, physics_cached = physics_stage(obs, motion, contacts, stationary, out_dir, settings, progress)
+        physics, physics_cached, motion = physics_stage(obs, motion, contacts, stationary, out_dir, settings,
+                                                        progress)
     if physics is not None:
         seconds["physics"] = physics.seconds
         if physics_cached:

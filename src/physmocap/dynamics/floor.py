@@ -24,6 +24,13 @@ TILT_PRIOR = 0.01  # fit_floor's pull towards the warm-up's floor, weaker than t
 MAX_POINTS = 4000  # kept points; beyond, every other one is dropped (the whole history stays covered, thinner)
 
 
+def floor_frame(normal: np.ndarray, offset: float) -> tuple[np.ndarray, np.ndarray]:
+    """(R, shift): the rigid map x -> R x + shift taking the plane normal . x + offset = 0 (normal near up) to
+    z = 0, the plane's point nearest the origin to the origin, with the smallest rotation."""
+    rotation = rotation_between(normal, UP)
+    return rotation, rotation @ (offset * normal)
+
+
 class FloorRefiner:
     """The floor plane n . x + d = 0 in the kinematic world (starting at z = 0), refined from contact points.
 
@@ -74,9 +81,7 @@ class FloorRefiner:
             turn = axis_angle_matrix(axis / np.linalg.norm(axis), min(angle, self.max_turn))
             self.normal = turn @ self.normal
         self.offset += np.clip(self.fitted_offset - self.offset, -self.max_lift, self.max_lift)
-        # The plane's point nearest the world origin goes to the origin; the plane goes to z = 0.
-        self.rotation = rotation_between(self.normal, UP)
-        self.shift = self.rotation @ (self.offset * self.normal)
+        self.rotation, self.shift = floor_frame(self.normal, self.offset)
         mujoco.mju_mat2Quat(self.quat, self.rotation.ravel())
         mujoco.mju_negQuat(self.inverse_quat, self.quat)
 
@@ -95,6 +100,11 @@ class FloorRefiner:
         out[:3] = self.rotation.T @ (qpos[:3] - self.shift)
         mujoco.mju_mulQuat(out[3:7], self.inverse_quat, qpos[3:7])
         return out
+
+    @property
+    def plane(self) -> np.ndarray:
+        """(4,) the current estimate n . x + d = 0 in the kinematic world."""
+        return np.append(self.normal, self.offset)
 
     def vector_to_kinematic(self, vectors: np.ndarray) -> np.ndarray:
         """(..., 3) forces or directions of the physics frame in the kinematic world."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 
@@ -10,9 +11,11 @@ import numpy as np
 
 from ..body import kinematics as kin
 from ..body.model import BodyModel
+from ..camera import Floor
 from ..config import PhysicsSettings
+from ..kinematics.stage import KinematicMotion, rigid_transform_qpos
 from .balance import BalanceCorrector
-from .floor import FloorRefiner
+from .floor import FloorRefiner, floor_frame
 from .physcap import FrameOutput, PhysCapTracker
 
 
@@ -21,7 +24,9 @@ class PhysicsMotion:
     """qpos: (T, nq) physically tracked motion; grf: (T, 4, 3) N per contact point (l heel, l toe, r heel,
     r toe), world frame; residual: (T, 6) direct root actuation (force N in the world, torque N m in the pelvis
     frame); contacts: (T, 4) contacts in use; corrected: (T,) frames whose pose the balance correction changed;
-    qp_failures: (T,) integration steps whose QP failed and fell back; seconds: time spent."""
+    qp_failures: (T,) integration steps whose QP failed and fell back; seconds: time spent; floor_plane: (4,) the
+    refined floor n . x + d = 0 in the motion's world where the physics ended on one (see PhysicsStream), else
+    None (the floor is z = 0)."""
 
     qpos: np.ndarray
     grf: np.ndarray
@@ -30,13 +35,14 @@ class PhysicsMotion:
     corrected: np.ndarray
     qp_failures: np.ndarray
     seconds: float
+    floor_plane: np.ndarray | None = None
 
 
 class PhysicsStream:
     """The physics stage one frame at a time (live capture, and `run_physcap` frame by frame): estimates the
     kinematic velocities causally, corrects balance, and tracks. With refine_floor (an online fit whose floor
     was estimated, not given) the floor is refined as frames arrive and the character runs on the refined floor;
-    poses and forces come back in the kinematic world."""
+    poses and forces come back in the kinematic world (`onto_refined_floor` moves both onto the final floor)."""
 
     def __init__(self, body: BodyModel, settings: PhysicsSettings, fps: float, refine_floor: bool = False):
         self.body, self.settings, self.fps = body, settings, fps
@@ -48,6 +54,11 @@ class PhysicsStream:
         self._previous: np.ndarray | None = None  # last kinematic pose
         self._velocity = np.zeros(body.nv)
         self._frames = 0
+
+    @property
+    def floor_plane(self) -> np.ndarray | None:
+        """The refined floor n . x + d = 0 in the kinematic world, or None when not refining."""
+        return None if self.floor is None else self.floor.plane
 
     def push(self, q_kin: np.ndarray, contacts: np.ndarray,
              stationary: bool) -> tuple[np.ndarray, FrameOutput, bool]:
@@ -102,4 +113,26 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
         if progress:
             progress(t + 1, T)
     out.seconds = time.perf_counter() - start
+    out.floor_plane = stream.floor_plane
     return out
+
+
+def onto_refined_floor(motion: KinematicMotion, physics: PhysicsMotion) -> tuple[KinematicMotion, PhysicsMotion]:
+    """Both motions re-expressed in the world whose z = 0 plane is the floor the physics ended on (the camera
+    follows), so that the result's floor is z = 0 as everywhere else; unchanged when the floor was not refined."""
+    if physics.floor_plane is None:
+        return motion, physics
+    rotation, shift = floor_frame(physics.floor_plane[:3], float(physics.floor_plane[3]))
+    camera = motion.camera
+    # x_camera = R_c x + t_c with x = R'(x_new - shift)
+    R_camera = camera.R @ rotation.T
+    new_camera = camera.with_extrinsics(R_camera, camera.t - R_camera @ shift)
+    normal = R_camera[:, 2]
+    floor = Floor(normal, -float(normal @ new_camera.t), motion.floor.inlier_fraction)
+    motion = dataclasses.replace(motion, camera=new_camera, floor=floor,
+                                 qpos=rigid_transform_qpos(motion.qpos, rotation, shift))
+    residual = physics.residual.copy()
+    residual[:, :3] = residual[:, :3] @ rotation.T  # the torque is in the pelvis frame
+    physics = dataclasses.replace(physics, qpos=rigid_transform_qpos(physics.qpos, rotation, shift),
+                                  grf=physics.grf @ rotation.T, residual=residual, floor_plane=None)
+    return motion, physics
