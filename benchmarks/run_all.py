@@ -26,6 +26,7 @@ BENCHMARKS = {  # name: (script, arguments)
     "synthetic": ("bench_synthetic.py", []),
     "physics_speed": ("bench_physics.py", []),
     "physics_ablation": ("bench_physics_ablation.py", []),
+    "physics_real": ("bench_physics_real.py", []),  # after kinematics_real: it reads its cached detections
     "scaling": ("bench_scaling.py", []),
     "multiview_none": ("bench_multiview.py", ["--physics", "none"]),
     "multiview_physcap": ("bench_multiview.py", ["--physics", "physcap"]),
@@ -140,6 +141,25 @@ def synthetic_section() -> list[str]:
                   for m, r in data["without_foot_swaps"].items()) + ".",
               "Global root error of the offline fit when the height given is off by 3%: " + ", ".join(
                   f"{k}: {_f(v)} mm" for k, v in data["height_error_global_root_mm"].items()) + "."]
+    return lines
+
+
+PHYSICS_REAL = (*NO_TRUTH[:-1], ("grf_mean_percent_bw", "solved GRF mean % BW"),
+                ("grf_max_percent_bw", "solved GRF max % BW"), ("grf_ballistic_percent_bw", "solved GRF in flight % BW"),
+                ("residual_force_percent_bw", "residual root force % BW"), NO_TRUTH[-1])
+
+
+def physics_real_section() -> list[str]:
+    data = _load("physics_real")
+    if not data:
+        return ["(not run)"]
+    lines = ["| video, fit, motion | " + " | ".join(t for _, t in PHYSICS_REAL) + " |",
+             "|---" * (len(PHYSICS_REAL) + 1) + "|"]
+    for video, modes in data.items():
+        for mode, row in modes.items():
+            for motion in ("kinematic", "physcap"):
+                lines.append(f"| {video}, {mode}, {motion} | "
+                             + " | ".join(_f(row[motion].get(k)) for k, _ in PHYSICS_REAL) + " |")
     return lines
 
 
@@ -322,6 +342,13 @@ def compose(seconds: dict[str, float]) -> str:
         "floor and the detected contacts (centred network), the forces the motion's centre of mass implies.",
         "",
         *no_truth_section(),
+        "",
+        "PhysCap on the same videos (`.venv/bin/python benchmarks/bench_physics_real.py`: `capture --physics "
+        "physcap` from the cached detections; online: causal fit and contacts, the floor refined as frames arrive; "
+        "offline: whole-clip fit, centred contacts), with the same metrics for its kinematic input and its result; "
+        "floor errors against the run's floor and the contacts physics used.",
+        "",
+        *physics_real_section(),
         "",
         "## Synthetic set with ground truth: kinematic and physics methods",
         "",
