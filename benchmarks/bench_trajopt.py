@@ -37,7 +37,7 @@ from physmocap import metrics  # noqa: E402
 from physmocap.body import kinematics as kin  # noqa: E402
 from physmocap.body.model import CONTACT_POINTS  # noqa: E402
 from physmocap.config import Settings, TrajoptSettings  # noqa: E402
-from physmocap.contacts.labels import contact_labels  # noqa: E402
+from physmocap.contacts.labels import LabelSettings, contact_labels  # noqa: E402
 from physmocap.contacts.noise import MEDIAPIPE_NOISE  # noqa: E402
 from physmocap.contacts.predict import predict_contacts  # noqa: E402
 from physmocap.dynamics.stage import run_physcap  # noqa: E402
@@ -50,6 +50,7 @@ from physmocap.trajopt import refine_kinematics, run_trajopt  # noqa: E402
 METHODS = ("kinematic offline", "kinematic refined (B.4)", "physcap on offline", "trajopt",
            "kinematic refined, true floor", "trajopt, true floor")
 PIECE_SECONDS = 2.0
+TOUCHING = 0.02  # m: a heel or toe this close to the floor touches it (the labels' height limit is 5 cm)
 SCALING_CLIP = "cmu_iclone_cc3_retarget/001_01.bvh"
 SCALING_SECONDS = (2.0, 5.0, 10.0, 20.0)
 KEYS = ("global_mpjpe_mm", "first_frame_aligned_mm", "mpjpe_root_mm", "floating_percent", "penetration_percent",
@@ -72,15 +73,29 @@ def score(motion, qpos, truth, grf=None, residual=None) -> dict:
     return score_against_truth(points, motion.body.point_names, com, truth, motion.body.mass, grf, residual)
 
 
-def true_flight(truth: dict, body_mass: float) -> dict:
+def true_flight(truth: dict, body, grf: np.ndarray) -> dict:
     """The true motion's flight frames (no point in contact by the true labels) and the GRF its own motion implies
-    there, with the mean of its 20 joints standing in for its centre of mass (it has no body model): what the
-    ballistic GRF metric gives the truth itself, the floor below which no estimate can be expected to go."""
+    there, its centre of mass from its joints with the body model's segment masses
+    (kin.center_of_mass_from_points): what the ballistic GRF metric gives the truth itself, the floor below which
+    no estimate can be expected to go. Also how many of those frames have a heel or toe within TOUCHING of the
+    floor (in the air by the labels only because the point moves faster than their speed limit: a rolling push-off),
+    and the median net force of `grf` (T, 4, 3), trajopt's, over those frames and over the others (airborne).
+    Also the truth's own floating, penetration and skate against its labels (the motion capture's feet slide and
+    dip through the floor too)."""
     names = [str(n) for n in truth["joint_names"]]
-    labels = contact_labels(truth["joints_world"][:, [names.index(n) for n in CONTACT_POINTS]], float(truth["fps"]))
-    com = truth["joints_world"].mean(axis=1)
-    forces = metrics.grf_statistics(metrics.implied_grf(com, body_mass, float(truth["fps"])), body_mass, labels)
-    return dict(frames=int((~labels.any(axis=1)).sum()), ballistic_percent_bw=forces["ballistic_percent_bw"])
+    sites = truth["joints_world"][:, [names.index(n) for n in CONTACT_POINTS]]
+    labels = contact_labels(sites, float(truth["fps"]))
+    com = kin.center_of_mass_from_points(body, truth["joints_world"], names)
+    forces = metrics.grf_statistics(metrics.implied_grf(com, body.mass, float(truth["fps"])), body.mass, labels)
+    flight = ~labels.any(axis=1)
+    touching = flight & (sites[..., 2] < TOUCHING).any(axis=1)
+    percent = 100 * np.linalg.norm(grf.sum(axis=1), axis=-1) / (body.mass * metrics.GRAVITY)
+    median = lambda frames: float(np.median(percent[frames])) if frames.any() else float("nan")  # noqa: E731
+    feet = metrics.foot_contact_errors(sites, labels, fps=float(truth["fps"]))
+    return dict(frames=int(flight.sum()), touching_frames=int(touching.sum()),
+                **{k: feet[k] for k in ("floating_percent", "penetration_percent", "skate_percent")},
+                ballistic_percent_bw=forces["ballistic_percent_bw"], trajopt_touching_percent_bw=median(touching),
+                trajopt_airborne_percent_bw=median(flight & ~touching))
 
 
 def evaluate_case(name: str, seed: int, settings_trajopt: TrajoptSettings) -> dict:
@@ -123,7 +138,7 @@ def evaluate_case(name: str, seed: int, settings_trajopt: TrajoptSettings) -> di
                            statuses=[s.status for w in piece.windows for s in w.stages]))
     return dict(
         clip=name.split("/")[-1], seed=seed, frames=len(motion.qpos), rows=rows,
-        converged_fraction=float(result.converged.mean()), true_flight=true_flight(truth, motion.body.mass),
+        converged_fraction=float(result.converged.mean()), true_flight=true_flight(truth, motion.body, result.grf),
         converged_fraction_true_floor=float(result_f.converged.mean()), refine_seconds=refine_seconds,
         trajopt_seconds=trajopt_seconds, trajopt_ms_per_frame=1000 * trajopt_seconds / len(motion.qpos),
         windows=[dict(start=w.start, stop=w.stop, keep=w.keep, converged=w.converged,
@@ -172,9 +187,13 @@ def summarise(cases: list[dict]) -> dict:
         whole_clips_converged=float(np.mean([c["converged_fraction"] == 1.0 for c in cases])),
         whole_clips_converged_true_floor=float(np.mean([c["converged_fraction_true_floor"] == 1.0 for c in cases])))
     flights = [c["true_flight"] for c in cases if c["true_flight"]["frames"]]
-    summary["true_flight"] = dict(cases=len(flights), frames=int(sum(f["frames"] for f in flights)),
-                                  ballistic_percent_bw=float(np.mean([f["ballistic_percent_bw"] for f in flights]))
-                                  if flights else float("nan"))
+    summary["truth_feet"] = {k: float(np.mean([c["true_flight"][k] for c in cases]))
+                             for k in ("floating_percent", "penetration_percent", "skate_percent")}
+    summary["true_flight"] = dict(
+        cases=len(flights), frames=int(sum(f["frames"] for f in flights)),
+        touching_frames=int(sum(f["touching_frames"] for f in flights)),
+        **{key: float(np.nanmean([f[key] for f in flights])) if flights else float("nan")
+           for key in ("ballistic_percent_bw", "trajopt_touching_percent_bw", "trajopt_airborne_percent_bw")})
     return summary
 
 
@@ -194,9 +213,16 @@ def markdown(out: dict) -> str:
     c, flight = s["convergence"], s["true_flight"]
     lines += ["", f"Ballistic GRF: median force over the frames in flight by the true labels, averaged over the "
               f"{flight['cases']} cases that have any ({flight['frames']} frames in all). The true motion itself "
-              f"implies {flight['ballistic_percent_bw']:.0f}% of body weight there by the same metric (its joints' "
-              "mean standing in for its centre of mass; the second difference at a flight's first and last frame "
-              "reaches into the contact frames around it, and not every label flight is a fall).", "",
+              f"implies {flight['ballistic_percent_bw']:.0f}% of body weight there by the same metric (its centre "
+              "of mass from its joints and the body model's segment masses). Not every label flight is a flight: "
+              f"in {flight['touching_frames']} of the {flight['frames']} frames a heel or toe is within "
+              f"{100 * TOUCHING:.0f} cm of the floor, in the air by the labels only because it moves faster than "
+              f"{LabelSettings().contact_max_speed:.1f} m/s (a rolling push-off). Trajopt's median there: "
+              f"{flight['trajopt_touching_percent_bw']:.0f}% BW; in the other flight frames: {flight['trajopt_airborne_percent_bw']:.0f}% BW (means over the "
+              "cases that have such frames).", "",
+              "The motion capture's own feet against its labels, by the same metrics: floating "
+              f"{s['truth_feet']['floating_percent']:.1f}%, penetration {s['truth_feet']['penetration_percent']:.2f}%, "
+              f"skate {s['truth_feet']['skate_percent']:.1f}%.", "",
               f"Converged: {c['converged']} of {c['pieces']} two-second clips ({100 * c['share']:.1f}%; the paper: "
               f"94.9%), median {c['piece_seconds_median']:.1f} s per 2 s clip; whole {SECONDS:.0f} s clips fully "
               f"converged: {100 * c['whole_clips_converged']:.0f}% (with the true floor: "

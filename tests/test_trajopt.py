@@ -211,6 +211,62 @@ def test_reduced_model_com_and_inertia_match_mujoco(body):
                        red.rotation[0] @ red.inertia[0] @ red.rotation[0].T)
 
 
+def swinging(body, frames=40, rigid=False):
+    """A motion whose root turns and moves; its arm and leg swing too unless `rigid`."""
+    t = np.arange(frames) / FPS
+    rates = np.zeros((frames, body.nv))
+    rates[:, 0:3] = [0.4, 0.1, 0.2]
+    rates[:, 3:6] = np.stack([0.3 * np.cos(2 * t), 0.5 * np.sin(3 * t), 0.8 + 0 * t], axis=1)
+    if not rigid:
+        for joint in ("left_shoulder", "right_hip"):
+            a = body.dof_address[body.joint_index[joint]]
+            rates[:, a + 1] = 4.0 * np.cos(5 * t)
+    q = [body.rest_qpos]
+    for k in range(frames - 1):
+        q.append(kin.integrate(body, q[-1][None], rates[k][None] / FPS)[0])
+    return np.array(q)
+
+
+def test_internal_torque_is_the_limbs_share_of_the_angular_momentum_rate(body):
+    """dL/dt of the whole body about its COM (MuJoCo's subtree angular momentum) = the reduced model's rigid
+    torque (from its inertia and root rotation) + internal_torque; zero for a body that turns rigidly."""
+    rigid = reduced_motion(body, swinging(body, rigid=True), FPS)
+    assert np.abs(rigid.internal_torque[2:-2]).max() < 1e-3 * body.mass
+    q = swinging(body)
+    red = reduced_motion(body, q, FPS)
+    m = body.mujoco_model()
+    d = mujoco.MjData(m)
+    momentum = []
+    for k in range(len(q)):
+        lo, hi = max(k - 1, 0), min(k + 1, len(q) - 1)
+        d.qpos[:] = q[k]
+        d.qvel[:] = kin.difference(body, q[lo][None], q[hi][None])[0] * FPS / (hi - lo)
+        mujoco.mj_forward(m, d)
+        mujoco.mj_subtreeVel(m, d)
+        momentum.append(d.subtree_angmom[1].copy())
+    total = np.gradient(np.array(momentum), axis=0) * FPS
+    R = red.rotation
+    w = 0.5 * np.stack([(dR @ r.T)[[2, 0, 1], [1, 2, 0]] - (dR @ r.T)[[1, 2, 0], [2, 0, 1]]
+                        for dR, r in zip(np.gradient(R, axis=0) * FPS, R)])
+    inertia = R @ red.inertia @ R.transpose(0, 2, 1)
+    rigid_part = np.einsum("tij,tj->ti", inertia, np.gradient(w, axis=0) * FPS) + np.cross(
+        w, np.einsum("tij,tj->ti", inertia, w))
+    inner = slice(3, -3)
+    expected = (total - rigid_part)[inner]
+    assert np.abs(expected).max() > 5.0  # N m: the swinging limbs matter
+    assert np.allclose(red.internal_torque[inner], expected, atol=0.05 * np.abs(expected).max())
+
+
+def test_center_of_mass_from_points_matches_the_models_own(body):
+    rng = np.random.default_rng(3)
+    q = kin.integrate(body, np.repeat(body.rest_qpos[None], 5, axis=0), rng.normal(scale=0.4, size=(5, body.nv)))
+    pose = kin.forward_kinematics(body, q)
+    com = kin.center_of_mass_from_points(body, pose.points, body.point_names)
+    assert np.abs(com - kin.center_of_mass(body, pose)).max() < 0.003
+    shuffled = list(reversed(body.point_names))
+    assert np.allclose(kin.center_of_mass_from_points(body, pose.points[:, ::-1], shuffled), com)
+
+
 def test_boundary_velocity_is_the_mean_of_the_first_frames():
     com = np.stack([np.arange(20) * 0.04, np.zeros(20), np.ones(20)], axis=1)
     com[0, 0] += 0.01  # a noisy first frame

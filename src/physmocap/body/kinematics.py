@@ -179,3 +179,33 @@ def center_of_mass(model: BodyModel, pose: Pose) -> np.ndarray:
     """(T, 3) whole-body centre of mass."""
     com = pose.origins + np.einsum("tbij,bj->tbi", pose.rotations, np.stack([b.com for b in model.bodies]))
     return np.einsum("tbi,b->ti", com, model.body_masses) / model.mass
+
+
+# Each body's segment as two named points its centre of mass lies on (or near): joint to joint, the hand along its
+# forearm, the foot along its sole (heel to toe).
+SEGMENT_POINTS: dict[str, tuple[str, str]] = {
+    "pelvis": ("pelvis", "spine"), "torso": ("spine", "neck"), "head": ("neck", "head"),
+    **{f"{side}_{body}": (f"{side}_{a}", f"{side}_{b}") for side in ("left", "right")
+       for body, a, b in (("upper_arm", "shoulder", "elbow"), ("forearm", "elbow", "wrist"),
+                          ("hand", "elbow", "wrist"), ("thigh", "hip", "knee"), ("shin", "knee", "ankle"),
+                          ("foot", "heel", "toe"))},
+}
+
+
+def center_of_mass_from_points(model: BodyModel, points: np.ndarray, names) -> np.ndarray:
+    """(T, 3) whole-body centre of mass of a skeleton known only by its joint positions (e.g. motion capture):
+    every body of `model` carries its (de Leva) mass at the fraction along its segment (SEGMENT_POINTS) where the
+    model's own centre of mass projects in the rest pose. points: (T, P, 3) named `names` (the model's joint and
+    contact point names, any order). On the model's own poses this is its centre of mass to about a millimetre
+    (the feet's and hands' centres off their lines are ignored)."""
+    names = [str(n) for n in names]
+    rest = forward_kinematics(model, model.rest_qpos[None])
+    rest_com = rest.origins[0] + np.einsum("bij,bj->bi", rest.rotations[0], np.stack([b.com for b in model.bodies]))
+    total = np.zeros(points.shape[:1] + (3,))
+    for b, body in enumerate(model.bodies):
+        a, c = SEGMENT_POINTS[body.name]
+        pa, pc = rest.points[0, model.point_index([a, c])]
+        fraction = float((rest_com[b] - pa) @ (pc - pa) / ((pc - pa) @ (pc - pa)))
+        start, end = points[:, names.index(a)], points[:, names.index(c)]
+        total += body.mass * (start + fraction * (end - start))
+    return total / model.mass

@@ -13,7 +13,8 @@ variable sets
                       neighbouring phase); the polynomials next to a boundary are long enough that it never
                       passes a node, so only samples near a boundary choose between two polynomials
 constraint sets
-  dynamics            m r'' = sum f + m g; I_w w' + w x I_w w = sum (p - r) x f, I_w from the input's I_b(t);
+  dynamics            m r'' = sum f + m g; I_w w' + w x I_w w (+ the input limbs' share, ours) = sum (p - r) x f,
+                      I_w from the input's I_b(t);
                       Euler's equation every 0.1 s (the paper), Newton's twice per frame (ours, see settings)
   acceleration_continuity  COM position and orientation C2 at their nodes (ours, see there)
   velocity_boundaries COM velocity at the clip's first and last frame = mean input velocity of 5 frames
@@ -527,13 +528,16 @@ def _offset_of(problem: WindowProblem, target: VariableSet) -> int:
 # ---- constraint sets ---------------------------------------------------------------------------------------
 def dynamics_residuals(problem: WindowProblem, times: np.ndarray):
     """Newton and Euler residuals (3, n) each at `times`, scaled by body weight (and 1 m), forces f in body
-    weights: r''/g + z - sum f and (I_w w' + w x I_w w)/(m g) - sum (p - r) x f."""
+    weights: r''/g + z - sum f and (I_w w' + w x I_w w + tau_int)/(m g) - sum (p - r) x f, tau_int the input's
+    internal torque (ReducedMotion.internal_torque) when `internal_momentum` is on, else zero."""
     s, red = problem.settings, problem.window.reduced
     n = len(times)
     r = problem.sample(problem.com.position, times, 0)
     acc = problem.sample(problem.com.position, times, 2)
     e = [problem.sample(problem.com.orientation, times, k) for k in range(3)]
     torque = euler_torque(e[0], e[1], e[2], interpolate(red.times, red.inertia, times))
+    if s.internal_momentum:
+        torque = torque + ca.DM(interpolate(red.times, red.internal_torque, times).T)
     total, moment = SYMBOL.zeros(3, n), SYMBOL.zeros(3, n)
     for i, force in enumerate(problem.forces):
         if not force.any_contact:

@@ -2,8 +2,9 @@
 
 Every body segment carries its de Leva (1996) mass and inertia (the BodyModel's); from the kinematic motion come
 the centre of mass, the whole-body inertia tensor about it in the root's frame (time-varying: arms swing), the
-root orientation standing for the COM orientation, the heel and toe positions, and the hip joints of the legs
-relative to the COM (for the leg-length constraint). World frame: Z up, floor z = 0.
+root orientation standing for the COM orientation, the heel and toe positions, the hip joints of the legs
+relative to the COM (for the leg-length constraint), and the torque the swinging limbs' angular momentum needs
+beyond the single rigid body's (ours). World frame: Z up, floor z = 0.
 """
 
 from __future__ import annotations
@@ -29,7 +30,9 @@ class ReducedMotion:
     `euler_to_matrix`); inertia: (T, 3, 3) whole-body inertia about the COM in the root frame, kg m^2;
     feet: (T, 4, 3) heel and toe positions (CONTACT_POINTS order), m; hips: (T, 4, 3) the hip joint of each
     contact point's leg relative to the COM, in the root frame, m; mass: kg; foot_length: (2,) heel to toe of
-    the left and right foot, m; leg_length: (4,) the farthest each contact point can be from its hip, m.
+    the left and right foot, m; leg_length: (4,) the farthest each contact point can be from its hip, m;
+    internal_torque: (T, 3) N m, world frame: the rate of change of the motion's whole-body angular momentum about
+    its COM that the reduced model's single rotating body does not produce (see `internal_torque`).
     """
 
     times: np.ndarray
@@ -42,6 +45,7 @@ class ReducedMotion:
     mass: float
     foot_length: np.ndarray
     leg_length: np.ndarray
+    internal_torque: np.ndarray
 
     @property
     def num_frames(self) -> int:
@@ -49,7 +53,8 @@ class ReducedMotion:
 
     def frames(self, sl: slice) -> "ReducedMotion":
         return ReducedMotion(self.times[sl], self.com[sl], self.rotation[sl], self.euler[sl], self.inertia[sl],
-                             self.feet[sl], self.hips[sl], self.mass, self.foot_length, self.leg_length)
+                             self.feet[sl], self.hips[sl], self.mass, self.foot_length, self.leg_length,
+                             self.internal_torque[sl])
 
 
 def euler_to_matrix(euler: np.ndarray) -> np.ndarray:
@@ -81,6 +86,37 @@ def world_inertia(body: BodyModel, pose: kin.Pose, com: np.ndarray) -> np.ndarra
     parallel = (np.einsum("b,tbi,tbi->t", masses, d, d)[:, None, None] * np.eye(3)
                 - np.einsum("b,tbi,tbj->tij", masses, d, d))
     return rotated + parallel
+
+
+def _angular_velocity(rotation: np.ndarray, fps: float) -> np.ndarray:
+    """(T, ...) world angular velocities, rad/s, of rotations (T, ..., 3, 3) by finite differences (R' R^T)."""
+    W = np.einsum("t...ij,t...kj->t...ik", np.gradient(rotation, axis=0) * fps, rotation)
+    return 0.5 * np.stack([W[..., 2, 1] - W[..., 1, 2], W[..., 0, 2] - W[..., 2, 0], W[..., 1, 0] - W[..., 0, 1]],
+                          axis=-1)
+
+
+def internal_torque(body: BodyModel, pose: kin.Pose, com: np.ndarray, inertia_world: np.ndarray,
+                    fps: float) -> np.ndarray:
+    """(T, 3) N m: dL/dt - (I_w w' + w x I_w w) of a motion, world frame. L is the whole-body angular momentum
+    about the COM (every segment's spin and its mass moving about the COM); the bracket the torque the reduced
+    model's one rigid body needs, with the whole body's inertia I_w turning at the root's angular velocity w.
+    The difference is what swinging legs and arms add (ours: the paper's reduced model omits it, so balancing
+    the angular momentum of a walk's swinging leg needed contact points and a COM away from the observed ones).
+    Finite differences of the motion; zeros for fewer than 3 frames."""
+    if len(com) < 3:
+        return np.zeros_like(com)
+    R = pose.rotations  # (T, B, 3, 3)
+    masses = body.body_masses
+    seg_com = pose.origins + np.einsum("tbij,bj->tbi", R, np.stack([b.com for b in body.bodies]))
+    principal = np.stack([b.inertia for b in body.bodies])  # (B, 3)
+    spin = np.einsum("tbij,bj,tbkj,tbk->ti", R, principal, R, _angular_velocity(R, fps))
+    d = seg_com - com[:, None]
+    v = np.gradient(seg_com, axis=0) * fps - (np.gradient(com, axis=0) * fps)[:, None]
+    momentum = spin + np.einsum("b,tbi->ti", masses, np.cross(d, v))
+    w = _angular_velocity(R[:, 0], fps)
+    rigid = np.einsum("tij,tj->ti", inertia_world, np.gradient(w, axis=0) * fps) + np.cross(
+        w, np.einsum("tij,tj->ti", inertia_world, w))
+    return np.gradient(momentum, axis=0) * fps - rigid
 
 
 def leg_reach(body: BodyModel) -> np.ndarray:
@@ -119,7 +155,7 @@ def reduced_motion(body: BodyModel, qpos: np.ndarray, fps: float) -> ReducedMoti
     hips = np.einsum("tji,tkj->tki", rotation, hips_world)  # R^T (hip - com)
     return ReducedMotion(np.arange(len(qpos)) / fps, com, rotation, matrix_to_euler(rotation),
                          0.5 * (inertia + inertia.transpose(0, 2, 1)), feet, hips, float(body.mass),
-                         foot_lengths(body), leg_reach(body))
+                         foot_lengths(body), leg_reach(body), internal_torque(body, pose, com, inertia_world, fps))
 
 
 def boundary_velocity(com: np.ndarray, fps: float, frames: int, end: bool) -> np.ndarray:
