@@ -4,7 +4,7 @@ import pytest
 from physmocap.body import kinematics as kin
 from physmocap.camera import Camera
 from physmocap.config import FitSettings, Settings
-from physmocap.kinematics.fit import MARKER_LANDMARKS, MARKERS, FitTargets, KinematicFitter
+from physmocap.kinematics.fit import MARKER_LANDMARKS, MARKERS, FitTargets, KinematicFitter, _soft_excess
 from physmocap.kinematics.stage import fit_motion, make_targets, reprojection_errors
 from physmocap.kinematics.calibration import calibrate
 from physmocap.motion import Observations
@@ -67,9 +67,22 @@ def test_frame_terms_jacobian_matches_finite_differences(body, camera):
     # Robust weights are held fixed within a linearisation: compare the Jacobian with them off.
     fitter = KinematicFitter(body, camera, FitSettings(weight_prior=0.3, robust_2d=0, robust_3d=0), 30.0)
     targets = _targets(body, q, camera, rng)
-    # push some hinges beyond their limits so that the limit term is active
+    # push some hinges beyond their limits so that the limit term is active, others into its rounded band
     q[:, body.qpos_address[body.joint_index["left_knee"]]] = -0.3
+    q[:, body.qpos_address[body.joint_index["right_knee"]]] = np.radians(-5) + np.array([-0.1, 0.05, 0.15])
+    q[:, body.qpos_address[body.joint_index["left_elbow"]]] = np.radians(155) + np.array([-0.15, 0.0, 0.12])
     assert_frame_terms_jacobian(fitter, q, targets)
+
+
+def test_soft_limit_excess_is_rounded_only_within_its_band():
+    excess = np.linspace(-0.5, 0.5, 1001)
+    value, slope = _soft_excess(excess, 0.2)
+    far = np.abs(excess) >= 0.2
+    assert np.allclose(value[far], np.maximum(excess[far], 0.0))
+    assert np.all(value >= np.maximum(excess, 0.0)) and np.all(np.diff(value) >= 0)
+    assert np.allclose(np.gradient(value, excess)[1:-1], slope[1:-1], atol=2e-3)  # continuous slope, no kink
+    kink, kink_slope = _soft_excess(excess, 0.0)
+    assert np.array_equal(kink, np.maximum(excess, 0.0)) and np.array_equal(kink_slope, (excess > 0) * 1.0)
 
 
 def test_temporal_signal_jacobians_match_finite_differences(body, camera):

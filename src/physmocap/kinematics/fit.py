@@ -189,14 +189,16 @@ class KinematicFitter:
         w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
         block = np.stack([w, -z, y, z, w, -x, -y, x, w], axis=-1)  # (T, n_ball, 9), row-major 3x3
         J[:, self.prior_rows, self.prior_cols] = wp * block.reshape(T, -1)
-        # Hinge limits, one-sided.
+        # Hinge limits, one-sided, rounded off within `limit_band` of the limit (see _soft_excess).
         row += 3 * n_ball
         angles = qpos[:, self.hinge_qadr]
         wl = np.sqrt(self.settings.weight_limits)
-        excess = angles - np.clip(angles, self.hinge_limits[:, 0], self.hinge_limits[:, 1])
         n_hinge = len(self.hinge_vadr)
-        r[:, row:row + n_hinge] = wl * excess
-        J[:, row + np.arange(n_hinge), self.hinge_vadr] = wl * (excess != 0)
+        band = self.settings.limit_band
+        above, above_slope = _soft_excess(angles - self.hinge_limits[:, 1], band)
+        below, below_slope = _soft_excess(self.hinge_limits[:, 0] - angles, band)
+        r[:, row:row + n_hinge] = wl * (above - below)
+        J[:, row + np.arange(n_hinge), self.hinge_vadr] = wl * (above_slope + below_slope)
         if floor_rows:
             # Contact position (Rempe B7): c sqrt(w) (n . x + d) for the heel and toe sites.
             row += n_hinge
@@ -302,12 +304,17 @@ class KinematicFitter:
             pull = np.zeros_like(values)
             for a in range(K):
                 pull[a:a + n] += coeffs[a] * squared * rho
-            g += (jacobians.transpose(0, 2, 1) @ pull[..., None])[..., 0]
+            transposed = jacobians.transpose(0, 2, 1)
+            g += (transposed @ pull[..., None])[..., 0]
             for d in range(K):
-                row_weights = np.zeros((T - d,) + values.shape[1:])
+                # Without pair weights all rows of a frame weigh the same: scale the (nv, nv) products instead.
+                row_weights = np.zeros((T - d,) + (() if pair_weights is None else values.shape[1:]))
                 for a in range(K - d):
                     row_weights[a:a + n] += coeffs[a] * coeffs[a + d] * squared
-                H[d, :T - d] += (row_weights[..., None] * jacobians[:T - d]).transpose(0, 2, 1) @ jacobians[d:]
+                if pair_weights is None:
+                    H[d, :T - d] += row_weights[:, None, None] * (transposed[:T - d] @ jacobians[d:])
+                else:
+                    H[d, :T - d] += (row_weights[..., None] * jacobians[:T - d]).transpose(0, 2, 1) @ jacobians[d:]
         return cost, g, H
 
     @staticmethod
@@ -388,13 +395,13 @@ class KinematicFitter:
         return cost, g, H, [values for values, _, _ in signals]
 
     def fit_frames(self, qpos_init: np.ndarray, targets: FitTargets, history, iterations: int,
-                   tolerance: float = 1e-3) -> FitResult:
+                   tolerance: float = 1e-3, damping_increase: float = 4.0) -> FitResult:
         """Fit K independent frames side by side (qpos_init (K, nq), targets of K frames), each with its own
         past (history: per temporal signal (K, h, n) values of the frames already fitted, or None): one
         Levenberg-Marquardt per frame, batched, each frame with its own damping and stopping as
-        `_levenberg_marquardt` does. The online fit is K = 1; the offline fit's initial pass runs many causal
-        streams at once. Returns the poses, the most steps any frame took, the summed cost and the temporal
-        signals' values at the result."""
+        `_levenberg_marquardt` does, its damping multiplied by `damping_increase` after a rejected step. The
+        online fit is K = 1; the offline fit's initial pass runs many causal streams at once. Returns the poses,
+        the most steps any frame took, the summed cost and the temporal signals' values at the result."""
         q = np.array(qpos_init, dtype=float)
         K, nv = len(q), self.body.nv
         cost, g, H, signals = self._frames_system(q, targets, history)
@@ -428,7 +435,7 @@ class KinematicFitter:
                     values[won] = new[better]
             steps[won] += 1
             damping[won] = np.maximum(damping[won] / 3, 1e-7)
-            damping[lost] *= 4
+            damping[lost] *= damping_increase
             active[won] = (steps[won] < iterations) & (decrease >= tolerance)
             active[lost] = damping[lost] < 1e8
         return FitResult(q, int(steps.max()), float(cost.sum()), signals)
@@ -438,6 +445,18 @@ class KinematicFitter:
         is offline only: the online fit does not use it."""
         points, jac = self.evaluate(qpos)
         return [values for values, _, _ in self.temporal_signals(points, jac, qpos)]
+
+
+def _soft_excess(excess: np.ndarray, band: float) -> tuple[np.ndarray, np.ndarray]:
+    """How far a joint is beyond its limit (excess > 0 beyond it), rounded off: max(excess, 0) outside
+    |excess| < band, (excess + band)^2 / (4 band) within it (equal in value and slope at both ends). Returns the
+    value and its derivative. With the kink (band 0) a Gauss-Newton step sees no limit until it has crossed one
+    and its cost jumps; with the band the limit pushes back as a joint nears it."""
+    if band <= 0:
+        return np.maximum(excess, 0.0), (excess > 0).astype(float)
+    reach = np.maximum(excess + band, 0.0)
+    outside = excess >= band
+    return np.where(outside, excess, reach**2 / (4 * band)), np.where(outside, 1.0, reach / (2 * band))
 
 
 def _triangular_solve(L: np.ndarray, b: np.ndarray, transpose: int = 0) -> np.ndarray:

@@ -193,7 +193,8 @@ def _fit_offline(obs: Observations, settings: Settings, progress) -> KinematicMo
                                    s.fit.min_confidence))
     targets = make_targets(obs.keypoints_2d, obs.landmarks_3d, obs.valid, depth, camera, calibration, s.fit)
     fitter = KinematicFitter(body, camera, s.fit, obs.fps)
-    qpos = fit_streams(fitter, targets, obs.valid, s.fit.offline_chunk, s.fit.online_iterations, progress)
+    qpos = fit_streams(fitter, targets, obs.valid, s.fit.offline_chunk, s.fit.offline_start_iterations,
+                       progress)
     if s.fit.rescale_landmark_depth:
         scale = landmark_depth_scale(body, camera, qpos, obs, targets, calibration)
         obs = dataclasses.replace(obs, landmarks_3d=obs.landmarks_3d * np.stack(
