@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from physmocap.detect.foot_swaps import FOOT_LANDMARKS, find_foot_swaps, undo_foot_swaps
+from physmocap.body import kinematics as kin
+from physmocap.detect.foot_swaps import FOOT_LANDMARKS, CausalFootSwaps, find_foot_swaps, undo_foot_swaps
 from physmocap.landmarks import MIRRORED
 from physmocap.motion import Observations
 from test_fit import camera, observe, walking_motion  # noqa: F401 - camera is a fixture
@@ -62,3 +63,31 @@ def test_capture_reports_the_swapped_frames(walk, tmp_path):
         summary = run_capture(tmp_path / "run", Settings().replace("body", height=1.75), observations=path)
         assert summary.foot_swap_frames == ["20-31"]
     assert "kinematics" in summary.cached_stages
+
+
+def test_causal_reading_changes_only_on_a_clear_difference():
+    swaps = CausalFootSwaps(margin=0.3)
+    # as detected is better; a swapped frame (the other reading far better); back; then a tie keeps the reading
+    decisions = [swaps.update(a, b) for a, b in ((1.0, 5.0), (5.0, 1.0), (5.0, 4.0), (1.0, 5.0), (1.0, 0.8))]
+    assert decisions == [False, True, True, False, False]
+
+
+def test_online_fit_reads_swapped_feet_the_right_way_round(body, walk):
+    """Swaps inside the warm-up (found as offline) and after it (causal check against the predicted pose): the
+    online fit's ankles stay where the clean detections put them."""
+    from physmocap.config import Settings
+    from physmocap.kinematics.stage import fit_motion
+
+    swapped = mirrored(mirrored(walk, slice(20, 32), FOOT_LANDMARKS), slice(100, 110), FOOT_LANDMARKS)
+    settings = Settings(online=True).replace("body", height=body.height, mass=body.mass)
+
+    def ankles(obs, undo=True):
+        motion = fit_motion(obs, settings.replace("fit", undo_foot_swaps=undo))
+        points = kin.forward_kinematics(motion.body, motion.qpos).points
+        return points[:, motion.body.point_index(["left_ankle", "right_ankle"])]
+
+    clean = ankles(walk)
+    undone = np.linalg.norm(ankles(swapped) - clean, axis=-1)
+    kept = np.linalg.norm(ankles(swapped, undo=False) - clean, axis=-1)
+    for frames in (slice(20, 32), slice(100, 110)):
+        assert undone[frames].max() < 0.03 and kept[frames].max() > 0.1

@@ -87,8 +87,9 @@ class FitSettings:
     offline_start_iterations: int = 2  # the same for the causal fits that start the offline fit, which refines
     # them anyway (synthetic set, 8 clips x 2 seeds: 4 -> 2 took root-relative 32.4 -> 32.1 mm, global root 45.1
     # -> 47.5 mm, 1 gave 34.5 / 61.3 mm); 1 .. 50
-    undo_foot_swaps: bool = True  # offline: find where the detector swapped the left and right feet (detect.
-    # foot_swaps: knees joined to the other side's ankles, feet jumping to each other's place) and fit them back
+    undo_foot_swaps: bool = True  # find where the detector swapped the left and right feet and fit them back
+    # (detect.foot_swaps): offline and in the online warm-up from knees joined to the other side's ankles and feet
+    # jumping to each other's place; online after it, the reading that better fits the pose predicted from the past
     rescale_landmark_depth: bool = True  # offline: undo the detector's per-frame stretch of its 3D landmarks along
     # the camera axis, measured against the initial fit (stage.landmark_depth_scale)
     offline_chunk: int = 32  # frames: the offline fit starts from causal fits of runs this long, all run side by

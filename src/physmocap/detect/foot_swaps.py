@@ -5,7 +5,8 @@ for a fraction of a second, mostly when one foot passes the other. The knees kee
 frame joins each knee to the other side's ankle; and the feet jump to each other's place when a swap begins and
 ends. Both cues are scored per frame for the two readings (as detected, swapped), and the most likely sequence
 of readings over the whole clip is found by Viterbi, with a price for every change of reading: a single noisy
-frame cannot flip a reading, a consistent episode can. Offline only: the decision uses frames on both sides.
+frame cannot flip a reading, a consistent episode can; the decision uses frames on both sides. A live stream
+has only the past: `CausalFootSwaps` compares the two readings against the pose the fit predicts from it.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ def _robust_scale(x: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(x - np.median(x)))) if len(x) else 1.0
 
 
-def _swapped(points: np.ndarray) -> np.ndarray:
+def swap_feet(points: np.ndarray) -> np.ndarray:
     """(T, 33, k) landmarks with the feet's left and right exchanged."""
     out = points.copy()
     out[:, FOOT_LANDMARKS] = points[:, np.array(MIRRORED)[FOOT_LANDMARKS]]
@@ -38,7 +39,7 @@ def _swapped(points: np.ndarray) -> np.ndarray:
 def _shank_cost(landmarks_3d: np.ndarray, valid: np.ndarray, clip: float) -> np.ndarray:
     """(T, 2) per frame and reading: how far the knee-to-ankle distances (3D) are from each side's shank
     length (the median over the clip), squared in units of their robust spread, each side capped at clip^2."""
-    readings = (landmarks_3d, _swapped(landmarks_3d))
+    readings = (landmarks_3d, swap_feet(landmarks_3d))
     lengths = [np.stack([np.linalg.norm(p[:, k] - p[:, a], axis=-1) for k, a in SHANKS], axis=1) for p in readings]
     shank = np.median(lengths[0][valid], axis=0)
     scale = max(_robust_scale((lengths[0][valid] - shank).ravel()), 1e-3)
@@ -54,7 +55,7 @@ def _jump_cost(obs: Observations, clip: float) -> np.ndarray:
     knees = np.repeat([knee for knee, _ in SHANKS], 3)  # the knee of each of FOOT_LANDMARKS' sides
     out = np.zeros((obs.num_frames - 1, 2, 2))
     for points in (kp, obs.landmarks_3d):
-        readings = [p[:, FOOT_LANDMARKS] - points[:, knees] for p in (points, _swapped(points))]
+        readings = [p[:, FOOT_LANDMARKS] - points[:, knees] for p in (points, swap_feet(points))]
         still = np.linalg.norm(np.diff(readings[0], axis=0), axis=-1)
         scale = max(_robust_scale(still.ravel()), 1e-4)
         for a in range(2):
@@ -96,6 +97,24 @@ def find_foot_swaps(obs: Observations, change_cost: float = 8.0, swap_cost: floa
 def undo_foot_swaps(obs: Observations, swapped: np.ndarray) -> Observations:
     """The observations with the feet of the `swapped` frames (T,) exchanged back, in 2D and 3D."""
     keypoints, landmarks = obs.keypoints_2d.copy(), obs.landmarks_3d.copy()
-    keypoints[swapped] = _swapped(obs.keypoints_2d[swapped])
-    landmarks[swapped] = _swapped(obs.landmarks_3d[swapped])
+    keypoints[swapped] = swap_feet(obs.keypoints_2d[swapped])
+    landmarks[swapped] = swap_feet(obs.landmarks_3d[swapped])
     return dataclasses.replace(obs, keypoints_2d=keypoints, landmarks_3d=landmarks)
+
+
+class CausalFootSwaps:
+    """Per frame of a live stream, whether to read the detector's feet the other way round: the reading whose
+    fitting cost at the pose predicted from the past is lower, with hysteresis: the reading changes only when the
+    other one costs less than (1 - margin) times the current one, so that a frame where the feet pass each other
+    (both readings alike) keeps the reading of its past."""
+
+    def __init__(self, margin: float):
+        self.margin = margin
+        self.swapped = False
+
+    def update(self, cost_as_detected: float, cost_swapped: float) -> bool:
+        """The costs of both readings of one frame -> True where the frame's feet are to be swapped back."""
+        current, other = (cost_swapped, cost_as_detected) if self.swapped else (cost_as_detected, cost_swapped)
+        if other < (1.0 - self.margin) * current:
+            self.swapped = not self.swapped
+        return self.swapped
