@@ -13,8 +13,8 @@ contacts.json).
   accuracy on the training subjects' synthetic data (seed 0, 2 sequences per clip).
 - Where the errors are: both networks' held-out synthetic accuracy per CMU subject and by the distance of an
   entry to the nearest change of its site's label.
-- Inference: ms per frame of `predict_contacts` (features and network, one core) on a 3000-frame video, median of
-  5 runs.
+- Inference: ms per frame of `predict_contacts` (features and network, on the input and its mirror image, one
+  core) on a 3000-frame video, median of 5 runs.
 """
 
 from __future__ import annotations
@@ -251,7 +251,7 @@ def main() -> None:
             f"{locations[m][group]['entries']:.2f} / {locations[m][group]['accuracy']:.3f} / {locations[m][group]['errors']:.2f}"
             for m in MODES) + " |")
     lines += ["", "### Inference", "",
-              "| network | ms per frame (one core, features included) |", "|---|---|"]
+              "| network | ms per frame (one core, features and mirrored votes included) |", "|---|---|"]
     lines += [f"| {mode} | {ms:.3f} |" for mode, ms in timings.items()]
     lines.append("")
     RESULTS.mkdir(parents=True, exist_ok=True)

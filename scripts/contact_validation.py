@@ -1,14 +1,17 @@
 """Try a contact-network recipe on validation subjects taken out of the training subjects (never the test ones).
 
 Trains one network (`--mode causal|centred`) on the synthetic data of the training subjects minus `--val`, then
-prints one JSON line: accuracy, precision, recall, F1 and stationary accuracy on the validation subjects (4
-variants per clip, seed 1, the measured noise) and accuracy on the hand-labelled real frames. The figures in the
-docstrings of `contacts/train.py` and `SyntheticSettings.variants_per_clip` came from it, for example
+prints two JSON lines, without and with the mirrored input's votes (`predict.network_probabilities`): accuracy,
+precision, recall, F1 and stationary accuracy on the validation subjects (4 variants per clip, seed 1, the
+measured noise, labelled with the given label settings) and accuracy on the hand-labelled real frames. The
+figures in the docstrings of `contacts/train.py` and `SyntheticSettings.variants_per_clip` came from it, for
+example
 
-    .venv/bin/python scripts/contact_validation.py --val 1,7 --variants 192 --epochs 1
+    .venv/bin/python scripts/contact_validation.py --val 1,7 --variants 96 --epochs 2
 
 (subjects 2 and 5 train; about 5 minutes on one busy core). Settings not given keep the shipped recipe's values
-apart from --variants (8) and --epochs (4), which default small for quick trials.
+apart from --variants (8) and --epochs (4), which default small for quick trials. `--save` keeps the trained
+parameters, `--load` evaluates saved ones instead of training.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import physmocap  # noqa: F401 - single-threaded BLAS
@@ -35,13 +39,13 @@ REAL_LABELS = REPO / "benchmarks" / "labels" / "contacts_real.toml"
 DETECTIONS = REPO / "runs" / "contacts" / "detections"
 
 
-def real_accuracy(params: dict[str, np.ndarray], mode: str) -> tuple[float, dict[str, float]]:
+def real_accuracy(params: dict[str, np.ndarray], mode: str, mirror: bool) -> tuple[float, dict[str, float]]:
     """Accuracy over the judged contact entries of the hand-labelled real frames, overall and per video."""
     videos = {video.name: video for video in REAL_VIDEOS}
     right, per_video = [], {}
     for name, labels in load_real_labels(REAL_LABELS).items():
         obs = cached_detection(videos[name], SHARED / "videos", DETECTIONS)
-        _, flags = network_probabilities(obs.keypoints_2d, obs.valid, obs.fps, params, mode)
+        _, flags = network_probabilities(obs.keypoints_2d, obs.valid, obs.fps, params, mode, mirror)
         judged = labels.contacts >= 0
         correct = flags[labels.frames, :4][judged] == (labels.contacts[judged] == 1)
         right.append(correct)
@@ -57,30 +61,53 @@ def main() -> None:
     parser.add_argument("--epochs", type=int, default=4)
     parser.add_argument("--min-phase-seconds", type=float, default=LabelSettings().min_phase_seconds)
     parser.add_argument("--channels", default="128,128,128", help="causal network's convolution channels")
+    parser.add_argument("--max-speed", type=float, default=LabelSettings().contact_max_speed,
+                        help="labels' contact_max_speed, m/s")
+    parser.add_argument("--max-height", type=float, default=LabelSettings().contact_max_height,
+                        help="labels' contact_max_height, m")
+    parser.add_argument("--save", type=Path, help="write the trained parameters to this .npz file")
+    parser.add_argument("--load", type=Path, help="evaluate these parameters (.npz) instead of training")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the initial weights and the batches")
+    parser.add_argument("--learning-rate", type=float, default=train.TrainSettings().learning_rate)
+    parser.add_argument("--dropout", type=float, help="the network's dropout (default: its spec's)")
+    parser.add_argument("--positive-weight", type=float, default=1.0, help="loss weight of the contact class")
     args = parser.parse_args()
     started = time.perf_counter()
     torch.set_num_threads(1)
     synthetic = SyntheticSettings(variants_per_clip=args.variants,
-                                  labels=LabelSettings(min_phase_seconds=args.min_phase_seconds))
+                                  labels=LabelSettings(min_phase_seconds=args.min_phase_seconds,
+                                                        contact_max_speed=args.max_speed,
+                                                        contact_max_height=args.max_height))
     held_out = tuple(args.val.split(","))
     train_files, _ = split_by_subject(mocap_files(SHARED / "mocap"))
     fit_files = [f for f in train_files if cmu_subject(f) not in held_out]
     val_files = [f for f in train_files if cmu_subject(f) in held_out]
-    table = train.FrameTable.from_sequences(make_sequences(load_clips(fit_files), 0, synthetic))
     validation = make_sequences(load_clips(val_files), 1, synthetic, variants=4)
-    torch.manual_seed(1)
-    if args.mode == "causal":
-        spec = train.CausalNetSpec(channels=tuple(int(c) for c in args.channels.split(",")))
-        model, window = train.TorchCausalNet(spec), spec.window
+    if args.load is not None:
+        with np.load(args.load) as data:
+            params = {key: data[key] for key in data.files}
     else:
-        model, window = train.TorchCentredNet(train.CentredNetSpec()), train.CentredNetSpec().window
-    train.train_network(model, table, window, train.TrainSettings(epochs=args.epochs), 20, log=lambda _: None)
-    params = model.export()
-    scores = train.evaluate(params, args.mode, validation)
-    real, per_video = real_accuracy(params, args.mode)
-    print(json.dumps(dict(settings=vars(args), training_frames=len(table),
-                          validation={k: round(v, 3) for k, v in scores.items()}, real=round(real, 3),
-                          real_per_video=per_video, seconds=round(time.perf_counter() - started))))
+        table = train.FrameTable.from_sequences(make_sequences(load_clips(fit_files), 0, synthetic))
+        torch.manual_seed(1 + args.seed)
+        if args.mode == "causal":
+            spec = train.CausalNetSpec(channels=tuple(int(c) for c in args.channels.split(",")))
+            spec = spec if args.dropout is None else replace(spec, dropout=args.dropout)
+            model, window = train.TorchCausalNet(spec), spec.window
+        else:
+            spec = train.CentredNetSpec() if args.dropout is None else train.CentredNetSpec(dropout=args.dropout)
+            model, window = train.TorchCentredNet(spec), spec.window
+        train.train_network(model, table, window, train.TrainSettings(epochs=args.epochs, learning_rate=args.learning_rate,
+                                                                          positive_weight=args.positive_weight),
+                            20 + args.seed, log=lambda _: None)
+        params = model.export()
+        if args.save is not None:
+            np.savez(args.save, **params)
+    for mirror in (False, True):
+        scores = train.evaluate(params, args.mode, validation, mirror)
+        real, per_video = real_accuracy(params, args.mode, mirror)
+        print(json.dumps(dict(settings=vars(args), mirror=mirror,
+                              validation={k: round(v, 3) for k, v in scores.items()}, real=round(real, 3),
+                              real_per_video=per_video, seconds=round(time.perf_counter() - started)), default=str))
 
 
 if __name__ == "__main__":

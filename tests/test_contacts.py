@@ -40,9 +40,17 @@ def sites_track(fps: float, seconds: float, height: float, speed: float) -> np.n
 @pytest.mark.parametrize("fps", [12.0, 30.0, 120.0])
 def test_contact_rule_on_hand_made_cases(fps):
     assert contact_labels(sites_track(fps, 1.0, 0.0, 0.0), fps).all()  # planted
-    assert contact_labels(sites_track(fps, 1.0, 0.01, 0.3), fps).all()  # rolling, under 0.6 m/s and 5 cm
+    assert contact_labels(sites_track(fps, 1.0, 0.01, 0.3), fps).all()  # rolling, under 1 m/s and 5 cm
     assert not contact_labels(sites_track(fps, 1.0, 0.10, 0.0), fps).any()  # held still in the air
-    assert not contact_labels(sites_track(fps, 1.0, 0.0, 1.0), fps).any()  # sliding fast along the floor
+    assert not contact_labels(sites_track(fps, 1.0, 0.0, 1.5), fps).any()  # sliding fast along the floor
+
+
+def test_a_slow_slide_is_a_contact_unlike_in_rempes_rule():
+    """A foot sliding at 0.8 m/s on the floor bears weight (a landing's glide): in contact by default, not by
+    Rempe's 2 cm per 30 fps frame (0.6 m/s)."""
+    sites = sites_track(30.0, 1.0, 0.0, 0.8)
+    assert contact_labels(sites, 30.0).all()
+    assert not contact_labels(sites, 30.0, LabelSettings(contact_max_speed=0.6)).any()
 
 
 def test_contact_rule_thresholds_are_settings():
@@ -76,7 +84,7 @@ def test_a_one_frame_flicker_is_not_a_contact_change():
     """A planted foot whose measured speed crosses the threshold for one frame stays in contact."""
     fps = 60.0
     sites = sites_track(fps, 1.0, 0.0, 0.0)
-    sites[30:, :, 0] += 0.03  # a 3 cm jump between two frames: 0.9 m/s over the 1/30 s of frames 30 and 31
+    sites[30:, :, 0] += 0.05  # a 5 cm jump between two frames: 1.5 m/s over the 1/30 s of frames 30 and 31
     assert contact_labels(sites, fps).all()
     assert not contact_labels(sites, fps, LabelSettings(min_phase_seconds=0.0))[30:32].all()
 
@@ -222,6 +230,25 @@ def test_predict_contacts_with_shipped_weights(mode):
     assert stationary.shape == (40,) and probabilities.shape == (40, 5)
     assert not contacts[~valid].any() and not stationary[~valid].any() and (probabilities[~valid] == 0).all()
     assert ((probabilities >= 0) & (probabilities <= 1)).all()
+
+
+@pytest.mark.parametrize("mode", ["causal", "centred"])
+def test_mirrored_votes_make_predictions_mirror_symmetric(mode):
+    """With the mirrored input's votes, a mirrored video gets the mirrored flags: its left columns are the
+    original's right ones. Without them the network alone decides, which is not symmetric."""
+    rng = np.random.default_rng(7)
+    keypoints = person_keypoints(30, rng)
+    mirrored = mirror_keypoints(keypoints, 800)
+    params = load_weights(mode)
+    valid = np.ones(30, bool)
+    swap = [2, 3, 0, 1, 4]
+    probabilities, flags = network_probabilities(keypoints, valid, 30.0, params, mode, mirror=True)
+    mirror_probabilities, mirror_flags = network_probabilities(mirrored, valid, 30.0, params, mode, mirror=True)
+    assert np.allclose(mirror_probabilities[:, swap], probabilities, atol=1e-5)
+    assert np.array_equal(mirror_flags[:, swap], flags)
+    plain, _ = network_probabilities(keypoints, valid, 30.0, params, mode, mirror=False)
+    plain_mirrored, _ = network_probabilities(mirrored, valid, 30.0, params, mode, mirror=False)
+    assert not np.allclose(plain_mirrored[:, swap], plain, atol=1e-5)
 
 
 def test_causal_predictions_ignore_the_future():

@@ -19,6 +19,10 @@ MODES: tuple[str, ...] = ("causal", "centred")
 WEIGHTS_DIR = Path(__file__).resolve().parents[1] / "data" / "contacts"
 THRESHOLD = 0.5  # probability above which a flag is set (both papers' sigmoid outputs)
 BATCH_FRAMES = 4096  # frames per network call: bounds memory on long videos
+MIRROR = True  # default of `network_probabilities(mirror=...)`: vote with the left/right-mirrored input too
+# (validation subjects, scripts/contact_validation.py: accuracy +0.004 to +0.007 for either network, twice the cost)
+MIRRORED_POINTS = (1, 0, 3, 2, 5, 4, 7, 6, 9, 8, 11, 10)  # FEATURE_LANDMARKS come in (left, right) pairs
+MIRRORED_OUTPUTS = (2, 3, 0, 1, 4)  # OUTPUT_NAMES of the mirrored person: right heel, right toe, left ..., stationary
 
 
 def weights_path(mode: Mode, weights_dir: str | os.PathLike = WEIGHTS_DIR) -> Path:
@@ -42,40 +46,32 @@ def load_weights(mode: Mode, weights_dir: str | os.PathLike = WEIGHTS_DIR) -> di
 
 
 def network_probabilities(
-    keypoints_2d: np.ndarray, valid: np.ndarray, fps: float, params: dict[str, np.ndarray], mode: Mode
+    keypoints_2d: np.ndarray, valid: np.ndarray, fps: float, params: dict[str, np.ndarray], mode: Mode,
+    mirror: bool = MIRROR,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per-frame probabilities and flags of the five outputs, for given parameters.
 
     keypoints_2d: (T, 33, 3) pixels + confidence; valid: (T,) bool; fps: frames per second.
     causal: each frame's window is it and the 6 frames before (PhysCap), so a frame's flags never depend on later
-        frames; probabilities are the network's sigmoid outputs, flags are probabilities > 0.5.
+        frames; one prediction per frame.
     centred: every frame is a target of a 9-frame window whose network predicts the 5 central frames (Rempe); each
-        frame collects up to 5 overlapping predictions, the flag is their majority vote (ties, at the clip's ends
-        or next to invalid frames, go to the mean probability) and the probability is their mean.
+        frame collects up to 5 overlapping predictions.
+    mirror: also predict on the left/right-mirrored keypoints (x negated about the hips, left and right points
+        swapped) and count those predictions, their left and right columns swapped back, as further votes.
+    A frame's flag is the majority vote of its predictions (ties, as with one causal prediction and its mirror, or
+    at a clip's ends, go to the mean probability) and its probability their mean; a vote is a probability > 0.5.
     Invalid frames get probability 0 and no flag, and cast no votes.
     Returns probabilities (T, 5) float and flags (T, 5) bool, columns l heel, l toe, r heel, r toe, stationary.
     """
+    if mode not in MODES:
+        raise InputError(f"contact network mode is {mode!r}, expected one of {MODES}.")
     valid = np.asarray(valid, dtype=bool)
     points = select_keypoints(keypoints_2d, valid)
-    num_frames = len(points)
-    targets = np.flatnonzero(valid)
-    probabilities = np.zeros((num_frames, NUM_OUTPUTS))
-    if mode == "causal":
-        for start in range(0, len(targets), BATCH_FRAMES):
-            batch = targets[start : start + BATCH_FRAMES]
-            probabilities[batch] = sigmoid(causal_forward(params, window_inputs(points, fps, batch, CAUSAL_WINDOW)))
-        return probabilities, probabilities > THRESHOLD
-    if mode != "centred":
-        raise InputError(f"contact network mode is {mode!r}, expected one of {MODES}.")
-    half = CENTRED_WINDOW.outputs // 2
-    votes = np.full((num_frames, CENTRED_WINDOW.outputs, NUM_OUTPUTS), np.nan)
-    for start in range(0, len(targets), BATCH_FRAMES):
-        batch = targets[start : start + BATCH_FRAMES]
-        predicted = sigmoid(centred_forward(params, window_inputs(points, fps, batch, CENTRED_WINDOW)))
-        for offset in range(-half, half + 1):
-            frames = batch + offset
-            inside = (frames >= 0) & (frames < num_frames)
-            votes[frames[inside], offset + half] = predicted[inside, offset + half]
+    votes = _votes(points, valid, fps, params, mode)
+    if mirror:
+        mirrored = points[:, MIRRORED_POINTS].copy()
+        mirrored[..., 0] *= -1.0
+        votes = np.concatenate([votes, _votes(mirrored, valid, fps, params, mode)[..., MIRRORED_OUTPUTS]], axis=1)
     votes[~valid] = np.nan
     cast = np.isfinite(votes)
     yes = (votes > THRESHOLD).sum(axis=1)
@@ -88,6 +84,30 @@ def network_probabilities(
     return mean, flags
 
 
+def _votes(points: np.ndarray, valid: np.ndarray, fps: float, params: dict[str, np.ndarray], mode: Mode) -> np.ndarray:
+    """(T, predictions per frame, 5) probabilities of every valid frame's predictions, NaN where none was made.
+
+    points: (T, 12, 3) `select_keypoints` rows. causal: one prediction per frame; centred: up to 5, one from each
+    window whose 5 predicted frames include it."""
+    num_frames = len(points)
+    targets = np.flatnonzero(valid)
+    spec = CAUSAL_WINDOW if mode == "causal" else CENTRED_WINDOW
+    half = spec.outputs // 2
+    votes = np.full((num_frames, spec.outputs, NUM_OUTPUTS), np.nan)
+    for start in range(0, len(targets), BATCH_FRAMES):
+        batch = targets[start : start + BATCH_FRAMES]
+        inputs = window_inputs(points, fps, batch, spec)
+        if mode == "causal":
+            votes[batch, 0] = sigmoid(causal_forward(params, inputs))
+            continue
+        predicted = sigmoid(centred_forward(params, inputs))
+        for offset in range(-half, half + 1):
+            frames = batch + offset
+            inside = (frames >= 0) & (frames < num_frames)
+            votes[frames[inside], offset + half] = predicted[inside, offset + half]
+    return votes
+
+
 def predict_contacts(
     obs: Observations, mode: Mode = "causal", weights_dir: str | os.PathLike = WEIGHTS_DIR
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -97,18 +117,19 @@ def predict_contacts(
         are read. Any resolution and frame rate (trained on 12-60 fps, 720p and 1080x1920 portrait).
     mode: "causal" for live/online use (PhysCap: a frame's flags use it and the 6 frames before it only, so they
         are final as soon as the frame arrives); "centred" for offline use (Rempe: 9-frame windows, 5 predicted
-        frames each, majority vote; a frame's flags use up to 6 frames on either side).
+        frames each, majority vote; a frame's flags use up to 6 frames on either side). Both also vote with the
+        left/right-mirrored keypoints (`network_probabilities`).
     weights_dir: folder with causal.npz and centred.npz; default the weights shipped in physmocap/data/contacts
         (made by `contacts.train.train_contacts`). Loaded once per file and kept.
     Returns:
         contacts: (T, 4) bool, columns left heel, left toe, right heel, right toe; True = touching the floor.
         stationary: (T,) bool, True where the person is not moving about (root slower than 0.25 m/s; see
             `labels.LabelSettings`).
-        probabilities: (T, 5) float in [0, 1], the same five columns (contacts then stationary) before
-            thresholding at 0.5 (centred: mean over the overlapping predictions).
+        probabilities: (T, 5) float in [0, 1], the same five columns (contacts then stationary): the mean of a
+            frame's predictions (the mirrored input's and, centred, the overlapping windows').
     Invalid frames (obs.valid False) get no contact, not stationary and probability 0: the caller flags them.
     Neighbours of invalid frames use the nearest valid frame's keypoints with confidence 0 in their windows.
-    Cost: about 0.10 ms (causal) and 0.05 ms (centred) per frame on one core (benchmarks/bench_contacts.py).
+    Cost: about 0.3 ms (causal) and 0.2 ms (centred) per frame on one core (benchmarks/bench_contacts.py).
     Raises InputError for an unknown mode or missing weights.
     """
     if obs.num_frames == 0:
