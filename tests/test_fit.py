@@ -210,3 +210,19 @@ def test_offline_fit_bridges_a_gap_without_extrapolating(body, camera):
     pelvis = motion.camera.to_camera(motion.qpos[:, :3])
     true = camera.to_camera(truth[:, :3])
     assert np.linalg.norm(pelvis - true, axis=1)[15:22].max() < 0.1
+
+
+def test_hand_markers_weigh_less_in_both_data_terms(body, camera):
+    obs = observe(body, walking_motion(body, 3), camera)
+    calibration = calibrate(obs, body.height)
+    depth = np.full(3, 4.0)
+
+    def targets(hand_weight):
+        fit = FitSettings(hand_weight=hand_weight)
+        return make_targets(obs.keypoints_2d, obs.landmarks_3d, obs.valid, depth, camera, calibration, fit)
+
+    full, light = targets(1.0), targets(0.25)
+    hands = np.array([a in ("left_pinky", "right_pinky", "left_index", "right_index") for a, _ in MARKERS])
+    for a, b in ((full.weight_2d, light.weight_2d), (full.weight_3d, light.weight_3d)):
+        assert np.allclose(b[:, hands], 0.5 * a[:, hands]) and np.array_equal(b[:, ~hands], a[:, ~hands])
+        assert (a[:, hands] > 0).all()

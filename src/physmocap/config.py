@@ -78,6 +78,11 @@ class FitSettings:
     # (8 clips x 2 seeds) root-relative 31.9 -> 31.2 mm offline, 50.3 -> 49.3 mm online, but 0.05 / 0.1 / 0.15
     # / 0.25 gave 32.8 / 34.8 / 31.5 / 31.4 mm offline (arms settling on either side of the elbow ambiguity);
     # 0 .. 1
+    hand_weight: float = 0.25  # factor on both data terms of the hand's own markers (pinky and index knuckles),
+    # which only turn the hand and are the detector's noisiest points (physmocap.contacts.noise: 1.3-1.5 times the
+    # mean error on the better-seen hand of the measured videos); they pulled the wrists and elbows. Synthetic set
+    # (8 clips x 2 seeds), offline root-relative: 1 -> 31.2 mm, 0.25 -> 30.4 mm (3D only: 30.6), 0.0625 (3D) with
+    # 0.25 (2D) 30.4 mm; 0 .. 1
     min_confidence: float = 0.1  # keypoints below this confidence are ignored; 0 .. 1
     robust_2d: float = 0.05  # m at the person's depth: reprojection errors beyond this count linearly (Huber);
     # 0 disables; 0 .. 1
@@ -114,6 +119,7 @@ class FitSettings:
         _within("fit.min_confidence", self.min_confidence, 0.0, 1.0, "")
         _within("fit.robust_2d", self.robust_2d, 0.0, 1.0, "m")
         _within("fit.limit_band", self.limit_band, 0.0, 1.0, "rad")
+        _within("fit.hand_weight", self.hand_weight, 0.0, 1.0, "")
         _within("fit.robust_3d", self.robust_3d, 0.0, 1.0, "m")
         _within("fit.offline_iterations", self.offline_iterations, 1, 200, "")
         _within("fit.online_iterations", self.online_iterations, 1, 50, "")

@@ -24,6 +24,11 @@ from .filters import one_euro_qpos
 from .fit import MARKER_LANDMARKS, MARKERS, FitTargets, KinematicFitter
 
 
+# The markers on the hand itself (pinky and index knuckles): they only turn the hand (FitSettings.hand_weight).
+HAND_MARKERS = np.array([a in {f"{side}_{part}" for side in ("left", "right") for part in ("pinky", "index")}
+                         for a, _ in MARKERS])
+
+
 @dataclass
 class KinematicMotion:
     """Result of the kinematics stage.
@@ -53,7 +58,8 @@ def make_targets(keypoints_2d: np.ndarray, landmarks_3d: np.ndarray, valid: np.n
     conf = np.where(kp[..., 2] >= fit.min_confidence, kp[..., 2], 0.0) * valid[:, None]
     targets_3d = (landmarks_3d[:, MARKER_LANDMARKS] * calibration.landmark_scale) @ camera.R  # camera -> world
     weight_3d = np.sqrt(fit.weight_3d) * valid[:, None] * np.sqrt(np.clip(kp[..., 2], 0.3, 1.0))
-    return FitTargets(kp[..., :2], np.sqrt(fit.weight_2d * conf), targets_3d, weight_3d, depth)
+    marker = np.where(HAND_MARKERS, np.sqrt(fit.hand_weight), 1.0)
+    return FitTargets(kp[..., :2], np.sqrt(fit.weight_2d * conf) * marker, targets_3d, weight_3d * marker, depth)
 
 
 def raw_depth(keypoints_2d: np.ndarray, landmarks_3d: np.ndarray, valid: np.ndarray, focal: float,
