@@ -103,7 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
     train = sub.add_parser("train-contacts", help="rebuild the contact networks' weights from motion capture",
                            formatter_class=argparse.ArgumentDefaultsHelpFormatter,
                            description="Deterministic training of the causal and centred contact networks on "
-                                       "synthetic observations of CMU motion capture (needs torch; about 6 "
+                                       "synthetic observations of CMU motion capture (needs torch; about 30 "
                                        "minutes on one core).")
     train.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[3] / "shared" / "data",
                        help="the shared data folder (with mocap/)")
