@@ -79,8 +79,8 @@ class FitSettings:
     # / 0.25 gave 32.8 / 34.8 / 31.5 / 31.4 mm offline (arms settling on either side of the elbow ambiguity);
     # 0 .. 1
     hand_weight: float = 0.25  # factor on both data terms of the hand's own markers (pinky and index knuckles),
-    # which only turn the hand and are the detector's noisiest points (physmocap.contacts.noise: 1.3-1.5 times the
-    # mean error on the better-seen hand of the measured videos); they pulled the wrists and elbows. Synthetic set
+    # which only turn the hand and are among the detector's noisiest points (physmocap.contacts.noise measured 1.3-1.5
+    # times the mean error on the right hand, 0.8 on the left); they pulled the wrists and elbows. Synthetic set
     # (8 clips x 2 seeds), offline root-relative: 1 -> 31.2 mm, 0.25 -> 30.4 mm (3D only: 30.6), 0.0625 (3D) with
     # 0.25 (2D) 30.4 mm; 0 .. 1
     min_confidence: float = 0.1  # keypoints below this confidence are ignored; 0 .. 1
