@@ -7,6 +7,7 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Callable
 
+import mujoco
 import numpy as np
 
 from ..body import kinematics as kin
@@ -54,25 +55,30 @@ class CausalPast:
 
 
 def predicted_pose(fitter: KinematicFitter, past: CausalPast) -> np.ndarray:
-    """(K, nq) the next poses by constant velocity from the last two (the last one when there is only one)."""
+    """(K, nq) the next poses by constant velocity from the last two (the last one when there is only one);
+    MuJoCo's per-pose functions, as K is small."""
     q = past.poses[-1]
     if len(past.poses) == 2:
-        q = kin.integrate(fitter.body, q, kin.difference(fitter.body, past.poses[0], q))
+        velocity = np.empty((len(q), fitter.body.nv))
+        for k in range(len(q)):
+            mujoco.mj_differentiatePos(fitter.model, velocity[k], 1.0, past.poses[0][k], q[k])
+        q = fitter.integrate(q, velocity)
     return q
 
 
 def causal_step(fitter: KinematicFitter, targets: FitTargets, past: CausalPast, iterations: int,
-                damping_increase: float = 4.0) -> tuple[np.ndarray, CausalPast]:
+                damping_increase: float = 4.0, prediction: np.ndarray | None = None) -> tuple[np.ndarray, CausalPast]:
     """Fit the next frame of each of K causal streams (targets of K frames) from its past only: warm-started
-    by constant velocity from the last two poses, or from a generic pose without a past (damping_increase: see
-    KinematicFitter.fit_frames). Returns the poses (K, nq) and the past that includes them."""
+    by constant velocity from the last two poses (`prediction` if already made), or from a generic pose without a
+    past (damping_increase: see KinematicFitter.fit_frames). Returns the poses (K, nq) and the past that includes
+    them."""
     if not past.poses:
         K = len(targets.depth)
         q0 = np.concatenate([initial_qpos(fitter.body, fitter.camera, targets, k) for k in range(K)])
         result = fitter.fit_frames(q0, targets, None, FIRST_FRAME_ITERATIONS, damping_increase=damping_increase)
     else:
-        result = fitter.fit_frames(predicted_pose(fitter, past), targets, past.signals, iterations,
-                                   damping_increase=damping_increase)
+        start = predicted_pose(fitter, past) if prediction is None else prediction
+        result = fitter.fit_frames(start, targets, past.signals, iterations, damping_increase=damping_increase)
     signals = [v[:, None] for v in result.signals]
     if past.signals:
         signals = [np.concatenate([h[:, -1:], v], axis=1) for h, v in zip(past.signals, signals)]
@@ -195,15 +201,17 @@ class OnlineFitter:
         if np.isfinite(depth):
             self._depths.append(float(depth))
         depth = np.array([np.median(self._depths)])
+        q = predicted_pose(self.fitter, self._past) if self._past.poses else None
         if s.fit.undo_foot_swaps and valid and len(self._past.poses) == 2:
             # Both readings of the feet, scored at the pose the past predicts; the better one is fitted.
             both = make_targets(np.concatenate([k2, swap_feet(k2)]), np.concatenate([k3, swap_feet(k3)]),
                                 np.array([True, True]), np.repeat(depth, 2), self.camera, self.calibration, s.fit)
-            q = np.repeat(predicted_pose(self.fitter, self._past), 2, axis=0)
-            r, _ = self.fitter.frame_terms(q, *self.fitter.evaluate(q), both)
+            points, jac = self.fitter.evaluate(q)
+            r, _ = self.fitter.frame_terms(np.repeat(q, 2, axis=0), np.repeat(points, 2, axis=0),
+                                           np.repeat(jac, 2, axis=0), both)
             swapped = self._foot_swaps.update(*np.sum(r * r, axis=1))
             targets = both.frames(slice(int(swapped), int(swapped) + 1))
         else:
             targets = make_targets(k2, k3, v, depth, self.camera, self.calibration, s.fit)
-        q, self._past = causal_step(self.fitter, targets, self._past, s.fit.online_iterations)
+        q, self._past = causal_step(self.fitter, targets, self._past, s.fit.online_iterations, prediction=q)
         return q[0]
