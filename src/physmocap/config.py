@@ -138,7 +138,9 @@ class PhysicsSettings:
     # gains (damping ratio 0.58) let the character lag the motion: on the synthetic set's online fits the physics
     # lost 8 mm of root-relative accuracy even without contacts. Critically damped at 4x the stiffness, joints and
     # root rotation together (either alone did not help): root-relative 61.2 -> 58.0 mm (second seed 59.4 -> 53.6,
-    # offline 40.1 -> 36.0), e_smooth 16.2 -> 17.3 mm, residual 29% -> 40% of body weight
+    # offline 40.1 -> 36.0), e_smooth 16.2 -> 17.3 mm, residual 29% -> 40% of body weight. Cost: a pushing-off toe
+    # held closer to the floor touches it in the odd frame the labels call flight (ballistic GRF on the first seed
+    # with the 1.0 m/s labels: 0% -> 54%, from 1-2 frames in each of 3 clips)
     kd_joint: float = 70.0  # 1/s
     kp_root_rotation: float = 1200.0  # 1/s^2 (paper: 340 and 30)
     kd_root_rotation: float = 70.0  # 1/s
