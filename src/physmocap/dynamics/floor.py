@@ -75,11 +75,14 @@ class FloorRefiner:
 
     def _step(self) -> None:
         """Move the estimate towards the latest fit by at most max_turn and max_lift, and update the map."""
+        if self.offset == self.fitted_offset and np.array_equal(self.normal, self.fitted_normal):
+            return  # settled (or nothing fitted yet): most frames
         axis = np.cross(self.normal, self.fitted_normal)
         angle = np.arcsin(min(np.linalg.norm(axis), 1.0))  # the two stay within a few degrees of up
-        if angle > 1e-9:
-            turn = axis_angle_matrix(axis / np.linalg.norm(axis), min(angle, self.max_turn))
-            self.normal = turn @ self.normal
+        if angle <= self.max_turn:
+            self.normal = self.fitted_normal.copy()
+        else:
+            self.normal = axis_angle_matrix(axis / np.linalg.norm(axis), self.max_turn) @ self.normal
         self.offset += np.clip(self.fitted_offset - self.offset, -self.max_lift, self.max_lift)
         self.rotation, self.shift = floor_frame(self.normal, self.offset)
         mujoco.mju_mat2Quat(self.quat, self.rotation.ravel())
