@@ -211,17 +211,17 @@ def test_floor_refiner_finds_a_tilted_floor_and_turns_gently(body):
 
 
 def test_online_physics_keeps_the_feet_on_a_refined_tilted_floor(body):
-    q, normal = _on_tilted_floor(body, 150, 2.0)
-    contacts = np.ones((150, 4), bool)
-    fixed = run_physcap(body, q, FPS, contacts, np.ones(150, bool), PhysicsSettings())
-    refined = run_physcap(body, q, FPS, contacts, np.ones(150, bool), PhysicsSettings(), refine_floor=True)
+    q, normal = _on_tilted_floor(body, 250, 2.0)  # 10 s: refits at 3, 6 and 9 s
+    contacts = np.ones((250, 4), bool)
+    fixed = run_physcap(body, q, FPS, contacts, np.ones(250, bool), PhysicsSettings())
+    refined = run_physcap(body, q, FPS, contacts, np.ones(250, bool), PhysicsSettings(), refine_floor=True)
 
     def sole_heights(motion):  # above the tilted floor, over the last second
         soles = kin.forward_kinematics(body, motion.qpos[-25:]).points[:, body.point_index(CONTACT_POINTS)]
         return soles @ normal
 
     assert np.abs(sole_heights(refined)).max() < 0.005
-    assert np.abs(sole_heights(fixed)).max() > 0.02  # held on z = 0, the feet leave the tilted floor
+    assert np.abs(sole_heights(fixed)).max() > 0.01  # held on z = 0, the feet leave the tilted floor
 
 
 def test_resting_contacts_do_not_dip_under_the_floor_while_the_feet_roll(body):
