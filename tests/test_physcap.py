@@ -254,7 +254,7 @@ def test_a_joint_flipping_between_frames_is_followed_gently_without_fallbacks(bo
 
 
 def test_the_result_world_moves_onto_the_refined_floor_and_the_camera_follows(body):
-    from physmocap.camera import Camera, Floor, world_from_floor
+    from physmocap.camera import Camera, Floor, floor_in_camera, world_from_floor
     from physmocap.dynamics.stage import onto_refined_floor
     from physmocap.kinematics.stage import KinematicMotion
 
@@ -263,7 +263,7 @@ def test_the_result_world_moves_onto_the_refined_floor_and_the_camera_follows(bo
     physics = run_physcap(body, q, FPS, contacts, np.ones(150, bool), PhysicsSettings(), refine_floor=True)
     camera = Camera.from_settings((1280, 720), fov=60.0)
     camera = camera.with_extrinsics(*world_from_floor(Floor(np.array([0.0, -1.0, 0.0]), 1.2), np.array([0, 0, 4.0])))
-    floor = Floor(camera.R[:, 2], -float(camera.R[:, 2] @ camera.t))  # the kinematic world's z = 0
+    floor = Floor.from_plane(floor_in_camera(camera.R, camera.t))  # the kinematic world's z = 0
     motion = KinematicMotion(body, None, camera, floor, q, np.zeros(150), np.ones(150, bool), 0.0, True)
     moved, moved_physics = onto_refined_floor(motion, physics)
 

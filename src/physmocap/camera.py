@@ -166,3 +166,9 @@ def world_from_floor(floor: Floor, anchor_camera: np.ndarray, camera_x=np.array(
     R = np.stack([x, y, z], axis=1)  # columns: the world axes in camera coordinates
     origin = anchor_camera - floor.height(anchor_camera) * z
     return R, origin
+
+
+def floor_in_camera(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(4,) the world floor z = 0 as a plane n . x + d = 0 in camera coordinates, n a unit normal pointing up."""
+    normal = R[:, 2]
+    return np.append(normal, -normal @ t)

@@ -40,7 +40,6 @@ class FloorRefiner:
 
     def __init__(self, body: BodyModel, fps: float, refit_interval: float, tilt_rate: float, lift_rate: float,
                  first_refit: float):
-        self.fps = fps
         self.model = body.mujoco_model()
         self.data = mujoco.MjData(self.model)
         self.sites = np.array([self.model.site(n).id for n in CONTACT_POINTS])
@@ -83,7 +82,11 @@ class FloorRefiner:
             self.normal = self.fitted_normal.copy()
         else:
             self.normal = axis_angle_matrix(axis / np.linalg.norm(axis), self.max_turn) @ self.normal
-        self.offset += np.clip(self.fitted_offset - self.offset, -self.max_lift, self.max_lift)
+        lift = self.fitted_offset - self.offset  # arriving exactly, so that the next frame finds it settled
+        if abs(lift) <= self.max_lift:
+            self.offset = self.fitted_offset
+        else:
+            self.offset += np.copysign(self.max_lift, lift)
         self.rotation, self.shift = floor_frame(self.normal, self.offset)
         mujoco.mju_mat2Quat(self.quat, self.rotation.ravel())
         mujoco.mju_negQuat(self.inverse_quat, self.quat)

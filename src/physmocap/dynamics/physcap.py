@@ -135,8 +135,8 @@ class PhysCapTracker:
         root_rows = self.contact_jacobian[active][:, :, :6].reshape(3 * k, 6)  # (J^T restricted to the root)^T
         target = self.mass_matrix[:6] @ qdd_des + bias[:6]
         H = root_rows @ root_rows.T + self.grf_regularisation[:3 * k, :3 * k]
-        x, _, exitflag, _ = daqp.solve(H, -root_rows @ target, self.grf_rows[:4 * k, :3 * k], self._pyramid_upper[:4 * k],
-                                       self._pyramid_lower[:4 * k])
+        x, _, exitflag, _ = daqp.solve(H, -root_rows @ target, self.grf_rows[:4 * k, :3 * k],
+                                       self._pyramid_upper[:4 * k], self._pyramid_lower[:4 * k])
         if exitflag != 1:
             return forces, False
         forces[active] = x.reshape(k, 3)

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..body import kinematics as kin
 from ..body.model import BodyModel
-from ..camera import Floor
+from ..camera import Floor, floor_in_camera
 from ..config import PhysicsSettings
 from ..kinematics.stage import KinematicMotion, rigid_transform_qpos
 from .balance import BalanceCorrector
@@ -127,8 +127,8 @@ def onto_refined_floor(motion: KinematicMotion, physics: PhysicsMotion) -> tuple
     # x_camera = R_c x + t_c with x = R'(x_new - shift)
     R_camera = camera.R @ rotation.T
     new_camera = camera.with_extrinsics(R_camera, camera.t - R_camera @ shift)
-    normal = R_camera[:, 2]
-    floor = Floor(normal, -float(normal @ new_camera.t), motion.floor.inlier_fraction)
+    plane = floor_in_camera(new_camera.R, new_camera.t)
+    floor = Floor(plane[:3], float(plane[3]), motion.floor.inlier_fraction)
     motion = dataclasses.replace(motion, camera=new_camera, floor=floor,
                                  qpos=rigid_transform_qpos(motion.qpos, rotation, shift))
     residual = physics.residual.copy()

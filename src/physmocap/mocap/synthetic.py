@@ -16,6 +16,7 @@ import numpy as np
 from scipy.signal import lfilter
 from scipy.spatial.transform import Rotation, Slerp
 
+from ..camera import floor_in_camera
 from ..errors import InputError
 from ..io.atomic import save_npz
 from ..landmarks import LANDMARK_INDEX, LANDMARK_NAMES, NUM_LANDMARKS
@@ -241,12 +242,6 @@ def _episodes(
     frame = np.arange(shape[0]).reshape((-1,) + (1,) * (len(shape) - 1))
     ends = np.where(starts, frame + lengths, 0)
     return frame < np.maximum.accumulate(ends, axis=0)
-
-
-def floor_in_camera(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """(4,) the world floor z = 0 as a plane n . x + d = 0 in camera coordinates, n a unit normal pointing up."""
-    normal = R[:, 2]
-    return np.append(normal, -normal @ t)
 
 
 def make_observations(
