@@ -154,6 +154,9 @@ def test_bad_settings_file(tmp_path):
     assert_clean_failure(physmocap("capture", DEMO_VIDEO, "-o", tmp_path / "o", "--config", cfg), "weight_2d")
     cfg.write_text("[fit\n")
     assert_clean_failure(physmocap("capture", DEMO_VIDEO, "-o", tmp_path / "o", "--config", cfg), "s.toml")
+    cfg.write_text("[physics]\nfloor_tilt_rate = 500\n")  # deg/s, allowed 0.01 .. 90
+    assert_clean_failure(physmocap("capture", DEMO_VIDEO, "-o", tmp_path / "o", "--config", cfg),
+                         "physics.floor_tilt_rate", "500")
 
 
 def test_online_capture_of_a_video_streams_and_caches(tmp_path):
