@@ -320,9 +320,12 @@ def test_grf_statistics_hand_computed():
     assert stats["mean_percent_bw"] == pytest.approx(87.5)
     assert stats["max_percent_bw"] == pytest.approx(200.0)
     assert stats["ballistic_percent_bw"] == pytest.approx(25.0)  # median of 0 % and 50 %
+    np.testing.assert_allclose(stats["flight_percent_bw"], [0.0, 50.0])
     vertical = metrics.grf_statistics(grf, 10.0, contacts, gravity=10.0, measure="vertical")
+    vertical.pop("flight_percent_bw")
     assert vertical == pytest.approx({"mean_percent_bw": 85.0, "max_percent_bw": 200.0, "ballistic_percent_bw": 20.0})
-    assert np.isnan(metrics.grf_statistics(grf, 10.0, gravity=10.0)["ballistic_percent_bw"])
+    without_truth = metrics.grf_statistics(grf, 10.0, gravity=10.0)
+    assert np.isnan(without_truth["ballistic_percent_bw"]) and without_truth["flight_percent_bw"].size == 0
 
 
 def test_implied_grf_of_standing_and_free_fall():

@@ -33,8 +33,6 @@ def score_against_truth(points: np.ndarray, names, com: np.ndarray, truth: dict,
                         grf: np.ndarray | None = None, residual: np.ndarray | None = None) -> dict[str, float]:
     """Metrics of a motion given in the TRUE world: points (T, P, 3) named `names`, centre of mass (T, 3);
     grf (T, 4, 3) solved contact forces (None: the forces the centre of mass implies); residual (T, 6)."""
-    from .contacts.labels import contact_labels
-
     fps = float(truth["fps"])
     true_names = [str(n) for n in truth["joint_names"]]
     names = [str(n) for n in names]
@@ -48,9 +46,8 @@ def score_against_truth(points: np.ndarray, names, com: np.ndarray, truth: dict,
     with_root_t = np.concatenate([true_root[:, None], true], axis=1)
     limbs = list(range(1, len(EVAL_JOINTS) + 1))
     feet = points[:, [names.index(n) for n in CONTACT_POINTS]]
-    true_contacts = contact_labels(truth["joints_world"][:, [true_names.index(n) for n in CONTACT_POINTS]], fps)
-    net = grf.sum(axis=1) if grf is not None else metrics.implied_grf(com, body_mass, fps)
-    forces = metrics.grf_statistics(net, body_mass, true_contacts)
+    true_contacts = true_contact_labels(truth)
+    forces = truth_grf_statistics(com, truth, body_mass, grf)
     mpe, mpe_std, pnp = metrics.mpe_pnp(feet, true_contacts)
     foot = metrics.foot_contact_errors(feet, true_contacts, fps=fps)
     smooth, smooth_std = metrics.e_smooth(pred, true)
@@ -73,6 +70,22 @@ def score_against_truth(points: np.ndarray, names, com: np.ndarray, truth: dict,
             np.linalg.norm(residual[:, :3], axis=-1).mean()) / (body_mass * metrics.GRAVITY)),
     )
     return {k: float(v) for k, v in out.items()}
+
+
+def true_contact_labels(truth: dict) -> np.ndarray:
+    """(T, 4) contacts of the truth's sole points by the project's labelling (physmocap.contacts.labels)."""
+    from .contacts.labels import contact_labels
+
+    names = [str(n) for n in truth["joint_names"]]
+    return contact_labels(truth["joints_world"][:, [names.index(n) for n in CONTACT_POINTS]], float(truth["fps"]))
+
+
+def truth_grf_statistics(com: np.ndarray, truth: dict, body_mass: float, grf: np.ndarray | None = None) -> dict:
+    """metrics.grf_statistics of the solved forces grf (T, 4, 3), or without them of the forces the centre of
+    mass com (T, 3, in the true world) implies, against the true contacts; its flight_percent_bw holds the
+    per-frame forces in true flight, which a benchmark pools over clips for the set's ballistic median."""
+    net = grf.sum(axis=1) if grf is not None else metrics.implied_grf(com, body_mass, float(truth["fps"]))
+    return metrics.grf_statistics(net, body_mass, true_contact_labels(truth))
 
 
 def to_truth_world(points: np.ndarray, R_run: np.ndarray, t_run: np.ndarray, truth: dict) -> np.ndarray:

@@ -418,7 +418,7 @@ def implied_grf(com: np.ndarray, body_mass: float, fps: float, gravity: float = 
 
 def grf_statistics(grf: np.ndarray, body_mass: float, contacts_truth: np.ndarray | None = None,
                    gravity: float = GRAVITY, measure: GrfMeasure = "magnitude",
-                   floor_plane: np.ndarray | None = None) -> dict[str, float]:
+                   floor_plane: np.ndarray | None = None) -> dict[str, float | np.ndarray]:
     """Rempe et al. 2020's GRF plausibility metrics (Sec. 4.3, Table 2 left), percent of body weight m g.
 
     The net GRF f(t) = sum_i f_i(t) (Rempe: "net ground reaction forces (GRF), defined as f_GRF(t) = sum_i
@@ -431,11 +431,14 @@ def grf_statistics(grf: np.ndarray, body_mass: float, contacts_truth: np.ndarray
                             `contacts_truth` ("the median GRF on the COM when no feet joints should be in
                             contact according to ground truth labels"; ideal 0); nan without contacts_truth or
                             without such frames.
+      flight_percent_bw:    (F,) the per-frame values behind ballistic_percent_bw, for pooling the median
+                            over many clips (a mean of per-clip medians weighs a clip with one flight frame as
+                            much as one with fifty); empty without contacts_truth.
 
     grf: (T, C, 3) newtons per contact point (the result file's (T, 4, 3)), or (T, 3) a net force such as
         `implied_grf`. body_mass: kg. contacts_truth: (T, C') bool or None. floor_plane: orients "vertical"
         (world Z when None); see `height_above_floor`.
-    Returns dict with mean_percent_bw, max_percent_bw, ballistic_percent_bw.
+    Returns dict with mean_percent_bw, max_percent_bw, ballistic_percent_bw, flight_percent_bw.
     """
     forces = np.asarray(grf, dtype=float)
     if forces.ndim == 3 and forces.shape[2] == 3:
@@ -454,16 +457,15 @@ def grf_statistics(grf: np.ndarray, body_mass: float, contacts_truth: np.ndarray
         raise ValueError(f"unknown measure {measure!r}; use magnitude or vertical")
     percent = 100.0 * per_frame / (body_mass * gravity)
 
-    ballistic = float("nan")
+    in_flight = np.zeros(0)
     if contacts_truth is not None:
         flags = np.asarray(contacts_truth)
         if flags.ndim != 2 or flags.shape[0] != net.shape[0]:
             raise ValueError(f"contacts_truth must have shape ({net.shape[0]}, C), got {flags.shape}")
-        flight = ~flags.astype(bool).any(axis=1)
-        if flight.any():
-            ballistic = float(np.median(percent[flight]))
+        in_flight = percent[~flags.astype(bool).any(axis=1)]
     return {"mean_percent_bw": float(percent.mean()), "max_percent_bw": float(percent.max()),
-            "ballistic_percent_bw": ballistic}
+            "ballistic_percent_bw": float(np.median(in_flight)) if in_flight.size else float("nan"),
+            "flight_percent_bw": in_flight}
 
 
 # ---------------------------------------------------------------------------------------------------------
