@@ -173,6 +173,34 @@ def test_online_capture_of_a_video_streams_and_caches(tmp_path):
     assert np.abs(result["grf"]).sum() > 0 and result["grf"][..., 2].min() >= -1e-6  # feet push, never pull
 
 
+def test_offline_physcap_tracks_the_refined_kinematics(demo_run, tmp_path):
+    out, _ = demo_run
+    obs = out / "cache" / "observations.npz"
+    assert physmocap("capture", "--observations", obs, "-o", tmp_path / "p", "--no-overlay").returncode == 0
+    plain = load_result(tmp_path / "p" / "result.npz")  # the fit without physics
+    proc = physmocap("capture", "--observations", obs, "-o", tmp_path / "p", "--physics", "physcap", "--no-overlay")
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((tmp_path / "p" / "summary.json").read_text())
+    assert "refine" in summary["stage_seconds"] and "floor" in summary["physics_report"]["refinement"]
+    refined = load_result(tmp_path / "p" / "result.npz")
+    # The physics' kinematic input is the B.4 motion: close to the plain fit, not equal to it.
+    gap = np.linalg.norm(refined["joints_world_kinematic"] - plain["joints_world"], axis=-1)
+    assert 0 < np.median(gap) < 0.1
+    again = physmocap("capture", "--observations", obs, "-o", tmp_path / "p", "--physics", "physcap", "--no-overlay")
+    assert again.returncode == 0, again.stderr
+    assert json.loads((tmp_path / "p" / "summary.json").read_text())["cached_stages"] == ["kinematics", "refine",
+                                                                                          "physics"]
+    config = tmp_path / "plain.toml"
+    config.write_text("[physics]\nrefine_offline = false\n")
+    unrefined = physmocap("capture", "--observations", obs, "-o", tmp_path / "p", "--physics", "physcap",
+                          "--no-overlay", "--config", config)
+    assert unrefined.returncode == 0, unrefined.stderr
+    summary = json.loads((tmp_path / "p" / "summary.json").read_text())
+    assert "refine" not in summary["stage_seconds"] and "physics" not in summary["cached_stages"]
+    np.testing.assert_allclose(load_result(tmp_path / "p" / "result.npz")["joints_world_kinematic"],
+                               plain["joints_world"], atol=1e-6)
+
+
 def test_export_command_writes_each_format_and_rejects_bad_input(demo_run, tmp_path):
     out, _ = demo_run
     for fmt, name in (("bvh", "motion.bvh"), ("glb", "motion.glb"), ("opensim", "grf.mot")):

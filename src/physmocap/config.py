@@ -134,6 +134,12 @@ class PhysicsSettings:
     """Physics after the kinematic fit. PhysCap stage III (Shimada et al. 2020, 4.3 and 5.1) for "physcap"."""
 
     method: str = "none"  # "none", "physcap" (per frame, real time) or "trajopt" (Rempe et al., whole clip)
+    refine_offline: bool = True  # offline runs: PhysCap tracks the kinematics after Rempe's B.4 refinement (the
+    # one trajopt starts from: contact velocity, smoothing and floor terms, trajopt.kinematic_* weights) instead
+    # of the plain fit; online runs cannot (it needs the whole clip). Synthetic set (8 clips x 2 seeds):
+    # root-relative 35.1 -> 29.2 mm, e_smooth 9.6 -> 6.2 mm, MPE 23.3 -> 16.4 mm, PNP 88.5 -> 93.4%, skate 5.7 ->
+    # 1.4%; ten other CMU clips x 2 seeds: 45.5 -> 35.5 mm, 12.2 -> 8.7 mm, 28.6 -> 21.1 mm, 74.9 -> 84.1%, 5.2 ->
+    # 1.4%; taiji video: jitter 15.5 -> 9.8 m/s^2, reprojection 12.9 -> 9.6 px. Costs about 2.5 ms per frame
     kp_joint: float = 1200.0  # 1/s^2, PD gains of the joints (paper 5.1: 300 and 20); 0 .. 1e4. The paper's
     # gains (damping ratio 0.58) let the character lag the motion: on the synthetic set's online fits the physics
     # lost 8 mm of root-relative accuracy even without contacts. Critically damped at 4x the stiffness, joints and

@@ -218,6 +218,12 @@ def contacts_stage(obs: Observations, settings: Settings) -> tuple[np.ndarray, n
     return contacts, velocity_2d(obs.keypoints_2d, obs.valid, obs.fps)[1]
 
 
+def _motion_key(motion: KinematicMotion) -> str:
+    """A digest of a kinematic motion (pose, skeleton, camera): the key of the stages that start from it."""
+    data = motion.qpos.tobytes() + motion.camera.R.tobytes() + motion.camera.t.tobytes()
+    return _digest(hashlib.sha256(data).hexdigest(), motion.body.lengths.__dict__, motion.body.mass)
+
+
 def physics_stage(obs: Observations, motion: KinematicMotion, contacts: np.ndarray, stationary: np.ndarray,
                   out_dir: Path, settings: Settings, progress: ProgressFactory | None = None):
     """The physically tracked motion (None without physics), from the cache when nothing changed. Returns it,
@@ -228,7 +234,7 @@ def physics_stage(obs: Observations, motion: KinematicMotion, contacts: np.ndarr
     if settings.physics.method == "none":
         return None, False, motion
     cache = out_dir / "cache" / "physics.npz"
-    key = _digest("physics", 3, _kinematics_cache(out_dir, obs, settings)[1],
+    key = _digest("physics", 4, _motion_key(motion),
                   hashlib.sha256(contacts.tobytes() + stationary.tobytes()).hexdigest(), asdict(settings.physics))
     physics = None
     if cache.is_file():
@@ -256,52 +262,64 @@ def physics_stage(obs: Observations, motion: KinematicMotion, contacts: np.ndarr
     return physics, cached, motion
 
 
+def refine_stage(obs: Observations, motion: KinematicMotion, contacts: np.ndarray, out_dir: Path,
+                 settings: Settings) -> tuple[KinematicMotion, np.ndarray, dict, bool]:
+    """Rempe et al.'s three-stage kinematic refinement (B.4) of the offline fit, which trajopt and offline
+    PhysCap start from, from the cache when the motion, contacts and settings are unchanged. Returns the refined
+    motion (its world sits on the refitted floor), the contact flags after relabelling, the refinement's report
+    (seconds, contact flags removed as floor outliers or added in false flights, the floor's plane in the camera
+    frame) and whether it came from the cache."""
+    from .trajopt.kinematic import refine_kinematics
+
+    cache = out_dir / "cache" / "refined.npz"
+    key = _digest("refine", 1, _motion_key(motion), hashlib.sha256(np.asarray(contacts, bool).tobytes()).hexdigest(),
+                  asdict(settings.fit), asdict(settings.trajopt), settings.camera.floor)
+    if cache.is_file():
+        try:
+            with np.load(cache, allow_pickle=False) as data:
+                if str(data["key"]) == key:
+                    return (_motion_from_cache(data), data["refined_contacts"], json.loads(str(data["refinement"])),
+                            True)
+        except (OSError, ValueError, KeyError, TypeError):
+            pass  # recomputed below
+    refined = refine_kinematics(obs, motion, contacts, settings.fit, settings.trajopt,
+                                keep_floor=settings.camera.floor is not None)
+    refinement = dict(seconds=refined.seconds, contacts_removed=int(refined.relabelled.sum()),
+                      contacts_added=int(refined.added.sum()), floor=refined.motion.floor.plane.tolist())
+    save_npz(cache, key=np.str_(key), **_motion_arrays(refined.motion), refined_contacts=refined.contacts,
+             refinement=np.str_(json.dumps(refinement)))
+    return refined.motion, refined.contacts, refinement, False
+
+
 def trajopt_stage(obs: Observations, motion: KinematicMotion, contacts: np.ndarray, out_dir: Path,
                   settings: Settings, progress: ProgressFactory | None = None):
-    """Rempe et al.: the three-stage kinematic refinement (B.4), then the trajectory optimisation over the whole
-    clip, from the cache when observations, contacts and settings are unchanged. Returns the physics motion, the
-    refined kinematic motion (its world sits on the refitted floor, and the physics motion is expressed in it),
-    the contact flags after relabelling, the report for the run summary and whether it came from the cache.
-    Frames whose optimisation did not converge keep the kinematic motion and are flagged (qp_failures > 0)."""
-    from .trajopt.kinematic import refine_kinematics
+    """Rempe et al.'s trajectory optimisation over the whole clip from the B.4-refined motion and contacts
+    (`refine_stage`), from the cache when they and the settings are unchanged. Returns the physics motion and
+    whether it came from the cache. Frames whose optimisation did not converge keep the kinematic motion and are
+    flagged (qp_failures > 0)."""
     from .trajopt.stage import TrajoptMotion, WindowReport, run_trajopt
 
     cache = out_dir / "cache" / "trajopt.npz"
-    key = _digest("trajopt", 1, _kinematics_cache(out_dir, obs, settings)[1],
-                  hashlib.sha256(np.asarray(contacts, bool).tobytes()).hexdigest(), asdict(settings.trajopt))
+    key = _digest("trajopt", 2, _motion_key(motion), hashlib.sha256(np.asarray(contacts, bool).tobytes()).hexdigest(),
+                  asdict(settings.trajopt))
     arrays = ("qpos", "grf", "residual", "contacts", "converged", "corrected", "qp_failures", "com",
               "com_acceleration", "euler", "feet")
     if cache.is_file():
         try:
             with np.load(cache, allow_pickle=False) as data:
                 if str(data["key"]) == key:
-                    physics = TrajoptMotion(**{k: data[f"trajopt_{k}"] for k in arrays},
-                                            windows=[WindowReport.from_dict(w)
-                                                     for w in json.loads(str(data["trajopt_windows"]))],
-                                            seconds=float(data["trajopt_seconds"]))
-                    refinement = json.loads(str(data["refinement"]))
-                    return (physics, _motion_from_cache(data), data["refined_contacts"],
-                            _trajopt_report(physics, refinement), True)
+                    return TrajoptMotion(**{k: data[f"trajopt_{k}"] for k in arrays},
+                                         windows=[WindowReport.from_dict(w)
+                                                  for w in json.loads(str(data["trajopt_windows"]))],
+                                         seconds=float(data["trajopt_seconds"])), True
         except (OSError, ValueError, KeyError, TypeError):
             pass  # recomputed below
-    refined = refine_kinematics(obs, motion, contacts, settings.fit, settings.trajopt,
-                                keep_floor=settings.camera.floor is not None)
     bar = progress("trajopt", obs.num_frames) if progress else None
-    physics = run_trajopt(refined.motion.body, refined.motion.qpos, obs.fps, refined.contacts, settings.trajopt, bar,
-                          obs.valid)
-    refinement = dict(seconds=refined.seconds, contacts_removed=int(refined.relabelled.sum()),
-                      contacts_added=int(refined.added.sum()), floor=refined.motion.floor.plane.tolist())
-    save_npz(cache, key=np.str_(key), **_motion_arrays(refined.motion), refined_contacts=refined.contacts,
-             refinement=np.str_(json.dumps(refinement)), trajopt_seconds=physics.seconds,
+    physics = run_trajopt(motion.body, motion.qpos, obs.fps, contacts, settings.trajopt, bar, obs.valid)
+    save_npz(cache, key=np.str_(key), trajopt_seconds=physics.seconds,
              trajopt_windows=np.str_(json.dumps([w.to_dict() for w in physics.windows])),
              **{f"trajopt_{k}": getattr(physics, k) for k in arrays})
-    return physics, refined.motion, refined.contacts, _trajopt_report(physics, refinement), False
-
-
-def _trajopt_report(physics, refinement: dict) -> dict:
-    """summary.json's physics report: the optimisation's, and what the B.4 refinement changed (contact flags
-    removed as floor outliers or added in false flights, the floor's plane in the camera frame)."""
-    return {**physics.report(), "refinement": refinement}
+    return physics, False
 
 
 def run_capture(out_dir: str | os.PathLike, settings: Settings, *, video: str | os.PathLike | None = None,
@@ -341,10 +359,16 @@ def run_capture(out_dir: str | os.PathLike, settings: Settings, *, video: str | 
     contacts = lock_feet(predicted, motion, settings)
     seconds["contacts"] = time.perf_counter() - started
     physics_report: dict = {}
-    if settings.physics.method == "trajopt":
-        physics, motion, contacts, physics_report, physics_cached = trajopt_stage(obs, motion, contacts, out_dir,
-                                                                                  settings, progress)
-        seconds["refine"] = physics_report["refinement"]["seconds"]
+    method = settings.physics.method
+    if method == "trajopt" or (method == "physcap" and settings.physics.refine_offline and not settings.online):
+        motion, contacts, refinement, refine_cached = refine_stage(obs, motion, contacts, out_dir, settings)
+        seconds["refine"] = refinement["seconds"]
+        physics_report["refinement"] = refinement
+        if refine_cached:
+            cached.append("refine")
+    if method == "trajopt":
+        physics, physics_cached = trajopt_stage(obs, motion, contacts, out_dir, settings, progress)
+        physics_report.update(physics.report())
     else:
         physics, physics_cached, motion = physics_stage(obs, motion, contacts, stationary, out_dir, settings,
                                                         progress)
