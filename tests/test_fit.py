@@ -1,3 +1,5 @@
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -226,3 +228,32 @@ def test_hand_markers_weigh_less_in_both_data_terms(body, camera):
     for a, b in ((full.weight_2d, light.weight_2d), (full.weight_3d, light.weight_3d)):
         assert np.allclose(b[:, hands], 0.5 * a[:, hands]) and np.array_equal(b[:, ~hands], a[:, ~hands])
         assert (a[:, hands] > 0).all()
+
+
+def test_lengths_measured_again_along_the_fitted_axes_lose_the_noise_bias(camera):
+    """The detector's noise across a segment lengthens the median distance between its landmarks; measured along
+    the fitted axes (here the true motion's), the limbs' and feet's lengths come back, also those the template
+    had wrong (heel behind the ankle, ankle height)."""
+    from physmocap.body.model import build_body_model, template_lengths
+    from physmocap.kinematics.calibration import Calibration
+    from physmocap.kinematics.stage import REFINED_LENGTHS, refine_lengths
+
+    template = template_lengths(1.75)
+    true = dataclasses.replace(template, upper_arm=template.upper_arm + 0.02, heel_back=0.03, ankle_height=0.065)
+    body = build_body_model(true, 70.0)
+    motion = walking_motion(body, 120)
+    rng = np.random.default_rng(3)
+    obs = observe(body, motion, camera)
+    obs.keypoints_2d[..., :2] += rng.normal(scale=2.0, size=obs.keypoints_2d[..., :2].shape)
+    obs.landmarks_3d[:] += rng.normal(scale=0.04, size=obs.landmarks_3d.shape)
+    calibrated = calibrate(obs, true.standing_height, frames=0)
+    assert calibrated.lengths.upper_arm - true.upper_arm > 0.005  # the noise's bias
+    depth = camera.to_camera(kin.forward_kinematics(body, motion).points[:, 0])[:, 2]
+    targets = make_targets(obs.keypoints_2d, obs.landmarks_3d, obs.valid, depth, camera,
+                           Calibration(template, 1.0, 120, ()), FitSettings())
+    start = Calibration(template, 1.0, 120, ("heel_back",))  # the template's lengths, the same joint angles
+    refined = refine_lengths(build_body_model(template, 70.0), camera, motion, targets, start, true.standing_height)
+    for name in REFINED_LENGTHS:
+        assert abs(getattr(refined.lengths, name) - getattr(true, name)) < 0.004, name
+    assert refined.replaced == ()  # measured now
+    assert abs(refined.lengths.standing_height - true.standing_height) < 1e-9

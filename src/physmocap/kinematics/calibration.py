@@ -17,7 +17,8 @@ PLAUSIBLE_MARGIN = 0.03
 # Lengths taken as the template's share of the height: the top of the head has no landmark, and the ankle's height
 # above the sole (about 5 cm) is as short as the detector's 3D error, which lengthened it by 27% on average
 # (synthetic, MediaPipe's measured noise) and, through the height, shortened every other bone (global root error
-# 69 -> 45 mm with the template's value).
+# 69 -> 45 mm with the template's value). The offline fit measures it again along the fitted foot
+# (kinematics.stage.refine_lengths).
 TEMPLATE_ONLY = ("head_top", "ankle_height")
 
 
@@ -99,6 +100,17 @@ def measure_lengths(landmarks: np.ndarray) -> dict[str, float]:
     return {k: float(np.median(v)) for k, v in raw.items()}
 
 
+def plausible_length(name: str, value: float) -> bool:
+    """Whether a length (SkeletonLengths field), as a share of the height, is one a person could have: within
+    PLAUSIBLE_RATIO of the template's, or PLAUSIBLE_MARGIN of it for the short offsets."""
+    expected = TEMPLATE_RATIOS[name]
+    if not np.isfinite(value):
+        return False
+    if abs(expected) >= 0.05:
+        return PLAUSIBLE_RATIO[0] <= value / expected <= PLAUSIBLE_RATIO[1]
+    return abs(value - expected) <= PLAUSIBLE_MARGIN
+
+
 def calibrate(obs: Observations, height: float, frames: int = 30, min_confidence: float = 0.5) -> Calibration:
     """Bone lengths from the median over the first `frames` usable frames (0: all), scaled to `height` metres.
 
@@ -120,13 +132,9 @@ def calibrate(obs: Observations, height: float, frames: int = 30, min_confidence
     for name in TEMPLATE_RATIOS:
         if name in TEMPLATE_ONLY:
             continue
-        value, expected = measured.get(name, np.nan) / unit, getattr(template, name)
-        if abs(expected) >= 0.05:
-            plausible = PLAUSIBLE_RATIO[0] <= value / expected <= PLAUSIBLE_RATIO[1]
-        else:
-            plausible = abs(value - expected) <= PLAUSIBLE_MARGIN
-        if np.isfinite(value) and plausible:
-            values[name] = measured[name] / unit
+        value = measured.get(name, np.nan) / unit
+        if plausible_length(name, value):
+            values[name] = value
         else:
             values[name] = getattr(template, name)
             replaced.append(name)

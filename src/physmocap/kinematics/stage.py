@@ -12,17 +12,20 @@ from typing import Callable
 import numpy as np
 
 from ..body import kinematics as kin
-from ..body.model import CONTACT_POINTS, BodyModel, build_body_model
+from ..body.model import CONTACT_POINTS, BodyModel, SkeletonLengths, build_body_model
 from ..body.rotations import matrix_to_quat, quat_multiply
 from ..camera import Camera, Floor, fit_floor, world_from_floor
 from ..config import FitSettings, Settings
 from ..detect.foot_swaps import find_foot_swaps, undo_foot_swaps
 from ..errors import ReconstructionError
 from ..motion import Observations
-from .calibration import Calibration, calibrate
+from .calibration import Calibration, calibrate, plausible_length
 from .filters import one_euro_qpos
 from .fit import MARKER_LANDMARKS, MARKERS, FitTargets, KinematicFitter
 
+
+# Lengths the offline fit measures again against its first fit (refine_lengths), in the order they are solved for.
+REFINED_LENGTHS = ("thigh", "shank", "upper_arm", "forearm", "heel_back", "toe_front", "ankle_height")
 
 # The markers on the hand itself (pinky and index knuckles): they only turn the hand (FitSettings.hand_weight).
 HAND_MARKERS = np.array([a in {f"{side}_{part}" for side in ("left", "right") for part in ("pinky", "index")}
@@ -95,6 +98,71 @@ def landmark_depth_scale(body: BodyModel, camera: Camera, qpos: np.ndarray, obs:
     prior = 0.05**2 * np.mean(np.sum(w, axis=1))  # as much as a frame whose landmarks are all 5 cm deep
     per_frame = (np.sum(w * fitted * seen, axis=1) + prior * clip_scale) / (np.sum(w * seen**2, axis=1) + prior)
     return 1.0 / np.clip(smooth_depth(per_frame, width), 0.4, 2.5)
+
+
+def refine_lengths(body: BodyModel, camera: Camera, qpos: np.ndarray, targets: FitTargets,
+                   calibration: Calibration, height: float) -> Calibration:
+    """The limbs' and feet's lengths (REFINED_LENGTHS) measured again against a fitted motion, the skeleton then
+    scaled to `height` again.
+
+    Each observed offset between two landmarks (hip to knee, ankle to heel, ...) is, in the model, a sum of
+    lengths along axes the fit has found (the thigh's direction; the foot's forward and down axes): linear in the
+    lengths once the axes are held. They are solved for by weighted least squares over all frames and both
+    sides, with the data terms' own residuals (the 3D landmarks' offsets; the keypoints' offsets through the
+    projection's derivative at the segment, in metres at the person) and weights (the product of the two ends').
+    The calibration's median distance between two noisy landmarks is too long by about the noise variance across
+    the segment over its length (synthetic set, MediaPipe's measured noise: upper arm +8 mm, forearm +7 mm; the
+    ankle's height above the sole by 27%, so the calibration takes that from the template); along an axis that
+    the fit took from all the data, noise across the segment does not count. Implausible results keep the
+    calibration's value."""
+    points = kin.forward_kinematics(body, qpos).points
+    marker = {b: i for i, (_, b) in enumerate(MARKERS)}
+    index = {name: k for k, name in enumerate(REFINED_LENGTHS)}
+    n = len(REFINED_LENGTHS)
+    normal, rhs = np.zeros((n, n)), np.zeros(n)
+    metres_per_pixel = (targets.depth / camera.focal)[:, None, None]
+    for side in ("left", "right"):
+        def point(name):
+            return points[:, body.point_index([f"{side}_{name}"])[0]]
+
+        forward = _unit(point("toe") - point("heel"))
+        heel = point("heel") - point("ankle")
+        down = _unit(heel - np.einsum("ti,ti->t", heel, forward)[:, None] * forward)
+        offsets = [(first, second, [(name, _unit(point(second) - point(first)))]) for name, first, second in (
+            ("thigh", "hip", "knee"), ("shank", "knee", "ankle"), ("upper_arm", "shoulder", "elbow"),
+            ("forearm", "elbow", "wrist"))]
+        offsets += [("ankle", "heel", [("heel_back", -forward), ("ankle_height", down)]),
+                    ("ankle", "toe", [("toe_front", forward), ("ankle_height", down)])]
+        for first, second, terms in offsets:
+            a, b = marker[f"{side}_{first}"], marker[f"{side}_{second}"]
+            cols = [index[name] for name, _ in terms]
+            axes = np.stack([axis for _, axis in terms], axis=1)  # (T, k, 3)
+            seen = targets.targets_3d[:, b] - targets.targets_3d[:, a]
+            # Each axis in the image: pixels per metre at the segment's middle, times metres per pixel.
+            jac = camera.projection_jacobian(0.5 * (point(first) + point(second)))  # (T, 2, 3)
+            pixels = np.einsum("tij,tkj->tki", jac, axes) * metres_per_pixel
+            rows = [(targets.weight_3d[:, a] * targets.weight_3d[:, b], axes, seen),
+                    (targets.weight_2d[:, a] * targets.weight_2d[:, b], pixels,
+                     (targets.keypoints[:, b] - targets.keypoints[:, a]) * metres_per_pixel[:, 0])]
+            for weight, model, observed in rows:
+                normal[np.ix_(cols, cols)] += np.einsum("t,tki,tli->kl", weight, model, model)
+                rhs[cols] += np.einsum("t,tki,ti->k", weight, model, observed)
+    values, replaced = dict(calibration.lengths.__dict__), set(calibration.replaced)
+    try:
+        solved = np.linalg.solve(normal, rhs)
+    except np.linalg.LinAlgError:
+        return calibration
+    for name, value in zip(REFINED_LENGTHS, solved):
+        if plausible_length(name, value / height):
+            values[name] = float(value)
+            replaced.discard(name)
+    lengths = SkeletonLengths(**values)
+    return dataclasses.replace(calibration, lengths=lengths.scaled(height / lengths.standing_height),
+                               replaced=tuple(n for n in calibration.replaced if n in replaced))
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
 
 
 def smooth_depth(depth: np.ndarray, width: int = 9) -> np.ndarray:
@@ -206,6 +274,10 @@ def _fit_offline(obs: Observations, settings: Settings, progress) -> KinematicMo
         obs = dataclasses.replace(obs, landmarks_3d=obs.landmarks_3d * np.stack(
             [np.ones_like(scale), np.ones_like(scale), 1.0 / scale], axis=1)[:, None])
         targets = make_targets(obs.keypoints_2d, obs.landmarks_3d, obs.valid, depth, camera, calibration, s.fit)
+    if s.fit.refine_lengths:
+        calibration = refine_lengths(body, camera, qpos, targets, calibration, s.body.height)
+        body = build_body_model(calibration.lengths, s.body.mass)
+        fitter = KinematicFitter(body, camera, s.fit, obs.fps)
     qpos = fitter.fit_offline(qpos, targets).qpos
     floor = (Floor.from_plane(s.camera.floor) if s.camera.floor is not None
              else estimate_floor(body, qpos, camera, obs.fps, obs.valid))
