@@ -52,17 +52,33 @@ def test_whole_body_flip_is_not_a_foot_swap(walk):
     assert not find_foot_swaps(flipped)[40:52].any()
 
 
-def test_capture_reports_the_swapped_frames(walk, tmp_path):
-    """The run's summary.json names the frames whose feet were swapped and undone, also from a cached fit."""
+@pytest.mark.parametrize("online", [False, True])
+def test_capture_reports_the_swapped_frames(walk, tmp_path, online):
+    """The run's summary.json names and counts the frames whose feet were swapped and undone, offline and online
+    (in the warm-up and after it), also from a cached fit."""
+    import json
+
     from physmocap.config import Settings
     from physmocap.pipeline import run_capture
 
     path = tmp_path / "observations.npz"
-    mirrored(walk, slice(20, 32), FOOT_LANDMARKS).save(path)
+    mirrored(mirrored(walk, slice(20, 32), FOOT_LANDMARKS), slice(100, 110), FOOT_LANDMARKS).save(path)
     for _ in range(2):  # the second run takes the fit from the cache
-        summary = run_capture(tmp_path / "run", Settings().replace("body", height=1.75), observations=path)
-        assert summary.foot_swap_frames == ["20-31"]
+        summary = run_capture(tmp_path / "run", Settings(online=online).replace("body", height=1.75),
+                              observations=path)
+        assert summary.foot_swap_frames == ["20-31", "100-109"]
+        assert json.loads((tmp_path / "run" / "summary.json").read_text())["foot_swap_frame_count"] == 22
     assert "kinematics" in summary.cached_stages
+
+
+def test_terminal_summary_counts_the_swapped_frames(walk, tmp_path, capsys):
+    from physmocap.cli import main
+
+    path = tmp_path / "observations.npz"
+    mirrored(walk, slice(100, 110), FOOT_LANDMARKS).save(path)
+    assert main(["capture", "--observations", str(path), "-o", str(tmp_path / "run"), "--online", "--physics",
+                 "none", "--height", "1.75", "--no-overlay"]) == 0
+    assert "swapped the left and right feet on 10 frames" in capsys.readouterr().out
 
 
 def test_causal_reading_changes_only_on_a_clear_difference():

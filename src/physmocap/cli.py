@@ -217,6 +217,10 @@ def cmd_capture(args) -> int:
         details = "; ".join(f"{reason}: frames {', '.join(r[:6])}{' ...' if len(r) > 6 else ''}"
                             for reason, r in summary.invalid_frames.items())
         print(f"warning: {invalid} frames could not be reconstructed and are flagged invalid ({details})")
+    if summary.foot_swap_frame_count:
+        ranges = summary.foot_swap_frames
+        print(f"note: the detector swapped the left and right feet on {summary.foot_swap_frame_count} frames, fitted "
+              f"the other way round (frames {', '.join(ranges[:6])}{' ...' if len(ranges) > 6 else ''})")
     if summary.skeleton_scale_replaced:
         print("note: implausible detector lengths replaced by template proportions: "
               + ", ".join(summary.skeleton_scale_replaced))

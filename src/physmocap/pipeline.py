@@ -68,7 +68,8 @@ class RunSummary:
     skeleton_scale_replaced: list[str]
     physics: str
     physics_fallback_frames: list[str]
-    foot_swap_frames: list[str]  # offline: frames whose left and right feet the detector swapped, undone
+    foot_swap_frames: list[str]  # frames whose left and right feet the detector swapped, fitted the other way round
+    foot_swap_frame_count: int  # how many (offline: found over the whole clip; online: per frame from the past)
     physics_report: dict = field(default_factory=dict)  # trajopt: summary line, per-window solver reports
     files: dict[str, str] = field(default_factory=dict)
 
@@ -434,6 +435,7 @@ def write_outputs(out_dir: Path, source: str, obs: Observations, motion: Kinemat
     reasons: dict[str, list[str]] = {}
     for reason in sorted(set(obs.invalid_reason[invalid].tolist())):
         reasons[reason or "invalid"] = _frame_ranges(invalid[obs.invalid_reason[invalid] == reason])
+    swaps = np.zeros(obs.num_frames, bool) if motion.foot_swaps is None else np.asarray(motion.foot_swaps, bool)
     summary = RunSummary(
         input=source, output_dir=str(out_dir), frames=obs.num_frames, valid_frames=int(motion.valid.sum()),
         invalid_frames=reasons, fps=obs.fps, online=settings.online, stage_seconds=seconds, cached_stages=cached,
@@ -441,7 +443,7 @@ def write_outputs(out_dir: Path, source: str, obs: Observations, motion: Kinemat
         median_reprojection_error_percent_of_height=_nanmedian(relative),
         skeleton_scale_replaced=list(motion.calibration.replaced), physics=settings.physics.method,
         physics_fallback_frames=_frame_ranges(np.flatnonzero(result["physics_fallback"])),
-        foot_swap_frames=_frame_ranges(np.flatnonzero(motion.foot_swaps)) if motion.foot_swaps is not None else [],
+        foot_swap_frames=_frame_ranges(np.flatnonzero(swaps)), foot_swap_frame_count=int(swaps.sum()),
         physics_report=physics_report or {}, files=files)
     files["summary"] = str(out_dir / "summary.json")
     write_text(files["summary"], summary.to_json())

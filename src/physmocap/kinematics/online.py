@@ -127,7 +127,8 @@ class OnlineFitter:
     calibrate the bone lengths, are fitted, and place the floor (unless it is given); their foot swaps are found
     as offline. From then on every pushed frame is fitted at once, warm-started from the previous two frames with
     constant velocity, its feet read as detected or swapped, whichever fits the predicted pose (CausalFootSwaps).
-    After warm-up, `body`, `camera`, `floor` and `calibration` are fixed.
+    After warm-up, `body`, `camera`, `floor` and `calibration` are fixed. `foot_swap_frames` lists the frames (stream
+    indices) whose feet were fitted the other way round from the detector's labels.
     """
 
     def __init__(self, settings: Settings, fps: float, image_size: tuple[int, int],
@@ -143,6 +144,7 @@ class OnlineFitter:
         self._depths: deque[float] = deque(maxlen=DEPTH_WINDOW)
         self._past = CausalPast([], [])
         self._foot_swaps = CausalFootSwaps(FOOT_SWAP_MARGIN)
+        self.foot_swap_frames: list[int] = []
 
     def push(self, keypoints_2d: np.ndarray, landmarks_3d: np.ndarray, valid: bool) -> list[tuple[int, np.ndarray]]:
         """Add one frame (33, 3) + (33, 3); returns the (frame index, qpos) pairs that became ready."""
@@ -153,7 +155,10 @@ class OnlineFitter:
             if sum(v for _, _, v in self._pending) >= self.warmup:
                 return self._start()
             return []
-        return [(index, self._fit(keypoints_2d, landmarks_3d, valid))]
+        q, swapped = self._fit(keypoints_2d, landmarks_3d, valid)
+        if swapped:
+            self.foot_swap_frames.append(index)
+        return [(index, q)]
 
     def finish(self) -> list[tuple[int, np.ndarray]]:
         """End of stream: fits what the warm-up still holds (a clip shorter than the warm-up)."""
@@ -184,7 +189,12 @@ class OnlineFitter:
             pelvis = initial_qpos(self.body, self.camera, targets, 0)[0, :3]
             self.camera = self.camera.with_extrinsics(*world_from_floor(self.floor, self.camera.to_camera(pelvis)))
         self.fitter = KinematicFitter(self.body, self.camera, s.fit, self.fps)
-        qpos = np.array([self._fit(k2[t], k3[t], valid[t]) for t in range(first, len(valid))])
+        fitted = [self._fit(k2[t], k3[t], valid[t]) for t in range(first, len(valid))]
+        qpos = np.array([q for q, _ in fitted])
+        # A warm-up frame's feet are the detector's the other way round when exactly one of the two checks (the
+        # clip's, then the causal one on its result) swapped them.
+        self.foot_swap_frames += [first_index + t for t, (_, again) in enumerate(fitted, start=first)
+                                  if swaps[t] != again]
         self._foot_swaps.swapped = bool(swaps[np.flatnonzero(valid)[-1]])  # the detector's reading at the end
         qpos = np.concatenate([np.repeat(qpos[:1], first, axis=0), qpos])  # hold the first pose before it
         if s.camera.floor is None:
@@ -194,7 +204,8 @@ class OnlineFitter:
             self._past = CausalPast.of(self.fitter, [q[None] for q in qpos[-2:]])
         return list(zip(range(first_index, first_index + len(qpos)), qpos))
 
-    def _fit(self, keypoints_2d: np.ndarray, landmarks_3d: np.ndarray, valid: bool) -> np.ndarray:
+    def _fit(self, keypoints_2d: np.ndarray, landmarks_3d: np.ndarray, valid: bool) -> tuple[np.ndarray, bool]:
+        """One frame fitted from the past: its pose (nq,) and whether its feet were read swapped."""
         s = self.settings
         k2, k3, v = keypoints_2d[None], landmarks_3d[None], np.array([valid])
         depth = raw_depth(k2, k3, v, self.camera.focal, self.calibration, s.fit.min_confidence)[0]
@@ -212,6 +223,7 @@ class OnlineFitter:
             swapped = self._foot_swaps.update(*np.sum(r * r, axis=1))
             targets = both.frames(slice(int(swapped), int(swapped) + 1))
         else:
+            swapped = False
             targets = make_targets(k2, k3, v, depth, self.camera, self.calibration, s.fit)
         q, self._past = causal_step(self.fitter, targets, self._past, s.fit.online_iterations, prediction=q)
-        return q[0]
+        return q[0], swapped

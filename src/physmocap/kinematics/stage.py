@@ -38,8 +38,9 @@ class KinematicMotion:
 
     qpos: (T, nq) world frame; camera: intrinsics and world -> camera extrinsics; floor: in the camera frame;
     reprojection_error: (T,) median pixel distance of the fitted markers to confident keypoints (nan if none);
-    valid: (T,) frames with observations; seconds: time spent fitting; foot_swaps: (T,) frames whose feet the
-    offline fit took the other way round from the detector (None online).
+    valid: (T,) frames with observations; seconds: time spent fitting; foot_swaps: (T,) frames whose feet the fit
+    took the other way round from the detector (offline: decided over the whole clip; online: per frame from the
+    past, see OnlineFitter).
     """
 
     body: BodyModel
@@ -249,8 +250,10 @@ def _fit_online(obs: Observations, settings: Settings, progress) -> KinematicMot
         if progress:
             progress(t + 1, obs.num_frames)
     store(online.finish())
+    swaps = np.zeros(obs.num_frames, dtype=bool)
+    swaps[online.foot_swap_frames] = True
     return KinematicMotion(online.body, online.calibration, online.camera, online.floor, qpos, None,
-                           obs.valid.copy(), 0.0, True)
+                           obs.valid.copy(), 0.0, True, swaps)
 
 
 def _fit_offline(obs: Observations, settings: Settings, progress) -> KinematicMotion:
