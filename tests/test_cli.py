@@ -190,14 +190,25 @@ def test_offline_physcap_tracks_the_refined_kinematics(demo_run, tmp_path):
     assert again.returncode == 0, again.stderr
     assert json.loads((tmp_path / "p" / "summary.json").read_text())["cached_stages"] == ["kinematics", "refine",
                                                                                           "physics"]
+    assert summary["physics_strayed_frames"] == [] and "strays" not in proc.stdout
+    deviation = np.linalg.norm(refined["joints_world"] - refined["joints_world_kinematic"], axis=-1).mean(axis=1)
+    np.testing.assert_allclose(refined["physics_deviation"], deviation)
+    assert np.isfinite(summary["median_reprojection_error_final_px"]) and "after physics" in proc.stdout
+    # The plain fit tracked instead; frames where physics strays from its input beyond a (here tiny) distance
+    # are reported.
     config = tmp_path / "plain.toml"
-    config.write_text("[physics]\nrefine_offline = false\n")
+    config.write_text("[physics]\nrefine_offline = false\nstray_distance = 0.02\n")
     unrefined = physmocap("capture", "--observations", obs, "-o", tmp_path / "p", "--physics", "physcap",
                           "--no-overlay", "--config", config)
     assert unrefined.returncode == 0, unrefined.stderr
     summary = json.loads((tmp_path / "p" / "summary.json").read_text())
     assert "refine" not in summary["stage_seconds"] and "physics" not in summary["cached_stages"]
-    np.testing.assert_allclose(load_result(tmp_path / "p" / "result.npz")["joints_world_kinematic"],
+    unrefined_result = load_result(tmp_path / "p" / "result.npz")
+    strayed = (unrefined_result["physics_deviation"] > 0.02) & unrefined_result["valid"]
+    assert "warning: the physics motion strays more than 0.02 m" in unrefined.stdout
+    ranges = [[int(x) for x in r.split("-")] for r in summary["physics_strayed_frames"]]
+    assert ranges and sum(r[-1] - r[0] + 1 for r in ranges) == strayed.sum()
+    np.testing.assert_allclose(unrefined_result["joints_world_kinematic"],
                                plain["joints_world"], atol=1e-6)
 
 

@@ -236,8 +236,11 @@ def cmd_capture(args) -> int:
                 if summary.physics == "trajopt" else "the physics QP failed and fell back on frames ")
         print("warning: " + what
               + ", ".join(summary.physics_fallback_frames[:6]) + (" ..." if len(summary.physics_fallback_frames) > 6 else ""))
+    _warn_strayed(summary, settings)
     print(f"median reprojection error {summary.median_reprojection_error_px:.1f} px "
-          f"({summary.median_reprojection_error_percent_of_height:.2f}% of the person's height)")
+          f"({summary.median_reprojection_error_percent_of_height:.2f}% of the person's height)"
+          + (f"; after physics {summary.median_reprojection_error_final_px:.1f} px" if summary.physics != "none"
+             else ""))
     times = ", ".join(f"{k} {v:.1f} s" for k, v in summary.stage_seconds.items())
     print(f"time: {times}" + (f" (cached: {', '.join(summary.cached_stages)})" if summary.cached_stages else ""))
     print(f"results in {out}/: " + ", ".join(Path(p).name for p in summary.files.values()))
@@ -297,8 +300,17 @@ def cmd_live(args) -> int:
                                 report.stationary, report.physics, settings, seconds, [])
         if report.physics is not None and np.any(report.physics.qp_failures):
             print(f"warning: the physics QP fell back on {int(np.sum(report.physics.qp_failures > 0))} frames")
+        _warn_strayed(summary, settings)
         print(f"results in {args.output}/: live.jsonl, " + ", ".join(Path(p).name for p in summary.files.values()))
     return 0
+
+
+def _warn_strayed(summary, settings) -> None:
+    ranges = summary.physics_strayed_frames
+    if ranges:
+        print(f"warning: the physics motion strays more than {settings.physics.stray_distance:g} m from the "
+              f"kinematic motion on frames {', '.join(ranges[:6])}{' ...' if len(ranges) > 6 else ''}: it could not "
+              "follow there (a floor that does not fit the scene, or wrong contacts)")
 
 
 def cmd_export(args) -> int:

@@ -70,7 +70,10 @@ class RunSummary:
     physics_fallback_frames: list[str]
     foot_swap_frames: list[str]  # frames whose left and right feet the detector swapped, fitted the other way round
     foot_swap_frame_count: int  # how many (offline: found over the whole clip; online: per frame from the past)
-    physics_report: dict = field(default_factory=dict)  # trajopt: summary line, per-window solver reports
+    physics_report: dict = field(default_factory=dict)  # B.4 refinement; trajopt: summary line, window reports
+    median_reprojection_error_final_px: float = float("nan")  # of the final (physics) motion
+    physics_strayed_frames: list[str] = field(default_factory=list)  # final joints farther than
+    # physics.stray_distance on average from the kinematic motion's
     files: dict[str, str] = field(default_factory=dict)
 
     def to_json(self) -> str:
@@ -444,7 +447,10 @@ def write_outputs(out_dir: Path, source: str, obs: Observations, motion: Kinemat
         skeleton_scale_replaced=list(motion.calibration.replaced), physics=settings.physics.method,
         physics_fallback_frames=_frame_ranges(np.flatnonzero(result["physics_fallback"])),
         foot_swap_frames=_frame_ranges(np.flatnonzero(swaps)), foot_swap_frame_count=int(swaps.sum()),
-        physics_report=physics_report or {}, files=files)
+        physics_report=physics_report or {}, files=files,
+        median_reprojection_error_final_px=_nanmedian(result["reprojection_error_final"]),
+        physics_strayed_frames=_frame_ranges(np.flatnonzero(motion.valid & (result["physics_deviation"]
+                                                                            > settings.physics.stray_distance))))
     files["summary"] = str(out_dir / "summary.json")
     write_text(files["summary"], summary.to_json())
     write_report(out_dir, result)  # last: it links every output that exists

@@ -13,7 +13,7 @@ from .body.model import CONTACT_POINTS, JOINT_NAMES, LANDMARK_POINTS
 from .dynamics.stage import PhysicsMotion
 from .errors import InputError
 from .io.atomic import read_npz, save_npz
-from .kinematics.stage import KinematicMotion
+from .kinematics.stage import KinematicMotion, reprojection_errors
 from .motion import Observations
 
 RESULT_POINTS: tuple[str, ...] = JOINT_NAMES + LANDMARK_POINTS
@@ -42,6 +42,8 @@ def build_result(obs: Observations, motion: KinematicMotion, stage_seconds: dict
     points = body.point_index(RESULT_POINTS)
     kinematic = kin.forward_kinematics(body, motion.qpos).points[:, points]
     final = kinematic if physics is None else kin.forward_kinematics(body, physics.qpos).points[:, points]
+    final_reprojection = (motion.reprojection_error if physics is None
+                          else reprojection_errors(body, motion.camera, physics.qpos, obs))
     return dict(
         fps=np.float64(obs.fps),
         joint_names=np.array(RESULT_POINTS),
@@ -67,6 +69,8 @@ def build_result(obs: Observations, motion: KinematicMotion, stage_seconds: dict
         valid=motion.valid,
         invalid_reason=np.asarray(obs.invalid_reason, dtype=str),
         reprojection_error=motion.reprojection_error,
+        reprojection_error_final=final_reprojection,
+        physics_deviation=np.linalg.norm(final - kinematic, axis=-1).mean(axis=1),
         person_height_px=person_height_pixels(motion),
         body_mass=np.float64(body.mass),
         body_height=np.float64(body.height),
