@@ -280,3 +280,19 @@ def test_the_result_world_moves_onto_the_refined_floor_and_the_camera_follows(bo
     assert moved_physics.floor_plane is None
     assert np.allclose(moved_physics.grf.sum(1)[-1] @ np.array([0, 0, 1.0]),
                        physics.grf.sum(1)[-1] @ physics.floor_plane[:3], atol=1e-6)
+
+
+def test_the_character_starts_at_the_first_frame_with_a_person(body):
+    # A whole-clip fit extrapolates the frames before the person appears, here half a metre under the floor;
+    # started there, the character would be launched out of the floor.
+    q = standing(body, 40)
+    q[:5, 2] -= np.linspace(0.5, 0.1, 5)
+    valid = np.arange(40) >= 5
+    result = run_physcap(body, q, FPS, np.ones((40, 4), bool), np.ones(40, bool), PhysicsSettings(), valid=valid)
+    np.testing.assert_array_equal(result.qpos[:5], q[:5])  # kept, without forces
+    assert not result.grf[:5].any() and not result.residual[:5].any()
+    weight = body.mass * G
+    assert np.all(np.abs(result.grf[10:, :, 2].sum(axis=1) - weight) < 0.05 * weight)
+    assert np.abs(result.qpos[5:, 2] - q[5:, 2]).max() < 0.01  # no launch
+    launched = run_physcap(body, q, FPS, np.ones((40, 4), bool), np.ones(40, bool), PhysicsSettings())
+    assert np.abs(launched.qpos[5:, 2] - q[5:, 2]).max() > 0.05  # what starting on the extrapolated frames does

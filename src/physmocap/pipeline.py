@@ -224,7 +224,7 @@ def contacts_stage(obs: Observations, settings: Settings) -> tuple[np.ndarray, n
 
 def _motion_key(motion: KinematicMotion) -> str:
     """A digest of a kinematic motion (pose, skeleton, camera): the key of the stages that start from it."""
-    data = motion.qpos.tobytes() + motion.camera.R.tobytes() + motion.camera.t.tobytes()
+    data = motion.qpos.tobytes() + motion.valid.tobytes() + motion.camera.R.tobytes() + motion.camera.t.tobytes()
     return _digest(hashlib.sha256(data).hexdigest(), motion.body.lengths.__dict__, motion.body.mass)
 
 
@@ -238,7 +238,7 @@ def physics_stage(obs: Observations, motion: KinematicMotion, contacts: np.ndarr
     if settings.physics.method == "none":
         return None, False, motion
     cache = out_dir / "cache" / "physics.npz"
-    key = _digest("physics", 4, _motion_key(motion),
+    key = _digest("physics", 5, _motion_key(motion),
                   hashlib.sha256(contacts.tobytes() + stationary.tobytes()).hexdigest(), asdict(settings.physics))
     physics = None
     if cache.is_file():
@@ -257,7 +257,7 @@ def physics_stage(obs: Observations, motion: KinematicMotion, contacts: np.ndarr
         # The online floor comes from the warm-up alone; the offline one already from every frame.
         refine_floor = settings.online and settings.camera.floor is None
         physics = run_physcap(motion.body, motion.qpos, obs.fps, contacts, stationary, settings.physics, bar,
-                              refine_floor)
+                              refine_floor, motion.valid)
         plane = np.full(4, np.nan) if physics.floor_plane is None else physics.floor_plane
         save_npz(cache, key=np.str_(key), qpos=physics.qpos, grf=physics.grf, residual=physics.residual,
                  contacts=physics.contacts, corrected=physics.corrected, qp_failures=physics.qp_failures,

@@ -98,15 +98,20 @@ def kinematic_derivatives(body: BodyModel, qpos: np.ndarray, fps: float) -> tupl
 
 
 def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.ndarray, stationary: np.ndarray,
-                settings: PhysicsSettings, progress=None, refine_floor: bool = False) -> PhysicsMotion:
+                settings: PhysicsSettings, progress=None, refine_floor: bool = False,
+                valid: np.ndarray | None = None) -> PhysicsMotion:
     """Track the kinematic motion (T, nq) with the physics character; contacts (T, 4) and stationary (T,)
-    come from the contact stage. Causal: frame t uses frames up to t only. refine_floor: see PhysicsStream."""
+    come from the contact stage. Causal: frame t uses frames up to t only. refine_floor: see PhysicsStream.
+    valid: (T,) frames with a detected person (default all); the character starts at the first, and the frames
+    before it keep the kinematic pose without forces (a whole-clip fit extrapolates them without data, and a
+    character started there can begin metres off)."""
     start = time.perf_counter()
     T = len(qpos_kin)
     stream = PhysicsStream(body, settings, fps, refine_floor)
-    out = PhysicsMotion(np.empty_like(qpos_kin), np.zeros((T, 4, 3)), np.zeros((T, 6)), np.zeros((T, 4), bool),
+    out = PhysicsMotion(qpos_kin.copy(), np.zeros((T, 4, 3)), np.zeros((T, 6)), np.zeros((T, 4), bool),
                         np.zeros(T, bool), np.zeros(T, int), 0.0)
-    for t in range(T):
+    first = 0 if valid is None or not np.any(valid) else int(np.argmax(valid))
+    for t in range(first, T):
         out.qpos[t], frame, out.corrected[t] = stream.push(qpos_kin[t], contacts[t], bool(stationary[t]))
         out.grf[t], out.residual[t], out.contacts[t], out.qp_failures[t] = (
             frame.contact_forces, frame.residual, frame.active, frame.qp_failures)
