@@ -15,7 +15,8 @@ from physmocap.config import TrajoptSettings
 from physmocap.errors import InputError
 from physmocap.trajopt.formulation import (Window, angular_velocity, build_window_problem, euler_torque,
                                           phase_layout, rotate)
-from physmocap.trajopt.phases import clean_flags, contact_phases, flags_from_phases, segment_count
+from physmocap.trajopt.phases import (clean_flags, contact_phases, flags_from_phases, segment_count,
+                                     split_drifting)
 from physmocap.trajopt.problem import ConstraintSet, CostTerm, Program, VariableSet
 from physmocap.trajopt.reduced import (boundary_velocity, euler_to_matrix, matrix_to_euler, reduced_motion,
                                        world_inertia)
@@ -137,6 +138,33 @@ def test_contact_phases_from_flags():
     assert np.isclose(phases[1].start, 4.5 / FPS) and np.isclose(phases[1].end, 7.5 / FPS)
     assert np.array_equal(flags_from_phases(phases, times), cleaned)
     assert segment_count(0.3, 6, 2.0) == 6 and segment_count(5.0, 6, 2.0) == 15
+
+
+def test_drifting_contact_split_where_the_point_moves_with_a_support_kept():
+    T = 40
+    flags = np.zeros((T, 4), bool)
+    flags[:, 0] = True  # the heel holds still throughout
+    flags[:, 1] = True  # the toe stays, shuffles 8 cm at frames 24-25, stays again
+    points = np.zeros((T, 4, 2))
+    points[24:, 1, 0] = np.r_[0.03, 0.06, np.full(T - 26, 0.08)]
+    out = split_drifting(flags, points, 0.03, 2)
+    assert np.array_equal(out[:, 0], flags[:, 0])
+    assert np.array_equal(np.flatnonzero(~out[:, 1]), [24, 25])  # the gap covers the move exactly
+    # Alone on the floor the toe keeps its run: a gap would leave the body without support.
+    alone = flags.copy()
+    alone[:, 0] = False
+    assert np.array_equal(split_drifting(alone, points, 0.03, 2), alone)
+    # Within the limit, or the split off: unchanged; a steady slide is cut until every part is within the limit.
+    assert np.array_equal(split_drifting(flags, points, 0.1, 2), flags)
+    assert np.array_equal(split_drifting(flags, points, 0.0, 2), flags)
+    points[:, 1, 0] = np.linspace(0.0, 0.3, T)
+    out = split_drifting(flags, points, 0.03, 2)
+    starts = np.flatnonzero(np.diff(np.r_[0, out[:, 1].astype(int)]) == 1)
+    ends = np.flatnonzero(np.diff(np.r_[out[:, 1].astype(int), 0]) == -1) + 1
+    assert len(starts) > 2 and all(b - a >= 2 for a, b in zip(starts, ends))
+    for a, b in zip(starts, ends):
+        part = points[a:b, 1]
+        assert np.linalg.norm(part - np.median(part, axis=0), axis=1).max() <= 0.03
 
 
 def test_phase_layout_keeps_nodes_clear_of_moving_boundaries():
@@ -369,11 +397,11 @@ def test_jump_has_no_force_in_flight_and_a_ballistic_com(body):
 
 def test_sliding_sinking_input_is_planted(body):
     """A kinematic motion whose feet slide 20 cm and sink 2 cm while labelled in contact comes out still and
-    on the floor, the upper body near the input."""
+    on the floor, the upper body near the input (the drifting contacts kept whole: contact_drift off)."""
     q = standing(body, 36)
     q[:, 0] += np.linspace(0, 0.2, 36)
     q[:, 2] -= 0.02
-    result = run_trajopt(body, q, FPS, np.ones((36, 4), bool), QUICK)
+    result = run_trajopt(body, q, FPS, np.ones((36, 4), bool), TrajoptSettings(contact_drift=0.0))
     assert result.converged.all()
     soles = kin.forward_kinematics(body, result.qpos).points[:, body.point_index(CONTACT_POINTS)]
     assert np.abs(soles[..., 2]).max() < 0.01
@@ -384,7 +412,8 @@ def test_sliding_sinking_input_is_planted(body):
 
 
 def sway(body, frames):
-    """Standing, the body swaying sideways and forwards (COM +-4 cm at 0.6 and 0.4 Hz) over planted feet."""
+    """Standing, the body swaying sideways and forwards (COM +-4 cm at 0.6 and 0.4 Hz) over planted feet (the
+    input's feet sway along: run with contact_drift off, or they would be re-placed)."""
     q = standing(body, frames)
     t = np.arange(frames) / FPS
     q[:, 1] += 0.04 * np.sin(2 * np.pi * 0.6 * t)
@@ -394,7 +423,7 @@ def sway(body, frames):
 
 def test_long_clips_are_windowed_and_stitched_continuously(body):
     q = sway(body, 100)
-    s = TrajoptSettings(window_seconds=1.5, window_overlap=0.5)
+    s = TrajoptSettings(window_seconds=1.5, window_overlap=0.5, contact_drift=0.0)
     result = run_trajopt(body, q, FPS, np.ones((100, 4), bool), s)
     assert len(result.windows) >= 3 and result.converged.all()
     assert all(w.com_departure < 0.02 for w in result.windows)

@@ -278,6 +278,10 @@ class TrajoptSettings:
     segment_phase_seconds: float = 2.0  # s: phases longer than this get proportionally more polynomials; 0.1 .. 60
     min_phase_seconds: float = 0.06  # s: shorter runs of contact flags merge into their neighbours (ours; one
     # flickering frame at 30 fps); 0 .. 1
+    contact_drift: float = 0.05  # m: a contact run whose point strays farther than this from its median position
+    # in the input motion is split by a flight of min_phase_seconds (phases.split_drifting; ours: no slip holds a
+    # phase's point still, and the synthetic set's CMU 131 feet drift up to 25 cm within labelled contacts).
+    # Synthetic set (8 clips, seed 0), global MPJPE 49.6 -> 48.7 mm against the input's 46.1; 0 (off) .. 1
     # Constraints (figure 3, C.2); a sample interval of 0 means every frame.
     constraints: tuple[str, ...] = TRAJOPT_CONSTRAINTS  # constraint sets used, by name
     dynamics_interval: float = 0.1  # s between dynamics constraints (Newton and Euler); 0 .. 1
@@ -347,6 +351,7 @@ class TrajoptSettings:
         _within("trajopt.segments_per_phase", self.segments_per_phase, 1, 50, "")
         _within("trajopt.segment_phase_seconds", self.segment_phase_seconds, 0.1, 60.0, "s")
         _within("trajopt.min_phase_seconds", self.min_phase_seconds, 0.0, 1.0, "s")
+        _within("trajopt.contact_drift", self.contact_drift, 0.0, 1.0, "m")
         for name in ("dynamics_interval", "linear_dynamics_interval", "kinematic_interval", "floor_interval"):
             _within(f"trajopt.{name}", getattr(self, name), 0.0, 1.0, "s")
         _within("trajopt.boundary_frames", self.boundary_frames, 1, 100, "frames")

@@ -43,6 +43,49 @@ def clean_flags(flags: np.ndarray, min_frames: int) -> np.ndarray:
         flags[starts[k]:starts[k] + lengths[k]] = ~flags[starts[k]]
 
 
+def split_drifting(flags: np.ndarray, points: np.ndarray, limit: float, gap: int) -> np.ndarray:
+    """(T, P) contact flags with every contact run whose point drifts along the floor split in two by `gap` frames
+    of flight, again in each part, until no part's point (T, P, 2 floor coordinates of the input motion) lies
+    farther than `limit` from the part's median position. A contact phase holds its point still (no slip), so a
+    foot that shuffles or pivots while labelled in contact (the motion capture of CMU subject 131: a toe 25 cm
+    in 3 s) needs a new phase, not one position for all. The gap goes where the two parts' positions scatter
+    least about their means, among the frames in which another point stays in contact (the body keeps a support:
+    a whole-body flight the input does not fly would launch it); runs with no such place stay whole. The parts
+    keep at least `gap` frames. limit 0: flags unchanged."""
+    flags = np.asarray(flags, bool).copy()
+    if limit <= 0:
+        return flags
+    gap = max(1, gap)
+
+    def split(i: int, a: int, b: int) -> None:
+        p = points[a:b, i]
+        if b - a < 3 * gap or np.linalg.norm(p - np.median(p, axis=0), axis=1).max() <= limit:
+            return
+        first = np.concatenate([np.zeros((1, 2)), np.cumsum(p, axis=0)])
+        second = np.concatenate([[0.0], np.cumsum((p ** 2).sum(axis=1))])
+
+        def scatter(lo, hi):  # sum of squared distances from the mean over p[lo:hi]
+            return second[hi] - second[lo] - ((first[hi] - first[lo]) ** 2).sum(axis=-1) / (hi - lo)
+
+        lo = np.arange(gap, b - a - 2 * gap + 1)
+        others = np.delete(flags[a:b], i, axis=1).any(axis=1)
+        supported = np.array([others[k:k + gap].all() for k in lo], bool)
+        if not supported.any():
+            return
+        cost = np.where(supported, [scatter(0, k) + scatter(k + gap, b - a) for k in lo], np.inf)
+        k = a + int(lo[np.argmin(cost)])
+        flags[k:k + gap, i] = False
+        split(i, a, k)
+        split(i, k + gap, b)
+
+    for i in range(flags.shape[1]):
+        starts, lengths = runs(flags[:, i])
+        for s, n in zip(starts, lengths):
+            if flags[s, i]:
+                split(i, int(s), int(s + n))
+    return flags
+
+
 def runs(flags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Start indices and lengths of the runs of equal values in a (T,) array."""
     flags = np.asarray(flags)

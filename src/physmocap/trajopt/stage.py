@@ -27,7 +27,7 @@ from ..body.model import BodyModel
 from ..config import TrajoptSettings
 from .formulation import Window
 from .ik import IkTargets, ik_targets, solve_ik
-from .phases import clean_flags, contact_phases
+from .phases import clean_flags, contact_phases, split_drifting
 from .reduced import boundary_velocity, reduced_motion
 from .solve import StageReport, solve_window
 
@@ -188,6 +188,7 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     reduced = reduced_motion(body, qpos_kin, fps)
     min_frames = max(1, math.ceil(settings.min_phase_seconds * fps - 1e-9))
     flags = np.stack([clean_flags(contacts[:, i], min_frames) for i in range(4)], axis=1) & valid[:, None]
+    flags = split_drifting(flags, reduced.feet[..., :2], settings.contact_drift, min_frames)
     out = TrajoptMotion(
         qpos=qpos_kin.copy(), grf=np.zeros((T, 4, 3)), residual=np.zeros((T, 6)), contacts=flags.copy(),
         converged=np.zeros(T, bool), corrected=np.zeros(T, bool), qp_failures=np.ones(T, int),
