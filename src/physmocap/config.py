@@ -97,11 +97,12 @@ class FitSettings:
     # jumping to each other's place; online after it, the reading that better fits the pose predicted from the past
     rescale_landmark_depth: bool = True  # offline: undo the detector's per-frame stretch of its 3D landmarks along
     # the camera axis, measured against the initial fit (stage.landmark_depth_scale)
-    refine_lengths: bool = True  # offline: measure the limbs' and feet's lengths again along the axes of the first
-    # fit (kinematics.stage.refine_lengths) before the whole-clip fit. Synthetic set (8 clips x 2 seeds):
-    # root-relative 30.4 -> 28.1 mm, global root 43.1 -> 39.3 mm (the true lengths instead: 26.4 mm); real videos,
-    # reprojection taiji 5.56 -> 5.00 px, sports2d 5.02 -> 5.45 px. From the 3D landmarks alone: 28.2 mm, but
-    # 5.85 / 6.85 px; the limbs alone: 29.7 mm
+    refine_lengths: bool = True  # measure the limbs' and feet's lengths again along the axes of a first fit
+    # (kinematics.stage.refine_lengths): offline before the whole-clip fit, online on the warm-up, which is then
+    # fitted again. Synthetic set (8 clips x 2 seeds), offline: root-relative 30.4 -> 28.1 mm, global root 43.1 ->
+    # 39.3 mm (the true lengths instead: 26.4 mm); online 35.6 -> 33.5 mm, 118.4 -> 118.9 mm. Real videos,
+    # reprojection offline taiji 5.56 -> 5.00 px, sports2d 5.02 -> 5.45 px; online 5.60 -> 5.20, 6.49 -> 5.85 px.
+    # From the 3D landmarks alone: 28.2 mm offline, but 5.85 / 6.85 px; the limbs alone: 29.7 mm
     offline_chunk: int = 32  # frames: the offline fit starts from causal fits of runs this long, all run side by
     # side (one batched step per frame; shorter runs: more cold starts, fewer steps); 2 .. 100000
     one_euro: bool = False  # One-Euro filter on the fitted pose (Casiez et al. 2012)

@@ -18,7 +18,7 @@ from ..detect.foot_swaps import CausalFootSwaps, find_foot_swaps, swap_feet, und
 from ..motion import Observations
 from .calibration import calibrate
 from .fit import FitTargets, KinematicFitter, initial_qpos
-from .stage import estimate_floor, make_targets, move_world_to_floor, raw_depth
+from .stage import estimate_floor, make_targets, move_world_to_floor, raw_depth, refine_lengths, smooth_depth
 
 FIRST_FRAME_ITERATIONS = 60  # the first frame starts from a generic pose and needs more steps
 WARMUP_SECONDS = 3.0  # held back to calibrate and find the floor when body.calibration_frames is 0 (all: offline
@@ -124,9 +124,10 @@ class OnlineFitter:
     """Fits pushed frames one at a time, each from the past only.
 
     The first `body.calibration_frames` (WARMUP_SECONDS' worth if 0) frames that show a person are held back: they
-    calibrate the bone lengths, are fitted, and place the floor (unless it is given); their foot swaps are found
-    as offline. From then on every pushed frame is fitted at once, warm-started from the previous two frames with
-    constant velocity, its feet read as detected or swapped, whichever fits the predicted pose (CausalFootSwaps).
+    calibrate the bone lengths, are fitted (twice with fit.refine_lengths: the lengths are measured again along the
+    first fit, as offline), and place the floor (unless it is given); their foot swaps are found as offline. From
+    then on every pushed frame is fitted at once, warm-started from the previous two frames with constant velocity,
+    its feet read as detected or swapped, whichever fits the predicted pose (CausalFootSwaps).
     After warm-up, `body`, `camera`, `floor` and `calibration` are fixed. `foot_swap_frames` lists the frames (stream
     indices) whose feet were fitted the other way round from the detector's labels.
     """
@@ -181,7 +182,6 @@ class OnlineFitter:
         self.body = build_body_model(self.calibration.lengths, s.body.mass)
         first = int(np.argmax(valid))
         depth = raw_depth(k2, k3, valid, self.camera.focal, self.calibration, s.fit.min_confidence)
-        self._depths.append(float(depth[first]))
         if s.camera.floor is not None:  # the world is known: fit in it directly
             self.floor = Floor.from_plane(s.camera.floor)
             targets = make_targets(k2[first:first + 1], k3[first:first + 1], valid[first:first + 1],
@@ -189,7 +189,15 @@ class OnlineFitter:
             pelvis = initial_qpos(self.body, self.camera, targets, 0)[0, :3]
             self.camera = self.camera.with_extrinsics(*world_from_floor(self.floor, self.camera.to_camera(pelvis)))
         self.fitter = KinematicFitter(self.body, self.camera, s.fit, self.fps)
-        fitted = [self._fit(k2[t], k3[t], valid[t]) for t in range(first, len(valid))]
+        fitted = self._fit_held(k2, k3, valid, depth, first)
+        if s.fit.refine_lengths:  # as offline, from the held frames' fit; they are fitted again with the result
+            targets = make_targets(k2, k3, valid, smooth_depth(depth), self.camera, self.calibration, s.fit)
+            poses = np.array([q for q, _ in fitted])
+            self.calibration = refine_lengths(self.body, self.camera, np.concatenate(
+                [np.repeat(poses[:1], first, axis=0), poses]), targets, self.calibration, s.body.height)
+            self.body = build_body_model(self.calibration.lengths, s.body.mass)
+            self.fitter = KinematicFitter(self.body, self.camera, s.fit, self.fps)
+            fitted = self._fit_held(k2, k3, valid, depth, first)
         qpos = np.array([q for q, _ in fitted])
         # A warm-up frame's feet are the detector's the other way round when exactly one of the two checks (the
         # clip's, then the causal one on its result) swapped them.
@@ -203,6 +211,14 @@ class OnlineFitter:
             self.fitter = KinematicFitter(self.body, self.camera, s.fit, self.fps)
             self._past = CausalPast.of(self.fitter, [q[None] for q in qpos[-2:]])
         return list(zip(range(first_index, first_index + len(qpos)), qpos))
+
+    def _fit_held(self, k2: np.ndarray, k3: np.ndarray, valid: np.ndarray, depth: np.ndarray,
+                  first: int) -> list[tuple[np.ndarray, bool]]:
+        """The held warm-up frames from `first` on, fitted causally from a cold start: per frame (qpos, swapped)."""
+        self._past, self._foot_swaps.swapped = CausalPast([], []), False
+        self._depths.clear()
+        self._depths.append(float(depth[first]))
+        return [self._fit(k2[t], k3[t], valid[t]) for t in range(first, len(valid))]
 
     def _fit(self, keypoints_2d: np.ndarray, landmarks_3d: np.ndarray, valid: bool) -> tuple[np.ndarray, bool]:
         """One frame fitted from the past: its pose (nq,) and whether its feet were read swapped."""
