@@ -79,7 +79,8 @@ def true_flight(truth: dict, body, grf: np.ndarray) -> dict:
     (kin.center_of_mass_from_points): what the ballistic GRF metric gives the truth itself, the floor below which
     no estimate can be expected to go. Also how many of those frames have a heel or toe within TOUCHING of the
     floor (in the air by the labels only because the point moves faster than their speed limit: a rolling push-off),
-    and the median net force of `grf` (T, 4, 3), trajopt's, over those frames and over the others (airborne).
+    and the median net force of `grf` (T, 4, 3), trajopt's, over those frames and over the others (airborne);
+    per flight frame, its index, whether it touches and trajopt's net force there (% of body weight).
     Also the truth's own floating, penetration and skate against its labels (the motion capture's feet slide and
     dip through the floor too)."""
     names = [str(n) for n in truth["joint_names"]]
@@ -93,6 +94,8 @@ def true_flight(truth: dict, body, grf: np.ndarray) -> dict:
     median = lambda frames: float(np.median(percent[frames])) if frames.any() else float("nan")  # noqa: E731
     feet = metrics.foot_contact_errors(sites, labels, fps=float(truth["fps"]))
     return dict(frames=int(flight.sum()), touching_frames=int(touching.sum()),
+                flight_frames=np.flatnonzero(flight).tolist(), flight_touching=touching[flight].tolist(),
+                flight_trajopt_percent_bw=percent[flight].tolist(),
                 **{k: feet[k] for k in ("floating_percent", "penetration_percent", "skate_percent")},
                 ballistic_percent_bw=forces["ballistic_percent_bw"], trajopt_touching_percent_bw=median(touching),
                 trajopt_airborne_percent_bw=median(flight & ~touching))
@@ -175,6 +178,20 @@ def scaling(settings_trajopt: TrajoptSettings, repeats: int) -> list[dict]:
     return out
 
 
+def scaling_fit(rows: list[dict]) -> dict:
+    """The growth of solve time with clip length from the scaling rows: the least-squares line through
+    (log length, log median wall time), t = a L^b (exponent b: 1 linear, 2 quadratic), and the cost per second of
+    clip at each length with the ratio of the largest to the smallest. Marginal slopes between consecutive lengths
+    (differences of two noisy times) would amplify the timing noise."""
+    length = np.array([r["seconds"] for r in rows])
+    wall = np.array([r["wall_seconds"] for r in rows])
+    b, log_a = np.polyfit(np.log(length), np.log(wall), 1)
+    per_second = wall / length
+    return dict(exponent=float(b), coefficient_seconds=float(np.exp(log_a)),
+                seconds_per_clip_second=[float(v) for v in per_second],
+                per_second_ratio=float(per_second.max() / per_second.min()))
+
+
 def summarise(cases: list[dict]) -> dict:
     summary = {}
     for method in METHODS:
@@ -195,6 +212,13 @@ def summarise(cases: list[dict]) -> dict:
         **{key: float(np.nanmean([f[key] for f in flights])) if flights else float("nan")
            for key in ("ballistic_percent_bw", "trajopt_touching_percent_bw", "trajopt_airborne_percent_bw")})
     return summary
+
+
+def flight_forces(flight: dict) -> str:
+    """'n: 0, 41t, ...' for the per-case table: trajopt's force in each true flight frame, t where it touches."""
+    forces = [f"{f:.0f}{'t' if t else ''}" for f, t in zip(flight["flight_trajopt_percent_bw"],
+                                                          flight["flight_touching"])]
+    return f"{flight['frames']}" + (": " + ", ".join(forces) if forces else "")
 
 
 def markdown(out: dict) -> str:
@@ -235,14 +259,21 @@ def markdown(out: dict) -> str:
         lines.append(f"| {r['seconds']:.0f} | {r['frames']} | {r['wall_seconds']:.1f} | {r['windows']} | "
                      f"{100 * r['converged_fraction']:.0f}% | {r['largest_program_variables']} / "
                      f"{r['largest_program_constraints']} | {r['ipopt_seconds']:.1f} | {r['build_seconds']:.1f} |")
-    lines += ["", "Per case:", "", "| clip | seed | frames | trajopt s | converged frames | global MPJPE kin / "
-              "refined / trajopt mm | 2 s pieces converged |", "|---|---|---|---|---|---|---|"]
+    fit = out["scaling_fit"]
+    lines += ["", f"Least-squares fit t = a L^b over the lengths: b = {fit['exponent']:.2f} (1: linear), a = "
+              f"{fit['coefficient_seconds']:.2f} s; seconds per second of clip "
+              + " / ".join(f"{v:.2f}" for v in fit["seconds_per_clip_second"])
+              + f" (largest / smallest {fit['per_second_ratio']:.2f})."]
+    lines += ["", "Per case (last column: trajopt's net force in each frame in flight by the true labels, % BW, "
+              "t where a heel or toe touches):", "", "| clip | seed | frames | trajopt s | converged frames | global "
+              "MPJPE kin / refined / trajopt mm | 2 s pieces converged | true flight frames: force % BW |",
+              "|---|---|---|---|---|---|---|---|"]
     for case in out["cases"]:
         g = [case["rows"][m]["global_mpjpe_mm"] for m in ("kinematic offline", "kinematic refined (B.4)", "trajopt")]
         done = sum(p["converged"] for p in case["pieces"])
         lines.append(f"| {case['clip']} | {case['seed']} | {case['frames']} | {case['trajopt_seconds']:.1f} | "
                      f"{100 * case['converged_fraction']:.0f}% | {g[0]:.0f} / {g[1]:.0f} / {g[2]:.0f} | "
-                     f"{done}/{len(case['pieces'])} |")
+                     f"{done}/{len(case['pieces'])} | {flight_forces(case['true_flight'])} |")
     return "\n".join(lines) + "\n"
 
 
@@ -263,6 +294,7 @@ def main(argv=None) -> dict:
     if args.scaling_only:
         out = json.loads(Path(args.json).read_text())
         out["scaling"] = scaling(settings, args.repeats)
+        out["scaling_fit"] = scaling_fit(out["scaling"])
         Path(args.json).write_text(json.dumps(out, indent=2, default=float))
         Path(args.json).with_suffix(".md").write_text(markdown(out))
         return out
@@ -284,6 +316,7 @@ def main(argv=None) -> dict:
                fps=FPS, seconds=SECONDS, clips=list(clips), seeds=list(seeds), cases=cases)
     out["summary"] = summarise(cases)
     out["scaling"] = scaling(settings, args.repeats)
+    out["scaling_fit"] = scaling_fit(out["scaling"])
     RESULTS.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(out, indent=2, default=float))
     Path(args.json).with_suffix(".md").write_text(markdown(out))
