@@ -10,7 +10,7 @@ contacts.json).
   runs/contacts/detections. Every judged (frame, site) entry counts; entries marked unknown do not.
 - Baselines: always contact; 2D velocity (foot keypoints' image speed in person sizes per second); 3D velocity
   (MediaPipe's hip-relative 3D landmarks, m/s; it has no stationary flag). Their thresholds are tuned for the best
-  accuracy on the training subjects' synthetic data (seed 0, 2 sequences per clip).
+  accuracy on the training subjects' synthetic data (seed 0, 2 sequences per clip, `held_out_settings`).
 - Where the errors are: both networks' held-out synthetic accuracy per CMU subject and by the distance of an
   entry to the nearest change of its site's label.
 - Inference: ms per frame of `predict_contacts` (features and network, on the input and its mirror image, one
@@ -32,7 +32,7 @@ from common import MOCAP, REPO, RESULTS, VIDEOS, git_revision, machine_descripti
 from physmocap import metrics
 from physmocap.contacts.baselines import HeuristicSettings, always_contact, velocity_2d, velocity_3d
 from physmocap.contacts.dataset import (
-    TEST_SUBJECTS, SyntheticSequence, SyntheticSettings, load_clips, make_sequences, mocap_files, split_by_subject,
+    TEST_SUBJECTS, SyntheticSequence, held_out_settings, load_clips, make_sequences, mocap_files, split_by_subject,
 )
 from physmocap.contacts.labels import CONTACT_SITES
 from physmocap.contacts.predict import MODES, WEIGHTS_DIR, predict_contacts
@@ -192,7 +192,7 @@ def main() -> None:
     started = time.perf_counter()
     load = float(Path("/proc/loadavg").read_text().split()[0]) if Path("/proc/loadavg").exists() else float("nan")
     train_files, test_files = split_by_subject(mocap_files(MOCAP))
-    settings = SyntheticSettings()
+    settings = held_out_settings()
     tuning = make_sequences(load_clips(train_files), 0, settings, variants=2)
     heuristics = tune_heuristics(tuning)
     test = make_sequences(load_clips(test_files), 1, settings, variants=4)

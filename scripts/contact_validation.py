@@ -27,7 +27,9 @@ import numpy as np
 import torch
 
 from physmocap.contacts import train
-from physmocap.contacts.dataset import SyntheticSettings, load_clips, make_sequences, mocap_files, split_by_subject
+from physmocap.contacts.dataset import (
+    SyntheticSettings, held_out_settings, load_clips, make_sequences, mocap_files, split_by_subject,
+)
 from physmocap.contacts.labels import LabelSettings
 from physmocap.contacts.predict import network_probabilities
 from physmocap.contacts.real_videos import REAL_VIDEOS, cached_detection, load_real_labels
@@ -70,11 +72,14 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the initial weights and the batches")
     parser.add_argument("--learning-rate", type=float, default=train.TrainSettings().learning_rate)
     parser.add_argument("--dropout", type=float, help="the network's dropout (default: its spec's)")
+    parser.add_argument("--playback", default=",".join(map(str, SyntheticSettings().playback_speed_range)),
+                        help="playback speed range of the synthetic motion, 'low,high'")
     parser.add_argument("--positive-weight", type=float, default=1.0, help="loss weight of the contact class")
     args = parser.parse_args()
     started = time.perf_counter()
     torch.set_num_threads(1)
     synthetic = SyntheticSettings(variants_per_clip=args.variants,
+                                  playback_speed_range=tuple(float(v) for v in args.playback.split(",")),
                                   labels=LabelSettings(min_phase_seconds=args.min_phase_seconds,
                                                         contact_max_speed=args.max_speed,
                                                         contact_max_height=args.max_height))
@@ -82,7 +87,7 @@ def main() -> None:
     train_files, _ = split_by_subject(mocap_files(SHARED / "mocap"))
     fit_files = [f for f in train_files if cmu_subject(f) not in held_out]
     val_files = [f for f in train_files if cmu_subject(f) in held_out]
-    validation = make_sequences(load_clips(val_files), 1, synthetic, variants=4)
+    validation = make_sequences(load_clips(val_files), 1, held_out_settings(synthetic), variants=4)
     if args.load is not None:
         with np.load(args.load) as data:
             params = {key: data[key] for key in data.files}

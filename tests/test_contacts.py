@@ -327,14 +327,18 @@ def test_training_runs_a_few_steps(tmp_path):
     for mode, params in first.items():
         again = load_weights(mode, tmp_path)
         assert params.keys() == again.keys() and all(np.array_equal(params[k], again[k]) for k in params)
+    alone = train_contacts(SHARED_DATA, tmp_path / "centred", seed=3, settings=settings, max_clips=1,
+                           log=lambda _: None, modes=("centred",))
+    assert "causal" not in alone and not (tmp_path / "centred" / "causal.npz").exists()
+    assert all(np.array_equal(first["centred"][k], v) for k, v in np.load(tmp_path / "centred" / "centred.npz").items())
 
 
 @needs_shared
 def test_shipped_weights_beat_the_heuristics_on_held_out_subjects():
-    from physmocap.contacts.dataset import SyntheticSettings, load_clips, make_sequences
+    from physmocap.contacts.dataset import held_out_settings, load_clips, make_sequences
 
     clips = load_clips([SHARED_DATA / "mocap" / "cmu_iclone_cc3_retarget" / name for name in ("006_01.bvh", "006_15.bvh")])
-    sequences = make_sequences(clips, 11, SyntheticSettings(), variants=2)
+    sequences = make_sequences(clips, 11, held_out_settings(), variants=2)
     truth = np.concatenate([s.contacts for s in sequences])
     accuracy = {}
     for mode in ("causal", "centred"):
