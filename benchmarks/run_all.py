@@ -18,6 +18,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 sys.path.insert(0, str(Path(__file__).parent))
 from common import REPO, RESULTS, git_revision, machine_description  # noqa: E402
 
@@ -284,9 +286,14 @@ def trajopt_targets() -> list[tuple]:
     s, c = data["summary"], data["summary"]["convergence"]
     traj, floored, given = s["trajopt"], s["trajopt, true floor"], s["kinematic refined (B.4)"]
     lengths = data["scaling"]
-    slopes = [(b["wall_seconds"] - a["wall_seconds"]) / (b["seconds"] - a["seconds"]) for a, b in zip(lengths, lengths[1:])]
-    linear = max(slopes) <= 1.5 * min(slopes) if slopes else None
+    # Linear: the least-squares exponent b of t = a L^b at most 1.15 (a fixed overhead gives b < 1; quadratic
+    # growth 2). Session 3 compared marginal slopes between consecutive lengths, differences of two noisy times.
+    fit = data.get("scaling_fit")
+    linear = fit["exponent"] <= 1.15 if fit else None
     worse = 100 * (traj["global_mpjpe_mm"] / given["global_mpjpe_mm"] - 1)
+    # Rempe's ballistic GRF is the median over the frames in flight: pooled over every case's true flight frames.
+    flight = [f for c in data.get("cases", []) for f in c.get("true_flight", {}).get("flight_trajopt_percent_bw", [])]
+    ballistic = float(np.median(flight)) if flight else float("nan")
     worse_rr = 100 * (traj["mpjpe_root_mm"] / given["mpjpe_root_mm"] - 1)
 
     def both(key, digits=1):
@@ -295,11 +302,14 @@ def trajopt_targets() -> list[tuple]:
     return [
         ("6", "2 s clip at 30 fps solved", "<= 10 s", f"{_f(c['piece_seconds_median'])} s (median of {c['pieces']})",
          c["piece_seconds_median"] <= 10),
-        ("6", "time linear in clip length", "linear", " / ".join(f"{_f(r['wall_seconds'])}" for r in lengths)
-         + " s for " + " / ".join(f"{r['seconds']:.0f}" for r in lengths) + " s clips", linear),
+        ("6", "time linear in clip length", "exponent <= 1.15", " / ".join(f"{_f(r['wall_seconds'])}" for r in lengths)
+         + " s for " + " / ".join(f"{r['seconds']:.0f}" for r in lengths) + " s clips"
+         + (f"; t ~ L^{fit['exponent']:.2f}" if fit else ""), linear),
         ("6", "2 s synthetic clips converged", ">= 95%", f"{_f(100 * c['share'])}% of {c['pieces']}",
          c["share"] >= 0.95),
-        ("6", "ballistic GRF", "0", f"{_f(traj['grf_ballistic_percent_bw'])}% BW", traj["grf_ballistic_percent_bw"] < 1),
+        ("6", "ballistic GRF (median over the set's flight frames)", "0",
+         f"{_f(ballistic)}% BW over {len(flight)} frames (mean of per-clip medians "
+         f"{_f(traj['grf_ballistic_percent_bw'])}%)", ballistic < 1),
         ("6", "mean GRF", "95-105% BW", f"{_f(traj['grf_mean_percent_bw'])}% BW",
          95 <= traj["grf_mean_percent_bw"] <= 105),
         ("6", "max GRF", "< 340% BW", f"{_f(traj['grf_max_percent_bw'])}% BW", traj["grf_max_percent_bw"] < 340),
