@@ -215,6 +215,17 @@ def test_offline_fit_bridges_a_gap_without_extrapolating(body, camera):
     assert np.linalg.norm(pelvis - true, axis=1)[15:22].max() < 0.1
 
 
+def test_offline_fit_holds_the_pose_before_the_person_appears_and_after_they_leave(body, camera):
+    truth = walking_motion(body, 40)
+    obs = observe(body, truth, camera)
+    obs.valid[:5] = obs.valid[35:] = False
+    up = camera.R[:, 2]
+    settings = Settings().replace("body", height=body.height, mass=body.mass)
+    motion = fit_motion(obs, settings.replace("camera", floor=tuple(np.append(up, -up @ camera.t))))
+    assert np.array_equal(motion.qpos[:5], np.repeat(motion.qpos[5:6], 5, axis=0))
+    assert np.array_equal(motion.qpos[35:], np.repeat(motion.qpos[34:35], 5, axis=0))
+
+
 def test_hand_markers_weigh_less_in_both_data_terms(body, camera):
     obs = observe(body, walking_motion(body, 3), camera)
     calibration = calibrate(obs, body.height)

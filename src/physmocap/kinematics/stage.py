@@ -281,11 +281,23 @@ def _fit_offline(obs: Observations, settings: Settings, progress) -> KinematicMo
         calibration = refine_lengths(body, camera, qpos, targets, calibration, s.body.height)
         body = build_body_model(calibration.lengths, s.body.mass)
         fitter = KinematicFitter(body, camera, s.fit, obs.fps)
-    qpos = fitter.fit_offline(qpos, targets).qpos
+    qpos = hold_outside_valid(fitter.fit_offline(qpos, targets).qpos, obs.valid)
     floor = (Floor.from_plane(s.camera.floor) if s.camera.floor is not None
              else estimate_floor(body, qpos, camera, obs.fps, obs.valid))
     qpos, camera = move_world_to_floor(qpos, camera, floor, int(np.argmax(obs.valid)))
     return KinematicMotion(body, calibration, camera, floor, qpos, None, obs.valid.copy(), 0.0, False, swaps)
+
+
+def hold_outside_valid(qpos: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """qpos (T, nq) with the frames before the first valid frame holding its pose and those after the last
+    holding that one: a whole-clip fit has no data there and its smoothness terms extrapolate the motion (on
+    sports2d the feet ended 0.9 m under the floor three frames before the person appeared)."""
+    frames = np.flatnonzero(valid)
+    if len(frames):
+        qpos = qpos.copy()
+        qpos[:frames[0]] = qpos[frames[0]]
+        qpos[frames[-1] + 1:] = qpos[frames[-1]]
+    return qpos
 
 
 def reprojection_errors(body: BodyModel, camera: Camera, qpos: np.ndarray, obs: Observations,
