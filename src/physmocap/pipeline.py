@@ -171,7 +171,7 @@ def kinematics_stage(obs: Observations, out_dir: Path, settings: Settings,
 
 
 def _kinematics_cache(out_dir: Path, obs: Observations, settings: Settings) -> tuple[Path, str]:
-    key = _digest("kinematics", 1, _observations_key(obs), asdict(settings.body), asdict(settings.camera),
+    key = _digest("kinematics", 2, _observations_key(obs), asdict(settings.body), asdict(settings.camera),
                   asdict(settings.fit), settings.online)
     return out_dir / "cache" / "kinematics.npz", key
 
