@@ -26,8 +26,8 @@ from ..camera import Floor, tangent_basis
 from ..config import FitSettings, TrajoptSettings
 from ..kinematics.fit import KinematicFitter
 from ..detect.foot_swaps import find_foot_swaps, undo_foot_swaps
-from ..kinematics.stage import (KinematicMotion, landmark_depth_scale, make_targets, move_world_to_floor, raw_depth,
-                                reprojection_errors, smooth_depth)
+from ..kinematics.stage import (KinematicMotion, hold_outside_valid, landmark_depth_scale, make_targets,
+                                move_world_to_floor, raw_depth, reprojection_errors, smooth_depth)
 from ..motion import Observations
 
 log = logging.getLogger("physmocap")
@@ -239,8 +239,9 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
         added |= resting
         kept |= resting
     # 3. Again, with the feet in contact on the floor (z = 0 in the new world).
-    qpos = KinematicFitter(body, camera, contact_fit_settings(fit, settings, True), fps).fit_offline(
-        qpos, targets_in(camera, kept, np.array([0.0, 0.0, 1.0, 0.0]))).qpos
+    fitter = KinematicFitter(body, camera, contact_fit_settings(fit, settings, True), fps)
+    qpos = hold_outside_valid(fitter.fit_offline(qpos, targets_in(camera, kept, np.array([0.0, 0.0, 1.0, 0.0]))).qpos,
+                              obs.valid)
     seconds = time.perf_counter() - start
     refined = dataclasses.replace(motion, camera=camera, floor=floor, qpos=qpos,
                                   reprojection_error=reprojection_errors(body, camera, qpos, raw),
