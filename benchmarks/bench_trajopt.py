@@ -1,5 +1,6 @@
 """Trajectory optimisation (Rempe et al. 2020) on the synthetic ground-truth set: the metrics of Rempe tables 2
-and 3 for the kinematic motion, the B.4-refined kinematic motion, PhysCap on the offline kinematics and trajopt;
+and 3 for the kinematic motion, the B.4-refined kinematic motion, PhysCap on it (as the pipeline runs PhysCap
+offline) and trajopt;
 the share of clips whose optimisation converges; and solve time against clip length.
 
 Synthetic set: the clips of bench_synthetic (held-out CMU subjects 6 and 131), its observations (MediaPipe-like
@@ -108,7 +109,9 @@ def evaluate_case(name: str, seed: int, settings_trajopt: TrajoptSettings) -> di
     start = time.perf_counter()
     refined = refine_kinematics(obs, motion, contacts, settings.fit, settings_trajopt)
     refine_seconds = time.perf_counter() - start
-    physcap = run_physcap(motion.body, motion.qpos, obs.fps, contacts, stationary, settings.physics)
+    # As the pipeline runs offline PhysCap (physics.refine_offline): on the B.4-refined motion and contacts.
+    physcap = run_physcap(refined.motion.body, refined.motion.qpos, obs.fps, refined.contacts, stationary,
+                          settings.physics, valid=obs.valid)
     start = time.perf_counter()
     result = run_trajopt(refined.motion.body, refined.motion.qpos, obs.fps, refined.contacts, settings_trajopt)
     trajopt_seconds = time.perf_counter() - start
@@ -124,7 +127,7 @@ def evaluate_case(name: str, seed: int, settings_trajopt: TrajoptSettings) -> di
                                      result_f.grf if result_f.converged.all() else None),
         "kinematic offline": score(motion, motion.qpos, truth),
         "kinematic refined (B.4)": score(refined.motion, refined.motion.qpos, truth),
-        "physcap on offline": score(motion, physcap.qpos, truth, physcap.grf, physcap.residual),
+        "physcap on offline": score(refined.motion, physcap.qpos, truth, physcap.grf, physcap.residual),
         # Forces only where the optimisation converged; elsewhere the kinematic motion (and its implied forces).
         "trajopt": score(refined.motion, result.qpos, truth, result.grf if result.converged.all() else None),
     }
