@@ -1,7 +1,6 @@
 """Trajectory optimisation (Rempe et al. 2020) on the synthetic ground-truth set: the metrics of Rempe tables 2
 and 3 for the kinematic motion, the B.4-refined kinematic motion, PhysCap on it (as the pipeline runs PhysCap
-offline) and trajopt;
-the share of clips whose optimisation converges; and solve time against clip length.
+offline) and trajopt; the share of clips whose optimisation converges; and solve time against clip length.
 
 Synthetic set: the clips of bench_synthetic (held-out CMU subjects 6 and 131), its observations (MediaPipe-like
 noise, true intrinsics, true height), the offline kinematic fit, the centred contact network's predictions, then
