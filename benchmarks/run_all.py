@@ -295,6 +295,8 @@ def trajopt_targets() -> list[tuple]:
     flight = [f for c in data.get("cases", []) for f in c.get("true_flight", {}).get("flight_trajopt_percent_bw", [])]
     ballistic = float(np.median(flight)) if flight else float("nan")
     worse_rr = 100 * (traj["mpjpe_root_mm"] / given["mpjpe_root_mm"] - 1)
+    given_floored = s["kinematic refined, true floor"]
+    worse_floored = 100 * (floored["global_mpjpe_mm"] / given_floored["global_mpjpe_mm"] - 1)
 
     def both(key, digits=1):
         return f"{_f(traj[key], digits)}% (true floor {_f(floored[key], digits)}%)"
@@ -313,14 +315,20 @@ def trajopt_targets() -> list[tuple]:
         ("6", "mean GRF", "95-105% BW", f"{_f(traj['grf_mean_percent_bw'])}% BW",
          95 <= traj["grf_mean_percent_bw"] <= 105),
         ("6", "max GRF", "< 340% BW", f"{_f(traj['grf_max_percent_bw'])}% BW", traj["grf_max_percent_bw"] < 340),
-        ("6", "penetration", "<= 0.3%", both("penetration_percent"), traj["penetration_percent"] <= 0.3),
+        ("6", "penetration, estimated floor (Rempe table E3: 0.1%)", "<= 0.3%", both("penetration_percent"),
+         traj["penetration_percent"] <= 0.3),
+        ("6", "penetration, true floor (Rempe table 2 protocol)", "<= 0.3%", f"{_f(floored['penetration_percent'])}%",
+         floored["penetration_percent"] <= 0.3),
         ("6", "skate", "<= 3.6%", both("skate_percent"), traj["skate_percent"] <= 3.6),
         ("6", "floating, estimated floor", "<= 8.2%", both("floating_percent"), traj["floating_percent"] <= 8.2),
         ("6", "floating, true floor (Rempe table 2 protocol)", "<= 8.2%", f"{_f(floored['floating_percent'])}%",
          floored["floating_percent"] <= 8.2),
-        ("6", "global MPJPE against the kinematic input (B.4)", "<= 5% worse",
+        ("6", "global MPJPE against the kinematic input (B.4), estimated floor", "<= 5% worse",
          f"{_f(worse)}% ({_f(traj['global_mpjpe_mm'])} vs {_f(given['global_mpjpe_mm'])} mm; root-relative "
          f"{_f(worse_rr)}%)", worse <= 5),
+        ("6", "global MPJPE against the kinematic input (B.4), true floor (Rempe table 3 protocol)", "<= 5% worse",
+         f"{_f(worse_floored)}% ({_f(floored['global_mpjpe_mm'])} vs {_f(given_floored['global_mpjpe_mm'])} mm)",
+         worse_floored <= 5),
     ]
 
 
