@@ -47,7 +47,7 @@ def score_against_truth(points: np.ndarray, names, com: np.ndarray, truth: dict,
     limbs = list(range(1, len(EVAL_JOINTS) + 1))
     feet = points[:, [names.index(n) for n in CONTACT_POINTS]]
     true_contacts = true_contact_labels(truth)
-    forces = truth_grf_statistics(com, truth, body_mass, grf)
+    forces = truth_grf_statistics(com, truth, body_mass, grf, true_contacts)
     mpe, mpe_std, pnp = metrics.mpe_pnp(feet, true_contacts)
     foot = metrics.foot_contact_errors(feet, true_contacts, fps=fps)
     smooth, smooth_std = metrics.e_smooth(pred, true)
@@ -80,12 +80,15 @@ def true_contact_labels(truth: dict) -> np.ndarray:
     return contact_labels(truth["joints_world"][:, [names.index(n) for n in CONTACT_POINTS]], float(truth["fps"]))
 
 
-def truth_grf_statistics(com: np.ndarray, truth: dict, body_mass: float, grf: np.ndarray | None = None) -> dict:
+def truth_grf_statistics(com: np.ndarray, truth: dict, body_mass: float, grf: np.ndarray | None = None,
+                         true_contacts: np.ndarray | None = None) -> dict:
     """metrics.grf_statistics of the solved forces grf (T, 4, 3), or without them of the forces the centre of
-    mass com (T, 3, in the true world) implies, against the true contacts; its flight_percent_bw holds the
-    per-frame forces in true flight, which a benchmark pools over clips for the set's ballistic median."""
+    mass com (T, 3, in the true world) implies, against the true contacts (`true_contact_labels`, computed here
+    unless given); its flight_percent_bw holds the per-frame forces in true flight, which a benchmark pools over
+    clips for the set's ballistic median."""
     net = grf.sum(axis=1) if grf is not None else metrics.implied_grf(com, body_mass, float(truth["fps"]))
-    return metrics.grf_statistics(net, body_mass, true_contact_labels(truth))
+    contacts = true_contact_labels(truth) if true_contacts is None else true_contacts
+    return metrics.grf_statistics(net, body_mass, contacts)
 
 
 def to_truth_world(points: np.ndarray, R_run: np.ndarray, t_run: np.ndarray, truth: dict) -> np.ndarray:
