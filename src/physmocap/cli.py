@@ -214,13 +214,11 @@ def cmd_capture(args) -> int:
     print(f"captured {summary.valid_frames}/{summary.frames} frames at {summary.fps:.1f} fps "
           f"({'online' if summary.online else 'offline'} fit, physics: {summary.physics})")
     if invalid:
-        details = "; ".join(f"{reason}: frames {', '.join(r[:6])}{' ...' if len(r) > 6 else ''}"
-                            for reason, r in summary.invalid_frames.items())
+        details = "; ".join(f"{reason}: frames {_first_ranges(r)}" for reason, r in summary.invalid_frames.items())
         print(f"warning: {invalid} frames could not be reconstructed and are flagged invalid ({details})")
     if summary.foot_swap_frame_count:
-        ranges = summary.foot_swap_frames
         print(f"note: the detector swapped the left and right feet on {summary.foot_swap_frame_count} frames, fitted "
-              f"the other way round (frames {', '.join(ranges[:6])}{' ...' if len(ranges) > 6 else ''})")
+              f"the other way round (frames {_first_ranges(summary.foot_swap_frames)})")
     if summary.skeleton_scale_replaced:
         print("note: implausible detector lengths replaced by template proportions: "
               + ", ".join(summary.skeleton_scale_replaced))
@@ -234,8 +232,7 @@ def cmd_capture(args) -> int:
     if summary.physics_fallback_frames:
         what = ("the trajectory optimisation did not converge (kinematic motion kept) on frames "
                 if summary.physics == "trajopt" else "the physics QP failed and fell back on frames ")
-        print("warning: " + what
-              + ", ".join(summary.physics_fallback_frames[:6]) + (" ..." if len(summary.physics_fallback_frames) > 6 else ""))
+        print("warning: " + what + _first_ranges(summary.physics_fallback_frames))
     _warn_strayed(summary, settings)
     print(f"median reprojection error {summary.median_reprojection_error_px:.1f} px "
           f"({summary.median_reprojection_error_percent_of_height:.2f}% of the person's height)"
@@ -305,12 +302,16 @@ def cmd_live(args) -> int:
     return 0
 
 
+def _first_ranges(ranges: list[str], shown: int = 6) -> str:
+    """'0-2, 170-181, ...': the first `shown` frame ranges of a summary list, for a terminal line."""
+    return ", ".join(ranges[:shown]) + (" ..." if len(ranges) > shown else "")
+
+
 def _warn_strayed(summary, settings) -> None:
-    ranges = summary.physics_strayed_frames
-    if ranges:
+    if summary.physics_strayed_frames:
         print(f"warning: the physics motion strays more than {settings.physics.stray_distance:g} m from the "
-              f"kinematic motion on frames {', '.join(ranges[:6])}{' ...' if len(ranges) > 6 else ''}: it could not "
-              "follow there (a floor that does not fit the scene, or wrong contacts)")
+              f"kinematic motion on frames {_first_ranges(summary.physics_strayed_frames)}: it could not follow there "
+              "(a floor that does not fit the scene, or wrong contacts)")
 
 
 def cmd_export(args) -> int:

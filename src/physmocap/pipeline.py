@@ -157,17 +157,25 @@ def kinematics_stage(obs: Observations, out_dir: Path, settings: Settings,
                      progress: ProgressFactory | None = None) -> tuple[KinematicMotion, bool]:
     """The fitted kinematic motion, from the cache when observations and settings are unchanged."""
     cache, key = _kinematics_cache(out_dir, obs, settings)
-    if cache.is_file():
-        try:
-            with np.load(cache, allow_pickle=False) as data:
-                if str(data["key"]) == key:
-                    return _motion_from_cache(data), True
-        except (OSError, ValueError, KeyError):
-            pass  # a stale or foreign cache file is simply recomputed
+    motion = _read_cache(cache, key, _motion_from_cache)
+    if motion is not None:
+        return motion, True
     bar = progress("fit", obs.num_frames) if progress else None
     motion = fit_motion(obs, settings, bar)
     _save_motion(out_dir, obs, settings, motion)
     return motion, False
+
+
+def _read_cache(path: Path, key: str, build: Callable):
+    """build(arrays) of a stage's cache file when it exists and was written under `key`, else None: a stale,
+    foreign or damaged cache file is simply recomputed."""
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return build(data) if str(data["key"]) == key else None
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
 
 
 def _kinematics_cache(out_dir: Path, obs: Observations, settings: Settings) -> tuple[Path, str]:
@@ -240,17 +248,9 @@ def physics_stage(obs: Observations, motion: KinematicMotion, contacts: np.ndarr
     cache = out_dir / "cache" / "physics.npz"
     key = _digest("physics", 5, _motion_key(motion),
                   hashlib.sha256(contacts.tobytes() + stationary.tobytes()).hexdigest(), asdict(settings.physics))
-    physics = None
-    if cache.is_file():
-        try:
-            with np.load(cache, allow_pickle=False) as data:
-                if str(data["key"]) == key:
-                    plane = data["floor_plane"]
-                    physics = PhysicsMotion(data["qpos"], data["grf"], data["residual"], data["contacts"],
-                                            data["corrected"], data["qp_failures"], float(data["seconds"]),
-                                            None if np.isnan(plane).any() else plane)
-        except (OSError, ValueError, KeyError):
-            pass  # recomputed below
+    physics = _read_cache(cache, key, lambda data: PhysicsMotion(
+        data["qpos"], data["grf"], data["residual"], data["contacts"], data["corrected"], data["qp_failures"],
+        float(data["seconds"]), None if np.isnan(data["floor_plane"]).any() else data["floor_plane"]))
     cached = physics is not None
     if not cached:
         bar = progress("physics", obs.num_frames) if progress else None
@@ -278,14 +278,10 @@ def refine_stage(obs: Observations, motion: KinematicMotion, contacts: np.ndarra
     cache = out_dir / "cache" / "refined.npz"
     key = _digest("refine", 1, _motion_key(motion), hashlib.sha256(np.asarray(contacts, bool).tobytes()).hexdigest(),
                   asdict(settings.fit), asdict(settings.trajopt), settings.camera.floor)
-    if cache.is_file():
-        try:
-            with np.load(cache, allow_pickle=False) as data:
-                if str(data["key"]) == key:
-                    return (_motion_from_cache(data), data["refined_contacts"], json.loads(str(data["refinement"])),
-                            True)
-        except (OSError, ValueError, KeyError, TypeError):
-            pass  # recomputed below
+    stored = _read_cache(cache, key, lambda data: (_motion_from_cache(data), data["refined_contacts"],
+                                                   json.loads(str(data["refinement"]))))
+    if stored is not None:
+        return (*stored, True)
     refined = refine_kinematics(obs, motion, contacts, settings.fit, settings.trajopt,
                                 keep_floor=settings.camera.floor is not None)
     refinement = dict(seconds=refined.seconds, contacts_removed=int(refined.relabelled.sum()),
@@ -308,16 +304,12 @@ def trajopt_stage(obs: Observations, motion: KinematicMotion, contacts: np.ndarr
                   asdict(settings.trajopt))
     arrays = ("qpos", "grf", "residual", "contacts", "converged", "corrected", "qp_failures", "com",
               "com_acceleration", "euler", "feet")
-    if cache.is_file():
-        try:
-            with np.load(cache, allow_pickle=False) as data:
-                if str(data["key"]) == key:
-                    return TrajoptMotion(**{k: data[f"trajopt_{k}"] for k in arrays},
-                                         windows=[WindowReport.from_dict(w)
-                                                  for w in json.loads(str(data["trajopt_windows"]))],
-                                         seconds=float(data["trajopt_seconds"])), True
-        except (OSError, ValueError, KeyError, TypeError):
-            pass  # recomputed below
+    physics = _read_cache(cache, key, lambda data: TrajoptMotion(
+        **{k: data[f"trajopt_{k}"] for k in arrays},
+        windows=[WindowReport.from_dict(w) for w in json.loads(str(data["trajopt_windows"]))],
+        seconds=float(data["trajopt_seconds"])))
+    if physics is not None:
+        return physics, True
     bar = progress("trajopt", obs.num_frames) if progress else None
     physics = run_trajopt(motion.body, motion.qpos, obs.fps, contacts, settings.trajopt, bar, obs.valid)
     save_npz(cache, key=np.str_(key), trajopt_seconds=physics.seconds,
