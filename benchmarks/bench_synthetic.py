@@ -81,14 +81,15 @@ def evaluate_case(name: str, seed: int, noise: NoiseModel = MEDIAPIPE_NOISE, met
     K, R, t = random_camera(clip, rng)
     obs, truth = make_observations(clip, K, R, t, rng, noise)
     settings = Settings().replace("body", height=model_height(truth["landmarks_world"]) * (1 + height_error))
-    rows, fitted = [], {}
+    rows, fitted, predicted = [], {}, {}
     for method in methods:
         online = "online" in method
         start = time.perf_counter()
         if online not in fitted:
             fitted[online] = fit_motion(obs, settings.replace(None, online=online))
+            predicted[online] = predict_contacts(obs, "causal" if online else "centred")[:2]
         motion = fitted[online]
-        contacts, stationary, _ = predict_contacts(obs, "causal" if online else "centred")
+        contacts, stationary = predicted[online]
         if "refined" in method or (method == "physcap on offline" and settings.physics.refine_offline):
             if "refined" not in fitted:  # as the pipeline: offline PhysCap tracks the B.4-refined kinematics
                 fitted["refined"] = refine_kinematics(obs, motion, contacts, settings.fit, settings.trajopt)
