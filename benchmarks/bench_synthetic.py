@@ -4,7 +4,9 @@ observations, and every metric of both papers against the truth.
 
 Methods (rows): kinematic offline, kinematic online, the offline fit after Rempe's B.4 refinement, and PhysCap
 physics on the online kinematics (its paper's setting: causal, per frame) and offline (as the pipeline runs it:
-on the B.4-refined kinematics and contacts, PhysicsSettings.refine_offline). The intrinsics are the true ones (the
+on the B.4-refined kinematics and contacts, PhysicsSettings.refine_offline). The rows "calibrated floor" give the
+online fit the true floor (`--floor`), as PhysCap's own protocol calibrates the floor before tracking starts
+(PhysCap section 3), so that the physics neither estimates nor refines it. The intrinsics are the true ones (the
 observations carry camera_K) and the height given is the true skeleton's standing height under the body
 model's own definition, so that the numbers measure the method and not how a height is taken. Pose errors are
 taken in the camera frame (independent of the world each side chose); floor metrics use the TRUE floor and the
@@ -56,7 +58,7 @@ WALKING = ("131_01.bvh", "131_02.bvh", "006_01.bvh")
 FPS = 30.0
 SECONDS = 8.0
 METHODS = ("kinematic offline", "kinematic online", "kinematic refined (B.4)", "physcap on online",
-           "physcap on offline")
+           "physcap on offline", "kinematic online, calibrated floor", "physcap on online, calibrated floor")
 
 
 def model_height(landmarks_world: np.ndarray) -> float:
@@ -82,13 +84,16 @@ def evaluate_case(name: str, seed: int, noise: NoiseModel = MEDIAPIPE_NOISE, met
     obs, truth = make_observations(clip, K, R, t, rng, noise)
     settings = Settings().replace("body", height=model_height(truth["landmarks_world"]) * (1 + height_error))
     rows, fitted, predicted = [], {}, {}
+    calibrated = settings.replace("camera", floor=tuple(float(v) for v in truth["floor"]))
     for method in methods:
-        online = "online" in method
+        online, floor_given = "online" in method, "calibrated floor" in method
         start = time.perf_counter()
-        if online not in fitted:
-            fitted[online] = fit_motion(obs, settings.replace(None, online=online))
+        if (online, floor_given) not in fitted:
+            fitted[online, floor_given] = fit_motion(obs, (calibrated if floor_given else settings).replace(
+                None, online=online))
+        if online not in predicted:
             predicted[online] = predict_contacts(obs, "causal" if online else "centred")[:2]
-        motion = fitted[online]
+        motion = fitted[online, floor_given]
         contacts, stationary = predicted[online]
         if "refined" in method or (method == "physcap on offline" and settings.physics.refine_offline):
             if "refined" not in fitted:  # as the pipeline: offline PhysCap tracks the B.4-refined kinematics
@@ -97,7 +102,8 @@ def evaluate_case(name: str, seed: int, noise: NoiseModel = MEDIAPIPE_NOISE, met
         qpos, grf, residual = motion.qpos, None, None
         if method.startswith("physcap"):
             physics = run_physcap(motion.body, motion.qpos, FPS, contacts, stationary, settings.physics,
-                                  refine_floor=online)  # as the pipeline: the online floor is refined
+                                  refine_floor=online and not floor_given)  # as the pipeline: an estimated
+            # online floor is refined as frames arrive, a given one is kept
             qpos, grf, residual = physics.qpos, physics.grf, physics.residual
             seconds = physics.seconds
             if plots_dir is not None and method == "physcap on online":

@@ -238,10 +238,26 @@ def targets_section() -> list[str]:
         if phys:
             reduction = 100 * (1 - phys["e_smooth_mm"] / base["e_smooth_mm"])
             worse = 100 * (phys["mpjpe_root_mm"] / base["mpjpe_root_mm"] - 1)
+            # PhysCap's protocol calibrates the floor before tracking (its section 3): the same rows with it given.
+            phys_c = synth["summary"].get("physcap on online, calibrated floor")
+            base_c = synth["summary"].get("kinematic online, calibrated floor")
+            reduction_c = worse_c = None
+            if phys_c and base_c:
+                reduction_c = 100 * (1 - phys_c["e_smooth_mm"] / base_c["e_smooth_mm"])
+                worse_c = 100 * (phys_c["mpjpe_root_mm"] / base_c["mpjpe_root_mm"] - 1)
+                rows += [
+                    ("5", "e_smooth reduced, calibrated floor (PhysCap protocol)", ">= 40%", f"{_f(reduction_c)}%",
+                     reduction_c >= 40),
+                    ("5", "PNP, calibrated floor (PhysCap protocol)", ">= 95%", f"{_f(phys_c['pnp_percent'])}%",
+                     phys_c["pnp_percent"] >= 95),
+                    ("5", "MPE, calibrated floor (PhysCap protocol)", "< 28 mm", f"{_f(phys_c['mpe_mm'])} mm",
+                     phys_c["mpe_mm"] < 28),
+                    ("5", "root-relative MPJPE against the input, calibrated floor (PhysCap protocol)",
+                     "<= 10% worse", f"{_f(worse_c)}% worse", worse_c <= 10)]
             rows += [
-                ("5", "e_smooth reduced", ">= 40%", f"{_f(reduction)}%", reduction >= 40),
-                ("5", "PNP", ">= 95%", f"{_f(phys['pnp_percent'])}%", phys["pnp_percent"] >= 95),
-                ("5", "MPE", "< 28 mm", f"{_f(phys['mpe_mm'])} mm", phys["mpe_mm"] < 28),
+                ("5", "e_smooth reduced, floor estimated online", ">= 40%", f"{_f(reduction)}%", reduction >= 40),
+                ("5", "PNP, floor estimated online", ">= 95%", f"{_f(phys['pnp_percent'])}%", phys["pnp_percent"] >= 95),
+                ("5", "MPE, floor estimated online", "< 28 mm", f"{_f(phys['mpe_mm'])} mm", phys["mpe_mm"] < 28),
                 ("5", "penetration and skate below the input", "lower", f"{_f(phys['penetration_percent'])}% / "
                  f"{_f(phys['skate_percent'])}% vs {_f(base['penetration_percent'])}% / {_f(base['skate_percent'])}%",
                  phys["penetration_percent"] < base["penetration_percent"]
@@ -252,7 +268,8 @@ def targets_section() -> list[str]:
                  phys["grf_ballistic_pooled_percent_bw"] < 1),
                 ("5", "mean GRF on walks", "95-105% BW", f"{_f(phys['grf_mean_percent_bw_walking'])}% BW",
                  95 <= phys["grf_mean_percent_bw_walking"] <= 105),
-                ("5", "root-relative MPJPE against the input", "<= 10% worse", f"{_f(worse)}% worse", worse <= 10)]
+                ("5", "root-relative MPJPE against the input, floor estimated online", "<= 10% worse",
+                 f"{_f(worse)}% worse", worse <= 10)]
     speed = _load("physics_speed")
     if speed:
         fps = speed.get("cpu_frames_per_second", speed["frames_per_second"])

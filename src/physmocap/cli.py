@@ -216,9 +216,7 @@ def cmd_capture(args) -> int:
     if invalid:
         details = "; ".join(f"{reason}: frames {_first_ranges(r)}" for reason, r in summary.invalid_frames.items())
         print(f"warning: {invalid} frames could not be reconstructed and are flagged invalid ({details})")
-    if summary.foot_swap_frame_count:
-        print(f"note: the detector swapped the left and right feet on {summary.foot_swap_frame_count} frames, fitted "
-              f"the other way round (frames {_first_ranges(summary.foot_swap_frames)})")
+    _note_foot_swaps(summary)
     if summary.skeleton_scale_replaced:
         print("note: implausible detector lengths replaced by template proportions: "
               + ", ".join(summary.skeleton_scale_replaced))
@@ -297,6 +295,7 @@ def cmd_live(args) -> int:
                                 report.stationary, report.physics, settings, seconds, [])
         if report.physics is not None and np.any(report.physics.qp_failures):
             print(f"warning: the physics QP fell back on {int(np.sum(report.physics.qp_failures > 0))} frames")
+        _note_foot_swaps(summary)
         _warn_strayed(summary, settings)
         print(f"results in {args.output}/: live.jsonl, " + ", ".join(Path(p).name for p in summary.files.values()))
     return 0
@@ -305,6 +304,12 @@ def cmd_live(args) -> int:
 def _first_ranges(ranges: list[str], shown: int = 6) -> str:
     """'0-2, 170-181, ...': the first `shown` frame ranges of a summary list, for a terminal line."""
     return ", ".join(ranges[:shown]) + (" ..." if len(ranges) > shown else "")
+
+
+def _note_foot_swaps(summary) -> None:
+    if summary.foot_swap_frame_count:
+        print(f"note: the detector swapped the left and right feet on {summary.foot_swap_frame_count} frames, fitted "
+              f"the other way round (frames {_first_ranges(summary.foot_swap_frames)})")
 
 
 def _warn_strayed(summary, settings) -> None:
