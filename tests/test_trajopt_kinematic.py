@@ -11,7 +11,7 @@ from physmocap.config import FitSettings, Settings, TrajoptSettings
 from physmocap.kinematics.stage import fit_motion
 from physmocap.trajopt.ik import ik_targets, solve_ik
 from physmocap.trajopt.kinematic import (false_flights, fit_contact_floor, fitted_observations, refine_kinematics,
-                                         resting_points, slipping_contacts)
+                                         resting_points, slipping_contacts, tilt_axes)
 from physmocap.trajopt.reduced import reduced_motion
 from test_fit import observe
 
@@ -98,10 +98,38 @@ def test_contact_floor_is_robust_and_keeps_its_tilt_when_points_lie_on_a_line():
     line = base + np.outer(rng.uniform(-0.1, 0.1, 80), along) + rng.normal(scale=0.005, size=(80, 3))
     lifted = base + 0.3 * along + np.outer(rng.uniform(0.15, 0.3, 20), normal)
     points = np.concatenate([line, lifted])
-    floor, inliers = fit_contact_floor(points, normal + np.array([0.02, 0.0, 0.03]), 0.1)
+    settings = TrajoptSettings()
+    floor, inliers = fit_contact_floor(points, normal + np.array([0.02, 0.0, 0.03]), 0.1,
+                                       settings.floor_roll_prior, settings.floor_pitch_prior)
     assert np.degrees(np.arccos(floor.normal @ normal)) < 3.0
     assert abs(floor.offset - 3.0) < 0.02
     assert inliers[:80].all() and not inliers[80:].any()
+
+
+def rolled(normal, degrees):
+    """normal turned about the camera's viewing direction (z) by `degrees`."""
+    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ normal
+
+
+def test_contact_floor_takes_its_roll_from_the_feet_and_stays_level_where_they_leave_it_free():
+    rng = np.random.default_rng(3)
+    settings = TrajoptSettings()
+    fit = lambda pts, up, roll, pitch: fit_contact_floor(pts, up, 0.05, roll, pitch)[0].normal  # noqa: E731
+    angle = lambda n, m: np.degrees(np.arccos(np.clip(n @ m, -1.0, 1.0)))  # noqa: E731
+    normal = np.array([0.0, -0.99, -0.1])
+    normal /= np.linalg.norm(normal)
+    lean = rolled(normal, 8.0)  # the prior: the body's axis of a person leaning sideways
+    across, along = tilt_axes(normal)
+    # Feet 30 cm apart across the image, over 1 m in depth, 1 cm noise, on the floor 3 m below-ahead.
+    spread = np.outer(rng.uniform(-0.15, 0.15, 150), across) + np.outer(rng.uniform(-0.5, 0.5, 150), along)
+    points = -3.0 * normal + spread + rng.normal(scale=0.01, size=(150, 3))
+    assert angle(fit(points, lean, settings.floor_roll_prior, settings.floor_pitch_prior), normal) < 2.5
+    # The feet take most of the 8 degree lean out; as strong a prior on the roll as on the pitch keeps most of it.
+    assert angle(fit(points, lean, settings.floor_pitch_prior, settings.floor_pitch_prior), normal) > 4.0
+    # Feet along one line in depth leave the roll to the prior: a level prior gives a level floor.
+    line = -3.0 * normal + np.outer(rng.uniform(-0.5, 0.5, 150), along) + rng.normal(scale=0.01, size=(150, 3))
+    assert angle(fit(line, normal, settings.floor_roll_prior, settings.floor_pitch_prior), normal) < 1.0
 
 
 def on_floor(body, q):

@@ -266,6 +266,16 @@ class TrajoptSettings:
     # air stayed in, and the floor term pulled them down: synthetic 131_02 kept 62 such flags, 8.8 cm up in the
     # truth (median), against 14 at 0.05; synthetic set (8 clips, seed 0), B.4 global MPJPE 46.1 -> 43.7 mm
     # (131_02 51.3 -> 37.0), trajopt 48.7 -> 45.8 mm); 0.01 .. 1
+    floor_pitch_prior: float = 0.05  # weight of the B.4 floor normal's tilt from the kinematic stage's floor towards
+    # or away from the camera, relative to one contact point at 1 m, per point (ours): monocular depth errors move
+    # the contact points along the camera's rays, off the floor by (depth error) x (camera height) / depth, which
+    # tilts a plane through them this way (measured with no prior: up to 17 degrees on synthetic walks and runs
+    # of subjects 2 and 7); 0 .. 10
+    floor_roll_prior: float = 0.002  # the same about the viewing direction (ours), which the image positions of the
+    # feet fix: weak, as the prior (the body's mean vertical axis) leans with the person. At 0.05 (the pitch's
+    # weight) a person leaning sideways rolled the floor 8 degrees (synthetic 006_08, held-out subject 6; 4-7 at
+    # 0.002; the B.4 motion's penetration of the true floor over the 16 test cases 0.38 -> 0.11%); on clips of
+    # subjects 2, 5, 7 and 1 the mean error 1.05 -> 0.72 degrees (002_04 3.6 -> 1.8); 0 .. 10
     contact_slip_speed: float = 1.2  # m/s: contacts whose point slides faster than this in the kinematic motion
     # become no contact (ours: twice the labels' own 0.6 m/s, for the fit's noise); 0 (off) .. 100
     contact_slip_interval: float = 0.1  # s over which that speed (and rest_speed) is measured; 0.01 .. 1
@@ -352,6 +362,8 @@ class TrajoptSettings:
                      "kinematic_angle_velocity"):
             _within(f"trajopt.{name}", getattr(self, name), 0.0, 1000.0, "")
         _within("trajopt.floor_outlier_distance", self.floor_outlier_distance, 0.01, 1.0, "m")
+        _within("trajopt.floor_pitch_prior", self.floor_pitch_prior, 0.0, 10.0, "")
+        _within("trajopt.floor_roll_prior", self.floor_roll_prior, 0.0, 10.0, "")
         _within("trajopt.contact_slip_speed", self.contact_slip_speed, 0.0, 100.0, "m/s")
         _within("trajopt.contact_slip_interval", self.contact_slip_interval, 0.01, 1.0, "s")
         _within("trajopt.rest_height", self.rest_height, 0.0, 0.5, "m")

@@ -35,23 +35,34 @@ log = logging.getLogger("physmocap")
 MIN_FLOOR_POINTS = 8  # fewer contact points than this leave the floor as it was
 SINK_PERCENTILE, SINK_DEPTH = 5.0, 0.03  # a refitted floor with 5% of all foot points 3 cm below it is rejected
 HUBER_SCALE = 0.02  # m: contact points farther from the plane than this pull linearly (Huber)
-TILT_PRIOR = 0.05  # weight of the plane's tilt from the prior, relative to one point at 1 m, per point
 
 
-def fit_contact_floor(points: np.ndarray, up_prior: np.ndarray, outlier_distance: float,
-                      iterations: int = 10) -> tuple[Floor, np.ndarray]:
+def tilt_axes(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors (3,) orthogonal to the unit vector `up` (camera frame) and to each other: `roll`, the
+    camera's x axis made orthogonal to up (tilting the normal along it rolls the floor about the viewing
+    direction), and `pitch` = up x roll (tilting along it turns the floor towards or away from the camera)."""
+    roll = np.array([1.0, 0.0, 0.0]) - up[0] * up
+    if np.linalg.norm(roll) < 0.1:  # up along the camera's x axis (a camera on its side)
+        return tangent_basis(up)
+    roll /= np.linalg.norm(roll)
+    return roll, np.cross(up, roll)
+
+
+def fit_contact_floor(points: np.ndarray, up_prior: np.ndarray, outlier_distance: float, roll_prior: float,
+                      pitch_prior: float, iterations: int = 10) -> tuple[Floor, np.ndarray]:
     """Robust plane through the heel and toe positions labelled in contact (Rempe B.4): Huber weights by
     iteratively reweighted least squares on the points only, the tilt from `up_prior` penalised quadratically
-    (a person standing still touches the floor along a line, which leaves the tilt to the prior). points:
-    (N, 3) camera frame; returns the floor (camera frame) and the (N,) inliers within outlier_distance.
+    (a person standing still touches the floor along a line, which leaves the tilt to the prior), with weights
+    `roll_prior` and `pitch_prior` (relative to one point at 1 m, per point) along the two axes of `tilt_axes`.
+    points: (N, 3) camera frame; returns the floor (camera frame) and the (N,) inliers within outlier_distance.
 
     (camera.fit_floor passes its prior through the Huber loss too, where it pulls only linearly: measured, a
     wrongly labelled lifted foot tilted its plane by 30 degrees.)"""
     up = up_prior / np.linalg.norm(up_prior)
-    a, b = tangent_basis(up)
+    a, b = tilt_axes(up)
     tilt, d = np.zeros(2), -float(np.median(points @ up))
     weights = np.ones(len(points))
-    prior = np.sqrt(TILT_PRIOR * len(points))
+    prior = np.sqrt(np.array([roll_prior, pitch_prior]) * len(points))
     for _ in range(iterations):
         n = up + tilt[0] * a + tilt[1] * b
         scale = np.linalg.norm(n)
@@ -60,7 +71,7 @@ def fit_contact_floor(points: np.ndarray, up_prior: np.ndarray, outlier_distance
         # Linearised in (tilt, d): d dist / d tilt_k = (p . e_k) / |n| (the normalisation is second order).
         w = np.sqrt(weights)
         A = np.concatenate([np.stack([w * (points @ a), w * (points @ b), w], axis=1),
-                            np.array([[prior, 0.0, 0.0], [0.0, prior, 0.0]])])
+                            np.array([[prior[0], 0.0, 0.0], [0.0, prior[1], 0.0]])])
         rhs = np.concatenate([-w * dist, -prior * tilt])
         step = np.linalg.lstsq(A, rhs, rcond=None)[0]
         tilt, d = tilt + step[:2], d + step[2]
@@ -215,7 +226,8 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
     kept = contacts.copy()
     if contacts.sum() >= MIN_FLOOR_POINTS:
         if not keep_floor:
-            fitted, _ = fit_contact_floor(soles[contacts], camera.R[:, 2], settings.floor_outlier_distance)
+            fitted, _ = fit_contact_floor(soles[contacts], camera.R[:, 2], settings.floor_outlier_distance,
+                                          settings.floor_roll_prior, settings.floor_pitch_prior)
             # A floor that many feet would sink through is made of wrong labels (feet labelled in contact in
             # the air): keep the kinematic stage's floor, fitted to the lowest slow foot points, instead (ours).
             sunk = np.percentile(fitted.height(soles[obs.valid].reshape(-1, 3)), SINK_PERCENTILE)
