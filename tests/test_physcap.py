@@ -296,3 +296,24 @@ def test_the_character_starts_at_the_first_frame_with_a_person(body):
     assert np.abs(result.qpos[5:, 2] - q[5:, 2]).max() < 0.01  # no launch
     launched = run_physcap(body, q, FPS, np.ones((40, 4), bool), np.ones(40, bool), PhysicsSettings())
     assert np.abs(launched.qpos[5:, 2] - q[5:, 2]).max() > 0.05  # what starting on the extrapolated frames does
+
+
+def test_physics_smooths_a_jittery_target_instead_of_passing_the_jitter_on(body):
+    """Standing still with pose noise of a few centimetres: the character's joints shake less than the target's
+    (the smoothed kinematic velocity keeps the derivative term from feeding frame-to-frame noise through)."""
+    rng = np.random.default_rng(3)
+    q = standing(body, 80)
+    model = body.mujoco_model()
+    for pose in q:  # rad on every joint, about 3 cm at the end of a limb; 1 cm on the root
+        mujoco.mj_integratePos(model, pose, np.r_[rng.normal(0.0, 0.01, 3), np.zeros(3),
+                                                 rng.normal(0.0, 0.03, body.nv - 6)], 1.0)
+    contacts = np.ones((len(q), 4), bool)
+
+    def shake(qpos):  # mean joint acceleration, m/s^2
+        points = kin.forward_kinematics(body, qpos).points
+        return np.linalg.norm(np.diff(points, 2, axis=0), axis=-1).mean() * FPS ** 2
+
+    smoothed = run_physcap(body, q, FPS, contacts, np.zeros(len(q), bool), PhysicsSettings())
+    plain = run_physcap(body, q, FPS, contacts, np.zeros(len(q), bool), PhysicsSettings(velocity_smoothing=0.0))
+    assert shake(smoothed.qpos[10:]) < 0.8 * shake(q[10:])
+    assert shake(smoothed.qpos[10:]) < shake(plain.qpos[10:])

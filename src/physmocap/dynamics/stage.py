@@ -52,7 +52,10 @@ class PhysicsStream:
         self.tracker = PhysCapTracker(body, settings, fps)
         self.balance = BalanceCorrector(body, settings.correction_rate)
         self._previous: np.ndarray | None = None  # last kinematic pose
-        self._velocity = np.zeros(body.nv)
+        self._velocity = np.zeros(body.nv)  # smoothed kinematic velocity of the last frame
+        # share of the newest backward difference in the smoothed velocity (1: no smoothing)
+        smoothing = settings.velocity_smoothing
+        self._new_share = 1.0 - np.exp(-1.0 / (fps * smoothing)) if smoothing else 1.0
         self._frames = 0
 
     @property
@@ -67,13 +70,15 @@ class PhysicsStream:
         if self.floor is not None:
             self.floor.push(q_kin, contacts)
             q_kin = self.floor.to_physics(q_kin)
-        # The same backward differences as kinematic_derivatives: no acceleration before the third frame.
+        # Backward differences (as kinematic_derivatives), the velocity smoothed causally from the second one on
+        # (settings.velocity_smoothing); no acceleration before the third frame.
         velocity, acceleration = np.zeros(self.body.nv), np.zeros(self.body.nv)
         if self._previous is None:
             self.tracker.reset(q_kin, velocity)
         else:
             mujoco.mj_differentiatePos(self.tracker.model, velocity, 1.0 / self.fps, self._previous, q_kin)
             if self._frames >= 2:
+                velocity = self._new_share * velocity + (1.0 - self._new_share) * self._velocity
                 acceleration = (velocity - self._velocity) * self.fps
         self._previous, self._velocity = q_kin, velocity
         self._frames += 1
