@@ -1,6 +1,9 @@
-"""Where the contact networks' held-out synthetic errors are: per clip, per contact point, by the detector's
-confidence, by the length of the label run an entry lies in, and, for false contacts and missed ones, how far the
-true 3D site was from the label thresholds (height 5 cm, speed 1.0 m/s).
+"""Where the contact networks' held-out synthetic errors are: per clip, per skeleton (raw CMU, subject 131, or
+the CC3 retarget, subject 6) and contact point, by the detector's confidence, by the length of the label run an
+entry lies in, by the true site's distance to the label thresholds (r = max(height / 5 cm, speed / 1.0 m/s), in
+contact below 1 before short runs merge), in two kinds of motion (a raised heel: heel not in contact, 5-12 cm up
+and slower than 1.0 m/s, while the toe of the same foot is; a site within 5 cm of the floor but faster than
+1.0 m/s), and, for false contacts and missed ones, how far the true 3D site was from the label thresholds.
 
 The held-out sequences are benchmarks/bench_contacts.py's (test subjects, seed 1, 4 per clip,
 `held_out_settings`); the 3D sites are those the labels were computed from (the played motion, at the frame each
@@ -23,6 +26,7 @@ from physmocap.contacts.labels import CONTACT_SITE_INDICES, CONTACT_SITES, point
 from physmocap.contacts.predict import MODES, WEIGHTS_DIR, load_weights, network_probabilities
 
 MOCAP = Path(__file__).resolve().parents[2] / "shared" / "data" / "mocap"
+RAW_CMU_SUBJECTS = ("131",)  # held-out subjects on the raw CMU skeleton; subject 6 is on the CC3 retarget
 CONFIDENCE_COLUMNS = (29, 31, 30, 32)  # MediaPipe heel / foot index of l heel, l toe, r heel, r toe
 
 
@@ -72,7 +76,7 @@ def main() -> None:
     cases = held_out_with_sites()
     for mode in MODES:
         params = load_weights(mode, args.weights)
-        wrong, truth, said, confidence, run, height, speed = [], [], [], [], [], [], []
+        wrong, truth, said, confidence, run, height, speed, raw = [], [], [], [], [], [], [], []
         per_clip = defaultdict(lambda: np.zeros(4))
         for sequence, site_height, site_speed in cases:
             _, flags = network_probabilities(sequence.keypoints_2d, sequence.valid, sequence.fps, params, mode)
@@ -83,8 +87,9 @@ def main() -> None:
             confidence.append(sequence.keypoints_2d[:, CONFIDENCE_COLUMNS, 2])
             run.append(run_lengths(sequence.contacts, sequence.fps))
             height.append(site_height), speed.append(site_speed)
-        wrong, truth, said, confidence, run, height, speed = map(
-            np.concatenate, (wrong, truth, said, confidence, run, height, speed))
+            raw.append(np.full(error.shape, sequence.subject in RAW_CMU_SUBJECTS))
+        wrong, truth, said, confidence, run, height, speed, raw = map(
+            np.concatenate, (wrong, truth, said, confidence, run, height, speed, raw))
         errors = wrong.sum()
         print(f"## {mode} network: accuracy {1 - wrong.mean():.3f}, {errors} errors "
               f"({(wrong & said).sum()} false contacts, {(wrong & ~said).sum()} missed)")
@@ -92,6 +97,26 @@ def main() -> None:
         for name, (e, n, fp, fn) in sorted(per_clip.items()):
             print(f"  {name}: {int(n)}, {1 - e / n:.3f}, {e / errors:.2f}, {int(fp)}, {int(fn)}")
         print("per site accuracy: " + ", ".join(f"{site} {1 - wrong[:, k].mean():.3f}" for k, site in enumerate(CONTACT_SITES)))
+        print("per skeleton: share of entries, accuracy, heel accuracy, toe accuracy, share of errors")
+        for name, inside in (("raw CMU", raw), ("CC3", ~raw)):
+            print(f"  {name}: {inside.mean():.2f}, {1 - wrong[inside].mean():.3f}, "
+                  f"{1 - wrong[:, [0, 2]][inside[:, [0, 2]]].mean():.3f}, "
+                  f"{1 - wrong[:, [1, 3]][inside[:, [1, 3]]].mean():.3f}, {wrong[inside].sum() / errors:.2f}")
+        ratio = np.maximum(height / 0.05, speed / 1.0)
+        print("by r = max(height / 5 cm, speed / 1 m/s): range, share of entries, accuracy, share of errors, "
+              "share labelled contact")
+        for low, high in zip((0, 0.5, 0.8, 1.0, 1.25, 2.0), (0.5, 0.8, 1.0, 1.25, 2.0, np.inf)):
+            inside = (ratio >= low) & (ratio < high)
+            print(f"  {low}-{high}: {inside.mean():.3f}, {1 - wrong[inside].mean():.3f}, "
+                  f"{wrong[inside].sum() / errors:.2f}, {truth[inside].mean():.2f}")
+        raised = np.zeros_like(wrong)
+        for heel, toe in ((0, 1), (2, 3)):
+            raised[:, heel] = (~truth[:, heel] & truth[:, toe] & (height[:, heel] > 0.05) & (height[:, heel] < 0.12)
+                               & (speed[:, heel] < 1.0))
+        skimming = ~truth & (height < 0.05) & (speed >= 1.0) & ~raised
+        for name, inside in (("raised heel", raised), ("low and fast", skimming)):
+            print(f"{name}: {inside.sum()} entries, accuracy {1 - wrong[inside].mean():.3f}, "
+                  f"share of errors {wrong[inside].sum() / errors:.2f}")
         for name, values, bins in (("detector confidence", confidence, (0, 0.5, 0.8, 0.95, 1.01)),
                                    ("label run, s", run, (0, 0.1, 0.2, 0.4, 1.0, np.inf))):
             print(f"by {name}: range, share of entries, accuracy, share of errors")

@@ -70,6 +70,8 @@ def main() -> None:
     parser.add_argument("--save", type=Path, help="write the trained parameters to this .npz file")
     parser.add_argument("--load", type=Path, help="evaluate these parameters (.npz) instead of training")
     parser.add_argument("--seed", type=int, default=0, help="seed of the initial weights and the batches")
+    parser.add_argument("--data-seed", type=int, default=0,
+                        help="seed of the training sequences (cameras, rates, bodies, noise); the validation set stays")
     parser.add_argument("--learning-rate", type=float, default=train.TrainSettings().learning_rate)
     parser.add_argument("--dropout", type=float, help="the network's dropout (default: its spec's)")
     parser.add_argument("--playback", default=",".join(map(str, SyntheticSettings().playback_speed_range)),
@@ -92,7 +94,7 @@ def main() -> None:
         with np.load(args.load) as data:
             params = {key: data[key] for key in data.files}
     else:
-        table = train.FrameTable.from_sequences(make_sequences(load_clips(fit_files), 0, synthetic))
+        table = train.FrameTable.from_sequences(make_sequences(load_clips(fit_files), args.data_seed, synthetic))
         torch.manual_seed(1 + args.seed)
         if args.mode == "causal":
             spec = train.CausalNetSpec(channels=tuple(int(c) for c in args.channels.split(",")))

@@ -32,6 +32,19 @@ Why 1.0 m/s and not Rempe's 0.6 (scripts/contact_label_physics.py, training subj
   floor faster (1-4 m/s) and stay out of contact.
 Rempe's 0.6 m/s remains a setting (`LabelSettings.contact_max_speed`).
 
+The sites and the floor the labels read were checked against the BVH's own joints on both skeletons
+(scripts/contact_label_geometry.py; neither has a heel joint, `bvh_reader.sole_sites` derives heel and toe). In
+flat stance (heel and toe still and in contact) the derived heel and toe of every held-out clip sit 0.0-1.9 cm
+and -0.7-1.3 cm above the clip's floor (training walk 02_01: 1.5 and 0.2 cm). Where a heel is labelled off while
+its toe is down, 5-12 cm up and slow (most of them in 131_02, 4.5 s of stances on the ball of the foot), the
+BVH's ankle joint is 3.4-7.3 cm (median per foot and clip) above its flat-stance height, 0.66-0.82 times the
+heel's rise, as a foot turning about its MTP joint gives; a heel placed too high by a wrong pitch or floor would
+leave the ankle where it was. Raw CMU glitches of subject 131 reach the sites only briefly: a left toe site more
+than 3 cm under the floor for 0.32 s of 131_01 (t = 2.8-3.7 s, the foot pitched 50-65 degrees down on a still
+ankle) and 0.37 s of 131_02 (t = 1.41-1.77 s, down to 7.7 cm), both labelled in contact as the foot is; and at
+frame 0 of 131_02 the left foot pitched 8 degrees toes-up, its toe site 7.5 cm above the heel (toe labelled off
+for 0.13 s).
+
 Stationary (PhysCap Sec. 4.2): the root (pelvis, the midpoint of the hips) moves slower than a threshold. The paper
 gives no value; 0.25 m/s, measured over 0.2 s, separates standing, swaying and fighting on the spot (median root
 speed 0.07-0.11 m/s in CMU 02_05, 02_07, 02_10) from walking (5th percentile 0.47 m/s in the slowest walk here,
