@@ -171,8 +171,8 @@ class PhysicsSettings:
     # derivative term passes the difference of two noisy poses straight into the desired acceleration: without
     # it physics added jitter to its input (taiji, 24 fps, online: 16.5 -> 19.9 m/s^2 mean joint acceleration,
     # with 0.03 s 17.4; 0.045 s gave 16.1; offline 8.6 -> 9.9, with 0.03 s 9.1). Synthetic set (floor estimated
-    # / calibrated): e_smooth 13.0 / 12.8 -> 11.8 / 11.7 mm, root-relative error +0.2 / +0.1 mm; chosen on ten CMU clips outside the test subjects (0.02-0.08 s tried;
-    # longer ones smooth more and lag more); 0 .. 1
+    # / calibrated): e_smooth 13.0 / 12.8 -> 11.8 / 11.7 mm, root-relative error +0.2 / +0.1 mm; chosen on ten
+    # CMU clips outside the test subjects (0.02-0.08 s tried; longer ones smooth more and lag more); 0 .. 1
     contact_height: float = 0.1  # m, psi of eq. (5): a predicted contact counts only below this height; 0 .. 1
     friction: float = 0.8  # mu; the pyramid uses mu / sqrt(2) (eq. 7); 0.05 .. 2
     slide_speed: float = 0.3  # m/s, sigma of eq. (9): tangential speed a contact may keep (paper: not given). On
