@@ -70,25 +70,6 @@ def test_refine_puts_contacts_on_a_refitted_floor_and_drops_outliers(body, camer
     assert np.nanmedian(m.reprojection_error) < np.nanmedian(motion.reprojection_error) + 1.0
 
 
-def test_refine_judges_the_labels_by_the_feet_when_the_floor_is_given(body, camera):
-    """A floor given 6 cm below where the fitted feet stand (the kinematic feet off the true floor): the standing
-    foot's labels are not outliers of it, the lifted foot's still are, and the world stays on the given floor."""
-    rng = np.random.default_rng(0)
-    truth = one_leg_stance(body, 45)
-    obs = observe(body, truth, camera)
-    obs.keypoints_2d[..., :2] += rng.normal(scale=2.0, size=obs.keypoints_2d[..., :2].shape)
-    obs.landmarks_3d += rng.normal(scale=0.02, size=obs.landmarks_3d.shape)
-    settings = Settings().replace("body", height=body.height, mass=body.mass)
-    motion = fit_motion(obs, settings)
-    given = np.append(motion.floor.normal, motion.floor.offset + 0.06)
-    motion = fit_motion(obs, settings.replace("camera", floor=tuple(given)))
-    contacts = np.ones((45, 4), bool)
-    contacts[15:, :2] = False
-    refined = refine_kinematics(obs, motion, contacts, FitSettings(), TrajoptSettings(), keep_floor=True)
-    assert refined.contacts[:, 2:].mean() > 0.9 and not refined.contacts[:, :2].any()
-    assert np.allclose(refined.motion.floor.plane, given)
-
-
 def test_ik_reaches_the_contact_points_and_keeps_the_upper_body(body):
     rng = np.random.default_rng(1)
     q = one_leg_stance(body, 20)

@@ -5,9 +5,9 @@ project's one kinematic fitter with its optional contact terms switched on:
 1. the offline fit with contact velocity, joint velocity and joint-angle velocity terms (no floor term), from
    the kinematic stage's motion;
 2. a robust (Huber) plane fit to the heel and toe positions labelled in contact; contacts farther than
-   `floor_outlier_distance` from it become no contact; the world is moved onto the plane (z = 0), or onto a
-   floor given instead; runs of frames labelled all in the air while the body does not fall get their points
-   near the fitted plane back in contact, and points resting on it are labelled in contact (ours);
+   `floor_outlier_distance` from it become no contact; the world is moved onto the plane (z = 0); runs of
+   frames labelled all in the air while the body does not fall get their points near the floor back in
+   contact, and points resting on the floor are labelled in contact (ours);
 3. the fit again with the floor term, which puts the feet in contact on the floor.
 """
 
@@ -199,8 +199,8 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
     obs: the detector's observations; motion: the kinematic stage's result (offline fit, world on its floor);
     contacts: (T, 4) bool flags (l heel, l toe, r heel, r toe) from the contact stage; fit: the fit's settings;
     settings: the trajopt settings (weights of the optional terms, outlier distance); keep_floor: keep
-    motion.floor (e.g. a floor given by the user) as the world's floor instead of the refitted one; the labels are
-    still judged against the refitted plane, where the labelled feet stand.
+    motion.floor (e.g. a floor given by the user) instead of refitting it, still relabelling the contacts far
+    from it.
     """
     start = time.perf_counter()
     body, camera, fps = motion.body, motion.camera, obs.fps
@@ -222,36 +222,32 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
         motion.qpos, targets_in(camera, contacts, None)).qpos
     # 2. The floor through the contact points (camera frame), outliers relabelled.
     soles = camera.to_camera(kin.forward_kinematics(body, qpos).points[:, body.point_index(CONTACT_POINTS)])
-    floor = ground = motion.floor  # ground: the plane the labelled feet stand on, which the labels are judged by
+    floor = motion.floor
     kept = contacts.copy()
     if contacts.sum() >= MIN_FLOOR_POINTS:
-        fitted, _ = fit_contact_floor(soles[contacts], camera.R[:, 2], settings.floor_outlier_distance,
-                                      settings.floor_roll_prior, settings.floor_pitch_prior)
-        # A floor that many feet would sink through is made of wrong labels (feet labelled in contact in the
-        # air): keep the kinematic stage's floor, fitted to the lowest slow foot points, instead (ours).
-        sunk = np.percentile(fitted.height(soles[obs.valid].reshape(-1, 3)), SINK_PERCENTILE)
-        if sunk > -SINK_DEPTH:
-            ground = fitted
-            floor = floor if keep_floor else fitted
-        else:
-            log.info("trajopt: the floor through the labelled contacts lies above %.0f%% of the foot points "
-                     "(by %.0f cm); the kinematic floor is kept.", SINK_PERCENTILE, -100 * sunk)
-        kept[contacts] = np.abs(ground.height(soles[contacts])) < settings.floor_outlier_distance
+        if not keep_floor:
+            fitted, _ = fit_contact_floor(soles[contacts], camera.R[:, 2], settings.floor_outlier_distance,
+                                          settings.floor_roll_prior, settings.floor_pitch_prior)
+            # A floor that many feet would sink through is made of wrong labels (feet labelled in contact in
+            # the air): keep the kinematic stage's floor, fitted to the lowest slow foot points, instead (ours).
+            sunk = np.percentile(fitted.height(soles[obs.valid].reshape(-1, 3)), SINK_PERCENTILE)
+            if sunk > -SINK_DEPTH:
+                floor = fitted
+            else:
+                log.info("trajopt: the floor through the labelled contacts lies above %.0f%% of the foot points "
+                         "(by %.0f cm); the kinematic floor is kept.", SINK_PERCENTILE, -100 * sunk)
+        inliers = np.abs(floor.height(soles[contacts])) < settings.floor_outlier_distance
+        kept[contacts] = inliers
     anchor = int(np.argmax(obs.valid))
-    # A floor kept as given still has the labels judged against the plane the labelled feet stand on (ours): the
-    # kinematic feet stand centimetres off a given floor (which the floor term of step 3 removes), and judged
-    # against it correct labels went (synthetic, true floor: 131_03 seed 1 lost 40 of 530 contacts as outliers
-    # against 28, and a resting heel before a one-toe landing; the optimiser dipped the COM 17 cm there).
-    on_ground, _ = move_world_to_floor(qpos, camera, ground, anchor)
     qpos, camera = move_world_to_floor(qpos, camera, floor, anchor)
     removed = labelled & ~kept
-    added = false_flights(body, on_ground, fps, kept, obs.valid, settings.floor_outlier_distance)
+    added = false_flights(body, qpos, fps, kept, obs.valid, settings.floor_outlier_distance)
     if added.any():
         log.info("trajopt: %d frame(s) labelled all in the air while the body does not fall: contacts added.",
                  int(added.any(axis=1).sum()))
     kept |= added
     if settings.rest_height > 0:
-        resting = resting_points(body, on_ground, fps, kept, obs.valid, settings)
+        resting = resting_points(body, qpos, fps, kept, obs.valid, settings)
         added |= resting
         kept |= resting
     # 3. Again, with the feet in contact on the floor (z = 0 in the new world).
