@@ -1,6 +1,7 @@
 """Rempe et al. trajectory optimisation (physmocap.trajopt): the pieces against independent computations, and
 the solutions against physics (Newton at every frame, forces in the pyramid, still feet, ballistic flight)."""
 
+import dataclasses
 import logging
 
 import casadi as ca
@@ -13,8 +14,8 @@ from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
 from physmocap.config import TrajoptSettings
 from physmocap.errors import InputError
-from physmocap.trajopt.formulation import (Window, angular_velocity, build_window_problem, euler_torque,
-                                          phase_layout, rotate)
+from physmocap.trajopt.formulation import (Window, acceleration_continuity, angular_velocity, build_window_problem,
+                                          euler_torque, phase_layout, rotate)
 from physmocap.trajopt.phases import (clean_flags, contact_phases, flags_from_phases, segment_count,
                                      split_drifting)
 from physmocap.trajopt.problem import ConstraintSet, CostTerm, Program, VariableSet
@@ -475,6 +476,23 @@ def test_durations_program_shares_the_layout(body):
     assert [v.size for v in fixed.variable_sets] == [v.size for v in moving.variable_sets[:-1]]
     assert moving.durations.set.size == 4 * 2  # lift-off and touch-down of each point
     assert np.all(moving.durations.set.upper - moving.durations.set.lower <= 2 * s.max_duration_change + 1e-12)
+
+
+def test_com_acceleration_may_jump_only_where_a_contact_begins_or_ends(body):
+    q, in_air = jump(body, frames=30, takeoff=8, flight=0.3)
+    red = reduced_motion(body, q, FPS)
+    phases = [contact_phases(~in_air, red.times) for _ in range(4)]
+    window = Window(red, phases)
+    s = TrajoptSettings()
+    problem = build_window_problem(window, s)
+    knots = np.array([seg.nominal[0] for seg in problem.com.position.segments[1:]])
+    changes = np.array([p.start for p in phases[0][1:]])  # lift-off and touch-down
+    near = (np.abs(knots[:, None] - changes[None]) <= s.contact_change_reach * s.com_interval + 1e-9).any(axis=1)
+    assert len(changes) == 2 and 2 <= near.sum() < len(knots) // 2
+    rows = lambda settings: acceleration_continuity(build_window_problem(window, settings)).size  # noqa: E731
+    everywhere = rows(dataclasses.replace(s, contact_change_reach=0.0))
+    assert everywhere == 2 * 3 * len(knots)  # position and orientation, 3 each, at every inner knot
+    assert everywhere - rows(s) == 2 * 3 * near.sum()
 
 
 def test_frames_without_observations_split_the_clip(body):

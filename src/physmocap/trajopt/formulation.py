@@ -569,13 +569,25 @@ def acceleration_continuity(problem: WindowProblem) -> ConstraintSet:
     """The COM position's and orientation's second derivatives continuous at their inner nodes (C2; ours).
     Hermite cubics alone are C1: their accelerations may jump at every node, and with the dynamics held only at
     samples the optimiser hides accelerations between them (measured: forces at the frames 5% above what the COM
-    motion needs on average)."""
+    motion needs on average). Knots within `contact_change_reach` COM intervals of a contact phase's start or end
+    are left out: the net force, and with it the COM's acceleration, changes fast where a point lands or
+    lifts off (one leg taking the weight, a hop's take-off), and held C2 there the optimiser moved the body far
+    from its input to meet such a change smoothly."""
     out = ConstraintSet("acceleration_continuity", linear=True)
     size = int(problem.x.shape[0])
+    s = problem.settings
+    changes = np.array([p.start for phases in problem.window.phases for p in phases[1:]])
     for trajectory in (problem.com.position, problem.com.orientation):
         M = trajectory.knot_jumps(2, size)
         if M.shape[0]:
-            out.add(ca.mtimes(ca.DM(M), problem.x))
+            knots = np.array([seg.nominal[0] for seg in trajectory.segments[1:]])
+            free = np.zeros(len(knots), bool)
+            if changes.size:
+                reach = s.contact_change_reach * s.com_interval + 1e-9
+                free = (np.abs(knots[:, None] - changes[None]) <= reach).any(axis=1)
+            M = M[np.repeat(~free, M.shape[0] // len(knots))]  # rows: DIM per inner knot
+            if M.shape[0]:
+                out.add(ca.mtimes(ca.DM(M), problem.x))
     return out
 
 
