@@ -506,3 +506,21 @@ def test_frames_without_observations_split_the_clip(body):
     assert result.failed_frames == ["30-35"]
     tiny = run_trajopt(body, q[:2], FPS, np.ones((2, 4), bool), QUICK)
     assert not tiny.converged.any() and np.array_equal(tiny.qpos, q[:2])
+
+
+def test_a_solution_far_from_the_input_is_not_used(body, caplog):
+    """Feet labelled in contact while they slide 40 cm: the converged motion keeps them still, so its centre of
+    mass ends far from the input's; beyond reject_departure the window is flagged and the input kept."""
+    q = standing(body, 36)
+    q[:, 0] += np.linspace(0, 0.4, 36)
+    contacts = np.ones((36, 4), bool)
+    kept = run_trajopt(body, q, FPS, contacts, TrajoptSettings(contact_drift=0.0))
+    departure = kept.windows[0].com_departure
+    assert kept.converged.all() and departure > 0.02
+    with caplog.at_level(logging.WARNING, logger="physmocap"):
+        result = run_trajopt(body, q, FPS, contacts,
+                             TrajoptSettings(contact_drift=0.0, reject_departure=0.5 * departure))
+    assert not result.converged.any() and result.windows[0].departed
+    assert np.array_equal(result.qpos, q) and np.all(result.grf == 0) and np.all(result.qp_failures == 1)
+    assert "reject_departure" in caplog.text and "departed" in result.summary()
+    assert "NOT used" in result.windows[0].describe()

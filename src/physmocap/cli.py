@@ -228,7 +228,8 @@ def cmd_capture(args) -> int:
         for window in report["windows"]:
             print("  " + WindowReport.from_dict(window).describe())
     if summary.physics_fallback_frames:
-        what = ("the trajectory optimisation did not converge (kinematic motion kept) on frames "
+        what = ("the trajectory optimisation did not converge or departed far from the input (kinematic motion "
+                "kept) on frames "
                 if summary.physics == "trajopt" else "the physics QP failed and fell back on frames ")
         print("warning: " + what + _first_ranges(summary.physics_fallback_frames))
     _warn_strayed(summary, settings)

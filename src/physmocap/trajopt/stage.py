@@ -45,7 +45,8 @@ class WindowReport:
     """One window: frames [start, stop] solved, [start, keep) kept; converged; the stage whose solution was kept;
     every IPOPT run; program size; seconds to build and in total; com_departure, feet_departure: mean distance
     (m) of the optimised COM and contact points from the input over the kept frames (nan if not converged);
-    restarted: the window could not continue the previous one's state and was solved from a free start."""
+    restarted: the window could not continue the previous one's state and was solved from a free start;
+    departed: converged, but farther from the input than settings.reject_departure, so not used."""
 
     start: int
     stop: int
@@ -60,6 +61,7 @@ class WindowReport:
     com_departure: float = float("nan")
     feet_departure: float = float("nan")
     restarted: bool = False
+    departed: bool = False
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -72,7 +74,11 @@ class WindowReport:
         """One line: the frames, whether it converged, the solution kept, and every IPOPT run."""
         runs = "; ".join(f"{s.name} {s.status}, {s.iterations} iterations, objective {s.objective:.4g}"
                          for s in self.stages)
-        verdict = f"converged, kept {self.chosen}" if self.converged else "NOT converged, kinematic motion kept"
+        if self.departed:
+            verdict = (f"converged {100 * self.com_departure:.0f} cm from the input (COM), NOT used, kinematic "
+                       "motion kept")
+        else:
+            verdict = f"converged, kept {self.chosen}" if self.converged else "NOT converged, kinematic motion kept"
         restart = " (solved afresh)" if self.restarted else ""
         return f"frames {self.start}-{self.keep - 1} (solved to {self.stop}): {verdict}{restart}; {runs}"
 
@@ -87,7 +93,8 @@ class TrajoptMotion:
         converged);
     residual: (T, 6) zeros: the formulation has no residual root actuation;
     contacts: (T, 4) bool, the contact phases used (after the optional duration stage);
-    converged: (T,) bool, the frame's window converged (IPOPT's dynamics stage); the rest kept kinematic;
+    converged: (T,) bool, the frame's window converged (IPOPT's dynamics stage) within settings.reject_departure
+        of the input; the rest kept kinematic;
     corrected: (T,) zeros (PhysCap's balance correction has no counterpart here);
     qp_failures: (T,) int, 1 where not converged (so `qp_failures > 0` flags fallback frames as for PhysCap);
     com, com_acceleration, euler, feet: (T, 3), (T, 3), (T, 3), (T, 4, 3) the optimised reduced motion (m,
@@ -134,7 +141,8 @@ class TrajoptMotion:
         line = (f"trajopt: {len(self.windows)} window(s), {done}/{len(self.converged)} frames converged, "
                 f"{self.seconds:.1f} s")
         if done < len(self.converged):
-            line += f"; NOT converged (kinematic motion kept): frames {', '.join(self.failed_frames)}"
+            why = " or departed from the input" if any(w.departed for w in self.windows) else ""
+            line += f"; NOT converged{why} (kinematic motion kept): frames {', '.join(self.failed_frames)}"
         return line
 
 
@@ -260,20 +268,29 @@ def _solve_run(out: TrajoptMotion, reduced, flags: np.ndarray, first: int, end: 
         out.windows.append(WindowReport(start, stop, keep, result.converged, result.chosen, result.stages,
                                         result.variables, result.constraints, result.build_seconds,
                                         time.perf_counter() - t0, restarted=restarted))
+        report = out.windows[-1]
         if result.converged:
-            report = out.windows[-1]
             report.com_departure = float(np.linalg.norm(result.com[:n] - red.com[:n], axis=-1).mean())
             report.feet_departure = float(np.linalg.norm(result.feet[:n] - red.feet[:n], axis=-1).mean())
-            if report.com_departure > DEPARTURE_COM or report.feet_departure > DEPARTURE_FEET:
+            limit = settings.reject_departure
+            report.departed = limit is not None and report.com_departure > limit
+            if report.departed:
+                log.warning("trajopt: on frames %d-%d the optimised motion departs from the kinematic one by %.0f cm "
+                            "(COM) on average, more than trajopt.reject_departure (%.0f cm): not used, the kinematic "
+                            "motion is kept there.", start, keep - 1, 100 * report.com_departure, 100 * limit)
+            elif report.com_departure > DEPARTURE_COM or report.feet_departure > DEPARTURE_FEET:
                 log.warning("trajopt: on frames %d-%d the physical motion departs from the kinematic one by %.0f cm "
                             "(COM) and %.0f cm (feet) on average: the contact labels may be wrong there.", start,
                             keep - 1, 100 * report.com_departure, 100 * report.feet_departure)
+        if result.converged and not report.departed:
             out.converged[kept] = True
             out.com[kept], out.euler[kept], out.feet[kept] = result.com[:n], result.euler[:n], result.feet[:n]
             out.com_acceleration[kept] = result.com_acceleration[:n]
             out.grf[kept] = result.forces[:n]
             out.contacts[kept] = result.contacts[:n]
             previous = result
+        elif report.departed:
+            previous = None
         else:
             statuses = ", ".join(f"{s.name}: {s.status}" for s in result.stages)
             log.warning("trajopt: IPOPT did not converge on frames %d-%d (%s); the kinematic motion is kept there.",
