@@ -285,11 +285,12 @@ class TrajoptSettings:
     # 0.002; the B.4 motion's penetration of the true floor over the 16 test cases 0.38 -> 0.11%); on clips of
     # subjects 2, 5, 7 and 1 the mean error 1.05 -> 0.72 degrees (002_04 3.6 -> 1.8); 0 .. 10
     contact_slip_speed: float = 1.2  # m/s: contacts whose point slides faster than this in the kinematic motion
-    # become no contact (ours: twice the labels' own 0.6 m/s, for the fit's noise); 0 (off) .. 100
+    # become no contact (ours: twice Rempe's 0.6 m/s label speed, for the fit's noise; physmocap's own labels
+    # allow 1.0 m/s, contacts.labels); 0 (off) .. 100
     contact_slip_interval: float = 0.1  # s over which that speed (and rest_speed) is measured; 0.01 .. 1
     rest_height: float = 0.02  # m: points labelled in the air but lower than this (under the floor too) and
     # slower than rest_speed for min_phase_seconds become contacts (ours: under half the labels' 5 cm); 0 (off) .. 0.5
-    rest_speed: float = 0.6  # m/s: the labels' own (Rempe 3.2; at 0.3 the noisy fit of a planted foot flickered in
+    rest_speed: float = 0.6  # m/s: Rempe's label speed (3.2; at 0.3 the noisy fit of a planted foot flickered in
     # and out, measured: 131_01 global error 84 -> 74 mm); 0 .. 10
     # Parameterisation (C.1).
     com_interval: float = 0.05  # s between the knots of the COM position and orientation polynomials (the paper:

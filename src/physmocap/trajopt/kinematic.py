@@ -135,7 +135,7 @@ def floor_motion(body, qpos: np.ndarray, fps: float, interval: float) -> tuple[n
 def slipping_contacts(body, qpos: np.ndarray, fps: float, contacts: np.ndarray,
                       settings: TrajoptSettings) -> np.ndarray:
     """(T, 4) contact flags whose point slides along the floor faster than `contact_slip_speed` in the kinematic
-    motion qpos: a contact holds its point still (the labels' own definition: under 0.6 m/s, Rempe 3.2), so such
+    motion qpos: a contact holds its point still (Rempe 3.2 labels under 0.6 m/s, physmocap's under 1.0), so such
     a flag is wrong, e.g. a hop labelled as standing, which no-slip would pin to the floor (ours)."""
     _, speed = floor_motion(body, qpos, fps, settings.contact_slip_interval)
     return contacts & (speed > settings.contact_slip_speed)
