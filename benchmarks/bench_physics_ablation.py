@@ -73,8 +73,9 @@ COLUMNS = (("mpjpe_root_mm", "root-rel. mm"), ("global_root_mm", "global root mm
            ("mpe_mm", "MPE mm"), ("pnp_percent", "PNP %"), ("floating_percent", "float %"),
            ("penetration_percent", "penetr. %"), ("skate_percent", "skate %"), ("grf_mean_percent_bw", "GRF % BW"),
            ("grf_ballistic_percent_bw", "ballistic % BW"), ("residual_mean_percent_bw", "residual % BW"))
-ZERO_LAG_SIGMA = 2.0  # frames: the sigma with the lowest e_smooth on the offline fit (1: 13.1, 2: 12.4, 3: 13.1 mm)
-SMOOTHED = f"input smoothed without lag (Gaussian, {ZERO_LAG_SIGMA:.0f} frames; a bound)"
+ZERO_LAG_SIGMA = 1.0  # frames: the sigma with the lowest e_smooth (first seed; online fit 1: 7.05, 2: 7.27, 3: 8.83 mm;
+# B.4-refined fit 1: 4.8, 2: 6.0, 3: 7.8 mm)
+SMOOTHED = f"input smoothed without lag (Gaussian, sigma {ZERO_LAG_SIGMA:g} frame; a bound)"
 NOISE_FREE = NoiseModel(keypoint_sd=0.0, keypoint_drift_sd=0.0, landmark_sd=0.0, landmark_drift_sd=0.0,
                         depth_scale_sd=0.0, confidence_sd=0.0, dropout_per_second=0.0, foot_swaps_per_second=0.0)
 

@@ -58,7 +58,8 @@ class DetectSettings:
                 raise InputError(f"detect.person_box must be four numbers x0,y0,x1,y1, got {self.person_box}.")
             x0, y0, x1, y1 = self.person_box
             if not (x1 > x0 and y1 > y0):
-                raise InputError(f"detect.person_box must be x0,y0,x1,y1 with x1 > x0 and y1 > y0, got {self.person_box}.")
+                raise InputError("detect.person_box must be x0,y0,x1,y1 with x1 > x0 and y1 > y0, "
+                                 f"got {self.person_box}.")
 
 
 @dataclass(frozen=True)
