@@ -241,7 +241,6 @@ def targets_section() -> list[str]:
             # PhysCap's protocol calibrates the floor before tracking (its section 3): the same rows with it given.
             phys_c = synth["summary"].get("physcap on online, calibrated floor")
             base_c = synth["summary"].get("kinematic online, calibrated floor")
-            reduction_c = worse_c = None
             if phys_c and base_c:
                 reduction_c = 100 * (1 - phys_c["e_smooth_mm"] / base_c["e_smooth_mm"])
                 worse_c = 100 * (phys_c["mpjpe_root_mm"] / base_c["mpjpe_root_mm"] - 1)

@@ -581,10 +581,8 @@ def acceleration_continuity(problem: WindowProblem) -> ConstraintSet:
         M = trajectory.knot_jumps(2, size)
         if M.shape[0]:
             knots = np.array([seg.nominal[0] for seg in trajectory.segments[1:]])
-            free = np.zeros(len(knots), bool)
-            if changes.size:
-                reach = s.contact_change_reach * s.com_interval + 1e-9
-                free = (np.abs(knots[:, None] - changes[None]) <= reach).any(axis=1)
+            reach = s.contact_change_reach * s.com_interval + 1e-9
+            free = (np.abs(knots[:, None] - changes[None]) <= reach).any(axis=1)  # none without changes
             M = M[np.repeat(~free, M.shape[0] // len(knots))]  # rows: DIM per inner knot
             if M.shape[0]:
                 out.add(ca.mtimes(ca.DM(M), problem.x))

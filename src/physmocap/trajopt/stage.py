@@ -77,8 +77,10 @@ class WindowReport:
         if self.departed:
             verdict = (f"converged {100 * self.com_departure:.0f} cm from the input (COM), NOT used, kinematic "
                        "motion kept")
+        elif self.converged:
+            verdict = f"converged, kept {self.chosen}"
         else:
-            verdict = f"converged, kept {self.chosen}" if self.converged else "NOT converged, kinematic motion kept"
+            verdict = "NOT converged, kinematic motion kept"
         restart = " (solved afresh)" if self.restarted else ""
         return f"frames {self.start}-{self.keep - 1} (solved to {self.stop}): {verdict}{restart}; {runs}"
 
@@ -289,12 +291,11 @@ def _solve_run(out: TrajoptMotion, reduced, flags: np.ndarray, first: int, end: 
             out.grf[kept] = result.forces[:n]
             out.contacts[kept] = result.contacts[:n]
             previous = result
-        elif report.departed:
-            previous = None
         else:
-            statuses = ", ".join(f"{s.name}: {s.status}" for s in result.stages)
-            log.warning("trajopt: IPOPT did not converge on frames %d-%d (%s); the kinematic motion is kept there.",
-                        start, keep - 1, statuses)
+            if not report.departed:  # a departed window was reported above
+                statuses = ", ".join(f"{s.name}: {s.status}" for s in result.stages)
+                log.warning("trajopt: IPOPT did not converge on frames %d-%d (%s); the kinematic motion is kept "
+                            "there.", start, keep - 1, statuses)
             previous = None
         if progress:
             progress(keep, T)
