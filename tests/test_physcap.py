@@ -133,6 +133,22 @@ def test_stationary_leaning_pose_is_brought_back_to_balance(body):
     assert all(inside_support(c[:2], f[contacts[0], :2]) for c, f in zip(com, feet))
 
 
+def test_a_travelling_body_flagged_stationary_is_not_corrected(body):
+    # The same forward lean, but the whole body glides sideways at 0.5 m/s: the root's speed overrules a
+    # stationary flag (the correction would tilt a moving body), until the gate is switched off.
+    q = standing(body, 60)
+    angle = np.radians(25)
+    R = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
+    q = rigid_transform_qpos(q, R, np.zeros(3))
+    q[:, 1] += 0.5 * np.arange(60) / FPS
+    contacts = np.ones((60, 4), bool)
+    gated = run_physcap(body, q, FPS, contacts, np.ones(60, bool), PhysicsSettings())
+    ungated = run_physcap(body, q, FPS, contacts, np.ones(60, bool), PhysicsSettings(stationary_max_speed=None))
+    interval = round(PhysicsSettings().stationary_speed_interval * FPS)
+    assert not gated.corrected[interval:].any()
+    assert ungated.corrected[interval:].all()
+
+
 def test_feet_in_contact_neither_sink_nor_slide(body):
     q = standing(body, 40)
     q[:, 2] -= 0.02  # the kinematic feet sink 2 cm into the floor

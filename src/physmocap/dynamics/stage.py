@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections import deque
 from dataclasses import dataclass
 
 import mujoco
@@ -57,6 +58,8 @@ class PhysicsStream:
         smoothing = settings.velocity_smoothing
         self._new_share = 1.0 - np.exp(-1.0 / (fps * smoothing)) if smoothing else 1.0
         self._frames = 0
+        # kinematic root positions of the last stationary_speed_interval, oldest first (the stationary gate)
+        self._roots: deque[np.ndarray] = deque(maxlen=max(1, round(settings.stationary_speed_interval * fps)) + 1)
 
     @property
     def floor_plane(self) -> np.ndarray | None:
@@ -83,6 +86,9 @@ class PhysicsStream:
         self._previous, self._velocity = q_kin, velocity
         self._frames += 1
         target, corrected = q_kin, False
+        self._roots.append(q_kin[:3].copy())
+        if stationary and self.settings.stationary_max_speed is not None:
+            stationary = self.root_speed() < self.settings.stationary_max_speed
         if self.settings.balance_correction:
             target, corrected = self.balance.correct(q_kin, stationary, contacts)
         frame = self.tracker.track(target, velocity, acceleration, contacts)
@@ -91,6 +97,13 @@ class PhysicsStream:
         frame.contact_forces = self.floor.vector_to_kinematic(frame.contact_forces)
         frame.residual[:3] = self.floor.vector_to_kinematic(frame.residual[:3])
         return self.floor.to_kinematic(self.tracker.qpos), frame, corrected
+
+    def root_speed(self) -> float:
+        """m/s: the kinematic root's displacement over the last stationary_speed_interval divided by that
+        interval (in the first frames, the displacement so far over the whole interval: the flag is believed
+        until the root has moved)."""
+        interval = (self._roots.maxlen - 1) / self.fps
+        return float(np.linalg.norm(self._roots[-1] - self._roots[0])) / interval
 
 
 def kinematic_derivatives(body: BodyModel, qpos: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
