@@ -96,6 +96,24 @@ def test_standing_still_is_carried_by_the_feet(body):
     assert np.abs(soles - soles[0]).max() < 1e-3
 
 
+def test_a_target_sunk_into_the_floor_is_lifted_and_carried_by_the_feet(body):
+    # The kinematic fit stands 3 cm too low: its soles lie under the floor, where the character cannot follow.
+    # Lifted out of the floor, the weight rests on the feet; without the lift, the root PD pulls the body the floor
+    # holds up towards free fall, and the residual carries the weight the forces then lack.
+    q = standing(body, 60)
+    q[:, 2] -= 0.03
+    contacts, stationary = np.ones((60, 4), bool), np.zeros(60, bool)
+    weight = body.mass * G
+    lifted = run_physcap(body, q, FPS, contacts, stationary, PhysicsSettings())
+    sunk = run_physcap(body, q, FPS, contacts, stationary, PhysicsSettings(target_lift_time=None))
+    settled = slice(30, None)
+    assert np.all(np.abs(lifted.grf[settled, :, 2].sum(axis=1) - weight) < 0.05 * weight)
+    assert np.abs(lifted.residual[settled, 2]).max() < 0.02 * weight
+    assert np.abs(sunk.residual[settled, 2]).mean() > 0.2 * weight
+    soles = kin.forward_kinematics(body, lifted.qpos[settled]).points[:, body.point_index(CONTACT_POINTS)]
+    assert np.abs(soles[..., 2]).max() < 2e-3
+
+
 def test_flight_has_no_contact_force_and_a_ballistic_centre_of_mass(body):
     q, in_air = jump(body)
     contacts = np.repeat(~in_air[:, None], 4, axis=1)

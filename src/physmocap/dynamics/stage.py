@@ -41,9 +41,10 @@ class PhysicsMotion:
 
 class PhysicsStream:
     """The physics stage one frame at a time (live capture, and `run_physcap` frame by frame): estimates the
-    kinematic velocities causally, corrects balance, and tracks. With refine_floor (an online fit whose floor
-    was estimated, not given) the floor is refined as frames arrive and the character runs on the refined floor;
-    poses and forces come back in the kinematic world (`onto_refined_floor` moves both onto the final floor)."""
+    kinematic velocities causally, lifts targets whose feet sink out of the floor, corrects balance, and tracks.
+    With refine_floor (an online fit whose floor was estimated, not given) the floor is refined as frames arrive
+    and the character runs on the refined floor; poses and forces come back in the kinematic world
+    (`onto_refined_floor` moves both onto the final floor)."""
 
     def __init__(self, body: BodyModel, settings: PhysicsSettings, fps: float, refine_floor: bool = False):
         self.body, self.settings, self.fps = body, settings, fps
@@ -58,6 +59,12 @@ class PhysicsStream:
         smoothing = settings.velocity_smoothing
         self._new_share = 1.0 - np.exp(-1.0 / (fps * smoothing)) if smoothing else 1.0
         self._frames = 0
+        # the targets' lift out of the floor (their lowest predicted contact point's depth, smoothed), and the share
+        # of a new frame's depth taken in (settings.target_lift_time)
+        self._lift = 0.0
+        self._lift_share = (1.0 - np.exp(-1.0 / (fps * settings.target_lift_time))
+                            if settings.target_lift_time is not None and settings.foot_lock != "never" else 0.0)
+        self._target_data = mujoco.MjData(self.tracker.model)
         # kinematic root positions of the last stationary_speed_interval, oldest first (the stationary gate)
         self._roots: deque[np.ndarray] = deque(maxlen=max(1, round(settings.stationary_speed_interval * fps)) + 1)
 
@@ -73,6 +80,8 @@ class PhysicsStream:
         if self.floor is not None:
             self.floor.push(q_kin, contacts)
             q_kin = self.floor.to_physics(q_kin)
+        if self._lift_share:
+            q_kin = self._lifted_out_of_floor(q_kin, contacts)
         # Backward differences (as kinematic_derivatives), the velocity smoothed causally from the second one on
         # (settings.velocity_smoothing); no acceleration before the third frame.
         velocity, acceleration = np.zeros(self.body.nv), np.zeros(self.body.nv)
@@ -97,6 +106,21 @@ class PhysicsStream:
         frame.contact_forces = self.floor.vector_to_kinematic(frame.contact_forces)
         frame.residual[:3] = self.floor.vector_to_kinematic(frame.residual[:3])
         return self.floor.to_kinematic(self.tracker.qpos), frame, corrected
+
+    def _lifted_out_of_floor(self, q_kin: np.ndarray, contacts: np.ndarray) -> np.ndarray:
+        """q_kin raised along the floor normal by the smoothed depth of its lowest predicted contact point within
+        contact_height of the floor, where that point lies under the floor (settings.target_lift_time); a copy."""
+        if contacts.any():
+            self._target_data.qpos[:] = q_kin
+            mujoco.mj_kinematics(self.tracker.model, self._target_data)
+            heights = self._target_data.site_xpos[self.tracker.sites, 2]
+            # only contacts that eq. (5) would accept move the lift; in flight it is held
+            near = contacts & (heights < self.settings.contact_height)
+            if near.any():
+                self._lift += self._lift_share * (max(-heights[near].min(), 0.0) - self._lift)
+        lifted = q_kin.copy()
+        lifted[2] += self._lift
+        return lifted
 
     def root_speed(self) -> float:
         """m/s: the kinematic root's displacement over the last stationary_speed_interval divided by that
