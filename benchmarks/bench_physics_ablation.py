@@ -55,6 +55,8 @@ DEPARTURES = (  # label, {field: the paper's value (or the nearest setting where
     ("+ weight on the feet", {"residual_weight_vertical": DEFAULTS.residual_weight}),  # one root weight
     ("+ touch margin", {"touch_margin": 0.0}),  # a foot point collides only once under the floor
     ("+ floor clearance", {"floor_clearance": 0.0}),  # resting contacts land exactly on the floor
+    ("+ targets lifted out of the floor", {"target_lift_time": None}),  # the kinematic target as it comes
+    ("+ stationary flag checked by root speed", {"stationary_max_speed": None}),  # the network's flag alone
     ("+ online floor refinement (defaults)", {"floor_refit_interval": None}),  # the warm-up's floor kept (online)
 )
 PAPER = dataclasses.replace(DEFAULTS, **{f: v for _, fields in DEPARTURES for f, v in fields.items()})
