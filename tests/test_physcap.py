@@ -9,7 +9,8 @@ from physmocap.body.model import CONTACT_POINTS, build_body_model, template_leng
 from physmocap.config import PhysicsSettings
 from physmocap.dynamics.balance import inside_support
 from physmocap.dynamics.physcap import PhysCapTracker
-from physmocap.dynamics.stage import kinematic_derivatives, run_physcap
+from physmocap.body.rotations import quat_exp, quat_multiply
+from physmocap.dynamics.stage import PhysicsStream, kinematic_derivatives, run_physcap
 from physmocap.kinematics.stage import rigid_transform_qpos
 
 FPS = 25.0
@@ -112,6 +113,28 @@ def test_a_target_sunk_into_the_floor_is_lifted_and_carried_by_the_feet(body):
     assert np.abs(sunk.residual[settled, 2]).mean() > 0.2 * weight
     soles = kin.forward_kinematics(body, lifted.qpos[settled]).points[:, body.point_index(CONTACT_POINTS)]
     assert np.abs(soles[..., 2]).max() < 2e-3
+
+
+def test_a_flat_foot_fitted_tilted_is_turned_flat_before_the_lift(body):
+    # The fit tilts the left foot 10 degrees toes-down while heel and toe are both predicted on the floor: the target
+    # foot is turned flat about the ankle (gradually), so that the lift does not leave the heel hanging.
+    q = standing(body, 40)
+    ankle = body.qpos_address[body.joint_index["left_ankle"]]
+    q[:, ankle:ankle + 4] = quat_multiply(quat_exp(np.radians(10.0) * np.array([0.0, 1.0, 0.0])), q[0, ankle:ankle + 4])
+    contacts = np.ones((40, 4), bool)
+    sole = body.point_index(CONTACT_POINTS)
+    fitted = kin.forward_kinematics(body, q[:1]).points[0, sole, 2]
+    assert abs(fitted[0] - fitted[1]) > 0.02  # the fitted heel and toe of the left foot differ by centimetres
+    for flatten in (True, False):
+        stream = PhysicsStream(body, PhysicsSettings(flatten_feet=flatten), FPS)
+        targets = np.array([stream._target_on_floor(frame, c) for frame, c in zip(q, contacts)])
+        heights = kin.forward_kinematics(body, targets[-5:]).points[:, sole, 2]
+        tilt = np.abs(heights[:, 0] - heights[:, 1])
+        assert np.all(heights > -1e-3)  # lifted out of the floor either way
+        if flatten:
+            assert tilt.max() < 2e-3
+        else:
+            assert tilt.min() > 0.02
 
 
 def test_flight_has_no_contact_force_and_a_ballistic_centre_of_mass(body):

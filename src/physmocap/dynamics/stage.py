@@ -12,12 +12,17 @@ import numpy as np
 
 from ..body import kinematics as kin
 from ..body.model import BodyModel
+from ..body.rotations import matrix_to_quat, quat_conjugate, quat_exp, quat_log, quat_multiply, rotation_between
 from ..camera import Floor, floor_in_camera
 from ..config import PhysicsSettings
 from ..kinematics.stage import KinematicMotion, rigid_transform_qpos
 from .balance import BalanceCorrector
 from .floor import FloorRefiner, floor_frame
 from .physcap import FrameOutput, PhysCapTracker
+
+UP = np.array([0.0, 0.0, 1.0])
+MAX_FLATTENING = np.radians(20.0)  # a foot tilted more than this with heel and toe predicted down is a wrong label
+# or a wrong fit, not a flat foot to correct
 
 
 @dataclass
@@ -59,12 +64,16 @@ class PhysicsStream:
         smoothing = settings.velocity_smoothing
         self._new_share = 1.0 - np.exp(-1.0 / (fps * smoothing)) if smoothing else 1.0
         self._frames = 0
-        # the targets' lift out of the floor (their lowest predicted contact point's depth, smoothed), and the share
-        # of a new frame's depth taken in (settings.target_lift_time)
+        # The targets' lift out of the floor (their lowest predicted contact point's depth, smoothed), how flat each
+        # foot is turned (0 .. 1, smoothed), and the share of a new frame's value taken in (settings.target_lift_time)
         self._lift = 0.0
+        self._flatness = np.zeros(2)
         self._lift_share = (1.0 - np.exp(-1.0 / (fps * settings.target_lift_time))
                             if settings.target_lift_time is not None and settings.foot_lock != "never" else 0.0)
         self._target_data = mujoco.MjData(self.tracker.model)
+        model = self.tracker.model
+        self._feet = [(model.body(f"{side}_foot").id, model.jnt_qposadr[model.body_jntadr[model.body(f"{side}_foot").id]])
+                      for side in ("left", "right")]
         # kinematic root positions of the last stationary_speed_interval, oldest first (the stationary gate)
         self._roots: deque[np.ndarray] = deque(maxlen=max(1, round(settings.stationary_speed_interval * fps)) + 1)
 
@@ -81,7 +90,7 @@ class PhysicsStream:
             self.floor.push(q_kin, contacts)
             q_kin = self.floor.to_physics(q_kin)
         if self._lift_share:
-            q_kin = self._lifted_out_of_floor(q_kin, contacts)
+            q_kin = self._target_on_floor(q_kin, contacts)
         # Backward differences (as kinematic_derivatives), the velocity smoothed causally from the second one on
         # (settings.velocity_smoothing); no acceleration before the third frame.
         velocity, acceleration = np.zeros(self.body.nv), np.zeros(self.body.nv)
@@ -107,20 +116,36 @@ class PhysicsStream:
         frame.residual[:3] = self.floor.vector_to_kinematic(frame.residual[:3])
         return self.floor.to_kinematic(self.tracker.qpos), frame, corrected
 
-    def _lifted_out_of_floor(self, q_kin: np.ndarray, contacts: np.ndarray) -> np.ndarray:
-        """q_kin raised along the floor normal by the smoothed depth of its lowest predicted contact point within
-        contact_height of the floor, where that point lies under the floor (settings.target_lift_time); a copy."""
-        if contacts.any():
-            self._target_data.qpos[:] = q_kin
-            mujoco.mj_kinematics(self.tracker.model, self._target_data)
-            heights = self._target_data.site_xpos[self.tracker.sites, 2]
-            # only contacts that eq. (5) would accept move the lift; in flight it is held
-            near = contacts & (heights < self.settings.contact_height)
-            if near.any():
-                self._lift += self._lift_share * (max(-heights[near].min(), 0.0) - self._lift)
-        lifted = q_kin.copy()
-        lifted[2] += self._lift
-        return lifted
+    def _target_on_floor(self, q_kin: np.ndarray, contacts: np.ndarray) -> np.ndarray:
+        """q_kin with each foot whose heel and toe are both predicted in contact turned flat (about the ankle, by
+        at most MAX_FLATTENING), then raised along the floor normal by the depth of its lowest predicted contact
+        point under the floor; both smoothed with settings.target_lift_time. Only contacts that eq. (5) would
+        accept (within contact_height of the floor) count; in flight the lift is held. A copy."""
+        target, data, model = q_kin.copy(), self._target_data, self.tracker.model
+        data.qpos[:] = target
+        mujoco.mj_kinematics(model, data)
+        near = contacts & (data.site_xpos[self.tracker.sites, 2] < self.settings.contact_height)
+        if self.settings.flatten_feet:
+            for side, (body, address) in enumerate(self._feet):
+                heel_to_toe = data.xmat[body].reshape(3, 3)[:, 0]  # the foot's x axis (heel and toe share a height)
+                level = heel_to_toe - heel_to_toe[2] * UP
+                length = np.linalg.norm(level)
+                if length < 1e-6:  # a foot pointing straight up or down: no level direction, and no flat foot
+                    continue
+                level /= length
+                flat = near[2 * side] and near[2 * side + 1] and heel_to_toe @ level > np.cos(MAX_FLATTENING)
+                self._flatness[side] += self._lift_share * (float(flat) - self._flatness[side])
+                turn = self._flatness[side] * quat_log(matrix_to_quat(rotation_between(heel_to_toe, level)))
+                parent = data.xquat[model.body_parentid[body]]  # the world turn expressed in the ankle's frame
+                local = quat_multiply(quat_conjugate(parent), quat_multiply(quat_exp(turn), parent))
+                target[address:address + 4] = quat_multiply(local, target[address:address + 4])
+            data.qpos[:] = target
+            mujoco.mj_kinematics(model, data)
+        if near.any():
+            depth = -data.site_xpos[self.tracker.sites[near], 2].min()
+            self._lift += self._lift_share * (max(depth, 0.0) - self._lift)
+        target[2] += self._lift
+        return target
 
     def root_speed(self) -> float:
         """m/s: the kinematic root's displacement over the last stationary_speed_interval divided by that
