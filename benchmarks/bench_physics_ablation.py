@@ -56,6 +56,7 @@ DEPARTURES = (  # label, {field: the paper's value (or the nearest setting where
     ("+ touch margin", {"touch_margin": 0.0}),  # a foot point collides only once under the floor
     ("+ floor clearance", {"floor_clearance": 0.0}),  # resting contacts land exactly on the floor
     ("+ targets lifted out of the floor", {"target_lift_time": None}),  # the kinematic target as it comes
+    ("+ flat feet in the targets", {"flatten_feet": False}),  # a fitted foot keeps its tilt
     ("+ stationary flag checked by root speed", {"stationary_max_speed": None}),  # the network's flag alone
     ("+ online floor refinement (defaults)", {"floor_refit_interval": None}),  # the warm-up's floor kept (online)
 )
