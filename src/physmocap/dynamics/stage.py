@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -12,7 +13,6 @@ import numpy as np
 
 from ..body import kinematics as kin
 from ..body.model import BodyModel
-from ..body.rotations import matrix_to_quat, quat_conjugate, quat_exp, quat_log, quat_multiply, rotation_between
 from ..camera import Floor, floor_in_camera
 from ..config import PhysicsSettings
 from ..kinematics.stage import KinematicMotion, rigid_transform_qpos
@@ -20,7 +20,6 @@ from .balance import BalanceCorrector
 from .floor import FloorRefiner, floor_frame
 from .physcap import FrameOutput, PhysCapTracker
 
-UP = np.array([0.0, 0.0, 1.0])
 MAX_FLATTENING = np.radians(20.0)  # a foot tilted more than this with heel and toe predicted down is a wrong label
 # or a wrong fit, not a flat foot to correct
 
@@ -72,8 +71,9 @@ class PhysicsStream:
                             if settings.target_lift_time is not None and settings.foot_lock != "never" else 0.0)
         self._target_data = mujoco.MjData(self.tracker.model)
         model = self.tracker.model
-        self._feet = [(model.body(f"{side}_foot").id, model.jnt_qposadr[model.body_jntadr[model.body(f"{side}_foot").id]])
-                      for side in ("left", "right")]
+        feet = [model.body(f"{side}_foot").id for side in ("left", "right")]
+        self._feet = [(foot, model.body_parentid[foot], model.jnt_qposadr[model.body_jntadr[foot]]) for foot in feet]
+        self._turn, self._quat = np.zeros(4), np.zeros(4)
         # kinematic root positions of the last stationary_speed_interval, oldest first (the stationary gate)
         self._roots: deque[np.ndarray] = deque(maxlen=max(1, round(settings.stationary_speed_interval * fps)) + 1)
 
@@ -126,19 +126,22 @@ class PhysicsStream:
         mujoco.mj_kinematics(model, data)
         near = contacts & (data.site_xpos[self.tracker.sites, 2] < self.settings.contact_height)
         if self.settings.flatten_feet:
-            for side, (body, address) in enumerate(self._feet):
-                heel_to_toe = data.xmat[body].reshape(3, 3)[:, 0]  # the foot's x axis (heel and toe share a height)
-                level = heel_to_toe - heel_to_toe[2] * UP
-                length = np.linalg.norm(level)
+            for side, (body, parent, address) in enumerate(self._feet):
+                x, y, z = data.xmat[body, 0], data.xmat[body, 3], data.xmat[body, 6]  # the foot's heel -> toe axis
+                length = math.hypot(x, y)
                 if length < 1e-6:  # a foot pointing straight up or down: no level direction, and no flat foot
                     continue
-                level /= length
-                flat = near[2 * side] and near[2 * side + 1] and heel_to_toe @ level > np.cos(MAX_FLATTENING)
+                tilt = math.atan2(z, length)  # toes up > 0; turning by it about (-y, x, 0) / length levels the foot
+                flat = near[2 * side] and near[2 * side + 1] and abs(tilt) < MAX_FLATTENING
                 self._flatness[side] += self._lift_share * (float(flat) - self._flatness[side])
-                turn = self._flatness[side] * quat_log(matrix_to_quat(rotation_between(heel_to_toe, level)))
-                parent = data.xquat[model.body_parentid[body]]  # the world turn expressed in the ankle's frame
-                local = quat_multiply(quat_conjugate(parent), quat_multiply(quat_exp(turn), parent))
-                target[address:address + 4] = quat_multiply(local, target[address:address + 4])
+                if self._flatness[side] < 1e-6:
+                    continue
+                # The turn about that world axis, expressed in the ankle's (parent body's) frame: R_parent' axis.
+                axis = data.xmat[parent].reshape(3, 3).T @ np.array([-y / length, x / length, 0.0])
+                half = 0.5 * self._flatness[side] * tilt
+                self._turn[0], self._turn[1:] = math.cos(half), math.sin(half) * axis
+                mujoco.mju_mulQuat(self._quat, self._turn, target[address:address + 4])
+                target[address:address + 4] = self._quat
             data.qpos[:] = target
             mujoco.mj_kinematics(model, data)
         if near.any():
