@@ -3,7 +3,8 @@
 Trains one network (`--mode causal|centred`) on the synthetic data of the training subjects minus `--val`, then
 prints two JSON lines, without and with the mirrored input's votes (`predict.network_probabilities`): accuracy,
 precision, recall, F1 and stationary accuracy on the validation subjects (4 variants per clip, seed 1, the
-measured noise, labelled with the given label settings) and accuracy on the hand-labelled real frames. The
+measured noise, labelled with the given label settings), their accuracy at frames with a raised heel or a skimming
+foot and at the others (`labels.hard_frames`), and accuracy on the hand-labelled real frames. The
 figures in the docstrings of `contacts/train.py` and `SyntheticSettings.variants_per_clip` came from it, for
 example
 
@@ -55,6 +56,18 @@ def real_accuracy(params: dict[str, np.ndarray], mode: str, mirror: bool) -> tup
     return float(np.concatenate(right).mean()), per_video
 
 
+def hard_frame_accuracy(params: dict[str, np.ndarray], mode: str, sequences: list, mirror: bool) -> dict[str, float]:
+    """Validation accuracy of the contact entries at frames with a raised heel or a skimming foot
+    (`SyntheticSequence.hard`) and at the others."""
+    right = {"hard": [], "other": []}
+    for sequence in sequences:
+        _, flags = network_probabilities(sequence.keypoints_2d, sequence.valid, sequence.fps, params, mode, mirror)
+        correct = flags[:, :4] == sequence.contacts
+        right["hard"].append(correct[sequence.hard])
+        right["other"].append(correct[~sequence.hard])
+    return {name: float(np.concatenate(parts).mean()) for name, parts in right.items()}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--mode", choices=("causal", "centred"), default="centred")
@@ -77,6 +90,10 @@ def main() -> None:
     parser.add_argument("--playback", default=",".join(map(str, SyntheticSettings().playback_speed_range)),
                         help="playback speed range of the synthetic motion, 'low,high'")
     parser.add_argument("--positive-weight", type=float, default=1.0, help="loss weight of the contact class")
+    parser.add_argument("--hard-frame-weight", type=float, default=train.TrainSettings().hard_frame_weight,
+                        help="sampling weight of raised-heel and skimming frames (TrainSettings.hard_frame_weight)")
+    parser.add_argument("--label-change-margin", type=float, default=train.TrainSettings().label_change_margin,
+                        help="s around label changes left out of the loss (TrainSettings.label_change_margin)")
     args = parser.parse_args()
     started = time.perf_counter()
     torch.set_num_threads(1)
@@ -104,13 +121,17 @@ def main() -> None:
             spec = train.CentredNetSpec() if args.dropout is None else train.CentredNetSpec(dropout=args.dropout)
             model, window = train.TorchCentredNet(spec), spec.window
         train.train_network(model, table, window, train.TrainSettings(epochs=args.epochs, learning_rate=args.learning_rate,
-                                                                          positive_weight=args.positive_weight),
+                                                                          positive_weight=args.positive_weight,
+                                                                          hard_frame_weight=args.hard_frame_weight,
+                                                                          label_change_margin=args.label_change_margin),
                             20 + args.seed, log=lambda _: None)
         params = model.export()
         if args.save is not None:
             np.savez(args.save, **params)
     for mirror in (False, True):
-        scores = train.evaluate(params, args.mode, validation, mirror)
+        scores = {**train.evaluate(params, args.mode, validation, mirror),
+                  **{f"{name}_frames_accuracy": value
+                     for name, value in hard_frame_accuracy(params, args.mode, validation, mirror).items()}}
         real, per_video = real_accuracy(params, args.mode, mirror)
         print(json.dumps(dict(settings=vars(args), mirror=mirror,
                               validation={k: round(v, 3) for k, v in scores.items()}, real=round(real, 3),

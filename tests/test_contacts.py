@@ -14,7 +14,9 @@ from physmocap.contacts.features import (
     CAUSAL_WINDOW, CENTRED_WINDOW, FEATURE_INDICES, mirror_keypoints, normalise_windows, select_keypoints,
     window_indices, window_inputs,
 )
-from physmocap.contacts.labels import LabelSettings, contact_labels, point_speed, stationary_labels, without_short_phases
+from physmocap.contacts.labels import (
+    LabelSettings, contact_labels, hard_frames, point_speed, stationary_labels, without_short_phases,
+)
 from physmocap.contacts.networks import FRAME_CHANNELS, NUM_OUTPUTS, CausalNetSpec, CentredNetSpec, causal_forward, centred_forward
 from physmocap.contacts.predict import load_weights, network_probabilities, predict_contacts
 from physmocap.landmarks import LANDMARK_INDEX, MIRRORED
@@ -51,6 +53,20 @@ def test_a_slow_slide_is_a_contact_unlike_in_rempes_rule():
     sites = sites_track(30.0, 1.0, 0.0, 0.8)
     assert contact_labels(sites, 30.0).all()
     assert not contact_labels(sites, 30.0, LabelSettings(contact_max_speed=0.6)).any()
+
+
+def test_hard_frames_are_raised_heels_and_skimming_feet():
+    fps = 30.0
+    flat = sites_track(fps, 1.0, 0.0, 0.0)
+    raised = flat.copy()
+    raised[:, 0, 2] = 0.08  # left heel 8 cm up and still, its toe planted: on the ball of the foot
+    skimming = flat.copy()
+    skimming[:, 3] = sites_track(fps, 1.0, 0.02, 2.0)[:, 3]  # right toe 2 cm up at 2 m/s
+    lifted = flat.copy()
+    lifted[:, :2, 2] = 0.08  # the whole left foot held up: neither
+    for sites, expected in ((flat, False), (raised, True), (skimming, True), (lifted, False)):
+        hard = hard_frames(sites, fps, contact_labels(sites, fps))
+        assert hard.shape == (len(sites),) and hard[1:].all() == expected and hard[1:].any() == expected
 
 
 def test_contact_rule_thresholds_are_settings():
@@ -331,6 +347,36 @@ def test_training_runs_a_few_steps(tmp_path):
                            log=lambda _: None, modes=("centred",))
     assert "causal" not in alone and not (tmp_path / "centred" / "causal.npz").exists()
     assert all(np.array_equal(first["centred"][k], v) for k, v in np.load(tmp_path / "centred" / "centred.npz").items())
+
+
+@pytest.mark.parametrize("weight", [1.0, 9.0])
+def test_hard_frame_weight_oversamples_hard_targets(weight):
+    pytest.importorskip("torch")
+    from physmocap.contacts.train import FrameTable, TorchCentredNet, TrainSettings, train_network
+
+    frames = 2000
+    rng = np.random.default_rng(0)
+    hard = np.arange(frames) < frames // 10
+    targets = []
+
+    class Recording(FrameTable):
+        def batch(self, chosen, *args):
+            targets.append(chosen)
+            return super().batch(chosen, *args)
+
+    table = Recording(points=rng.random((frames, 12, 3), dtype=np.float32), interval=np.ones(frames, np.float32),
+                      labels=np.zeros((frames, 5), np.float32), sequence_start=np.zeros(frames, int),
+                      sequence_length=np.full(frames, frames), hard=hard)
+    spec = CentredNetSpec(hidden=(8, 8))
+    settings = TrainSettings(epochs=1, batch_size=100, hard_frame_weight=weight)
+    result = train_network(TorchCentredNet(spec), table, spec.window, settings, 0, log=lambda _: None)
+    chosen = np.concatenate(targets)
+    assert result["steps"] == 20 and len(chosen) == frames  # the same number of steps and targets
+    share = hard[chosen].mean()
+    if weight == 1.0:
+        assert np.array_equal(np.sort(chosen), np.arange(frames)) and share == 0.1
+    else:
+        assert 0.45 < share < 0.55  # 200 x 9 against 1800 x 1
 
 
 @needs_shared

@@ -26,7 +26,7 @@ from ..landmarks import MIRRORED
 from ..mocap.bvh_reader import JOINT_INDEX, MocapClip, cmu_subject, load_mocap
 from ..mocap.synthetic import NoiseModel, make_observations, random_camera, resample
 from .features import mirror_keypoints
-from .labels import CONTACT_SITE_INDICES, LabelSettings, motion_labels, point_speed
+from .labels import CONTACT_SITE_INDICES, LabelSettings, hard_frames, motion_labels, point_speed
 from .noise import MEDIAPIPE_NOISE
 
 TEST_SUBJECTS: tuple[str, ...] = ("6", "131")
@@ -111,6 +111,7 @@ class SyntheticSequence:
     fps: frames per second. image_size: (width, height) pixels.
     keypoints_2d: (T, 33, 3) pixels + confidence. landmarks_3d: (T, 33, 3) metres, hip-relative, camera axes.
     contacts: (T, 4) bool, l heel, l toe, r heel, r toe. stationary: (T,) bool.
+    hard: (T,) bool, frames of a raised heel or a skimming foot in the played motion (`labels.hard_frames`).
     """
 
     name: str
@@ -121,6 +122,7 @@ class SyntheticSequence:
     landmarks_3d: np.ndarray
     contacts: np.ndarray
     stationary: np.ndarray
+    hard: np.ndarray
 
     @property
     def num_frames(self) -> int:
@@ -210,11 +212,12 @@ def synthesise(clip: MocapClip, variant: int, seed: int, settings: SyntheticSett
                        hand_rotations=clip.hand_rotations[::-1])
     clip = replace(clip, fps=clip.fps * float(rng.uniform(*settings.playback_speed_range)))
     contacts, stationary = motion_labels(clip.positions, clip.fps, settings.labels)
+    hard = hard_frames(clip.positions[:, CONTACT_SITE_INDICES], clip.fps, contacts, settings.labels)
     body = vary_proportions(clip, rng, settings)
     fps = float(rng.uniform(*settings.fps_range))
     filmed = resample(body, fps)
     source_frames = np.minimum(np.rint(np.arange(filmed.num_frames) * clip.fps / fps).astype(int), clip.num_frames - 1)
-    contacts, stationary = contacts[source_frames], stationary[source_frames]
+    contacts, stationary, hard = contacts[source_frames], stationary[source_frames], hard[source_frames]
     image_size = (1080, 1920) if rng.random() < settings.portrait_probability else (1280, 720)
     K, R, t = random_camera(filmed, rng, image_size)
     observations, _ = make_observations(filmed, K, R, t, rng, settings.noise, image_size)
@@ -226,7 +229,7 @@ def synthesise(clip: MocapClip, variant: int, seed: int, settings: SyntheticSett
     return SyntheticSequence(
         name=f"{clip.name}#{variant}", subject=clip.subject, fps=fps, image_size=image_size,
         keypoints_2d=keypoints_2d.astype(np.float32), landmarks_3d=landmarks_3d.astype(np.float32),
-        contacts=contacts, stationary=stationary,
+        contacts=contacts, stationary=stationary, hard=hard,
     )
 
 

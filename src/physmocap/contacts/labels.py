@@ -175,6 +175,31 @@ def stationary_labels(root: np.ndarray, fps: float, settings: LabelSettings = La
     return point_speed(root, fps, settings.stationary_speed_interval, centred=True) < settings.stationary_max_speed
 
 
+RAISED_HEEL_MAX_HEIGHT = 0.12  # m: a heel up to this high over its planted toe is a stance on the ball of the foot
+
+
+def hard_frames(
+    sites: np.ndarray, fps: float, contacts: np.ndarray, settings: LabelSettings = LabelSettings()
+) -> np.ndarray:
+    """Frames in the two kinds of motion where the networks err most on held-out subjects (scripts/contact_errors.py).
+
+    sites: (T, 4, 3) as for `contact_labels`; contacts: their (T, 4) labels. A frame is hard when some site is
+    - a raised heel: not in contact, above `contact_max_height` and below RAISED_HEEL_MAX_HEIGHT, slower than
+      `contact_max_speed`, while the toe of the same foot is in contact; or
+    - skimming: not in contact, below `contact_max_height` but at `contact_max_speed` or faster.
+    Returns (T,) bool.
+    """
+    sites = np.asarray(sites, dtype=float)
+    height = sites[..., 2]
+    slow = point_speed(sites, fps, settings.contact_speed_interval, centred=False) < settings.contact_max_speed
+    low = height < settings.contact_max_height
+    skimming = ~contacts & low & ~slow
+    heels, toes = [0, 2], [1, 3]
+    raised = (~contacts[:, heels] & contacts[:, toes] & ~low[:, heels] & (height[:, heels] < RAISED_HEEL_MAX_HEIGHT)
+              & slow[:, heels])
+    return skimming.any(axis=1) | raised.any(axis=1)
+
+
 def motion_labels(
     positions: np.ndarray, fps: float, settings: LabelSettings = LabelSettings()
 ) -> tuple[np.ndarray, np.ndarray]:
