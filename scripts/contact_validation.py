@@ -92,8 +92,6 @@ def main() -> None:
     parser.add_argument("--positive-weight", type=float, default=1.0, help="loss weight of the contact class")
     parser.add_argument("--hard-frame-weight", type=float, default=train.TrainSettings().hard_frame_weight,
                         help="sampling weight of raised-heel and skimming frames (TrainSettings.hard_frame_weight)")
-    parser.add_argument("--label-change-margin", type=float, default=train.TrainSettings().label_change_margin,
-                        help="s around label changes left out of the loss (TrainSettings.label_change_margin)")
     args = parser.parse_args()
     started = time.perf_counter()
     torch.set_num_threads(1)
@@ -122,8 +120,7 @@ def main() -> None:
             model, window = train.TorchCentredNet(spec), spec.window
         train.train_network(model, table, window, train.TrainSettings(epochs=args.epochs, learning_rate=args.learning_rate,
                                                                           positive_weight=args.positive_weight,
-                                                                          hard_frame_weight=args.hard_frame_weight,
-                                                                          label_change_margin=args.label_change_margin),
+                                                                          hard_frame_weight=args.hard_frame_weight),
                             20 + args.seed, log=lambda _: None)
         params = model.export()
         if args.save is not None:
