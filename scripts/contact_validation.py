@@ -89,12 +89,6 @@ def main() -> None:
     parser.add_argument("--dropout", type=float, help="the network's dropout (default: its spec's)")
     parser.add_argument("--playback", default=",".join(map(str, SyntheticSettings().playback_speed_range)),
                         help="playback speed range of the synthetic motion, 'low,high'")
-    parser.add_argument("--thigh-share-scale", default=",".join(map(str, SyntheticSettings().thigh_share_scale_range)),
-                        help="range of the training bodies' thigh share factor (SyntheticSettings."
-                             "thigh_share_scale_range), 'low,high'")
-    parser.add_argument("--hip-width-scale", default=",".join(map(str, SyntheticSettings().hip_width_scale_range)),
-                        help="range of the training bodies' hip width factor (SyntheticSettings.hip_width_scale_range), "
-                             "'low,high'")
     parser.add_argument("--positive-weight", type=float, default=1.0, help="loss weight of the contact class")
     parser.add_argument("--hard-frame-weight", type=float, default=train.TrainSettings().hard_frame_weight,
                         help="sampling weight of raised-heel and skimming frames (TrainSettings.hard_frame_weight)")
@@ -103,8 +97,6 @@ def main() -> None:
     torch.set_num_threads(1)
     synthetic = SyntheticSettings(variants_per_clip=args.variants,
                                   playback_speed_range=tuple(float(v) for v in args.playback.split(",")),
-                                  thigh_share_scale_range=tuple(float(v) for v in args.thigh_share_scale.split(",")),
-                                  hip_width_scale_range=tuple(float(v) for v in args.hip_width_scale.split(",")),
                                   labels=LabelSettings(min_phase_seconds=args.min_phase_seconds,
                                                         contact_max_speed=args.max_speed,
                                                         contact_max_height=args.max_height))

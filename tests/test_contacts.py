@@ -311,58 +311,6 @@ def test_split_by_subject_never_shares_a_subject():
     assert [f.name for f in train] == ["02_01.bvh", "002_05.bvh", "007_01.bvh"]
 
 
-def test_vary_knees_moves_only_the_knees_and_keeps_the_leg_lengths():
-    from physmocap.contacts.dataset import SyntheticSettings, vary_knees
-    from physmocap.mocap.bvh_reader import JOINT_INDEX, JOINT_NAMES, MocapClip
-
-    # A leg bending from straight to a 90-degree knee: thigh 0.4 m, shin 0.5 m, hip above the ankle's path.
-    bend = np.linspace(0.0, np.pi / 2, 20)
-    positions = np.zeros((len(bend), len(JOINT_NAMES), 3))
-    for side, y in (("left", 0.1), ("right", -0.1)):
-        hip = np.array([0.0, y, 0.9])
-        knee = hip + 0.4 * np.stack([np.sin(bend / 2), 0 * bend, -np.cos(bend / 2)], axis=1)
-        ankle = knee + 0.5 * np.stack([-np.sin(bend / 2), 0 * bend, -np.cos(bend / 2)], axis=1)
-        positions[:, JOINT_INDEX[f"{side}_hip"]] = hip
-        positions[:, JOINT_INDEX[f"{side}_knee"]] = knee
-        positions[:, JOINT_INDEX[f"{side}_ankle"]] = ankle
-    clip = MocapClip("hand", "0", 30.0, JOINT_NAMES, positions, np.zeros((20, 3, 3)), np.zeros((20, 2, 3, 3)), "cc3")
-    out = vary_knees(clip, np.random.default_rng(0), SyntheticSettings(thigh_share_scale_range=(1.2, 1.2)))
-    knees = [JOINT_INDEX["left_knee"], JOINT_INDEX["right_knee"]]
-    others = [i for i in range(len(JOINT_NAMES)) if i not in knees]
-    assert np.array_equal(out.positions[:, others], positions[:, others])
-    for side in ("left", "right"):
-        hip, knee, ankle = (out.positions[:, JOINT_INDEX[f"{side}_{part}"]] for part in ("hip", "knee", "ankle"))
-        np.testing.assert_allclose(np.linalg.norm(knee - hip, axis=1), 1.2 * 0.4, atol=1e-9)  # share 4/9 -> 1.2 x
-        np.testing.assert_allclose(np.linalg.norm(ankle - knee, axis=1), 0.9 - 1.2 * 0.4, atol=1e-9)
-        np.testing.assert_allclose(knee[:, 1], hip[:, 1], atol=1e-12)  # in the leg's plane
-        assert (knee[1:, 0] > hip[1:, 0]).all()  # bending forwards, as before
-    same = vary_knees(clip, np.random.default_rng(0), SyntheticSettings(thigh_share_scale_range=(1.0, 1.0)))
-    np.testing.assert_allclose(same.positions, positions, atol=1e-9)
-
-
-def test_vary_hips_moves_the_legs_rigidly_sideways():
-    from physmocap.contacts.dataset import SyntheticSettings, vary_hips
-    from physmocap.mocap.bvh_reader import JOINT_INDEX, JOINT_NAMES, MocapClip
-
-    rng = np.random.default_rng(3)
-    positions = rng.normal(size=(10, len(JOINT_NAMES), 3))
-    positions[:, JOINT_INDEX["left_hip"]] = [0.0, 0.1, 0.9]
-    positions[:, JOINT_INDEX["right_hip"]] = [0.0, -0.1, 0.95]  # a rolled pelvis: only the width across changes
-    clip = MocapClip("hand", "0", 30.0, JOINT_NAMES, positions, np.zeros((10, 3, 3)), np.zeros((10, 2, 3, 3)), "cc3")
-    out = vary_hips(clip, rng, SyntheticSettings(hip_width_scale_range=(0.8, 0.8))).positions
-    np.testing.assert_allclose(out[:, JOINT_INDEX["left_hip"]], [[0.0, 0.08, 0.9]] * 10)
-    np.testing.assert_allclose(out[:, JOINT_INDEX["right_hip"]], [[0.0, -0.08, 0.95]] * 10)
-    np.testing.assert_array_equal(out[..., 2], positions[..., 2])  # every height kept
-    for side, sign in (("left", -1.0), ("right", 1.0)):
-        leg = [JOINT_INDEX[f"{side}_{part}"] for part in ("hip", "knee", "ankle", "heel", "toe")]
-        np.testing.assert_allclose(out[:, leg] - positions[:, leg], [[[0.0, sign * 0.02, 0.0]] * 5] * 10, atol=1e-12)
-    rest = [i for i, name in enumerate(JOINT_NAMES) if not name.startswith(("left_hip", "left_knee", "left_ankle",
-                                                                             "left_heel", "left_toe", "right_hip",
-                                                                             "right_knee", "right_ankle", "right_heel",
-                                                                             "right_toe"))]
-    np.testing.assert_array_equal(out[:, rest], positions[:, rest])
-
-
 @needs_shared
 def test_synthetic_sequences_are_deterministic_and_labelled():
     from physmocap.contacts.dataset import SyntheticSettings, load_clips, make_sequences

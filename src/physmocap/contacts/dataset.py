@@ -74,14 +74,6 @@ class SyntheticSettings:
         CMU actors into people of about 1.45-1.95 m).
     upper_body_scale_range: trunk, head and arms scaled about the pelvis, uniform (trunk-to-leg ratio).
     arm_scale_range: elbows and wrists scaled about the shoulders, uniform.
-    thigh_share_scale_range: the thigh's share of the leg (hip-knee over hip-knee plus knee-ankle) multiplied by
-        this factor, uniform, both legs alike; the knee moves in its leg's plane with hip and ankle kept, so the
-        feet and their labels stay (`vary_knees`). The share is 0.489 on the CC3 avatar and raw CMU subject 2,
-        0.513 on raw test subject 131 (x1.049). (1, 1) (off, the shipped weights' data; no draw is made).
-    hip_width_scale_range: the hips' horizontal separation scaled by this factor, uniform, each leg following
-        rigidly (`vary_hips`); the feet keep their heights and move sideways by at most a few centimetres. Hip
-        width over leg length is 0.199 on the CC3 avatar, 0.161 on raw subject 2, 0.171 on raw subject 131.
-        (1, 1) (off, the shipped weights' data; no draw is made).
     portrait_probability: chance of a 1080 x 1920 portrait image instead of 1280 x 720 (phone videos).
     noise: the detector's errors.
     labels: the automatic label thresholds.
@@ -96,8 +88,6 @@ class SyntheticSettings:
     stature_scale_range: tuple[float, float] = (0.85, 1.12)
     upper_body_scale_range: tuple[float, float] = (0.9, 1.1)
     arm_scale_range: tuple[float, float] = (0.9, 1.1)
-    thigh_share_scale_range: tuple[float, float] = (1.0, 1.0)
-    hip_width_scale_range: tuple[float, float] = (1.0, 1.0)
     portrait_probability: float = 0.3
     noise: NoiseModel = field(default=MEDIAPIPE_NOISE)
     labels: LabelSettings = field(default_factory=LabelSettings)
@@ -198,51 +188,6 @@ def vary_proportions(clip: MocapClip, rng: np.random.Generator, settings: Synthe
     return replace(clip, positions=positions)
 
 
-def vary_knees(clip: MocapClip, rng: np.random.Generator, settings: SyntheticSettings) -> MocapClip:
-    """The clip with the thigh's share of each leg scaled by a factor drawn from settings.thigh_share_scale_range.
-
-    Each leg keeps its length (hip-knee plus knee-ankle, constant in a BVH) and its hip and ankle: the knee is
-    put where thigh and shin of the new lengths meet, in the plane of hip, ankle and the old knee, on the old
-    knee's side of the hip-ankle line. A leg folded tighter than the new lengths allow takes the closest reach.
-    """
-    factor = rng.uniform(*settings.thigh_share_scale_range)
-    positions = clip.positions.copy()
-    for side in ("left", "right"):
-        hip, knee, ankle = (positions[:, JOINT_INDEX[f"{side}_{part}"]] for part in ("hip", "knee", "ankle"))
-        thigh = np.median(np.linalg.norm(knee - hip, axis=1))
-        leg = thigh + np.median(np.linalg.norm(ankle - knee, axis=1))
-        thigh = float(np.clip(factor * thigh / leg, 0.0, 1.0)) * leg
-        shin = leg - thigh
-        reach = np.linalg.norm(ankle - hip, axis=1)
-        along_leg = (ankle - hip) / np.maximum(reach, 1e-9)[:, None]
-        reach = np.clip(reach, abs(thigh - shin), leg)[:, None]
-        bend = knee - hip
-        bend -= np.sum(bend * along_leg, axis=1, keepdims=True) * along_leg
-        bend /= np.maximum(np.linalg.norm(bend, axis=1, keepdims=True), 1e-9)  # a straight leg: zero, and so is h
-        along = (thigh**2 - shin**2 + reach**2) / (2.0 * reach)
-        h = np.sqrt(np.maximum(thigh**2 - along**2, 0.0))
-        positions[:, JOINT_INDEX[f"{side}_knee"]] = hip + along * along_leg + h * bend
-    return replace(clip, positions=positions)
-
-
-_LEGS = {side: tuple(JOINT_INDEX[f"{side}_{part}"] for part in ("hip", "knee", "ankle", "heel", "toe"))
-         for side in ("left", "right")}
-
-
-def vary_hips(clip: MocapClip, rng: np.random.Generator, settings: SyntheticSettings) -> MocapClip:
-    """The clip with the hips' horizontal separation scaled by a factor drawn from settings.hip_width_scale_range
-    about the pelvis, each leg translated with its hip: the feet keep their heights, so contacts stay contacts
-    (a planted foot slides by the change of width times the pelvis's turn, millimetres)."""
-    factor = rng.uniform(*settings.hip_width_scale_range)
-    positions = clip.positions.copy()
-    across = positions[:, JOINT_INDEX["left_hip"]] - positions[:, JOINT_INDEX["right_hip"]]
-    across[:, 2] = 0.0
-    shift = 0.5 * (factor - 1.0) * across[:, None]
-    positions[:, _LEGS["left"]] += shift
-    positions[:, _LEGS["right"]] -= shift
-    return replace(clip, positions=positions)
-
-
 def _segment(clip: MocapClip, rng: np.random.Generator, max_seconds: float) -> MocapClip:
     """A random segment of at most max_seconds of the clip (the whole clip if it is shorter)."""
     length = int(round(max_seconds * clip.fps))
@@ -254,8 +199,8 @@ def _segment(clip: MocapClip, rng: np.random.Generator, max_seconds: float) -> M
                    hand_rotations=clip.hand_rotations[part])
 
 
-def _sequence_rng(seed: int, clip_name: str, variant: int, *stream: int) -> np.random.Generator:
-    return np.random.default_rng([seed, zlib.crc32(clip_name.encode()), variant, *stream])
+def _sequence_rng(seed: int, clip_name: str, variant: int) -> np.random.Generator:
+    return np.random.default_rng([seed, zlib.crc32(clip_name.encode()), variant])
 
 
 def synthesise(clip: MocapClip, variant: int, seed: int, settings: SyntheticSettings = SyntheticSettings()) -> SyntheticSequence:
@@ -269,11 +214,6 @@ def synthesise(clip: MocapClip, variant: int, seed: int, settings: SyntheticSett
     contacts, stationary = motion_labels(clip.positions, clip.fps, settings.labels)
     hard = hard_frames(clip.positions[:, CONTACT_SITE_INDICES], clip.fps, contacts, settings.labels)
     body = vary_proportions(clip, rng, settings)
-    if settings.thigh_share_scale_range != (1.0, 1.0):
-        # Its own generator, so that the other draws (cameras, rates, noise) stay those of the same seed without it.
-        body = vary_knees(body, _sequence_rng(seed, f"{clip.skeleton}:{clip.name}", variant, 1), settings)
-    if settings.hip_width_scale_range != (1.0, 1.0):
-        body = vary_hips(body, _sequence_rng(seed, f"{clip.skeleton}:{clip.name}", variant, 2), settings)
     fps = float(rng.uniform(*settings.fps_range))
     filmed = resample(body, fps)
     source_frames = np.minimum(np.rint(np.arange(filmed.num_frames) * clip.fps / fps).astype(int), clip.num_frames - 1)
