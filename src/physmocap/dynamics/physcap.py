@@ -81,6 +81,7 @@ class PhysCapTracker:
         self.mass_matrix = np.zeros((nv, nv))
         self.bias = np.zeros(nv)
         self.identity = np.eye(nv)
+        self._weighted_mass, self._hessian = np.zeros((nv, nv)), np.zeros((nv, nv))
         self.grf_rows = np.kron(np.eye(4), self.pyramid)  # (16, 12); the first 4k rows, 3k columns for k contacts
         self._pyramid_upper, self._pyramid_lower = np.full(16, INF), np.zeros(16)  # each row >= 0
         self.grf_regularisation = 1e-4 * np.eye(12)  # H = A A^T has rank 6: at 1e-6 daqp called 8% of
@@ -152,7 +153,11 @@ class PhysCapTracker:
         M, dt, nv = self.mass_matrix, self.dt, self.model.nv
         W = self.torque_weights
         external = self.contact_jacobian.reshape(12, -1).T @ forces.ravel()
-        H = 2.0 * (self.identity + M @ (W[:, None] * M))
+        # H = 2 (I + M W M), built in preallocated buffers: it is rebuilt at every step
+        np.multiply(W[:, None], M, out=self._weighted_mass)
+        H = np.matmul(M, self._weighted_mass, out=self._hessian)
+        H += self.identity
+        H *= 2.0
         f = 2.0 * (M @ (W * (bias - external)) - qdd_des)
         solved = True
         if active.any():

@@ -127,19 +127,25 @@ class PhysicsStream:
         near = contacts & (data.site_xpos[self.tracker.sites, 2] < self.settings.contact_height)
         if self.settings.flatten_feet:
             for side, (body, parent, address) in enumerate(self._feet):
-                x, y, z = data.xmat[body, 0], data.xmat[body, 3], data.xmat[body, 6]  # the foot's heel -> toe axis
+                both_down = bool(near[2 * side] and near[2 * side + 1])
+                if not both_down and self._flatness[side] < 1e-6:
+                    self._flatness[side] = 0.0
+                    continue
+                axes = data.xmat[body].tolist()  # row-major 3 x 3: the heel -> toe axis is column 0
+                x, y, z = axes[0], axes[3], axes[6]
                 length = math.hypot(x, y)
                 if length < 1e-6:  # a foot pointing straight up or down: no level direction, and no flat foot
                     continue
                 tilt = math.atan2(z, length)  # toes up > 0; turning by it about (-y, x, 0) / length levels the foot
-                flat = near[2 * side] and near[2 * side + 1] and abs(tilt) < MAX_FLATTENING
+                flat = both_down and abs(tilt) < MAX_FLATTENING
                 self._flatness[side] += self._lift_share * (float(flat) - self._flatness[side])
-                if self._flatness[side] < 1e-6:
-                    continue
-                # The turn about that world axis, expressed in the ankle's (parent body's) frame: R_parent' axis.
-                axis = data.xmat[parent].reshape(3, 3).T @ np.array([-y / length, x / length, 0.0])
+                # The turn about that world axis a, in the ankle's (parent body's) frame: R_parent' a.
+                r = data.xmat[parent].tolist()
+                ax, ay = -y / length, x / length
                 half = 0.5 * self._flatness[side] * tilt
-                self._turn[0], self._turn[1:] = math.cos(half), math.sin(half) * axis
+                sine = math.sin(half)
+                self._turn[:] = (math.cos(half), sine * (r[0] * ax + r[3] * ay), sine * (r[1] * ax + r[4] * ay),
+                                 sine * (r[2] * ax + r[5] * ay))
                 mujoco.mju_mulQuat(self._quat, self._turn, target[address:address + 4])
                 target[address:address + 4] = self._quat
             data.qpos[:] = target
