@@ -168,8 +168,8 @@ class PhysCapTracker:
             # Above the floor: come down at most to the clearance by the end of the step (the step's rotation
             # may dip the point by less than that); within it: do not descend; below the floor: rise back gently.
             h, clearance = heights[active], self.settings.floor_clearance
-            normal_speed = np.where(h > clearance, -(h - clearance) / dt,
-                                    np.where(h >= 0, 0.0, -h / max(dt, self.settings.penetration_recovery)))
+            normal_speed = np.where(h > clearance, (clearance - h) / dt,
+                                    np.maximum(-h, 0.0) / max(dt, self.settings.penetration_recovery))
             lower[2::3] = normal_speed - velocity[2::3]
             upper[2::3] = INF
             qdd, _, exitflag, _ = daqp.solve(H, f, dt * rows, upper, lower)
