@@ -195,10 +195,12 @@ class PhysicsSettings:
     # root-relative 36.7 / 40.1 mm); 0.001 .. 10
     flatten_feet: bool = True  # with target_lift_time (and its time constant): a target foot whose heel and
     # toe are both predicted in contact is turned flat about the ankle before the lift, so that the lift does not
-    # leave its higher point floating (ours). Synthetic set, calibrated / estimated floor: MPE 26.6 -> 25.8 /
-    # 31.5 -> 28.3 mm, PNP 98.1 -> 98.4 / 79.8 -> 83.6%, floating 22.0 -> 19.9 / 25.7 -> 22.1%, root-relative
-    # 36.5 -> 36.6 / 36.6 -> 36.6 mm, e_smooth 11.1 -> 11.3 / 11.3 -> 11.4 mm; taiji online: floating 41 -> 33%,
-    # MPE 35 -> 30 mm, reprojection 16.7 -> 13.8 px. Turning at once instead of smoothly: e_smooth +0.25 mm
+    # leave its higher point floating (ours). Synthetic set, calibrated / estimated floor: MPE 26.6 -> 25.3 /
+    # 31.5 -> 28.1 mm, PNP 98.1 -> 98.3 / 79.8 -> 83.1%, floating 22.0 -> 19.3 / 25.7 -> 21.9%, root-relative
+    # 36.5 -> 36.7 / 36.6 -> 36.6 mm, e_smooth 11.1 -> 11.2 / 11.3 -> 11.3 mm; taiji online: floating 41 -> 33%,
+    # MPE 35 -> 29 mm, reprojection 16.7 -> 13.8 px. Cost: offline, on the B.4 motion whose feet B.4 already
+    # placed, floating 4.0 -> 5.7%, MPE 15.6 -> 16.3 mm; and about 5% of the stage's time. Turning at once
+    # instead of smoothly: e_smooth +0.25 mm
     friction: float = 0.8  # mu; the pyramid uses mu / sqrt(2) (eq. 7); 0.05 .. 2
     slide_speed: float = 0.3  # m/s, sigma of eq. (9): tangential speed a contact may keep (paper: not given). On
     # the synthetic set 0.05 (PhysCap's contact-labelling speed) nearly locks the feet, and wherever the predicted
