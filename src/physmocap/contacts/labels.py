@@ -161,9 +161,15 @@ def contact_labels(sites: np.ndarray, fps: float, settings: LabelSettings = Labe
     sites = np.asarray(sites, dtype=float)
     if sites.ndim != 3 or sites.shape[1:] != (4, 3):
         raise InputError(f"contact_labels: sites has shape {sites.shape}, expected (T, 4, 3).")
+    low, slow = _low_and_slow(sites, fps, settings)
+    return without_short_phases(low & slow, int(round(settings.min_phase_seconds * fps)))
+
+
+def _low_and_slow(sites: np.ndarray, fps: float, settings: LabelSettings) -> tuple[np.ndarray, np.ndarray]:
+    """The two halves of the contact rule for sites (T, 4, 3): (T, 4) bool below `contact_max_height`, and (T, 4)
+    bool slower than `contact_max_speed` over the last `contact_speed_interval`."""
     speed = point_speed(sites, fps, settings.contact_speed_interval, centred=False)
-    touching = (sites[..., 2] < settings.contact_max_height) & (speed < settings.contact_max_speed)
-    return without_short_phases(touching, int(round(settings.min_phase_seconds * fps)))
+    return sites[..., 2] < settings.contact_max_height, speed < settings.contact_max_speed
 
 
 def stationary_labels(root: np.ndarray, fps: float, settings: LabelSettings = LabelSettings()) -> np.ndarray:
@@ -190,13 +196,11 @@ def hard_frames(
     Returns (T,) bool.
     """
     sites = np.asarray(sites, dtype=float)
-    height = sites[..., 2]
-    slow = point_speed(sites, fps, settings.contact_speed_interval, centred=False) < settings.contact_max_speed
-    low = height < settings.contact_max_height
+    low, slow = _low_and_slow(sites, fps, settings)
     skimming = ~contacts & low & ~slow
     heels, toes = [0, 2], [1, 3]
-    raised = (~contacts[:, heels] & contacts[:, toes] & ~low[:, heels] & (height[:, heels] < RAISED_HEEL_MAX_HEIGHT)
-              & slow[:, heels])
+    raised = (~contacts[:, heels] & contacts[:, toes] & ~low[:, heels]
+              & (sites[:, heels, 2] < RAISED_HEEL_MAX_HEIGHT) & slow[:, heels])
     return skimming.any(axis=1) | raised.any(axis=1)
 
 
