@@ -69,7 +69,6 @@ class PhysicsStream:
         self._flatness = np.zeros(2)
         self._lift_share = (1.0 - np.exp(-1.0 / (fps * settings.target_lift_time))
                             if settings.target_lift_time is not None and settings.foot_lock != "never" else 0.0)
-        self._target_data = mujoco.MjData(self.tracker.model)
         model = self.tracker.model
         feet = [model.body(f"{side}_foot").id for side in ("left", "right")]
         self._feet = [(foot, model.body_parentid[foot], model.jnt_qposadr[model.body_jntadr[foot]]) for foot in feet]
@@ -121,10 +120,12 @@ class PhysicsStream:
         at most MAX_FLATTENING), then raised along the floor normal by the depth of its lowest predicted contact
         point under the floor; both smoothed with settings.target_lift_time. Only contacts that eq. (5) would
         accept (within contact_height of the floor) count; in flight the lift is held. A copy."""
-        target, data, model = q_kin.copy(), self._target_data, self.tracker.model
+        # The tracker's scratch data for target kinematics (it is next used in track(), after this frame's lift).
+        target, data, model = q_kin.copy(), self.tracker.target_data, self.tracker.model
         data.qpos[:] = target
         mujoco.mj_kinematics(model, data)
         near = contacts & (data.site_xpos[self.tracker.sites, 2] < self.settings.contact_height)
+        turned = False
         if self.settings.flatten_feet:
             for side, (body, parent, address) in enumerate(self._feet):
                 both_down = bool(near[2 * side] and near[2 * side + 1])
@@ -148,6 +149,8 @@ class PhysicsStream:
                                  sine * (r[2] * ax + r[5] * ay))
                 mujoco.mju_mulQuat(self._quat, self._turn, target[address:address + 4])
                 target[address:address + 4] = self._quat
+                turned = True
+        if turned:  # the sites' heights after the turn
             data.qpos[:] = target
             mujoco.mj_kinematics(model, data)
         if near.any():
