@@ -6,11 +6,15 @@ contacts.json).
 
 - Held-out synthetic: the CMU subjects of `dataset.TEST_SUBJECTS` (never trained on), 4 sequences per clip made
   with seed 1 (the settings of training: random cameras, 12-60 fps, mirroring, proportions, measured noise).
-- Real: benchmarks/labels/contacts_real.toml (415 frames of 5 tracks), MediaPipe detections cached in
+- Real: benchmarks/labels/contacts_real.toml (413 frames of 5 tracks), MediaPipe detections cached in
   runs/contacts/detections. Every judged (frame, site) entry counts; entries marked unknown do not.
 - Baselines: always contact; 2D velocity (foot keypoints' image speed in person sizes per second); 3D velocity
   (MediaPipe's hip-relative 3D landmarks, m/s; it has no stationary flag). Their thresholds are tuned for the best
   accuracy on the training subjects' synthetic data (seed 0, 2 sequences per clip, `held_out_settings`).
+- Seen motions (Rempe et al.'s protocol, for comparison with their 0.941): the training subjects' clips under new
+  draws of camera, body proportions, frame rate, mirroring and noise (seed 7, 2 sequences per clip). Rempe et al.
+  split by motion per character, so a test motion may be a training motion on another character; the held-out
+  subjects above are motions never trained on, which the issue's split by subject asks for.
 - Where the errors are: both networks' held-out synthetic accuracy per CMU subject and by the distance of an
   entry to the nearest change of its site's label.
 - Inference: ms per frame of `predict_contacts` (features and network, on the input and its mirror image, one
@@ -41,6 +45,7 @@ from physmocap.motion import Observations
 
 LABELS = REPO / "benchmarks" / "labels" / "contacts_real.toml"
 DETECTIONS = REPO / "runs" / "contacts" / "detections"
+SEEN_MOTION_SEED = 7  # none of training's draws (seed 0; the held-out subjects: 1)
 METHODS = ("causal network", "centred network", "always contact", "2D velocity", "3D velocity")
 SPEED_GRID_2D = np.round(np.arange(0.05, 2.01, 0.05), 2)  # person sizes per second
 SPEED_GRID_3D = np.round(np.arange(0.1, 5.01, 0.1), 2)  # m/s
@@ -196,6 +201,7 @@ def main() -> None:
     tuning = make_sequences(load_clips(train_files), 0, settings, variants=2)
     heuristics = tune_heuristics(tuning)
     test = make_sequences(load_clips(test_files), 1, settings, variants=4)
+    seen = make_sequences(load_clips(train_files), SEEN_MOTION_SEED, settings, variants=2)
     synthetic_cases = [(as_observations(s), np.arange(s.num_frames), s.contacts.astype(np.int8),
                         s.stationary.astype(np.int8)) for s in test]
     labels = load_real_labels(LABELS)
@@ -203,6 +209,9 @@ def main() -> None:
     real_cases = [(cached_detection(videos[name], VIDEOS, DETECTIONS), label.frames, label.contacts, label.stationary)
                   for name, label in labels.items()]
     synthetic = {m: evaluate(m, synthetic_cases, args.weights, heuristics) for m in METHODS}
+    seen_cases = [(as_observations(s), np.arange(s.num_frames), s.contacts.astype(np.int8),
+                   s.stationary.astype(np.int8)) for s in seen]
+    seen_motions = {m: evaluate(m, seen_cases, args.weights, heuristics) for m in METHODS}
     real = {m: evaluate(m, real_cases, args.weights, heuristics) for m in METHODS}
     per_video = {name: {m: evaluate(m, [case], args.weights, heuristics) for m in METHODS}
                  for name, case in zip(labels, real_cases)}
@@ -226,6 +235,9 @@ def main() -> None:
     ]
     lines += table(f"Held-out synthetic subjects {', '.join(TEST_SUBJECTS)} ({len(test)} sequences, {frames_synthetic} frames, "
                    f"12-60 fps, measured MediaPipe noise)", synthetic)
+    lines += table(f"Seen motions, new draws: training subjects {', '.join(training.get('train_subjects', []))} under "
+                   f"new cameras, bodies, rates and noise (Rempe et al.'s protocol; {len(seen)} sequences, "
+                   f"{sum(s.num_frames for s in seen)} frames; not a held-out score)", seen_motions)
     real_frames = sum(len(label.frames) for label in labels.values())
     lines += table(f"Hand-labelled real frames ({real_frames} frames of {len(labels)} tracks, "
                    f"{real['causal network']['entries']} judged contact entries; benchmarks/labels/contacts_real.md)", real)
@@ -257,7 +269,7 @@ def main() -> None:
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "contacts.md").write_text("\n".join(lines))
     (RESULTS / "contacts.json").write_text(json.dumps(dict(
-        synthetic=synthetic, real=real, real_per_video=per_video, synthetic_error_locations=locations,
+        synthetic=synthetic, seen_motions=seen_motions, real=real, real_per_video=per_video, synthetic_error_locations=locations,
         inference_ms_per_frame=timings,
         heuristics=heuristics.__dict__, git=git_revision()), indent=1, default=float))
     print("\n".join(lines))
