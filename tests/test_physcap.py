@@ -374,3 +374,21 @@ def test_physics_smooths_a_jittery_target_instead_of_passing_the_jitter_on(body)
     plain = run_physcap(body, q, FPS, contacts, np.zeros(len(q), bool), PhysicsSettings(velocity_smoothing=0.0))
     assert shake(smoothed.qpos[10:]) < 0.8 * shake(q[10:])
     assert shake(smoothed.qpos[10:]) < shake(plain.qpos[10:])
+    full_velocity = run_physcap(body, q, FPS, contacts, np.zeros(len(q), bool),
+                                PhysicsSettings(rotation_velocity_share=1.0))
+    assert shake(smoothed.qpos[10:]) < shake(full_velocity.qpos[10:])
+
+
+def test_the_derivative_term_tracks_a_share_of_the_rotational_velocity_and_all_of_the_translation(body):
+    """Eq. (4) with rotation_velocity_share s: kd (s qd_kin - qd) on the root's orientation and the joints,
+    kd (qd_kin - qd) on the root's translation."""
+    share = 0.25
+    settings = PhysicsSettings(rotation_velocity_share=share, acceleration_feedforward=0.0)
+    tracker = PhysCapTracker(body, settings, FPS)
+    rng = np.random.default_rng(5)
+    qvel, qd_kin = rng.normal(0.0, 0.2, body.nv), rng.normal(0.0, 0.2, body.nv)
+    tracker.reset(body.rest_qpos, qvel)
+    desired = tracker.desired_acceleration(body.rest_qpos, qd_kin, np.zeros(body.nv))
+    np.testing.assert_allclose(desired[:3], settings.kd_root_translation * (qd_kin[:3] - qvel[:3]), atol=1e-9)
+    np.testing.assert_allclose(desired[3:6], settings.kd_root_rotation * (share * qd_kin[3:6] - qvel[3:6]), atol=1e-9)
+    np.testing.assert_allclose(desired[6:], settings.kd_joint * (share * qd_kin[6:] - qvel[6:]), atol=1e-9)

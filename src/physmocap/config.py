@@ -174,6 +174,18 @@ class PhysicsSettings:
     # with 0.03 s 17.4; 0.045 s gave 16.1; offline 8.6 -> 9.9, with 0.03 s 9.1). Synthetic set (floor estimated
     # / calibrated): e_smooth 13.0 / 12.8 -> 11.8 / 11.7 mm, root-relative error +0.2 / +0.1 mm; chosen on ten
     # CMU clips outside the test subjects (0.02-0.08 s tried; longer ones smooth more and lag more); 0 .. 1
+    rotation_velocity_share: float = 0.8  # share of the kinematic target's rotational velocities (the root's
+    # orientation and every joint) in eq. (4)'s derivative term, the rest of kd damping the character's own
+    # rotation (paper: 1; ours). The velocity of a noisy per-frame fit is half noise, and kd passed it on:
+    # without contacts or root limits the tracker alone added jitter to its input (synthetic set, online fit:
+    # e_smooth 10.7 -> 11.1 mm), where a plain causal smoothing of the joints removes some (8.9 mm). The root's
+    # translation keeps its full velocity (scaled, a walking root trails its target by a steady 5 mm: global
+    # root error +5 mm); scaling the joints without the root's orientation, or the reverse, lost (root-relative
+    # 39.3 / 39.9 against 36.7 mm), the limbs' directions then following two different velocities. Ten CMU clips
+    # of other subjects, calibrated floor, shares 1 / 0.9 / 0.85 / 0.8 / 0.7: root-relative 39.8 / 37.8 / 37.4 /
+    # 37.5 / 38.7 mm, e_smooth 13.4 / 12.5 / 12.3 / 11.7 / 11.3 mm, MPE 27.3 / 26.4 / 26.0 / 24.1 / 22.3 mm,
+    # global root 97.7 / 97.4 / 97.8 / 96.4 / 95.5 mm (estimated floor, 1 / 0.8: 39.2 -> 37.1 mm, e_smooth
+    # 12.7 -> 11.5 mm). With 0.8 a velocity smoothing of 0.015 / 0.045 s lost (37.6 / 38.1 mm); 0 .. 1
     contact_height: float = 0.1  # m, psi of eq. (5): a predicted contact counts only below this height; 0 .. 1
     target_lift_time: float | None = 0.1  # s: a kinematic target whose lowest predicted contact point lies
     # under the floor is raised by that depth, the lift following the target's feet with this time constant and
@@ -283,6 +295,7 @@ class PhysicsSettings:
         _within("physics.stationary_speed_interval", self.stationary_speed_interval, 0.01, 2.0, "s")
         _within("physics.acceleration_feedforward", self.acceleration_feedforward, 0.0, 1.0, "")
         _within("physics.velocity_smoothing", self.velocity_smoothing, 0.0, 1.0, "s")
+        _within("physics.rotation_velocity_share", self.rotation_velocity_share, 0.0, 1.0, "")
         _within("physics.touch_margin", self.touch_margin, 0.0, 0.1, "m")
         _within("physics.floor_clearance", self.floor_clearance, 0.0, 0.01, "m")
         if self.floor_refit_interval is not None:

@@ -66,6 +66,9 @@ class PhysCapTracker:
         self.kd = np.full(nv, settings.kd_joint)
         self.kp[:3], self.kd[:3] = settings.kp_root_translation, settings.kd_root_translation
         self.kp[3:6], self.kd[3:6] = settings.kp_root_rotation, settings.kd_root_rotation
+        # kd times the share of the kinematic velocity in the derivative term (settings.rotation_velocity_share)
+        self.kd_target = self.kd.copy()
+        self.kd_target[3:] *= settings.rotation_velocity_share
         self.sites = np.array([self.model.site(n).id for n in CONTACT_POINTS])
         self.contact_of_geom = np.full(self.model.ngeom, -1)  # geom id -> contact point index, -1 for others
         for j, name in enumerate(CONTACT_POINTS):
@@ -118,12 +121,13 @@ class PhysCapTracker:
         return self.bias, d.site_xpos[self.sites, 2].copy(), touching
 
     def desired_acceleration(self, q_kin, qd_kin, qdd_kin) -> np.ndarray:
-        """Eq. (4): PD control towards the kinematic pose; the pose error is taken on the manifold, and the
-        kinematic acceleration is fed forward scaled by settings.acceleration_feedforward; bounded by
-        MAX_DESIRED_ACCELERATION."""
+        """Eq. (4): PD control towards the kinematic pose; the pose error is taken on the manifold, the
+        kinematic acceleration is fed forward scaled by settings.acceleration_feedforward and the rotational
+        velocities by settings.rotation_velocity_share; bounded by MAX_DESIRED_ACCELERATION."""
         error = np.zeros(self.model.nv)
         mujoco.mj_differentiatePos(self.model, error, 1.0, self.qpos, q_kin)
-        desired = self.settings.acceleration_feedforward * qdd_kin + self.kp * error + self.kd * (qd_kin - self.qvel)
+        desired = (self.settings.acceleration_feedforward * qdd_kin + self.kp * error + self.kd_target * qd_kin
+                   - self.kd * self.qvel)
         return np.clip(desired, -MAX_DESIRED_ACCELERATION, MAX_DESIRED_ACCELERATION, out=desired)
 
     def ground_reaction_forces(self, qdd_des, bias, active) -> tuple[np.ndarray, bool]:
