@@ -1,6 +1,6 @@
 import numpy as np
 
-from physmocap.camera import Camera, Floor, fit_floor, world_from_floor
+from physmocap.camera import Camera, Floor, FloorResiduals, fit_floor, world_from_floor
 
 
 def test_projection_jacobian_matches_finite_differences():
@@ -16,6 +16,19 @@ def test_projection_jacobian_matches_finite_differences():
         d = np.zeros(3)
         d[k] = eps
         assert np.allclose((cam.project(pts + d) - cam.project(pts - d)) / (2 * eps), J[..., k], atol=1e-6)
+
+
+def test_floor_residuals_jacobian_matches_finite_differences():
+    rng = np.random.default_rng(4)
+    up = np.array([0.1, -0.95, -0.3])
+    residuals = FloorResiduals(rng.normal([0.0, 1.5, 4.0], 1.0, (9, 3)), up / np.linalg.norm(up), 0.05, 0.02)
+    x = np.array([0.07, -0.04, 1.3])
+    J = residuals.jacobian(x)
+    eps = 1e-6
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = eps
+        assert np.allclose((residuals(x + d) - residuals(x - d)) / (2 * eps), J[:, k], atol=1e-5)
 
 
 def test_intrinsics_from_field_of_view_and_default():

@@ -14,7 +14,6 @@ import mujoco
 import numpy as np
 
 from ..body.model import CONTACT_POINTS, BodyModel
-from ..body.rotations import axis_angle_matrix, rotation_between
 from ..camera import fit_floor
 
 UP = np.array([0.0, 0.0, 1.0])
@@ -24,11 +23,16 @@ TILT_PRIOR = 0.01  # fit_floor's pull towards the warm-up's floor, weaker than t
 MAX_POINTS = 4000  # kept points; beyond, every other one is dropped (the whole history stays covered, thinner)
 
 
-def floor_frame(normal: np.ndarray, offset: float) -> tuple[np.ndarray, np.ndarray]:
-    """(R, shift): the rigid map x -> R x + shift taking the plane normal . x + offset = 0 (normal near up) to
-    z = 0, the plane's point nearest the origin to the origin, with the smallest rotation."""
-    rotation = rotation_between(normal, UP)
-    return rotation, rotation @ (offset * normal)
+def floor_frame(normal: np.ndarray, offset: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(R, shift, quat): the rigid map x -> R x + shift taking the plane normal . x + offset = 0 (normal near
+    up) to z = 0, the plane's point nearest the origin to the origin, with the smallest rotation; quat is R's
+    quaternion (w, x, y, z). Scalar MuJoCo calls: it runs every frame while the online floor turns."""
+    quat, rotation = np.zeros(4), np.zeros(9)
+    mujoco.mju_quatZ2Vec(quat, normal)  # the smallest rotation taking up to the normal; R is its inverse
+    mujoco.mju_negQuat(quat, quat)
+    mujoco.mju_quat2Mat(rotation, quat)
+    rotation = rotation.reshape(3, 3)
+    return rotation, rotation @ (offset * normal), quat
 
 
 class FloorRefiner:
@@ -76,19 +80,22 @@ class FloorRefiner:
         """Move the estimate towards the latest fit by at most max_turn and max_lift, and update the map."""
         if self.offset == self.fitted_offset and np.array_equal(self.normal, self.fitted_normal):
             return  # settled (or nothing fitted yet): most frames
-        axis = np.cross(self.normal, self.fitted_normal)
-        angle = np.arcsin(min(np.linalg.norm(axis), 1.0))  # the two stay within a few degrees of up
-        if angle <= self.max_turn:
+        axis = np.zeros(3)
+        mujoco.mju_cross(axis, self.normal, self.fitted_normal)
+        sine = mujoco.mju_normalize3(axis)
+        if np.arcsin(min(sine, 1.0)) <= self.max_turn:  # the two stay within a few degrees of up
             self.normal = self.fitted_normal.copy()
         else:
-            self.normal = axis_angle_matrix(axis / np.linalg.norm(axis), self.max_turn) @ self.normal
+            turn, turned = np.zeros(4), np.zeros(3)
+            mujoco.mju_axisAngle2Quat(turn, axis, self.max_turn)
+            mujoco.mju_rotVecQuat(turned, self.normal, turn)
+            self.normal = turned
         lift = self.fitted_offset - self.offset  # arriving exactly, so that the next frame finds it settled
         if abs(lift) <= self.max_lift:
             self.offset = self.fitted_offset
         else:
             self.offset += np.copysign(self.max_lift, lift)
-        self.rotation, self.shift = floor_frame(self.normal, self.offset)
-        mujoco.mju_mat2Quat(self.quat, self.rotation.ravel())
+        self.rotation, self.shift, self.quat = floor_frame(self.normal, self.offset)
         mujoco.mju_negQuat(self.inverse_quat, self.quat)
 
     # ---- maps between the kinematic world and the physics frame ---------------------------------------------

@@ -157,12 +157,12 @@ class PhysCapTracker:
         M, dt, nv = self.mass_matrix, self.dt, self.model.nv
         W = self.torque_weights
         external = self.contact_jacobian.reshape(12, -1).T @ forces.ravel()
-        # H = 2 (I + M W M), built in preallocated buffers: it is rebuilt at every step
+        # The objective is 1/2 qdd' H qdd + f' qdd up to a constant and a factor 2: H = I + M W M, built in
+        # preallocated buffers (it is rebuilt at every step).
         np.multiply(W[:, None], M, out=self._weighted_mass)
         H = np.matmul(M, self._weighted_mass, out=self._hessian)
         H += self.identity
-        H *= 2.0
-        f = 2.0 * (M @ (W * (bias - external)) - qdd_des)
+        f = M @ (W * (bias - external)) - qdd_des
         solved = True
         if active.any():
             rows = self.contact_jacobian[active].reshape(-1, nv)  # x, y, z rows of each active contact

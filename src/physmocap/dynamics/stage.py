@@ -206,7 +206,7 @@ def onto_refined_floor(motion: KinematicMotion, physics: PhysicsMotion) -> tuple
     follows), so that the result's floor is z = 0 as everywhere else; unchanged when the floor was not refined."""
     if physics.floor_plane is None:
         return motion, physics
-    rotation, shift = floor_frame(physics.floor_plane[:3], float(physics.floor_plane[3]))
+    rotation, shift, _ = floor_frame(physics.floor_plane[:3], float(physics.floor_plane[3]))
     camera = motion.camera
     # x_camera = R_c x + t_c with x = R'(x_new - shift)
     R_camera = camera.R @ rotation.T
