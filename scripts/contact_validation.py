@@ -80,6 +80,7 @@ def main() -> None:
                         help="labels' contact_max_speed, m/s")
     parser.add_argument("--max-height", type=float, default=LabelSettings().contact_max_height,
                         help="labels' contact_max_height, m")
+    parser.add_argument("--rest-on-either-side", action="store_true", help="labels' rest_on_either_side")
     parser.add_argument("--save", type=Path, help="write the trained parameters to this .npz file")
     parser.add_argument("--load", type=Path, help="evaluate these parameters (.npz) instead of training")
     parser.add_argument("--seed", type=int, default=0, help="seed of the initial weights and the batches")
@@ -99,7 +100,8 @@ def main() -> None:
                                   playback_speed_range=tuple(float(v) for v in args.playback.split(",")),
                                   labels=LabelSettings(min_phase_seconds=args.min_phase_seconds,
                                                         contact_max_speed=args.max_speed,
-                                                        contact_max_height=args.max_height))
+                                                        contact_max_height=args.max_height,
+                                                        rest_on_either_side=args.rest_on_either_side))
     held_out = tuple(args.val.split(","))
     train_files, _ = split_by_subject(mocap_files(SHARED / "mocap"))
     fit_files = [f for f in train_files if cmu_subject(f) not in held_out]

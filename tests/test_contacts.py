@@ -102,7 +102,20 @@ def test_a_one_frame_flicker_is_not_a_contact_change():
     sites = sites_track(fps, 1.0, 0.0, 0.0)
     sites[30:, :, 0] += 0.05  # a 5 cm jump between two frames: 1.5 m/s over the 1/30 s of frames 30 and 31
     assert contact_labels(sites, fps).all()
-    assert not contact_labels(sites, fps, LabelSettings(min_phase_seconds=0.0))[30:32].all()
+    assert not contact_labels(sites, fps, LabelSettings(min_phase_seconds=0.0, rest_on_either_side=False))[30:32].all()
+
+
+def test_a_site_is_in_contact_from_the_frame_it_lands_in_to_the_last_it_rests_in():
+    """A foot gliding in at 2 m/s rests from frame 10 to frame 20, then leaves: contact at 10-20. Judged only
+    over the interval before each frame (Rempe's reading), the landing frame still carries the approach."""
+    fps = 30.0
+    x = np.concatenate([2.0 * (np.arange(11) - 10) / fps, np.zeros(10), 2.0 * np.arange(1, 11) / fps])
+    sites = np.zeros((len(x), 4, 3))
+    sites[..., 0] = x[:, None]
+    settings = LabelSettings(min_phase_seconds=0.0)
+    assert np.array_equal(np.flatnonzero(contact_labels(sites, fps, settings)[:, 0]), np.arange(10, 21))
+    backward = contact_labels(sites, fps, LabelSettings(min_phase_seconds=0.0, rest_on_either_side=False))
+    assert np.array_equal(np.flatnonzero(backward[:, 0]), np.arange(11, 21))
 
 
 def test_point_speed_and_stationary():
