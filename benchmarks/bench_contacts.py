@@ -70,6 +70,12 @@ def as_observations(sequence: SyntheticSequence) -> Observations:
                         image_size=sequence.image_size)
 
 
+def labelled_cases(sequences: list[SyntheticSequence]) -> list[tuple[Observations, np.ndarray, np.ndarray, np.ndarray]]:
+    """`evaluate`'s cases of synthetic sequences: every frame judged against its automatic labels."""
+    return [(as_observations(s), np.arange(s.num_frames), s.contacts.astype(np.int8), s.stationary.astype(np.int8))
+            for s in sequences]
+
+
 def tune_heuristics(sequences: list[SyntheticSequence]) -> HeuristicSettings:
     """Thresholds of best accuracy on the sequences (grid search, each threshold on its own)."""
     truth = np.concatenate([s.contacts for s in sequences])
@@ -202,16 +208,13 @@ def main() -> None:
     heuristics = tune_heuristics(tuning)
     test = make_sequences(load_clips(test_files), 1, settings, variants=4)
     seen = make_sequences(load_clips(train_files), SEEN_MOTION_SEED, settings, variants=2)
-    synthetic_cases = [(as_observations(s), np.arange(s.num_frames), s.contacts.astype(np.int8),
-                        s.stationary.astype(np.int8)) for s in test]
+    synthetic_cases = labelled_cases(test)
     labels = load_real_labels(LABELS)
     videos = {v.name: v for v in REAL_VIDEOS}
     real_cases = [(cached_detection(videos[name], VIDEOS, DETECTIONS), label.frames, label.contacts, label.stationary)
                   for name, label in labels.items()]
     synthetic = {m: evaluate(m, synthetic_cases, args.weights, heuristics) for m in METHODS}
-    seen_cases = [(as_observations(s), np.arange(s.num_frames), s.contacts.astype(np.int8),
-                   s.stationary.astype(np.int8)) for s in seen]
-    seen_motions = {m: evaluate(m, seen_cases, args.weights, heuristics) for m in METHODS}
+    seen_motions = {m: evaluate(m, labelled_cases(seen), args.weights, heuristics) for m in METHODS}
     real = {m: evaluate(m, real_cases, args.weights, heuristics) for m in METHODS}
     per_video = {name: {m: evaluate(m, [case], args.weights, heuristics) for m in METHODS}
                  for name, case in zip(labels, real_cases)}
