@@ -80,7 +80,10 @@ def main() -> None:
                         help="labels' contact_max_speed, m/s")
     parser.add_argument("--max-height", type=float, default=LabelSettings().contact_max_height,
                         help="labels' contact_max_height, m")
-    parser.add_argument("--rest-on-either-side", action="store_true", help="labels' rest_on_either_side")
+    parser.add_argument("--rest-on-either-side", action=argparse.BooleanOptionalAction,
+                        default=LabelSettings().rest_on_either_side, help="labels' rest_on_either_side")
+    parser.add_argument("--heel-raise", type=float, default=SyntheticSettings().heel_raise_probability,
+                        help="chance that a training stance is done on the ball of the foot (heel_raise_probability)")
     parser.add_argument("--save", type=Path, help="write the trained parameters to this .npz file")
     parser.add_argument("--load", type=Path, help="evaluate these parameters (.npz) instead of training")
     parser.add_argument("--seed", type=int, default=0, help="seed of the initial weights and the batches")
@@ -96,7 +99,7 @@ def main() -> None:
     args = parser.parse_args()
     started = time.perf_counter()
     torch.set_num_threads(1)
-    synthetic = SyntheticSettings(variants_per_clip=args.variants,
+    synthetic = SyntheticSettings(variants_per_clip=args.variants, heel_raise_probability=args.heel_raise,
                                   playback_speed_range=tuple(float(v) for v in args.playback.split(",")),
                                   labels=LabelSettings(min_phase_seconds=args.min_phase_seconds,
                                                         contact_max_speed=args.max_speed,
