@@ -82,8 +82,6 @@ def main() -> None:
                         help="labels' contact_max_height, m")
     parser.add_argument("--rest-on-either-side", action=argparse.BooleanOptionalAction,
                         default=LabelSettings().rest_on_either_side, help="labels' rest_on_either_side")
-    parser.add_argument("--heel-raise", type=float, default=SyntheticSettings().heel_raise_probability,
-                        help="chance that a training stance is done on the ball of the foot (heel_raise_probability)")
     parser.add_argument("--save", type=Path, help="write the trained parameters to this .npz file")
     parser.add_argument("--load", type=Path, help="evaluate these parameters (.npz) instead of training")
     parser.add_argument("--seed", type=int, default=0, help="seed of the initial weights and the batches")
@@ -99,7 +97,7 @@ def main() -> None:
     args = parser.parse_args()
     started = time.perf_counter()
     torch.set_num_threads(1)
-    synthetic = SyntheticSettings(variants_per_clip=args.variants, heel_raise_probability=args.heel_raise,
+    synthetic = SyntheticSettings(variants_per_clip=args.variants,
                                   playback_speed_range=tuple(float(v) for v in args.playback.split(",")),
                                   labels=LabelSettings(min_phase_seconds=args.min_phase_seconds,
                                                         contact_max_speed=args.max_speed,

@@ -75,9 +75,6 @@ class SyntheticSettings:
     upper_body_scale_range: trunk, head and arms scaled about the pelvis, uniform (trunk-to-leg ratio).
     arm_scale_range: elbows and wrists scaled about the shoulders, uniform.
     portrait_probability: chance of a 1080 x 1920 portrait image instead of 1280 x 720 (phone videos).
-    heel_raise_probability: chance that a flat stance of a foot is done on the ball of the foot instead
-        (`raise_heels`), 0-1. Drawn from a generator of its own, so it changes no other draw.
-    heel_raise_height_range: m the heel of such a stance rises above where it was, uniform.
     noise: the detector's errors.
     labels: the automatic label thresholds.
     """
@@ -92,8 +89,6 @@ class SyntheticSettings:
     upper_body_scale_range: tuple[float, float] = (0.9, 1.1)
     arm_scale_range: tuple[float, float] = (0.9, 1.1)
     portrait_probability: float = 0.3
-    heel_raise_probability: float = 0.0
-    heel_raise_height_range: tuple[float, float] = (0.04, 0.12)
     noise: NoiseModel = field(default=MEDIAPIPE_NOISE)
     labels: LabelSettings = field(default_factory=LabelSettings)
 
@@ -105,7 +100,7 @@ whatever range the training data are played at."""
 
 def held_out_settings(settings: SyntheticSettings = SyntheticSettings()) -> SyntheticSettings:
     """The settings of held-out sequences: `settings` with the playback speeds of HELD_OUT_PLAYBACK."""
-    return replace(settings, playback_speed_range=HELD_OUT_PLAYBACK, heel_raise_probability=0.0)
+    return replace(settings, playback_speed_range=HELD_OUT_PLAYBACK)
 
 
 @dataclass
@@ -193,85 +188,6 @@ def vary_proportions(clip: MocapClip, rng: np.random.Generator, settings: Synthe
     return replace(clip, positions=positions)
 
 
-HEEL_RAISE_RAMP_SECONDS = 0.1  # s over which a raised heel rises at a stance's start and lowers at its end
-HEEL_RAISE_MIN_STANCE_SECONDS = 0.3  # s: shorter flat stances keep their heels down
-_LEG_JOINTS = {side: tuple(JOINT_INDEX[f"{side}_{part}"] for part in ("hip", "knee", "ankle", "heel", "toe"))
-               for side in ("left", "right")}
-
-
-def raise_heels(positions: np.ndarray, fps: float, rng: np.random.Generator, settings: SyntheticSettings) -> np.ndarray:
-    """The motion with some flat stances done on the ball of the foot.
-
-    positions: (T, 20, 3) world positions (`MocapClip.positions`), metres, floor z = 0, at `fps`.
-    Each run of at least HEEL_RAISE_MIN_STANCE_SECONDS in which a foot's heel and toe are both labelled in
-    contact is, with `settings.heel_raise_probability`, raised: the heel and the ankle turn about the toe site (the
-    foot rolls over its ball) until the heel is a height drawn from `settings.heel_raise_height_range` above where
-    it was, rising and lowering over HEEL_RAISE_RAMP_SECONDS at the stance's ends; the knee bends to keep thigh and
-    shank lengths with the hip where it was (two-link inverse kinematics in the leg's plane). A stance whose leg
-    would have to stretch is left flat. Returns a new array; the labels must be computed from it.
-    """
-    positions = np.array(positions, dtype=float)
-    contacts, _ = motion_labels(positions, fps, settings.labels)
-    ramp = max(int(round(HEEL_RAISE_RAMP_SECONDS * fps)), 1)
-    min_frames = int(round(HEEL_RAISE_MIN_STANCE_SECONDS * fps))
-    for column, side in ((0, "left"), (2, "right")):
-        flat = contacts[:, column] & contacts[:, column + 1]
-        for start, end in _runs(flat):
-            if end - start < max(min_frames, 2 * ramp + 1) or rng.random() >= settings.heel_raise_probability:
-                continue
-            height = rng.uniform(*settings.heel_raise_height_range)
-            frames = np.arange(start, end)
-            profile = np.minimum(np.minimum(frames - start + 1, end - frames) / ramp, 1.0)
-            profile = profile * profile * (3.0 - 2.0 * profile)  # smoothstep: the heel leaves and lands at rest
-            raised = _raised_leg(positions[start:end][:, _LEG_JOINTS[side]], height * profile)
-            if raised is not None:
-                positions[start:end, _LEG_JOINTS[side][1:4]] = raised
-    return positions
-
-
-def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
-    """(start, end) frame ranges of the True runs of a (T,) bool array."""
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], flags.astype(np.int8), [0]])))
-    return list(zip(edges[::2], edges[1::2]))
-
-
-def _raised_leg(leg: np.ndarray, rise: np.ndarray) -> np.ndarray | None:
-    """Knee, ankle and heel (N, 3, 3) of a leg (N, 5, 3: hip, knee, ankle, heel, toe) whose foot turns about its
-    toe until the heel is `rise` (N,) m higher, the knee solved for the original thigh and shank lengths; None
-    where the hip is too far from the new ankle for that."""
-    hip, knee, ankle, heel, toe = (leg[:, i] for i in range(5))
-    backward = heel[:, :2] - toe[:, :2]
-    length = np.linalg.norm(backward, axis=1)
-    if np.any(length < 1e-3):
-        return None
-    backward = np.column_stack([backward / length[:, None], np.zeros(len(leg))])
-    angle = np.arcsin(np.clip(rise / length, 0.0, 0.9))
-    cos, sin = np.cos(angle)[:, None], np.sin(angle)[:, None]
-    up = np.array([0.0, 0.0, 1.0])
-
-    def turned(point: np.ndarray) -> np.ndarray:
-        relative = point - toe
-        along, height = np.sum(relative * backward, axis=1, keepdims=True), relative[:, 2:3]
-        lateral = relative - along * backward - height * up
-        return toe + lateral + (along * cos - height * sin) * backward + (along * sin + height * cos) * up
-
-    new_ankle, new_heel = turned(ankle), turned(heel)
-    thigh, shank = np.linalg.norm(knee - hip, axis=1), np.linalg.norm(ankle - knee, axis=1)
-    reach = new_ankle - hip
-    distance = np.linalg.norm(reach, axis=1)
-    if np.any(distance >= 0.999 * (thigh + shank)) or np.any(distance <= np.abs(thigh - shank)):
-        return None
-    axis = reach / distance[:, None]
-    bend = (knee - hip) - np.sum((knee - hip) * axis, axis=1, keepdims=True) * axis
-    bend_length = np.linalg.norm(bend, axis=1)
-    if np.any(bend_length < 1e-4):
-        return None
-    along = (thigh**2 - shank**2 + distance**2) / (2.0 * distance)
-    across = np.sqrt(np.maximum(thigh**2 - along**2, 0.0))
-    new_knee = hip + along[:, None] * axis + across[:, None] * bend / bend_length[:, None]
-    return np.stack([new_knee, new_ankle, new_heel], axis=1)
-
-
 def _segment(clip: MocapClip, rng: np.random.Generator, max_seconds: float) -> MocapClip:
     """A random segment of at most max_seconds of the clip (the whole clip if it is shorter)."""
     length = int(round(max_seconds * clip.fps))
@@ -283,23 +199,18 @@ def _segment(clip: MocapClip, rng: np.random.Generator, max_seconds: float) -> M
                    hand_rotations=clip.hand_rotations[part])
 
 
-def _sequence_rng(seed: int, clip_name: str, variant: int, stream: int = 0) -> np.random.Generator:
-    """The generator of one sequence's draws; streams other than 0 serve draws that must not shift the others."""
-    key = [seed, zlib.crc32(clip_name.encode()), variant]
-    return np.random.default_rng(key if stream == 0 else key + [stream])
+def _sequence_rng(seed: int, clip_name: str, variant: int) -> np.random.Generator:
+    return np.random.default_rng([seed, zlib.crc32(clip_name.encode()), variant])
 
 
 def synthesise(clip: MocapClip, variant: int, seed: int, settings: SyntheticSettings = SyntheticSettings()) -> SyntheticSequence:
     """One synthetic sequence of `clip` (see the module docstring); deterministic in (seed, clip.name, variant)."""
-    key = f"{clip.skeleton}:{clip.name}"
-    rng = _sequence_rng(seed, key, variant)
+    rng = _sequence_rng(seed, f"{clip.skeleton}:{clip.name}", variant)
     clip = _segment(clip, rng, settings.max_seconds)
     if rng.random() < settings.reverse_probability:
         clip = replace(clip, positions=clip.positions[::-1], head_rotation=clip.head_rotation[::-1],
                        hand_rotations=clip.hand_rotations[::-1])
     clip = replace(clip, fps=clip.fps * float(rng.uniform(*settings.playback_speed_range)))
-    if settings.heel_raise_probability > 0:
-        clip = replace(clip, positions=raise_heels(clip.positions, clip.fps, _sequence_rng(seed, key, variant, 1), settings))
     contacts, stationary = motion_labels(clip.positions, clip.fps, settings.labels)
     hard = hard_frames(clip.positions[:, CONTACT_SITE_INDICES], clip.fps, contacts, settings.labels)
     body = vary_proportions(clip, rng, settings)
