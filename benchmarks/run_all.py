@@ -37,6 +37,8 @@ BENCHMARKS = {  # name: (script, arguments)
     # (both seeds) is `bench_trajopt.py` run alone.
     "trajopt": ("bench_trajopt.py", ["--seeds", "0", "--repeats", "3"]),
 }
+# Run alone, not by `make bench` (four trainings, about 20 minutes on two cores); its stored table is included:
+# bench_contacts_data_gap.py.
 
 
 def run(names: list[str]) -> dict[str, float]:
@@ -113,6 +115,8 @@ def _live_physics(row: dict) -> str:
         return "n/a"
     return f"{_f(live['fps'])}, {_f(live['latency_median_ms'], 0)} / {_f(live['latency_p95_ms'], 0)}"
 
+
+NETWORKS = ("centred network", "causal network")  # bench_contacts' rows of the two contact networks
 
 SYNTHETIC_COLUMNS = (
     ("mpjpe_root_mm", "MPJPE root-rel. mm", 1), ("mpjpe_procrustes_mm", "Procrustes mm", 1),
@@ -249,13 +253,17 @@ def targets_section() -> list[str]:
         rows.append(("5", "physics stage alone, one core", ">= 1000 fps", f"{_f(fps, 0)} fps{how}", fps >= 1000))
     contacts = _load("contacts")
     if contacts:
-        best = max(contacts["synthetic"].values(), key=lambda r: r.get("accuracy", 0))
-        real_best = max((v for k, v in contacts["real"].items() if "network" in k), key=lambda r: r["accuracy"])
-        baselines = max(v["accuracy"] for k, v in contacts["real"].items() if "network" not in k)
-        rows += [("3", "held-out synthetic accuracy / F1", ">= 0.95 / 0.96",
-                  f"{_f(best['accuracy'], 3)} / {_f(best['f1'], 3)}", best["accuracy"] >= 0.95 and best["f1"] >= 0.96),
-                 ("3", "hand-labelled real accuracy, better than baselines", ">= 0.93",
-                  f"{_f(real_best['accuracy'], 3)} (best baseline {_f(baselines, 3)})",
+        synthetic, real = contacts["synthetic"], contacts["real"]
+        best = max((synthetic[k] for k in NETWORKS), key=lambda r: r["accuracy"])
+        real_best = max((real[k] for k in NETWORKS), key=lambda r: r["accuracy"])
+        baselines = max(v["accuracy"] for k, v in real.items() if k not in NETWORKS)
+        rows += [("3", "held-out synthetic accuracy / F1 (best network)", ">= 0.95 / 0.96",
+                  "; ".join(f"{k.split()[0]} {_f(synthetic[k]['accuracy'], 3)} / {_f(synthetic[k]['f1'], 3)}"
+                            for k in NETWORKS),
+                  best["accuracy"] >= 0.95 and best["f1"] >= 0.96),
+                 ("3", "hand-labelled real accuracy, better than baselines (best network)", ">= 0.93",
+                  "; ".join(f"{k.split()[0]} {_f(real[k]['accuracy'], 3)}" for k in NETWORKS)
+                  + f" (best baseline {_f(baselines, 3)})",
                   real_best["accuracy"] >= 0.93 and real_best["accuracy"] > baselines),
                  ("3", "inference", "<= 1 ms/frame", f"{_f(max(contacts['inference_ms_per_frame'].values()), 3)} ms",
                   max(contacts["inference_ms_per_frame"].values()) <= 1)]
@@ -423,6 +431,8 @@ def compose(seconds: dict[str, float]) -> str:
         "## Contacts",
         "",
         *include("contacts"),
+        "",
+        *include("contacts_data_gap"),
         "",
     ]
     if seconds:
