@@ -232,9 +232,9 @@ def main() -> None:
         f"({training.get('train_frames', '?')} synthetic frames, {training.get('total_seconds', float('nan')):.0f} s on one core). "
         f"Baseline thresholds tuned on those subjects: 2D contact under {heuristics.contact_speed_2d} person sizes/s, "
         f"2D stationary under {heuristics.stationary_speed_2d} person sizes/s, 3D contact under {heuristics.contact_speed_3d} m/s.", "",
-        f"Scores pool the four contact points (l heel, l toe, r heel, r toe) of every judged frame; precision, recall "
-        f"and F1 are of the contact class (Rempe App. E.1). Targets: synthetic accuracy >= 0.95 and F1 >= 0.96; real "
-        f"accuracy >= 0.93 and above every baseline; inference <= 1 ms per frame.", "",
+        "Scores pool the four contact points (l heel, l toe, r heel, r toe) of every judged frame; precision, recall "
+        "and F1 are of the contact class (Rempe App. E.1). Targets: synthetic accuracy >= 0.95 and F1 >= 0.96; real "
+        "accuracy >= 0.93 and above every baseline; inference <= 1 ms per frame.", "",
     ]
     lines += table(f"Held-out synthetic subjects {', '.join(TEST_SUBJECTS)} ({len(test)} sequences, {frames_synthetic} frames, "
                    f"12-60 fps, measured MediaPipe noise)", synthetic)

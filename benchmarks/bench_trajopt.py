@@ -225,7 +225,7 @@ def flight_forces(flight: dict) -> str:
 
 def markdown(out: dict) -> str:
     s = out["summary"]
-    lines = [f"# Trajectory optimisation (Rempe et al. 2020) on the synthetic set", "",
+    lines = ["# Trajectory optimisation (Rempe et al. 2020) on the synthetic set", "",
              f"{out['machine']}, revision {out['revision']}. {len(out['cases'])} cases (clips x seeds), "
              f"{SECONDS:.0f} s each at most, {FPS:.0f} fps; contacts from the centred network; floor metrics "
              "against the true floor and true contacts. Rows 'true floor': the true floor given to the kinematic "

@@ -248,7 +248,7 @@ def build_body_model(lengths: SkeletonLengths, mass: float = 70.0) -> BodyModel:
         m = p.mass_fraction * mass
         return m, start + direction * p.com_fraction * length, _inertia_along(long_axis, m, length, p)
 
-    up, down = z(1.0), z(-1.0)
+    down = z(-1.0)
     # Pelvis: de Leva's lower trunk (omphalion to hip midpoint), its com measured from the top.
     lower_trunk = L.spine_low * 1.45  # de Leva: 0.084 of stature against our 0.058
     pelvis_inertial = segment("lower_trunk", lower_trunk, down, 2, start=z(lower_trunk))

@@ -9,7 +9,7 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from ..body.model import CONTACT_POINTS, BodyModel
-from ..body.rotations import axis_angle_matrix, quat_exp, quat_log, quat_multiply
+from ..body.rotations import axis_angle_matrix, quat_exp, quat_log
 from ..kinematics.stage import rigid_transform_qpos
 
 UP = np.array([0.0, 0.0, 1.0])

@@ -158,7 +158,7 @@ def solve_window(window: Window, settings: TrajoptSettings) -> WindowResult:
     x0 = _force_guess(problem, program, fit.x)
     dyn = program.solve(x0)
     stages.append(_report("dynamics", dyn))
-    chosen, chosen_problem, chosen_program, x = "dynamics", problem, program, dyn.x
+    chosen, chosen_problem, x = "dynamics", problem, dyn.x
     phases = window.phases
     if dyn.converged and settings.optimize_durations:
         t = time.perf_counter()
@@ -169,7 +169,7 @@ def solve_window(window: Window, settings: TrajoptSettings) -> WindowResult:
             dur = dprogram.solve(np.concatenate([dyn.x, dproblem.durations.set.initial]))
             stages.append(_report("durations", dur))
             if dur.converged and dur.objective < dyn.objective:
-                chosen, chosen_problem, chosen_program, x = "durations", dproblem, dprogram, dur.x
+                chosen, chosen_problem, x = "durations", dproblem, dur.x
                 phases = _schedule_from(dproblem, dur.values["durations"])
     frames_fn, state_fn = _outputs(chosen_problem)
     com, acc, euler, feet, forces = (np.asarray(v) for v in frames_fn(x))
