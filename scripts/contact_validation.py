@@ -4,7 +4,7 @@ Trains one network (`--mode causal|centred`) on the synthetic data of the traini
 prints two JSON lines, without and with the mirrored input's votes (`predict.network_probabilities`): accuracy,
 precision, recall, F1 and stationary accuracy on the validation subjects (4 variants per clip, seed 1, the
 measured noise, labelled with the given label settings), their accuracy at frames with a raised heel or a skimming
-foot and at the others (`labels.hard_frames`), and accuracy on the hand-labelled real frames. The
+foot and at the others (`labels.hard_frames`), and contact and stationary accuracy on the hand-labelled real frames. The
 figures in the docstrings of `contacts/train.py` and `SyntheticSettings.variants_per_clip` came from it, for
 example
 
@@ -42,10 +42,11 @@ REAL_LABELS = REPO / "benchmarks" / "labels" / "contacts_real.toml"
 DETECTIONS = REPO / "runs" / "contacts" / "detections"
 
 
-def real_accuracy(params: dict[str, np.ndarray], mode: str, mirror: bool) -> tuple[float, dict[str, float]]:
-    """Accuracy over the judged contact entries of the hand-labelled real frames, overall and per video."""
+def real_accuracy(params: dict[str, np.ndarray], mode: str, mirror: bool) -> tuple[float, dict[str, float], float]:
+    """Accuracy over the judged contact entries of the hand-labelled real frames, overall and per video, and the
+    stationary accuracy over their judged frames."""
     videos = {video.name: video for video in REAL_VIDEOS}
-    right, per_video = [], {}
+    right, per_video, stationary_right = [], {}, []
     for name, labels in load_real_labels(REAL_LABELS).items():
         obs = cached_detection(videos[name], SHARED / "videos", DETECTIONS)
         _, flags = network_probabilities(obs.keypoints_2d, obs.valid, obs.fps, params, mode, mirror)
@@ -53,7 +54,9 @@ def real_accuracy(params: dict[str, np.ndarray], mode: str, mirror: bool) -> tup
         correct = flags[labels.frames, :4][judged] == (labels.contacts[judged] == 1)
         right.append(correct)
         per_video[name] = round(float(correct.mean()), 3)
-    return float(np.concatenate(right).mean()), per_video
+        judged = labels.stationary >= 0
+        stationary_right.append(flags[labels.frames[judged], 4] == (labels.stationary[judged] == 1))
+    return float(np.concatenate(right).mean()), per_video, float(np.concatenate(stationary_right).mean())
 
 
 def hard_frame_accuracy(params: dict[str, np.ndarray], mode: str, sequences: list, mirror: bool) -> dict[str, float]:
@@ -132,9 +135,10 @@ def main() -> None:
         scores = {**train.evaluate(params, args.mode, validation, mirror),
                   **{f"{name}_frames_accuracy": value
                      for name, value in hard_frame_accuracy(params, args.mode, validation, mirror).items()}}
-        real, per_video = real_accuracy(params, args.mode, mirror)
+        real, per_video, real_stationary = real_accuracy(params, args.mode, mirror)
         print(json.dumps(dict(settings=vars(args), mirror=mirror,
                               validation={k: round(v, 3) for k, v in scores.items()}, real=round(real, 3),
+                              real_stationary=round(real_stationary, 3),
                               real_per_video=per_video, seconds=round(time.perf_counter() - started)), default=str))
 
 
