@@ -30,6 +30,7 @@ from physmocap.contacts import train
 from physmocap.contacts.dataset import (
     SyntheticSettings, held_out_settings, load_clips, make_sequences, mocap_files, split_by_subject,
 )
+from physmocap.io.atomic import write_text
 
 TEST_SEED = 1  # bench_contacts.py's held-out draws
 OTHER_DRAWS = 100  # added to the data seed for the test subjects' training sequences
@@ -130,10 +131,7 @@ def write(rows: list[dict], settings: dict, header: str) -> None:
     RESULTS.mkdir(parents=True, exist_ok=True)
     for suffix, text in (("json", json.dumps(dict(settings=settings, header=header, rows=rows), indent=1)),
                          ("md", "\n".join(markdown(rows, settings, header)) + "\n")):
-        path = RESULTS / f"contacts_data_gap.{suffix}"
-        partial = path.with_suffix(f".{suffix}.partial")
-        partial.write_text(text)
-        partial.replace(path)
+        write_text(RESULTS / f"contacts_data_gap.{suffix}", text)
 
 
 if __name__ == "__main__":

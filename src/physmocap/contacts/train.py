@@ -126,6 +126,7 @@ from torch import nn
 
 from .. import metrics
 from ..errors import InputError
+from ..io.atomic import atomic_path, write_text
 from .dataset import (
     TEST_SUBJECTS, SyntheticSequence, SyntheticSettings, held_out_settings, load_clips, make_sequences, mocap_files,
     split_by_subject,
@@ -434,7 +435,8 @@ def train_contacts(
         log(f"training the {mode} network ({sum(p.numel() for p in model.parameters())} parameters)")
         training = train_network(model, table, window, settings.optimisation, seed + 10 * (index + 1), log)
         params = {key: value.astype(np.float16) for key, value in model.export().items()}
-        np.savez(out_dir / f"{mode}.npz", **params)
+        with atomic_path(out_dir / f"{mode}.npz") as partial, open(partial, "wb") as file:
+            np.savez(file, **params)  # uncompressed: the same weights give the same bytes
         params = {key: value.astype(np.float32) for key, value in params.items()}  # as predict_contacts loads them
         held_out = evaluate(params, mode, test_sequences) if test_sequences else {}
         results[mode] = {**training, "seconds": time.perf_counter() - mode_started, "held_out_synthetic": held_out}
@@ -454,5 +456,5 @@ def train_contacts(
         "settings": asdict(settings),
         **results,
     }
-    (out_dir / METADATA_FILE).write_text(json.dumps(metadata, indent=1, default=str))
+    write_text(out_dir / METADATA_FILE, json.dumps(metadata, indent=1, default=str))
     return metadata
