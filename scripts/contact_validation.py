@@ -4,9 +4,9 @@ Trains one network (`--mode causal|centred`) on the synthetic data of the traini
 prints two JSON lines, without and with the mirrored input's votes (`predict.network_probabilities`): accuracy,
 precision, recall, F1 and stationary accuracy on the validation subjects (4 variants per clip, seed 1, the
 measured noise, labelled with the given label settings), their accuracy at frames with a raised heel or a skimming
-foot and at the others (`labels.hard_frames`), and contact and stationary accuracy on the hand-labelled real frames. The
-figures in the docstrings of `contacts/train.py` and `SyntheticSettings.variants_per_clip` came from it, for
-example
+foot and at the others (`labels.hard_frames`), and contact and stationary accuracy on the hand-labelled real
+frames. The figures in the docstrings of `contacts/train.py` and `SyntheticSettings.variants_per_clip` came from
+it, for example
 
     .venv/bin/python scripts/contact_validation.py --val 1,7 --variants 96 --epochs 2
 
