@@ -214,7 +214,8 @@ def main() -> None:
     real_cases = [(cached_detection(videos[name], VIDEOS, DETECTIONS), label.frames, label.contacts, label.stationary)
                   for name, label in labels.items()]
     synthetic = {m: evaluate(m, synthetic_cases, args.weights, heuristics) for m in METHODS}
-    seen_motions = {m: evaluate(m, labelled_cases(seen), args.weights, heuristics) for m in METHODS}
+    seen_cases = labelled_cases(seen)
+    seen_motions = {m: evaluate(m, seen_cases, args.weights, heuristics) for m in METHODS}
     real = {m: evaluate(m, real_cases, args.weights, heuristics) for m in METHODS}
     per_video = {name: {m: evaluate(m, [case], args.weights, heuristics) for m in METHODS}
                  for name, case in zip(labels, real_cases)}

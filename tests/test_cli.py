@@ -148,6 +148,17 @@ def test_nonsense_settings(tmp_path, args, words):
     assert not (tmp_path / "o").exists()
 
 
+def test_train_contacts_on_bad_data_fails_with_one_sentence(tmp_path):
+    """Before any training starts: no mocap/ folder, a mocap/ folder without BVH files, a text file named .bvh."""
+    out = tmp_path / "weights"
+    assert_clean_failure(physmocap("train-contacts", "--data", tmp_path, "--out", out), "no mocap/ folder")
+    (tmp_path / "mocap").mkdir()
+    assert_clean_failure(physmocap("train-contacts", "--data", tmp_path, "--out", out), "no .bvh files")
+    (tmp_path / "mocap" / "01_01.bvh").write_text("not a motion capture file\n")
+    assert_clean_failure(physmocap("train-contacts", "--data", tmp_path, "--out", out), "01_01.bvh", "not a BVH")
+    assert not out.exists()
+
+
 def test_bad_settings_file(tmp_path):
     cfg = tmp_path / "s.toml"
     cfg.write_text("[fit]\nweight_2d = 'heavy'\n")
