@@ -1,8 +1,8 @@
-"""Is the contact networks' held-out gap one of training motion? Each network is trained twice with the shipped
-recipe, once on the training subjects alone (as shipped) and once with the test subjects' clips added under other
-draws of camera, body, frame rate, playback speed and noise (data seed + 100), and both are scored on
-bench_contacts.py's held-out test sequences (test subjects, seed 1, 4 per clip, `held_out_settings`, mirrored
-votes).
+"""Is the contact networks' held-out gap one of training motion? Each network is trained twice by `train_contacts`
+with the shipped recipe and seed, once as shipped (test subjects held out) and once with no subject held out, so
+that the test subjects' clips join training under that seed's draws of camera, body, frame rate, playback speed and
+noise; both are scored on bench_contacts.py's held-out test sequences (test subjects, seed 1, 4 per clip,
+`held_out_settings`, mirrored votes), which are other draws of those clips.
 
 The second network has seen the test motions, so its score is not a held-out one. It measures what the labels,
 the input representation and the network allow once a motion is known (Rempe et al.'s protocol, whose test motions
@@ -22,47 +22,35 @@ import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loa
 import argparse
 import json
 import os
+import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
 
 from common import MOCAP, RESULTS, git_revision, machine_description
 from physmocap.contacts import train
 from physmocap.contacts.dataset import (
-    SyntheticSettings, held_out_settings, load_clips, make_sequences, mocap_files, split_by_subject,
+    TEST_SUBJECTS, SyntheticSettings, held_out_settings, load_clips, make_sequences, mocap_files, split_by_subject,
 )
+from physmocap.contacts.predict import MODES, load_weights
+from physmocap.contacts.train import ContactTrainingSettings, train_contacts
 from physmocap.io.atomic import write_text
 
 TEST_SEED = 1  # bench_contacts.py's held-out draws
-OTHER_DRAWS = 100  # added to the data seed for the test subjects' training sequences
-WEIGHTS_SEED = 0  # train_contacts' seed: initial weights seed + index, batches seed + 10 (index + 1)
-MODES = ("causal", "centred")
 
 
-def trained_and_scored(mode: str, with_test_motion: bool, variants: int, data_seed: int) -> dict[str, object]:
-    """Train one network (`train_contacts`' recipe, seeds and sizes but `variants`) and score it on the held-out
-    test sequences."""
-    import torch
-
-    torch.set_num_threads(1)
-    torch.use_deterministic_algorithms(True)
+def trained_and_scored(mode: str, with_test_motion: bool, variants: int, seed: int) -> dict[str, object]:
+    """Train one network with `train_contacts` (the shipped recipe but `variants`; no subject held out when
+    with_test_motion) and score it on the held-out test sequences."""
     started = time.perf_counter()
-    train_files, test_files = split_by_subject(mocap_files(MOCAP))
-    train_clips, test_clips = load_clips(train_files), load_clips(test_files)
-    synthetic = SyntheticSettings(variants_per_clip=variants)
-    sequences = make_sequences(train_clips, data_seed, synthetic)
-    if with_test_motion:
-        sequences += make_sequences(test_clips, data_seed + OTHER_DRAWS, synthetic)
-    table = train.FrameTable.from_sequences(sequences)
-    del sequences
-    index = MODES.index(mode)
-    torch.manual_seed(WEIGHTS_SEED + index)
-    spec = train.CausalNetSpec() if mode == "causal" else train.CentredNetSpec()
-    model = train.TorchCausalNet(spec) if mode == "causal" else train.TorchCentredNet(spec)
-    train.train_network(model, table, spec.window, train.TrainSettings(), WEIGHTS_SEED + 10 * (index + 1),
-                        log=lambda _: None)
-    test = make_sequences(test_clips, TEST_SEED, held_out_settings(), variants=4)
-    scores = train.evaluate(model.export(), mode, test)
-    return dict(mode=mode, test_motion_in_training=with_test_motion, training_frames=len(table),
+    settings = ContactTrainingSettings(synthetic=SyntheticSettings(variants_per_clip=variants),
+                                       test_subjects=() if with_test_motion else TEST_SUBJECTS)
+    with tempfile.TemporaryDirectory() as out_dir:
+        metadata = train_contacts(MOCAP, out_dir, seed=seed, settings=settings, modes=(mode,), log=lambda _: None)
+        params = load_weights(mode, out_dir)
+    _, test_files = split_by_subject(mocap_files(MOCAP))
+    test = make_sequences(load_clips(test_files), TEST_SEED, held_out_settings(), variants=4)
+    scores = train.evaluate(params, mode, test)
+    return dict(mode=mode, test_motion_in_training=with_test_motion, training_frames=metadata["train_frames"],
                 scores={key: round(value, 3) for key, value in scores.items()},
                 seconds=round(time.perf_counter() - started))
 
@@ -86,9 +74,9 @@ def markdown(rows: list[dict], settings: dict, header: str) -> list[str]:
         "",
         f"`.venv/bin/python benchmarks/bench_contacts_data_gap.py --variants {settings['variants']}`. {header}",
         "",
-        "Each network trained with `train_contacts`' recipe and seeds, once on subjects 1, 2, 5, 7 alone (as "
-        "shipped) and once with subjects 6 and 131's clips added under other draws of camera, body, rate and "
-        "noise; both scored on the held-out test sequences above. The second has seen the test motions (not a "
+        "Each network trained by `train_contacts` with the shipped recipe and seed, once on subjects 1, 2, 5, 7 "
+        "alone (as shipped) and once with subjects 6 and 131's clips added (training's draws of camera, body, rate "
+        "and noise, not the test sequences'); both scored on the held-out test sequences above. The second has seen the test motions (not a "
         "held-out score): it shows what labels, input and network reach once a motion is known." + same,
         "",
         "| network | test subjects' motion in training | training frames | accuracy | precision | recall | F1 | "
@@ -107,7 +95,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--variants", type=int, default=SyntheticSettings().variants_per_clip,
                         help="synthetic sequences per training clip")
-    parser.add_argument("--data-seed", type=int, default=WEIGHTS_SEED, help="seed of the training sequences")
+    parser.add_argument("--seed", type=int, default=0, help="train_contacts' seed (the shipped weights': 0)")
     parser.add_argument("--modes", nargs="+", choices=MODES, default=list(MODES))
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1), help="trainings run at once")
     parser.add_argument("--compose-only", action="store_true", help="rewrite the .md from the stored .json")
@@ -118,7 +106,7 @@ def main() -> None:
         return
     header = (f"Git {git_revision()}; {machine_description()}; load average {os.getloadavg()[0]:.1f} at the start; "
               f"{args.jobs} trainings at once.")
-    tasks = [(mode, with_test, args.variants, args.data_seed) for mode in args.modes for with_test in (False, True)]
+    tasks = [(mode, with_test, args.variants, args.seed) for mode in args.modes for with_test in (False, True)]
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         rows = list(pool.map(trained_and_scored, *zip(*tasks)))
     for row in rows:
