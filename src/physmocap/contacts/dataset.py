@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import os
 import zlib
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -82,7 +83,7 @@ class SyntheticSettings:
     labels: the automatic label thresholds.
     """
 
-    variants_per_clip: int = 256
+    variants_per_clip: int = 128
     fps_range: tuple[float, float] = (12.0, 60.0)
     max_seconds: float = 8.0
     reverse_probability: float = 0.5
@@ -245,5 +246,13 @@ def make_sequences(
     clips: list[MocapClip], seed: int, settings: SyntheticSettings = SyntheticSettings(), variants: int | None = None
 ) -> list[SyntheticSequence]:
     """`variants` (default settings.variants_per_clip) synthetic sequences of every clip, in clip order."""
+    return list(iter_sequences(clips, seed, settings, variants))
+
+
+def iter_sequences(
+    clips: list[MocapClip], seed: int, settings: SyntheticSettings = SyntheticSettings(), variants: int | None = None
+) -> Iterator[SyntheticSequence]:
+    """`make_sequences` one at a time, so that a consumer keeping only what it needs of each holds no full list
+    (the training set's sequences are several GB)."""
     count = settings.variants_per_clip if variants is None else variants
-    return [synthesise(clip, variant, seed, settings) for clip in clips for variant in range(count)]
+    return (synthesise(clip, variant, seed, settings) for clip in clips for variant in range(count))

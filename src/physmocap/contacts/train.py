@@ -114,6 +114,7 @@ compare it against a placebo draw or over several data seeds.
 from __future__ import annotations
 
 import json
+from collections.abc import Iterable
 import os
 import time
 from dataclasses import asdict, dataclass, field
@@ -128,8 +129,8 @@ from .. import metrics
 from ..errors import InputError
 from ..io.atomic import atomic_path, write_text
 from .dataset import (
-    TEST_SUBJECTS, SyntheticSequence, SyntheticSettings, held_out_settings, load_clips, make_sequences, mocap_files,
-    split_by_subject,
+    TEST_SUBJECTS, SyntheticSequence, SyntheticSettings, held_out_settings, iter_sequences, load_clips, make_sequences,
+    mocap_files, split_by_subject,
 )
 from .features import REFERENCE_FPS, VALUES_PER_POINT, WindowSpec, inputs_from_windows, select_keypoints
 from .networks import FRAME_CHANNELS, NUM_OUTPUTS, OUTPUT_NAMES, CausalNetSpec, CentredNetSpec
@@ -282,17 +283,20 @@ class FrameTable:
     hard: np.ndarray
 
     @classmethod
-    def from_sequences(cls, sequences: list[SyntheticSequence]) -> "FrameTable":
-        lengths = np.array([s.num_frames for s in sequences])
-        starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
-        return cls(
-            points=np.concatenate([select_keypoints(s.keypoints_2d, s.valid) for s in sequences]),
-            interval=np.concatenate([np.full(s.num_frames, REFERENCE_FPS / s.fps, np.float32) for s in sequences]),
-            labels=np.concatenate([np.column_stack([s.contacts, s.stationary]) for s in sequences]).astype(np.float32),
-            sequence_start=np.repeat(starts, lengths),
-            sequence_length=np.repeat(lengths, lengths),
-            hard=np.concatenate([s.hard for s in sequences]),
-        )
+    def from_sequences(cls, sequences: Iterable[SyntheticSequence]) -> "FrameTable":
+        """The table of `sequences`, consumed one at a time (only its rows of each are kept)."""
+        points, interval, labels, hard, lengths = [], [], [], [], []
+        for s in sequences:
+            points.append(select_keypoints(s.keypoints_2d, s.valid))
+            interval.append(np.full(s.num_frames, REFERENCE_FPS / s.fps, np.float32))
+            labels.append(np.column_stack([s.contacts, s.stationary]).astype(np.float32))
+            hard.append(s.hard)
+            lengths.append(s.num_frames)
+        sizes = np.array(lengths)
+        starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+        return cls(points=np.concatenate(points), interval=np.concatenate(interval), labels=np.concatenate(labels),
+                   sequence_start=np.repeat(starts, sizes), sequence_length=np.repeat(sizes, sizes),
+                   hard=np.concatenate(hard))
 
     def __len__(self) -> int:
         return len(self.points)
@@ -414,12 +418,12 @@ def train_contacts(
     if max_clips is not None:
         train_files, test_files = train_files[:max_clips], test_files[:max_clips]
     train_clips, test_clips = load_clips(train_files), load_clips(test_files)
-    train_sequences = make_sequences(train_clips, seed, settings.synthetic)
+    table = FrameTable.from_sequences(iter_sequences(train_clips, seed, settings.synthetic))
     test_sequences = make_sequences(test_clips, seed + 1, held_out_settings(settings.synthetic),
                                     variants=settings.test_variants_per_clip)
-    table = FrameTable.from_sequences(train_sequences)
     data_seconds = time.perf_counter() - started
-    log(f"synthetic data: {len(train_sequences)} training sequences ({len(table)} frames) from {len(train_clips)} "
+    log(f"synthetic data: {len(train_clips) * settings.synthetic.variants_per_clip} training sequences "
+        f"({len(table)} frames) from {len(train_clips)} "
         f"clips, {len(test_sequences)} test sequences, {data_seconds:.1f} s")
 
     out_dir = Path(out_dir)
