@@ -106,10 +106,11 @@ def build_parser() -> argparse.ArgumentParser:
                                        "synthetic observations of CMU motion capture (needs torch; about 10 "
                                        "minutes on one core). The same data and seed give the same weights; "
                                        "training.json beside them records the recipe and the held-out scores.")
-    train.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[3] / "shared" / "data",
-                       help="the shared data folder (with mocap/)")
-    train.add_argument("--out", type=Path, default=argparse.SUPPRESS,
-                       help="weights folder (default: the shipped weights inside the package, replaced)")
+    train.add_argument("--data", type=Path, required=True,
+                       help="the data folder holding mocap/ (the project's is ../shared/data)")
+    train.add_argument("--out", type=Path, required=True,
+                       help="folder for causal.npz, centred.npz and training.json (replaced); to ship them, copy "
+                            "them into src/physmocap/data/contacts")
     train.add_argument("--seed", type=int, default=0,
                        help="seed of every random draw (synthetic data, initial weights, batches)")
 
@@ -357,15 +358,13 @@ def _number(value) -> str:
 
 
 def cmd_train_contacts(args) -> int:
-    from .contacts.predict import WEIGHTS_DIR
     from .contacts.train import train_contacts
     from .errors import InputError
 
     if not (args.data / "mocap").is_dir():
         raise InputError(f"{args.data}: no mocap/ folder of training data here (give --data).")
-    out = getattr(args, "out", WEIGHTS_DIR)
-    train_contacts(args.data, out, seed=args.seed)
-    print(f"weights written to {out}")
+    train_contacts(args.data, args.out, seed=args.seed)
+    print(f"weights written to {args.out}")
     return 0
 
 
