@@ -1,7 +1,13 @@
-"""Skeleton calibration: bone lengths from the detector's 3D landmarks, scaled to the person's stated height."""
+"""Skeleton calibration: bone lengths from the detector's 3D landmarks, scaled to the person's stated height.
+
+Landmarks a detector did not see (confidence 0, or not finite: another detector's file without MediaPipe's heels,
+toes or hands) carry no weight: a length that no frame shows, or that comes out implausible or degenerate, is the
+template's share of the height (anthropometric proportions) and is listed in Calibration.replaced.
+"""
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -14,6 +20,13 @@ from ..motion import Observations
 # offsets (under 5% of the height) are instead checked against an absolute margin, in fractions of height.
 PLAUSIBLE_RATIO = (0.6, 1.6)
 PLAUSIBLE_MARGIN = 0.03
+# Lengths and widths that are positive on every body: below this share of the template's value they are
+# degenerate (a width of zero where a detector put both ends at the same stand-in point), whatever the margin.
+MIN_TEMPLATE_SHARE = 0.5
+SIGNED_OFFSETS = ("heel_back", "nose_down")  # may be zero or negative
+# The core lengths whose median ratio to the template gives the detector's unit: the leg and trunk, which
+# detectors measure best.
+CORE_LENGTHS = ("thigh", "shank", "spine_up", "upper_arm", "forearm", "shoulder_width")
 # Lengths taken as the template's share of the height: the top of the head has no landmark, and the ankle's height
 # above the sole (about 5 cm) is as short as the detector's 3D error, which lengthened it by 27% on average
 # (synthetic, MediaPipe's measured noise) and, through the height, shortened every other bone (global root error
@@ -26,12 +39,17 @@ TEMPLATE_ONLY = ("head_top", "ankle_height")
 class Calibration:
     """lengths: the person's skeleton in metres; landmark_scale: factor that brings the detector's 3D
     landmarks to the same metric size; frames_used: how many frames the medians came from;
-    replaced: lengths that were implausible and fell back to the template."""
+    replaced: lengths that were not seen, implausible or degenerate and fell back to the template;
+    height: the standing height the skeleton was scaled to, m; detector_height: the standing height the
+    detector's own 3D landmarks imply, m if they are metric (nan when nothing was measured).
+    """
 
     lengths: SkeletonLengths
     landmark_scale: float
     frames_used: int
     replaced: tuple[str, ...]
+    height: float = float("nan")
+    detector_height: float = float("nan")
 
 
 def _distance(points: np.ndarray, a: str, b: str) -> np.ndarray:
@@ -47,7 +65,15 @@ def _both_sides(points: np.ndarray, a: str, b: str) -> np.ndarray:
 
 
 def measure_lengths(landmarks: np.ndarray) -> dict[str, float]:
-    """Median lengths (detector units) of every SkeletonLengths field except head_top, from (T, 33, 3)."""
+    """Median lengths (detector units) of every SkeletonLengths field except head_top, from (T, 33, 3); NaN
+    landmarks (unseen) leave out the frames' lengths they take part in, and a length no frame shows is NaN."""
+    with warnings.catch_warnings(), np.errstate(invalid="ignore"):
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN medians: lengths nobody saw
+        return {k: float(np.nanmedian(v)) for k, v in _frame_lengths(landmarks).items()}
+
+
+def _frame_lengths(landmarks: np.ndarray) -> dict[str, np.ndarray]:
+    """(T,) per frame, every SkeletonLengths field except head_top (detector units, NaN where unseen)."""
     P = landmarks
     heel = _both_sides(P, "ankle", "heel")
     toe = _both_sides(P, "ankle", "foot_index")
@@ -97,37 +123,62 @@ def measure_lengths(landmarks: np.ndarray) -> dict[str, float]:
         eye_up=eye_up,
         eye_width=_distance(P, "left_eye", "right_eye"),
     )
-    return {k: float(np.median(v)) for k, v in raw.items()}
+    return raw
 
 
 def plausible_length(name: str, value: float) -> bool:
     """Whether a length (SkeletonLengths field), as a share of the height, is one a person could have: within
-    PLAUSIBLE_RATIO of the template's, or PLAUSIBLE_MARGIN of it for the short offsets."""
+    PLAUSIBLE_RATIO of the template's, or PLAUSIBLE_MARGIN of it for the short offsets, and never under
+    MIN_TEMPLATE_SHARE of it for a length that every body has (all but SIGNED_OFFSETS)."""
     expected = TEMPLATE_RATIOS[name]
     if not np.isfinite(value):
+        return False
+    if name not in SIGNED_OFFSETS and value < MIN_TEMPLATE_SHARE * expected:
         return False
     if abs(expected) >= 0.05:
         return PLAUSIBLE_RATIO[0] <= value / expected <= PLAUSIBLE_RATIO[1]
     return abs(value - expected) <= PLAUSIBLE_MARGIN
 
 
-def calibrate(obs: Observations, height: float, frames: int = 30, min_confidence: float = 0.5) -> Calibration:
-    """Bone lengths from the median over the first `frames` usable frames (0: all), scaled to `height` metres.
+def seen_landmarks(obs: Observations) -> np.ndarray:
+    """(T, 33, 3) the detector's 3D landmarks with NaN where it did not see them (confidence 0 or not finite)."""
+    seen = (obs.keypoints_2d[..., 2] > 0) & np.isfinite(obs.landmarks_3d).all(axis=2)
+    return np.where(seen[..., None], obs.landmarks_3d, np.nan)
 
-    A frame is usable when it is valid and its body landmarks are confidently seen."""
+
+def _usable_frames(obs: Observations, frames: int, min_confidence: float) -> np.ndarray:
+    """Valid frames whose body landmarks are confidently seen (all valid frames if none is), the first `frames`
+    of them (0: all)."""
     body = [LM[n] for n in ("left_shoulder", "right_shoulder", "left_hip", "right_hip", "left_knee",
                             "right_knee", "left_ankle", "right_ankle")]
     usable = np.flatnonzero(obs.valid & (obs.keypoints_2d[:, body, 2].min(axis=1) >= min_confidence))
     if len(usable) == 0:
         usable = np.flatnonzero(obs.valid)
-    if frames > 0:
-        usable = usable[:frames]
-    measured = measure_lengths(obs.landmarks_3d[usable]) if len(usable) else {}
+    return usable[:frames] if frames > 0 else usable
+
+
+def _detector_unit(measured: dict[str, float]) -> float:
+    """The detector's length of one standing height: median over the CORE_LENGTHS it measured of their ratio to
+    the template's share of the height (nan if it measured none)."""
+    template = template_lengths(1.0)
+    ratios = [measured[k] / getattr(template, k) for k in CORE_LENGTHS
+              if np.isfinite(measured.get(k, np.nan)) and measured[k] > 0]
+    return float(np.median(ratios)) if ratios else float("nan")
+
+
+def calibrate(obs: Observations, height: float, frames: int = 30, min_confidence: float = 0.5) -> Calibration:
+    """Bone lengths from the median over the first `frames` usable frames (0: all), scaled to `height` metres.
+
+    A frame is usable when it is valid and its body landmarks are confidently seen; landmarks the detector did
+    not see take no part (`seen_landmarks`)."""
+    usable = _usable_frames(obs, frames, min_confidence)
+    measured = measure_lengths(seen_landmarks(obs)[usable]) if len(usable) else {}
     template = template_lengths(1.0)  # ratios of height
     # Everything measured is in detector units; find their scale to ratios of height using the leg and
     # trunk, which detectors measure best, then reject outliers against the template.
-    core = ("thigh", "shank", "spine_up", "upper_arm", "forearm", "shoulder_width")
-    unit = np.median([measured[k] / getattr(template, k) for k in core]) if measured else 1.0
+    unit = _detector_unit(measured)
+    if not np.isfinite(unit):
+        unit = 1.0
     values, replaced = {}, []
     for name in TEMPLATE_RATIOS:
         if name in TEMPLATE_ONLY:
@@ -141,4 +192,35 @@ def calibrate(obs: Observations, height: float, frames: int = 30, min_confidence
     values.update({name: getattr(template, name) for name in TEMPLATE_ONLY})
     unscaled = SkeletonLengths(**values)
     factor = height / unscaled.standing_height
-    return Calibration(unscaled.scaled(factor), factor / unit, len(usable), tuple(replaced))
+    detector_height = unit * unscaled.standing_height if measured and len(replaced) < len(values) else float("nan")
+    return Calibration(unscaled.scaled(factor), factor / unit, len(usable), tuple(replaced), float(height),
+                       float(detector_height))
+
+
+@dataclass(frozen=True)
+class HeightEstimate:
+    """height: m, the person's standing height from the detector's metric 3D landmarks; spread: m, the robust
+    standard deviation (1.4826 x MAD) of the per-frame estimates; frames: how many frames gave one."""
+
+    height: float
+    spread: float
+    frames: int
+
+
+def estimate_height(obs: Observations, min_confidence: float = 0.5) -> HeightEstimate:
+    """The standing height that the detector's 3D landmarks imply, read as metres (MediaPipe's world landmarks
+    are metric by design): the calibration's skeleton (proportions from all usable frames) at the detector's
+    unit (`_detector_unit`), and per frame the same from that frame's core lengths alone for the spread.
+    Raises ValueError when no frame shows the core lengths."""
+    calibration = calibrate(obs, 1.0, frames=0, min_confidence=min_confidence)
+    if not np.isfinite(calibration.detector_height):
+        raise ValueError(f"{obs.source}: no frame shows the legs, trunk and arms needed to estimate a height.")
+    landmarks = seen_landmarks(obs)[_usable_frames(obs, 0, min_confidence)]
+    unit = _detector_unit(measure_lengths(landmarks))
+    per_frame, template = _frame_lengths(landmarks), template_lengths(1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # frames that show no core length
+        units = np.nanmedian(np.stack([per_frame[k] / getattr(template, k) for k in CORE_LENGTHS]), axis=0)
+    heights = calibration.detector_height * units[np.isfinite(units)] / unit
+    spread = 1.4826 * float(np.median(np.abs(heights - np.median(heights))))
+    return HeightEstimate(float(calibration.detector_height), spread, int(len(heights)))
