@@ -2,6 +2,7 @@
 no weight anywhere (calibration, both data terms of the fit, the contact features), calibration never makes a
 degenerate segment, and `capture --observations` completes with a head above the neck and finite outputs."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -13,7 +14,7 @@ from physmocap.camera import Camera
 from physmocap.config import FitSettings
 from physmocap.contacts.features import FEATURE_LANDMARKS, select_keypoints
 from physmocap.contacts.predict import predict_contacts
-from physmocap.kinematics.calibration import calibrate, estimate_height
+from physmocap.kinematics.calibration import calibrate, estimate_height, height_line, resolve_height
 from physmocap.kinematics.fit import MARKERS, initial_qpos
 from physmocap.kinematics.stage import make_targets
 from physmocap.landmarks import LANDMARK_INDEX, LANDMARK_NAMES
@@ -111,8 +112,8 @@ def test_a_first_frame_without_torso_starts_from_the_nearest_frame_that_shows_on
     targets = make_targets(obs.keypoints_2d, obs.landmarks_3d, obs.valid, np.full(45, 4.0), camera,
                            calibrate(obs, 1.62), FitSettings())
     start = initial_qpos(body, camera, targets, 5)
-    targets.weight_3d[:3] = 0.0
-    targets.weight_2d[:3] = 0.0
+    for array in (targets.weight_3d, targets.weight_2d, targets.targets_3d, targets.keypoints):
+        array[:3] = 0.0  # as a loaded file holds what nobody saw
     q = initial_qpos(body, camera, targets, 0)
     assert np.isfinite(q).all()
     assert abs(np.dot(q[0, 3:7], start[0, 3:7])) > 0.95  # the nearest seen frame's orientation, about
@@ -143,6 +144,19 @@ def test_height_estimate_reads_the_detector_metric_landmarks(walker, tmp_path):
     assert abs(coco.height - body.height) < 0.05
 
 
+def test_the_height_is_estimated_only_when_asked_and_every_run_can_say_which(walker):
+    _, obs = walker
+    assert resolve_height(obs, 1.70, False) == (1.70, "given")
+    height, source = resolve_height(obs, 1.70, True)
+    assert source == "estimated" and abs(height - 1.62) < 0.03
+    blind = Observations(np.zeros_like(obs.keypoints_2d), obs.landmarks_3d, obs.fps, obs.image_size)
+    assert resolve_height(blind, 1.70, True) == (1.70, "given")  # nothing seen: the given height stays
+    line = height_line(calibrate(obs, 1.70), default_height=1.70)
+    assert "1.70 m assumed" in line and "--height" in line
+    estimated = dataclasses.replace(calibrate(obs, height), height_source=source)
+    assert "estimated" in height_line(estimated, default_height=1.70)
+
+
 def _result_of_capture(obs_path, out):
     proc = physmocap("capture", "--observations", obs_path, "-o", out, "--no-overlay", "--physics", "none",
                      "--height", "1.62")
@@ -155,6 +169,8 @@ def _result_of_capture(obs_path, out):
     names = list(result["joint_names"])
     head, neck = result["joints_world"][:, names.index("head"), 2], result["joints_world"][:, names.index("neck"), 2]
     assert (head > neck + 0.05).all()
+    confidence = json.loads(str(result["floor_confidence"]))
+    assert bool(result["floor_trusted"]) == confidence["trusted"] and 0 <= confidence["inlier_fraction"] <= 1
     return result, json.loads((out / "summary.json").read_text())
 
 

@@ -105,6 +105,15 @@ class Floor:
     def plane(self) -> np.ndarray:
         return np.append(self.normal, self.offset)
 
+    def confidence(self) -> dict:
+        """The confidence fields for a result file: finite numbers, None where not measured."""
+        def finite(x):
+            return float(x) if np.isfinite(x) else None
+
+        return dict(trusted=bool(self.trusted), source=self.source, inlier_fraction=finite(self.inlier_fraction),
+                    tilt_spread_degrees=finite(self.tilt_spread),
+                    prior_disagreement_degrees=finite(self.prior_disagreement))
+
     @staticmethod
     def from_plane(plane) -> "Floor":
         plane = np.asarray(plane, float)

@@ -41,7 +41,8 @@ class Calibration:
     landmarks to the same metric size; frames_used: how many frames the medians came from;
     replaced: lengths that were not seen, implausible or degenerate and fell back to the template;
     height: the standing height the skeleton was scaled to, m; detector_height: the standing height the
-    detector's own 3D landmarks imply, m if they are metric (nan when nothing was measured).
+    detector's own 3D landmarks imply, m if they are metric (nan when nothing was measured); height_source:
+    "given" (settings, the default 1.70 m included) or "estimated" (`resolve_height`).
     """
 
     lengths: SkeletonLengths
@@ -50,6 +51,7 @@ class Calibration:
     replaced: tuple[str, ...]
     height: float = float("nan")
     detector_height: float = float("nan")
+    height_source: str = "given"
 
 
 def _distance(points: np.ndarray, a: str, b: str) -> np.ndarray:
@@ -224,3 +226,31 @@ def estimate_height(obs: Observations, min_confidence: float = 0.5) -> HeightEst
     heights = calibration.detector_height * units[np.isfinite(units)] / unit
     spread = 1.4826 * float(np.median(np.abs(heights - np.median(heights))))
     return HeightEstimate(float(calibration.detector_height), spread, int(len(heights)))
+
+
+HEIGHT_RANGE = (1.0, 2.3)  # m: an estimate outside BodySettings.height's range is not believed
+
+
+def resolve_height(obs: Observations, height: float, estimate: bool) -> tuple[float, str]:
+    """The standing height (m) to scale the skeleton to and its source: with `estimate`, `estimate_height`'s
+    reading of the detector's 3D landmarks ("estimated"), unless it cannot be made or lies outside HEIGHT_RANGE;
+    otherwise `height` ("given")."""
+    if estimate:
+        try:
+            estimated = estimate_height(obs).height
+        except ValueError:
+            estimated = float("nan")
+        if HEIGHT_RANGE[0] <= estimated <= HEIGHT_RANGE[1]:
+            return float(estimated), "estimated"
+    return float(height), "given"
+
+
+def height_line(calibration: Calibration, default_height: float) -> str:
+    """One line for the terminal and the report: the height the run assumed, where it came from, how to set it."""
+    how = "set it with --height M or body.height in a settings file"
+    if calibration.height_source == "estimated":
+        return (f"Body height: {calibration.height:.2f} m, estimated from the detector's 3D landmarks; {how} if "
+                f"it is known.")
+    if abs(calibration.height - default_height) < 1e-9:
+        return f"Body height: {calibration.height:.2f} m assumed (the default); {how}: every length scales with it."
+    return f"Body height: {calibration.height:.2f} m (given)."

@@ -20,7 +20,7 @@ from ..config import FitSettings, Settings
 from ..detect.foot_swaps import find_foot_swaps, undo_foot_swaps
 from ..errors import ReconstructionError
 from ..motion import Observations
-from .calibration import Calibration, calibrate, plausible_length
+from .calibration import Calibration, calibrate, plausible_length, resolve_height
 from .filters import one_euro_qpos
 from .fit import MARKER_LANDMARKS, MARKERS, FitTargets, KinematicFitter
 
@@ -323,7 +323,8 @@ def _fit_offline(obs: Observations, settings: Settings, progress) -> KinematicMo
     obs = undo_foot_swaps(obs, swaps)
     camera = Camera.from_settings(obs.image_size, s.camera.focal, s.camera.fov,
                                   None if (s.camera.focal or s.camera.fov) else obs.camera_K)
-    calibration = calibrate(obs, s.body.height, frames=s.body.calibration_frames)
+    height, source = resolve_height(obs, s.body.height, s.body.estimate_height)
+    calibration = dataclasses.replace(calibrate(obs, height, frames=s.body.calibration_frames), height_source=source)
     body = build_body_model(calibration.lengths, s.body.mass)
     depth = smooth_depth(raw_depth(obs.keypoints_2d, obs.landmarks_3d, obs.valid, camera.focal, calibration,
                                    s.fit.min_confidence))
@@ -337,7 +338,7 @@ def _fit_offline(obs: Observations, settings: Settings, progress) -> KinematicMo
             [np.ones_like(scale), np.ones_like(scale), 1.0 / scale], axis=1)[:, None])
         targets = make_targets(obs.keypoints_2d, obs.landmarks_3d, obs.valid, depth, camera, calibration, s.fit)
     if s.fit.refine_lengths:
-        calibration = refine_lengths(body, camera, qpos, targets, calibration, s.body.height)
+        calibration = refine_lengths(body, camera, qpos, targets, calibration, calibration.height)
         body = build_body_model(calibration.lengths, s.body.mass)
         fitter = KinematicFitter(body, camera, s.fit, obs.fps)
     qpos = hold_outside_valid(fitter.fit_offline(qpos, targets).qpos, obs.valid)
