@@ -178,9 +178,8 @@ def calibrate(obs: Observations, height: float, frames: int = 30, min_confidence
     template = template_lengths(1.0)  # ratios of height
     # Everything measured is in detector units; find their scale to ratios of height using the leg and
     # trunk, which detectors measure best, then reject outliers against the template.
-    unit = _detector_unit(measured)
-    if not np.isfinite(unit):
-        unit = 1.0
+    measured_unit = _detector_unit(measured)
+    unit = measured_unit if np.isfinite(measured_unit) else 1.0
     values, replaced = {}, []
     for name in TEMPLATE_RATIOS:
         if name in TEMPLATE_ONLY:
@@ -194,7 +193,7 @@ def calibrate(obs: Observations, height: float, frames: int = 30, min_confidence
     values.update({name: getattr(template, name) for name in TEMPLATE_ONLY})
     unscaled = SkeletonLengths(**values)
     factor = height / unscaled.standing_height
-    detector_height = unit * unscaled.standing_height if measured and len(replaced) < len(values) else float("nan")
+    detector_height = measured_unit * unscaled.standing_height
     return Calibration(unscaled.scaled(factor), factor / unit, len(usable), tuple(replaced), float(height),
                        float(detector_height))
 
