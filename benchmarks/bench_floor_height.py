@@ -7,8 +7,9 @@ the floor confidence the kinematic stage reports.
 
 Height: the clips' skeletons scaled to several standing heights; the global root error (camera frame) of the
 offline kinematic fit with the default height (1.70 m), with the automatic estimate (calibration's
-estimate_height), and with the true height; and the estimate's error. Real: how metric MediaPipe's 3D landmarks are against a multi-view triangulation (Pose2Sim
-demo), which the synthetic set cannot tell (its 3D landmarks are metric by construction).
+estimate_height), and with the true height; and the estimate's error. Real: how metric MediaPipe's 3D landmarks
+are against a multi-view triangulation (Pose2Sim demo), which the synthetic set cannot tell (its 3D landmarks
+are metric by construction). Detectors: the offline fit with only COCO's 17 landmarks, or a random half.
 
 Validation clips (subjects other than the contact networks' held-out 6 and 131) chose the constants; the test
 clips are bench_synthetic's (subjects 6 and 131 only).
@@ -16,6 +17,7 @@ clips are bench_synthetic's (subjects 6 and 131 only).
     .venv/bin/python benchmarks/bench_floor_height.py [--part floor|height|both] [--set validation|test]
         [--quick] [--json OUT.json]
     .venv/bin/python benchmarks/bench_floor_height.py --part real-height   # MediaPipe's metric scale, real video
+    .venv/bin/python benchmarks/bench_floor_height.py --part detectors     # only COCO's 17 landmarks, or half
 """
 
 from __future__ import annotations
@@ -34,13 +36,16 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_synthetic import CLIPS as TEST_CLIPS, FPS, SECONDS, first_seconds, model_height  # noqa: E402
 from common import MOCAP, RESULTS, machine_description  # noqa: E402
+from physmocap.body import kinematics as kin  # noqa: E402
 from physmocap.config import Settings  # noqa: E402
 from physmocap.contacts.noise import MEDIAPIPE_NOISE  # noqa: E402
 from physmocap.contacts.predict import predict_contacts  # noqa: E402
 from physmocap.dynamics.stage import run_physcap  # noqa: E402
+from physmocap.io.atomic import write_text  # noqa: E402
 from physmocap.kinematics.stage import fit_motion  # noqa: E402
 from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
-from physmocap.mocap.synthetic import landmarks_from_clip as _landmarks, make_observations, random_camera, resample  # noqa: E402,E501
+from physmocap.motion import Observations  # noqa: E402
+from physmocap.mocap.synthetic import landmarks_from_clip, make_observations, random_camera, resample  # noqa: E402
 from physmocap.trajopt import refine_kinematics  # noqa: E402
 
 VALIDATION_CLIPS = (
@@ -61,7 +66,7 @@ def synthetic_case(name: str, seed: int, height: float | None = None):
     (about the floor point below its first pelvis) to that standing height."""
     clip = first_seconds(resample(load_mocap(MOCAP / name), FPS), SECONDS)
     if height is not None:
-        factor = height / model_height(_landmarks(clip))
+        factor = height / model_height(landmarks_from_clip(clip))
         anchor = clip.positions[0, 0] * np.array([1.0, 1.0, 0.0])
         clip = dataclasses.replace(clip, positions=anchor + factor * (clip.positions - anchor))
     rng = np.random.default_rng(seed)
@@ -122,6 +127,42 @@ def height_case(name: str, seed: int, height: float) -> dict:
     return row
 
 
+COCO_17 = ("nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder",
+           "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hip", "right_hip", "left_knee",
+           "right_knee", "left_ankle", "right_ankle")
+
+
+def detector_case(name: str, seed: int, landmarks: str) -> dict:
+    """The offline kinematic fit of one clip when the detector gives all 33 landmarks, only COCO's 17 (the
+    others NaN, as in another detector's observations file), or a random half (NaN): root-relative and global
+    errors of the 16 evaluated joints, and the share of frames whose fitted head is above its neck."""
+    from physmocap.evaluation import score_against_truth, to_truth_world
+    from physmocap.landmarks import LANDMARK_NAMES
+
+    obs, truth = synthetic_case(name, seed)
+    if landmarks != "all":
+        hidden = ([i for i, n in enumerate(LANDMARK_NAMES) if n not in COCO_17] if landmarks == "coco17"
+                  else list(np.random.default_rng(seed).choice(len(LANDMARK_NAMES), 16, replace=False)))
+        obs.keypoints_2d[:, hidden] = np.nan
+        obs.landmarks_3d[:, hidden] = np.nan
+        path = RESULTS / "tmp_observations.npz"
+        np.savez(path, keypoints_2d=obs.keypoints_2d, landmarks_3d=obs.landmarks_3d, fps=obs.fps,
+                 image_size=np.array(obs.image_size), camera_K=obs.camera_K)
+        obs = Observations.load(path)  # as a file from another detector is read
+        path.unlink()
+    settings = Settings().replace("body", height=model_height(truth["landmarks_world"]))
+    motion = fit_motion(obs, settings)
+    pose = kin.forward_kinematics(motion.body, motion.qpos)
+    points = to_truth_world(pose.points, motion.camera.R, motion.camera.t, truth)
+    com = to_truth_world(kin.center_of_mass(motion.body, pose), motion.camera.R, motion.camera.t, truth)
+    scores = score_against_truth(points, motion.body.point_names, com, truth, motion.body.mass)
+    names = motion.body.point_names
+    head_up = float(np.mean(points[:, names.index("head"), 2] > points[:, names.index("neck"), 2]))
+    return dict(clip=name.split("/")[-1], seed=seed, landmarks=landmarks, mpjpe_root_mm=scores["mpjpe_root_mm"],
+                global_root_mm=scores["global_root_mm"], head_above_neck=head_up,
+                finite=bool(np.isfinite(motion.qpos).all()))
+
+
 def real_height_scale() -> dict:
     """How metric MediaPipe's 3D landmarks are on real video: on the Pose2Sim demo (4 calibrated views), per view
     the median over the core lengths (CORE_LENGTHS) of MediaPipe's length over the triangulated reference's
@@ -155,7 +196,7 @@ def real_height_scale() -> dict:
 
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--part", choices=("floor", "height", "real-height", "both"), default="both")
+    parser.add_argument("--part", choices=("floor", "height", "real-height", "detectors", "both"), default="both")
     parser.add_argument("--set", choices=("validation", "test"), default="test")
     parser.add_argument("--quick", action="store_true", help="three clips, one seed")
     parser.add_argument("--json", default=None)
@@ -198,11 +239,20 @@ def main(argv=None) -> dict:
             **{f"global_root_{k}_mm_median": float(np.median([r[f"global_root_{k}_mm"] for r in rows]))
                for k in ("default", "estimate", "true")})
         print(json.dumps(out["height_summary"], indent=1))
+    if args.part == "detectors":
+        rows = [detector_case(name, 0, landmarks) for name in clips for landmarks in ("all", "coco17", "half")]
+        for row in rows:
+            print(row, flush=True)
+        out["detector_rows"] = rows
+        out["detector_summary"] = {k: {m: float(np.mean([r[m] for r in rows if r["landmarks"] == k]))
+                                       for m in ("mpjpe_root_mm", "global_root_mm", "head_above_neck")}
+                                   for k in ("all", "coco17", "half")}
+        print(json.dumps(out["detector_summary"], indent=1))
     if args.part == "real-height":
         out["real_height"] = real_height_scale()
     path = Path(args.json) if args.json else RESULTS / f"{args.part.replace('-', '_')}_{args.set}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(out, indent=2))
+    write_text(path, json.dumps(out, indent=2))
     return out
 
 

@@ -8,7 +8,6 @@ import json
 import numpy as np
 import pytest
 
-from physmocap.body import kinematics as kin
 from physmocap.body.model import TEMPLATE_RATIOS, build_body_model, template_lengths
 from physmocap.camera import Camera
 from physmocap.config import FitSettings
