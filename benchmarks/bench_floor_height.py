@@ -199,6 +199,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--part", choices=("floor", "height", "real-height", "detectors", "both"), default="both")
     parser.add_argument("--set", choices=("validation", "test"), default="test")
     parser.add_argument("--quick", action="store_true", help="three clips, one seed")
+    parser.add_argument("--landmarks", default="all,coco17,half", help="detectors part: which landmark sets")
     parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
     clips = VALIDATION_CLIPS if args.set == "validation" else TEST_CLIPS
@@ -240,13 +241,14 @@ def main(argv=None) -> dict:
                for k in ("default", "estimate", "true")})
         print(json.dumps(out["height_summary"], indent=1))
     if args.part == "detectors":
-        rows = [detector_case(name, 0, landmarks) for name in clips for landmarks in ("all", "coco17", "half")]
+        kinds = tuple(args.landmarks.split(","))
+        rows = [detector_case(name, 0, landmarks) for name in clips for landmarks in kinds]
         for row in rows:
             print(row, flush=True)
         out["detector_rows"] = rows
         out["detector_summary"] = {k: {m: float(np.mean([r[m] for r in rows if r["landmarks"] == k]))
                                        for m in ("mpjpe_root_mm", "global_root_mm", "head_above_neck")}
-                                   for k in ("all", "coco17", "half")}
+                                   for k in kinds}
         print(json.dumps(out["detector_summary"], indent=1))
     if args.part == "real-height":
         out["real_height"] = real_height_scale()

@@ -13,7 +13,7 @@ from physmocap.camera import Camera
 from physmocap.config import FitSettings
 from physmocap.contacts.features import FEATURE_LANDMARKS, select_keypoints
 from physmocap.contacts.predict import predict_contacts
-from physmocap.kinematics.calibration import calibrate, estimate_height, height_line, resolve_height
+from physmocap.kinematics.calibration import OFFSETS, calibrate, estimate_height, height_line, resolve_height
 from physmocap.kinematics.fit import MARKERS, initial_qpos
 from physmocap.kinematics.stage import make_targets
 from physmocap.landmarks import LANDMARK_INDEX, LANDMARK_NAMES
@@ -78,9 +78,18 @@ def test_calibration_ignores_unseen_landmarks_and_never_makes_a_degenerate_segme
     for name in ("toe_front", "hand_length", "hand_width"):
         assert getattr(coco.lengths, name) == pytest.approx(getattr(template, name), rel=0.1)
     for name, ratio in TEMPLATE_RATIOS.items():
-        if ratio > 0:
+        if ratio > 0 and name not in OFFSETS:
             assert getattr(coco.lengths, name) > 0.4 * ratio * 1.62, name
     assert np.isfinite(coco.landmark_scale) and coco.height == 1.62
+
+
+def test_a_limb_seen_on_one_side_only_is_measured_from_that_side(walker):
+    _, obs = walker
+    full = calibrate(obs, 1.62, frames=0)
+    one_sided = calibrate(without(obs, [LANDMARK_INDEX[n] for n in ("right_knee", "right_elbow")]), 1.62, frames=0)
+    for name in ("thigh", "shank", "upper_arm", "forearm"):
+        assert name not in one_sided.replaced
+        assert abs(getattr(one_sided.lengths, name) - getattr(full.lengths, name)) < 0.01, name
 
 
 def test_zero_width_segments_fall_back_to_the_template(walker):

@@ -20,10 +20,11 @@ from ..motion import Observations
 # offsets (under 5% of the height) are instead checked against an absolute margin, in fractions of height.
 PLAUSIBLE_RATIO = (0.6, 1.6)
 PLAUSIBLE_MARGIN = 0.03
-# Lengths and widths that are positive on every body: below this share of the template's value they are
-# degenerate (a width of zero where a detector put both ends at the same stand-in point), whatever the margin.
+# Segment lengths and widths (all fields but OFFSETS) are positive on every body: below this share of the
+# template's value they are degenerate (a width of zero where a detector put both ends on one point).
 MIN_TEMPLATE_SHARE = 0.5
-SIGNED_OFFSETS = ("heel_back", "nose_down")  # may be zero or negative
+OFFSETS = ("heel_back", "nose_forward", "nose_down", "eye_forward", "eye_up")  # face and heel points placed
+# from a joint: small, zero or negative on real people (synthetic 131_01: eyes 1.8 cm above the ears)
 # The core lengths whose median ratio to the template gives the detector's unit: the leg and trunk, which
 # detectors measure best.
 CORE_LENGTHS = ("thigh", "shank", "spine_up", "upper_arm", "forearm", "shoulder_width")
@@ -63,7 +64,11 @@ def _mid(points: np.ndarray, a: str, b: str) -> np.ndarray:
 
 
 def _both_sides(points: np.ndarray, a: str, b: str) -> np.ndarray:
-    return 0.5 * (_distance(points, f"left_{a}", f"left_{b}") + _distance(points, f"right_{a}", f"right_{b}"))
+    """(T,) the mean of the left and right distances, or the one side that is seen (NaN where neither is)."""
+    sides = np.stack([_distance(points, f"left_{a}", f"left_{b}"), _distance(points, f"right_{a}", f"right_{b}")])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # frames where neither side is seen
+        return np.nanmean(sides, axis=0)
 
 
 def measure_lengths(landmarks: np.ndarray) -> dict[str, float]:
@@ -101,8 +106,10 @@ def _frame_lengths(landmarks: np.ndarray) -> dict[str, np.ndarray]:
         return np.sqrt(np.maximum(np.einsum("ti,ti->t", v, v) - along_up**2 - side**2, 0.0))
 
     hand_mid = lambda side: 0.5 * (P[:, LM[f"{side}_index"]] + P[:, LM[f"{side}_pinky"]])  # noqa: E731
-    hand = 0.5 * (np.linalg.norm(hand_mid("left") - P[:, LM["left_wrist"]], axis=-1)
-                  + np.linalg.norm(hand_mid("right") - P[:, LM["right_wrist"]], axis=-1))
+    hands = np.stack([np.linalg.norm(hand_mid(side) - P[:, LM[f"{side}_wrist"]], axis=-1) for side in ("left", "right")])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # frames where neither hand is seen
+        hand = np.nanmean(hands, axis=0)
     raw = dict(
         hip_width=_distance(P, "left_hip", "right_hip"),
         thigh=_both_sides(P, "hip", "knee"),
@@ -131,11 +138,11 @@ def _frame_lengths(landmarks: np.ndarray) -> dict[str, np.ndarray]:
 def plausible_length(name: str, value: float) -> bool:
     """Whether a length (SkeletonLengths field), as a share of the height, is one a person could have: within
     PLAUSIBLE_RATIO of the template's, or PLAUSIBLE_MARGIN of it for the short offsets, and never under
-    MIN_TEMPLATE_SHARE of it for a length that every body has (all but SIGNED_OFFSETS)."""
+    MIN_TEMPLATE_SHARE of it for a segment's length or width (all but OFFSETS)."""
     expected = TEMPLATE_RATIOS[name]
     if not np.isfinite(value):
         return False
-    if name not in SIGNED_OFFSETS and value < MIN_TEMPLATE_SHARE * expected:
+    if name not in OFFSETS and value < MIN_TEMPLATE_SHARE * expected:
         return False
     if abs(expected) >= 0.05:
         return PLAUSIBLE_RATIO[0] <= value / expected <= PLAUSIBLE_RATIO[1]

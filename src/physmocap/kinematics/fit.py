@@ -521,9 +521,8 @@ def initial_qpos(body: BodyModel, camera: Camera, targets: FitTargets, frame: in
     camera ray of the hip midpoint at the estimated depth. (1, nq)
 
     Where the frame does not show them (weight 0: another detector's file, a frame with no torso), the
-    orientation comes from the nearest frame whose hips and shoulders are seen in 3D, else facing the camera
-    upright; the ray from the hips seen in 2D there, else from the middle of the frame's seen keypoints, else
-    from the image centre."""
+    orientation comes from the nearest frame whose hips and shoulders are seen, else facing the camera upright;
+    the ray from the frame's hips, else from the middle of its seen keypoints, else from the image centre."""
     q = neutral_qpos(body)
     idx = {b: i for i, (_, b) in enumerate(MARKERS)}
     torso = [idx[n] for n in ("left_hip", "right_hip", "left_shoulder", "right_shoulder")]
@@ -533,12 +532,12 @@ def initial_qpos(body: BodyModel, camera: Camera, targets: FitTargets, frame: in
     else:
         forward, up = -camera.R[2], -camera.R[1]  # towards the camera; the camera's up, in the world
         q[3:7] = matrix_to_quat(np.stack([forward, np.cross(up, forward), up], axis=1))
-    weights = targets.weight_2d[frame]
+    seen = targets.weight_3d[frame] > 0  # seen at all: the 2D weight is 0 below the confidence threshold too
     hips = [idx["left_hip"], idx["right_hip"]]
-    if (weights[hips] > 0).all():
+    if seen[hips].all():
         centre = 0.5 * (targets.keypoints[frame, hips[0]] + targets.keypoints[frame, hips[1]])
-    elif (weights > 0).any():
-        centre = np.average(targets.keypoints[frame], axis=0, weights=weights)
+    elif seen.any():
+        centre = targets.keypoints[frame, seen].mean(axis=0)
     else:
         centre = camera.K[:2, 2]
     ray = np.linalg.solve(camera.K, np.append(centre, 1.0))
