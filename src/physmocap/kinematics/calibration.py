@@ -253,10 +253,10 @@ def resolve_height(obs: Observations, height: float, estimate: bool) -> tuple[fl
 
 def height_line(calibration: Calibration, default_height: float) -> str:
     """One line for the terminal and the report: the height the run assumed, where it came from, how to set it."""
+    height = calibration.lengths.standing_height  # the skeleton is scaled to it, also when read from a cache
     how = "set it with --height M or body.height in a settings file"
     if calibration.height_source == "estimated":
-        return (f"Body height: {calibration.height:.2f} m, estimated from the detector's 3D landmarks; {how} if "
-                f"it is known.")
-    if abs(calibration.height - default_height) < 1e-9:
-        return f"Body height: {calibration.height:.2f} m assumed (the default); {how}: every length scales with it."
-    return f"Body height: {calibration.height:.2f} m (given)."
+        return f"Body height: {height:.2f} m, estimated from the detector's 3D landmarks; {how} if it is known."
+    if abs(height - default_height) < 1e-6:
+        return f"Body height: {height:.2f} m assumed (the default); {how}: every length scales with it."
+    return f"Body height: {height:.2f} m (given)."
