@@ -18,6 +18,7 @@ clips are bench_synthetic's (subjects 6 and 131 only).
         [--quick] [--json OUT.json]
     .venv/bin/python benchmarks/bench_floor_height.py --part real-height   # MediaPipe's metric scale, real video
     .venv/bin/python benchmarks/bench_floor_height.py --part detectors     # only COCO's 17 landmarks, or half
+    .venv/bin/python benchmarks/bench_floor_height.py --part real-floor --observations OBS.npz ...
 """
 
 from __future__ import annotations
@@ -163,6 +164,19 @@ def detector_case(name: str, seed: int, landmarks: str) -> dict:
                 finite=bool(np.isfinite(motion.qpos).all()))
 
 
+def real_floor(paths: list[str]) -> dict:
+    """The floor's confidence on real observations files (`physmocap detect VIDEO -o OBS.npz`), offline and
+    online, default settings: no truth, only whether the feet and the posture agree."""
+    rows = {}
+    for path in paths:
+        obs = Observations.load(path)
+        for online in (False, True):
+            floor = fit_motion(obs, Settings().replace(None, online=online)).floor
+            rows[f"{Path(path).parent.parent.name or path} {'online' if online else 'offline'}"] = floor.confidence()
+            print(path, "online" if online else "offline", floor.confidence(), flush=True)
+    return rows
+
+
 def real_height_scale() -> dict:
     """How metric MediaPipe's 3D landmarks are on real video: on the Pose2Sim demo (4 calibrated views), per view
     the median over the core lengths (CORE_LENGTHS) of MediaPipe's length over the triangulated reference's
@@ -196,9 +210,10 @@ def real_height_scale() -> dict:
 
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--part", choices=("floor", "height", "real-height", "detectors", "both"), default="both")
+    parser.add_argument("--part", choices=("floor", "height", "real-height", "real-floor", "detectors", "both"), default="both")
     parser.add_argument("--set", choices=("validation", "test"), default="test")
     parser.add_argument("--quick", action="store_true", help="three clips, one seed")
+    parser.add_argument("--observations", nargs="*", default=[], help="real-floor part: observations files")
     parser.add_argument("--landmarks", default="all,coco17,half", help="detectors part: which landmark sets")
     parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
@@ -250,6 +265,8 @@ def main(argv=None) -> dict:
                                        for m in ("mpjpe_root_mm", "global_root_mm", "head_above_neck")}
                                    for k in kinds}
         print(json.dumps(out["detector_summary"], indent=1))
+    if args.part == "real-floor":
+        out["real_floor"] = real_floor(args.observations)
     if args.part == "real-height":
         out["real_height"] = real_height_scale()
     path = Path(args.json) if args.json else RESULTS / f"{args.part.replace('-', '_')}_{args.set}.json"
