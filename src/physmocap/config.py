@@ -21,6 +21,9 @@ class BodySettings:
     mass: float = 70.0  # kg, the person's mass; 20 .. 250
     calibration_frames: int = 0  # frames whose 3D landmarks set the bone lengths; 0: all (offline; the online fit
     # calibrates on its first 3 s); 1 .. 10000. All frames: synthetic root-relative error 37.1 -> 33.5 mm (measured)
+    estimate_height: bool = False  # true: the height is read from the detector's 3D landmarks as metres
+    # (kinematics.calibration.estimate_height) instead of `height`, which stays the fallback; see BENCHMARKS.md,
+    # "Floor, other detectors and height (issue 17)", for how metric MediaPipe's landmarks are on real video
 
     def check(self) -> None:
         _within("body.height", self.height, 1.0, 2.3, "m")

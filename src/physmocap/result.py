@@ -65,6 +65,9 @@ def build_result(obs: Observations, motion: KinematicMotion, stage_seconds: dict
         camera_t=motion.camera.t,
         image_size=np.array(obs.image_size),
         floor=motion.floor.plane,
+        floor_trusted=np.bool_(motion.floor.trusted),  # False: the floor is level with the posture, not the feet
+        floor_confidence=np.str_(json.dumps(motion.floor.confidence())),
+        body_height_source=np.str_(motion.calibration.height_source),  # "given" (default 1.70 m too) or "estimated"
         keypoints_2d=obs.keypoints_2d,
         valid=motion.valid,
         invalid_reason=np.asarray(obs.invalid_reason, dtype=str),
