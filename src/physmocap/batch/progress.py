@@ -37,6 +37,13 @@ class BatchProgress:
             self._bar.update(frames)
             self._bar.set_postfix_str(self._inputs_text())
 
+    def note(self, text: str) -> None:
+        """A line of its own (above the bar on a terminal)."""
+        if self._bar is not None:
+            self._bar.write(f"batch: {text}", file=self.stream)
+        else:
+            print(f"batch: {text}", file=self.stream, flush=True)
+
     def tick(self, force: bool = False) -> None:
         """The plain line, when `interval` seconds have passed since the last one (or `force`)."""
         now = time.monotonic()

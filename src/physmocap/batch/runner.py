@@ -52,7 +52,10 @@ def run_batch(inputs: list[BatchInput], out_dir: str | os.PathLike, settings: Se
         progress.close()
         return records
     workers = workers or default_workers(len(tasks))
+    started = time.perf_counter()
     engine = _engine(ray, ray_address, workers)
+    if ray:
+        progress.note(f"Ray with {engine.cluster_cpus()} CPUs ready after {time.perf_counter() - started:.1f} s")
     order = {record["name"]: index for index, record in enumerate(records)}
     written = time.monotonic()
     try:

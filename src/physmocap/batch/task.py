@@ -134,7 +134,8 @@ def record_fields() -> list[str]:
     """The columns of batch.csv, in order."""
     return ["name", "input", "kind", "status", "exit_status", "reason", "frames", "valid_frames", "wall_seconds",
             "frames_per_second", "physics", "physics_fallback_frames", "reprojection_error_px",
-            "reprojection_error_percent_of_height", *PLAUSIBILITY, "cached_stages", "resumed", "node"]
+            "reprojection_error_percent_of_height", *PLAUSIBILITY, "cached_stages", "resumed", "node",
+            "worker_peak_memory_mb"]
 
 
 def empty_record(name: str, source: str, kind: str, status: str) -> dict:
@@ -163,7 +164,15 @@ def done_record(task: BatchTask, summary, seconds: float) -> dict:
         frames_per_second=round(summary.frames / max(seconds, 1e-9), 2), physics=summary.physics,
         physics_fallback_frames=fallback, reprojection_error_px=_rounded(summary.median_reprojection_error_px),
         reprojection_error_percent_of_height=_rounded(summary.median_reprojection_error_percent_of_height),
-        cached_stages=" ".join(summary.cached_stages), resumed=0, node=socket.gethostname())
+        cached_stages=" ".join(summary.cached_stages), resumed=0, node=socket.gethostname(),
+        worker_peak_memory_mb=_peak_memory_mb())
+
+
+def _peak_memory_mb() -> int:
+    """The worker's peak resident memory so far, MB (a worker runs inputs one after another): for sizing."""
+    import resource
+
+    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
 
 
 def _rounded(value) -> float | str:
