@@ -168,3 +168,38 @@ def test_batch_rejects_bad_arguments_with_one_sentence(inputs, tmp_path):
     assert proc.returncode == 2 and "--workers must be at least 1" in proc.stderr and "Traceback" not in proc.stderr
     proc = physmocap("batch", tmp_path, "-o", tmp_path / "o")
     assert proc.returncode == 2 and "no video or observations file found" in proc.stderr
+
+
+def test_pool_retries_a_run_whose_worker_died_then_records_it(tmp_path):
+    from concurrent.futures import Future
+    from concurrent.futures.process import BrokenProcessPool
+
+    from physmocap.batch.engines import ProcessPoolEngine
+    from physmocap.batch.task import BatchTask
+    from physmocap.config import Settings
+
+    class DyingPool:  # every worker dies on its run, as one killed for memory would
+        submitted = 0
+
+        def submit(self, fn, task):
+            DyingPool.submitted += 1
+            future = Future()
+            future.set_exception(BrokenProcessPool("a child process terminated abruptly"))
+            return future
+
+        def shutdown(self, wait=True, cancel_futures=False):
+            pass
+
+    engine = ProcessPoolEngine(1, max_retries=2)
+    engine._executor.shutdown()
+    engine._new_executor = DyingPool
+    engine._executor = DyingPool()
+    task = BatchTask("walk", str(tmp_path / "walk.mp4"), "video", str(tmp_path / "walk"), Settings(), False, "k")
+    engine.submit(task)
+    finished = []
+    while engine.unfinished():
+        finished += engine.wait(timeout=1.0)
+    assert DyingPool.submitted == 3  # the first try and two retries
+    [(_, record)] = finished
+    assert record["status"] == "failed" and record["exit_status"] == 1
+    assert record["reason"].startswith("the worker process running it died 3 times")
