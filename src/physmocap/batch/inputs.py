@@ -3,7 +3,8 @@
 An input is a video file, an observations file (.npz, as `physmocap detect` writes), a folder (searched, with its
 subfolders, for video files) or a text file (.txt, .list, .lst) listing such paths one a line (blank lines and
 lines starting with # are skipped; relative paths are relative to the list's folder). A path that does not exist
-stays an input and fails with its own sentence, so that one typo never stops a batch.
+stays an input and fails with its own sentence, so that one typo never stops a batch; a list file that cannot be
+read stops it before it starts (the list is the command).
 """
 
 from __future__ import annotations

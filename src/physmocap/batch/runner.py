@@ -121,4 +121,9 @@ def _engine(ray: bool, address: str | None, workers: int):
         import ray as _  # noqa: F401
     except ImportError:
         raise InputError("--ray needs Ray: pip install 'physmocap[ray]' (or pip install ray).") from None
-    return RayEngine(address, workers)
+    try:
+        return RayEngine(address, workers)
+    except (ConnectionError, RuntimeError, ValueError) as exc:
+        where = f"the Ray cluster at {address}" if address else "a local Ray"
+        reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        raise InputError(f"--ray: could not start or reach {where} ({reason}).") from None
