@@ -168,6 +168,8 @@ def test_batch_rejects_bad_arguments_with_one_sentence(inputs, tmp_path):
     assert proc.returncode == 2 and "--workers must be at least 1" in proc.stderr and "Traceback" not in proc.stderr
     proc = physmocap("batch", tmp_path, "-o", tmp_path / "o")
     assert proc.returncode == 2 and "no video or observations file found" in proc.stderr
+    proc = physmocap("batch", inputs["clip"], "-o", inputs["broken"])
+    assert proc.returncode == 2 and "is a file, not a batch folder" in proc.stderr and "Traceback" not in proc.stderr
 
 
 def test_pool_retries_a_run_whose_worker_died_then_records_it(tmp_path):

@@ -286,6 +286,8 @@ def cmd_batch(args) -> int:
 
     if args.workers is not None and args.workers < 1:
         raise InputError(f"--workers must be at least 1, got {args.workers}.")
+    if args.output.exists() and not args.output.is_dir():
+        raise InputError(f"{args.output}: is a file, not a batch folder (-o).")
     settings = settings_from_args(args)
     inputs = expand_inputs(args.inputs, args.output)
     address = None if args.ray in (None, "local") else args.ray
