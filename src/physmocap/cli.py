@@ -22,6 +22,7 @@ examples:
   physmocap live video.mp4 --max-frames 200              # a file played at its own frame rate, as a camera
   physmocap export runs/walk/result.npz --to glb         # BVH, GLB or OpenSim files from any earlier run
   physmocap evaluate runs/walk/result.npz [--truth truth.npz]   # every metric of a run
+  physmocap batch videos/ -o runs/season                 # many videos at once; resumes, survives bad files
 
 outputs of capture (in the -o folder):
   result.npz    joints, generalised coordinates, camera, floor, flags (see README "Result file")
@@ -60,14 +61,35 @@ def build_parser() -> argparse.ArgumentParser:
     cap.add_argument("-o", "--output", type=Path, default=None,
                      help="run folder (default: runs/<video name>)")
     cap.add_argument("--observations", type=Path, help="fit this observations .npz instead of detecting")
-    cap.add_argument("--online", action="store_true", help="causal frame-by-frame fit (live use)")
-    cap.add_argument("--physics", choices=("none", "physcap", "trajopt"), default=None,
-                     help="physics after the kinematic fit: PhysCap's real-time tracker (default with --online), "
-                          "Rempe et al.'s trajectory optimisation of the whole clip, or none (default offline)")
-    _add_settings_arguments(cap)
-    cap.add_argument("--no-overlay", action="store_true", help="skip rendering overlay.mp4")
-    cap.add_argument("--accept-truncated", action="store_true",
-                     help="capture the frames a truncated video still holds instead of stopping")
+    _add_capture_options(cap)
+
+    batch = sub.add_parser(
+        "batch", help="capture many videos (or observations files): local processes, or a Ray cluster",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Capture every input into OUT/<name>/ as `capture` would, several at once. A broken input is "
+                    "recorded with its reason and the batch goes on; re-running the same command skips finished "
+                    "runs and resumes unfinished ones from their cached stages; Ctrl-C stops cleanly. "
+                    "OUT/batch.csv and OUT/index.html hold one row per input (status, frames, wall time, "
+                    "plausibility figures, links to each run's report and viewer), updated as runs finish. "
+                    "Exit status: 0 every input done, 1 some failed, 2 bad arguments, 130 interrupted.",
+        epilog="examples:\n"
+               "  physmocap batch videos/ -o runs/season            # every video under videos/, one per core\n"
+               "  physmocap batch list.txt a.mp4 obs.npz -o runs/x  # a list file (one path a line), a video, "
+               "observations\n"
+               "  physmocap batch videos/ -o runs/x --workers 1     # one at a time\n"
+               "  physmocap batch videos/ -o /shared/runs --ray auto   # on the Ray cluster this machine belongs to\n"
+               "See README \"Many videos\" for clusters.")
+    batch.add_argument("inputs", nargs="+", type=Path, metavar="INPUT",
+                       help="video file, observations .npz, folder (searched for videos, subfolders too) or text "
+                            "file (.txt, .list) listing such paths one a line")
+    batch.add_argument("-o", "--output", type=Path, required=True, help="batch folder: one run folder per input")
+    batch.add_argument("--workers", type=int, default=None,
+                       help="runs at once (default: one per CPU core this process may use, fewer if memory is "
+                            "short; with --ray ADDRESS the cluster's CPUs decide)")
+    batch.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
+                       help="run on Ray: alone, a local Ray instance; with auto or host:port, the existing cluster "
+                            "(inputs and OUT on a file system every node shares)")
+    _add_capture_options(batch)
 
     live = sub.add_parser("live", help="live capture from a camera or a video played at its frame rate",
                           formatter_class=argparse.ArgumentDefaultsHelpFormatter,
@@ -123,6 +145,18 @@ def build_parser() -> argparse.ArgumentParser:
     det.add_argument("--max-width", type=int, default=None,
                      help="downscale what the detector sees to this width, pixels (default: native)")
     return parser
+
+
+def _add_capture_options(p: argparse.ArgumentParser) -> None:
+    """The options of one capture, shared by `capture` and `batch`."""
+    p.add_argument("--online", action="store_true", help="causal frame-by-frame fit (live use)")
+    p.add_argument("--physics", choices=("none", "physcap", "trajopt"), default=None,
+                   help="physics after the kinematic fit: PhysCap's real-time tracker (default with --online), "
+                        "Rempe et al.'s trajectory optimisation of the whole clip, or none (default offline)")
+    _add_settings_arguments(p)
+    p.add_argument("--no-overlay", action="store_true", help="skip rendering overlay.mp4")
+    p.add_argument("--accept-truncated", action="store_true",
+                   help="capture the frames a truncated video still holds instead of stopping")
 
 
 def _add_settings_arguments(p: argparse.ArgumentParser) -> None:
@@ -245,6 +279,34 @@ def cmd_capture(args) -> int:
     print(f"time: {times}" + (f" (cached: {', '.join(summary.cached_stages)})" if summary.cached_stages else ""))
     print(f"results in {out}/: " + ", ".join(Path(p).name for p in summary.files.values()))
     return 0
+
+
+def cmd_batch(args) -> int:
+    from .batch import expand_inputs, run_batch
+    from .errors import InputError
+
+    if args.workers is not None and args.workers < 1:
+        raise InputError(f"--workers must be at least 1, got {args.workers}.")
+    if args.output.exists() and not args.output.is_dir():
+        raise InputError(f"{args.output}: is a file, not a batch folder (-o).")
+    settings = settings_from_args(args)
+    inputs = expand_inputs(args.inputs, args.output)
+    address = None if args.ray in (None, "local") else args.ray
+    if address is not None and address != "auto" and ":" not in address:
+        raise InputError(f"--ray {address}: not a cluster address (auto or host:port); put --ray after the "
+                         "inputs, or give it an address.")
+    records = run_batch(inputs, args.output, settings, overlay=not args.no_overlay, workers=args.workers,
+                        ray=args.ray is not None, ray_address=address)
+    done = [r for r in records if r["status"] == "done"]
+    failed = [r for r in records if r["status"] == "failed"]
+    earlier = sum(int(r["resumed"] or 0) for r in done)
+    print(f"batch: {len(done)} of {len(records)} inputs done"
+          + (f" ({earlier} finished by an earlier run, skipped)" if earlier else "")
+          + (f", {len(failed)} failed" if failed else "") + f"; {sum(int(r['frames'] or 0) for r in done)} frames")
+    for record in failed:
+        print(f"  failed (exit status {record['exit_status']}): {record['reason']}")
+    print(f"summary in {args.output / 'batch.csv'} and {args.output / 'index.html'}")
+    return 1 if failed else 0
 
 
 def cmd_live(args) -> int:
@@ -392,7 +454,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         commands = {"capture": cmd_capture, "live": cmd_live, "export": cmd_export, "evaluate": cmd_evaluate,
-                    "train-contacts": cmd_train_contacts, "detect": cmd_detect}
+                    "train-contacts": cmd_train_contacts, "detect": cmd_detect, "batch": cmd_batch}
         return commands[args.command](args)
     except InputError as exc:
         print(f"physmocap: error: {exc}", file=sys.stderr)
