@@ -24,6 +24,7 @@ POSE_WEIGHT = 1.0  # each joint's pull towards the scaled source pose (residual 
 CONTACT_WEIGHT = 30.0  # a contact point's pull to its planted spot; much stronger than the pose, so feet stay put
 FLOOR_WEIGHT = 30.0  # a contact point below the floor, pushed up
 IK_ITERATIONS = 12
+STEP_TOLERANCE = 1e-6  # stop once no frame's Gauss-Newton step exceeds this (metres or radians)
 IK_DAMPING = 1e-4  # Levenberg-Marquardt damping relative to the normal matrix's mean diagonal
 BLEND_FRAMES = 3  # a contact point eases between its planted spot and its free target over this many frames
 
@@ -104,12 +105,16 @@ def _extend_spots(spots: np.ndarray, contacts: np.ndarray) -> np.ndarray:
 
 def solve_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray,
                iterations: int = IK_ITERATIONS) -> tuple[np.ndarray, np.ndarray]:
-    """IK of every frame: joints (JOINT_NAMES) towards their positions in `qpos` (T, nq), contact points
-    (CONTACT_POINTS) in contact (T, 4) onto their planted spots, every contact point on or above z = 0, hinges
-    within their limits. Returns the solved qpos (T, nq) and the planted spots (T, 4, 3)."""
+    """IK of every frame: joints (JOINT_NAMES) towards their positions in `qpos` (T, nq) (a frame whose lowest
+    contact point is below the floor lifted out of it first), contact points (CONTACT_POINTS) in contact (T, 4)
+    onto their planted spots, every contact point on or above z = 0, hinges within their limits. Returns the
+    solved qpos (T, nq) and the planted spots (T, 4, 3)."""
     joints = body.point_index(JOINT_NAMES)
     feet = body.point_index(CONTACT_POINTS)
     contact_columns = np.array([list(JOINT_NAMES).index(n) for n in CONTACT_POINTS])
+    qpos = np.array(qpos, dtype=float)
+    # A frame sunk into the floor is first lifted whole out of it, so that the joints' targets stand on the floor.
+    qpos[:, 2] += np.maximum(0.0, -kin.forward_kinematics(body, qpos).points[:, feet, 2].min(axis=1))
     targets = kin.forward_kinematics(body, qpos).points[:, joints]
     spots = planted_spots(targets[:, contact_columns], contacts)
     blend = _blend_weights(contacts)
@@ -123,7 +128,7 @@ def solve_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray,
     tab = kin.tables(body)
     hinge_q = tab.qadr[tab.hinge_bodies]
     limits = np.array([body.bodies[b].limit for b in tab.hinge_bodies])
-    q = np.array(qpos, dtype=float)
+    q = qpos.copy()
     q[:, hinge_q] = np.clip(q[:, hinge_q], limits[:, 0], limits[:, 1])
     point_ids = np.concatenate([joints, feet])
     below = np.zeros((len(q), len(feet)), bool)
@@ -146,6 +151,8 @@ def solve_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray,
         step = -np.linalg.solve(H + damping * np.eye(nv), g[..., None])[..., 0]
         q = kin.integrate(body, q, step)
         q[:, hinge_q] = np.clip(q[:, hinge_q], limits[:, 0], limits[:, 1])
+        if np.abs(step).max() < STEP_TOLERANCE:
+            break
     return q, spots
 
 

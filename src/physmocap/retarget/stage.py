@@ -31,7 +31,7 @@ from ..result import RESULT_POINTS, load_result, save_result
 from .character import Character, build_character
 from .mapping import load_character_config
 from .rig import read_rig
-from .solve import retarget_qpos
+from .solve import retarget_qpos, solve_feet
 from .writers import rig_motion, rig_positions, write_rig_bvh, write_rig_glb
 
 PHYSICS_METHODS = ("physcap", "trajopt", "none")
@@ -117,7 +117,7 @@ def retarget_metrics(character: Character, source_points: np.ndarray, qpos: np.n
     lengths = np.linalg.norm(positions[:, children] - positions[:, parents[children]], axis=-1)
     com = kin.center_of_mass(body, pose)
     return dict(
-        frames=int(len(qpos)),
+        frames=int(len(qpos)),  # those measured
         skate_percent=foot["skate_percent"], penetration_percent=foot["penetration_percent"],
         floating_percent=foot["floating_percent"],
         contact_frames_kept=float(kept.sum() / contacts.sum()) if contacts.any() else None,
@@ -154,38 +154,58 @@ def retarget_result(result_path: str | os.PathLike, character_path: str | os.Pat
     notes = list(character.notes)
     started = time.perf_counter()
     grf, residual, fallback, corrected = None, np.zeros((T, 6)), np.zeros(T, bool), np.zeros(T, bool)
-    qpos, used_contacts = retargeted.qpos, contacts
-    if physics == "physcap":
-        from ..dynamics.stage import run_physcap
+    qpos, used_contacts, simulated = retargeted.qpos, contacts, None
+    # Physics runs over the frames from the first to the last with a person; the capture's extrapolation before and
+    # after them (no observations) keeps the kinematic motion, without forces, as the pipeline's physics does.
+    span = slice(*((int(np.argmax(valid)), T - int(np.argmax(valid[::-1]))) if valid.any() else (0, 0)))
+    if physics != "none" and span.stop - span.start >= 3:
+        if physics == "physcap":
+            from ..dynamics.stage import run_physcap
 
-        motion = run_physcap(body, retargeted.qpos, fps, contacts, stationary, settings.physics, valid=valid)
-    elif physics == "trajopt":
-        from ..trajopt.stage import run_trajopt
+            motion = run_physcap(body, retargeted.qpos[span], fps, contacts[span], stationary[span],
+                                 settings.physics, valid=valid[span])
+        else:
+            from ..trajopt.stage import run_trajopt
 
-        motion = run_trajopt(body, retargeted.qpos, fps, contacts, settings.trajopt, None, valid)
-    if physics != "none":
-        qpos, grf, residual, used_contacts = motion.qpos, motion.grf, motion.residual, motion.contacts
-        fallback, corrected = motion.qp_failures > 0, motion.corrected
+            motion = run_trajopt(body, retargeted.qpos[span], fps, contacts[span], settings.trajopt, None,
+                                 valid[span])
+        grf, used_contacts, simulated = np.zeros((T, 4, 3)), contacts.copy(), retargeted.qpos.copy()
+        grf[span], residual[span], used_contacts[span] = motion.grf, motion.residual, motion.contacts
+        fallback[span], corrected[span], simulated[span] = motion.qp_failures > 0, motion.corrected, motion.qpos
         if fallback.any():
             notes.append(f"physics fell back on {int(fallback.sum())} frames (kinematic motion kept there)")
+        # The tracker's feet can drift a few centimetres off their spots (balance correction, soft contacts); the
+        # same IK plants them again on the simulated motion (docs/decisions/retarget-feet-after-physics.md).
+        qpos, _ = solve_feet(body, simulated, contacts)
     physics_seconds = time.perf_counter() - started
 
-    moved = rig_motion(character, qpos)
-    positions = rig_positions(character, moved)
+    rig_moves = rig_motion(character, qpos)
+    positions = rig_positions(character, rig_moves)
     files = {"bvh": str(out_dir / "character.bvh"), "result": str(out_dir / "result.npz"),
              "report": str(out_dir / "retarget.json")}
     out_dir.mkdir(parents=True, exist_ok=True)
-    write_rig_bvh(files["bvh"], character, moved, fps)
+    write_rig_bvh(files["bvh"], character, rig_moves, fps)
     if rig.kind == "gltf":
         files["glb"] = str(out_dir / "character.glb")
-        write_rig_glb(files["glb"], character, moved, fps)
+        write_rig_glb(files["glb"], character, rig_moves, fps)
 
     points = body.point_index(RESULT_POINTS)
     final = kin.forward_kinematics(body, qpos).points[:, points]
     kinematic = kin.forward_kinematics(body, retargeted.qpos).points[:, points]
-    metrics = retarget_metrics(character, source["joints_world"], qpos, positions, contacts, fps, grf)
+    frames = valid if valid.any() else np.ones(T, bool)  # figures over the frames with a person
+    metrics = retarget_metrics(character, source["joints_world"][frames], qpos[frames], positions[frames],
+                               contacts[frames], fps, None if grf is None else grf[frames])
     metrics.update(retarget_ms_per_frame=1000 * retarget_seconds / T, physics_ms_per_frame=1000 * physics_seconds / T,
                    physics=physics, scale=retargeted.scale)
+    if simulated is not None:  # the same figures before the feet were planted again
+        before = retarget_metrics(character, source["joints_world"][frames], simulated[frames],
+                                  rig_positions(character, rig_motion(character, simulated[frames])),
+                                  contacts[frames], fps, grf[frames])
+        metrics["simulated"] = {k: before[k] for k in ("skate_percent", "penetration_percent", "floating_percent",
+                                                       "contact_frames_kept", "bone_cosine_rig")}
+        shift = np.linalg.norm(final - kin.forward_kinematics(body, simulated).points[:, points], axis=-1)[frames]
+        metrics["moved_after_physics_m"] = dict(mean=float(shift.mean()),
+                                                frame_max_p99=float(np.percentile(shift.max(axis=1), 99)))
     result = dict(source)
     masses = {b.name: round(b.mass, 4) for b in body.bodies}
     result.update(
