@@ -357,3 +357,15 @@ def test_retarget_command_line(tmp_path, source):
                              timeout=300)
         assert run.returncode == 2 and "Traceback" not in run.stderr
         assert "bad.bvh" in run.stderr and "no bone found for left_hip" in run.stderr
+
+
+def test_trajectory_optimisation_runs_on_the_characters_body(tmp_path, source):
+    toml = tmp_path / "cartoon.toml"
+    toml.write_text("[mass]\ntotal = 36.5\n[mass.fractions]\nhead = 0.40\n")
+    report = retarget_result(source, _rigs(tmp_path)["cartoon"], tmp_path / "t", character_map=toml,
+                             physics="trajopt")
+    result = load_result(report.files["result"])
+    assert str(result["physics"]) == "trajopt" and not result["physics_fallback"].any(), report.notes
+    assert 95.0 <= report.metrics["grf_mean_percent_bw"] <= 105.0
+    assert report.metrics["skate_percent"] <= 2.0 and report.metrics["contact_frames_kept"] >= 0.95
+    assert result["body_mass"] == pytest.approx(36.5)
