@@ -110,9 +110,10 @@ def load_character_config(path: str | os.PathLike | None) -> CharacterConfig:
     total = mass.get("total")
     if total is not None and not (isinstance(total, (int, float)) and 1.0 <= total <= 2000.0):
         raise InputError(f"{path}: mass.total must be a number of kg between 1 and 2000, got {total!r}.")
-    if any(not isinstance(v, (int, float)) or not 0.0 < v < 1.0 for v in fractions.values()) \
-            or sum(fractions.values()) >= 1.0 + 1e-9 * (len(fractions) < len(MASS_GROUPS)) \
-            or (len(fractions) == len(MASS_GROUPS) and abs(sum(fractions.values()) - 1.0) > 1e-6):
+    shares = list(fractions.values())
+    in_range = all(isinstance(v, (int, float)) and 0.0 < v < 1.0 for v in shares)
+    all_given = len(shares) == len(MASS_GROUPS)
+    if not in_range or (all_given and abs(sum(shares) - 1.0) > 1e-6) or (not all_given and sum(shares) >= 1.0):
         raise InputError(f"{path}: mass.fractions must lie between 0 and 1 and add up to at most 1 (exactly 1 "
                          "when all four groups are given).")
     units = data.get("units_to_metres")

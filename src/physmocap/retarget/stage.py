@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..body import kinematics as kin
-from ..body.model import CONTACT_POINTS, JOINT_NAMES
+from ..body.model import CONTACT_POINTS
 from ..config import Settings
 from ..errors import InputError
 from ..export import body_from_result
