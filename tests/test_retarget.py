@@ -368,3 +368,84 @@ def test_trajectory_optimisation_runs_on_the_characters_body(tmp_path, source):
     assert 95.0 <= report.metrics["grf_mean_percent_bw"] <= 105.0
     assert report.metrics["skate_percent"] <= 2.0 and report.metrics["contact_frames_kept"] >= 0.95
     assert result["body_mass"] == pytest.approx(36.5)
+
+
+def _node_matrix(translation, rotation, scale) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, :3] = Rotation.from_quat(rotation).as_matrix() * np.asarray(scale, float)
+    m[:3, 3] = translation
+    return m
+
+
+def test_glb_with_an_armature_node_and_rest_rotations_moves_its_joints_where_the_result_says(tmp_path, source):
+    """As exported by Blender: the skeleton under a rotated, scaled Armature node, bones with rest rotations."""
+    body = build_body_model(template_lengths(1.58), 55.0)
+    plain = tmp_path / "plain.glb"
+    write_glb(plain, body, body.rest_qpos[None], 30.0)
+    gltf = pygltflib.GLTF2().load(str(plain))
+    skin = gltf.skins[0]
+    # Armature: a quarter turn about Y and half scale; every bone a rest rotation of its own. The joints keep their
+    # places in the file's world: local transforms are recomputed from the chosen world rotations.
+    places = read_rig(plain).rest_world()[:, :3, 3]
+    order = list(read_rig(plain).nodes)
+    turn = Rotation.from_euler("y", 90, degrees=True)
+    rng = np.random.default_rng(3)
+    frames = {node: Rotation.from_rotvec(rng.normal(scale=0.6, size=3)) for node in skin.joints}
+    node_parent = {c: i for i, n in enumerate(gltf.nodes) for c in (n.children or [])}
+    for node in skin.joints:
+        up = node_parent.get(node)
+        up_frame, up_place = (turn, np.zeros(3)) if up is None else (frames[up], places[order.index(up)])
+        gltf.nodes[node].rotation = (up_frame.inv() * frames[node]).as_quat().tolist()
+        gltf.nodes[node].translation = (up_frame.inv().apply(places[order.index(node)] - up_place) * 2).tolist()
+    root = skin.joints[0]
+    gltf.nodes.append(pygltflib.Node(name="Armature", children=[root], rotation=turn.as_quat().tolist(),
+                                     scale=[0.5, 0.5, 0.5]))
+    gltf.scenes[0].nodes = [len(gltf.nodes) - 1 if n == root else n for n in gltf.scenes[0].nodes]
+    parent = {c: i for i, n in enumerate(gltf.nodes) for c in (n.children or [])}
+
+    def world(i):
+        n = gltf.nodes[i]
+        m = _node_matrix(n.translation or [0, 0, 0], n.rotation or [0, 0, 0, 1], n.scale or [1, 1, 1])
+        return world(parent[i]) @ m if i in parent else m
+
+    inverse_bind = np.stack([np.linalg.inv(world(j)).T.reshape(16) for j in skin.joints]).astype("<f4")
+    view = gltf.bufferViews[gltf.accessors[skin.inverseBindMatrices].bufferView]
+    blob = bytearray(gltf.binary_blob())
+    blob[view.byteOffset:view.byteOffset + inverse_bind.nbytes] = inverse_bind.tobytes()
+    gltf.set_binary_blob(bytes(blob))
+    gltf.animations = []
+    character_file = tmp_path / "blender_like.glb"
+    gltf.save_binary(str(character_file))
+    rig = read_rig(character_file)
+    assert rig.names == read_rig(plain).names
+    assert np.allclose(rig.rest_world()[:, :3, 3], places, atol=1e-5)  # the same rest places in the file's world
+    character = build_character(rig)
+    assert np.allclose(character.rest, build_character(read_rig(plain)).rest, atol=1e-5)
+
+    report = retarget_result(source, character_file, tmp_path / "out", physics="none")
+    after = pygltflib.GLTF2().load(report.files["glb"])
+    animation = after.animations[-1]
+    frame = 40
+    trs = {i: [n.translation or [0, 0, 0], n.rotation or [0, 0, 0, 1], n.scale or [1, 1, 1]]
+           for i, n in enumerate(after.nodes)}
+    for channel in animation.channels:
+        values = read_accessor(after, animation.samplers[channel.sampler].output)
+        trs[channel.target.node][0 if channel.target.path == "translation" else 1] = values[frame]
+    after_parent = {c: i for i, n in enumerate(after.nodes) for c in (n.children or [])}
+
+    def animated(i):
+        m = _node_matrix(*trs[i])
+        return animated(after_parent[i]) @ m if i in after_parent else m
+
+    result = load_result(report.files["result"])
+    for k, node in enumerate(character.rig.nodes):
+        position = animated(node)[:3, 3] @ character.file_to_world.T - character.origin
+        assert np.allclose(position, result["rig_joints_world"][frame, k], atol=1e-4), after.nodes[node].name
+    assert report.metrics["bone_cosine_rig"] >= 0.95
+    # The BVH written for a glTF character: the same joints, its zero pose the rest pose, the same motion.
+    bvh = read_bvh(report.files["bvh"])  # joints in depth-first order
+    assert sorted(bvh.joint_names) == sorted(character.rig.names)
+    positions, _ = forward_kinematics(bvh)
+    order = [bvh.joint_names.index(name) for name in character.rig.names]
+    error = np.abs(positions[:, order] @ character.file_to_world.T - character.origin - result["rig_joints_world"])
+    assert error.max() < 2e-4, [(n, e) for n, e in zip(character.rig.names, error.max(axis=(0, 2))) if e > 2e-4]

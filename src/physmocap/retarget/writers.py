@@ -111,13 +111,26 @@ def write_rig_bvh(path: str | os.PathLike, character: Character, motion: RigMoti
         channels = [["Zrotation", "Xrotation", "Yrotation"] for _ in range(J)]
     if not any(c.endswith("position") for c in channels[0]):
         channels[0] = ["Xposition", "Yposition", "Zposition"] + channels[0]
-    local = local_rotations(character, motion)
+    if rig.kind == "bvh":
+        local = local_rotations(character, motion)
+    else:  # the BVH's zero pose is the glTF rest pose: rotations relative to it, without the nodes' rest frames
+        delta = _file_rotations(character, motion)
+        local = delta.copy()
+        for j, parent in enumerate(rig.parents):
+            if parent >= 0:
+                local[:, j] = np.swapaxes(delta[:, parent], 1, 2) @ delta[:, j]
     rest_values = np.zeros(sum(len(c) for c in rig.channels)) if rig.rest_frame is None else rig.rest_frame
     rest_starts = np.concatenate([[0], np.cumsum([len(c) for c in rig.channels])]).astype(int)
     root_file = character.to_file(motion.root)  # (T, 3)
     T = len(local)
+    file_order: list[int] = []  # depth-first, as the hierarchy is written; the channels follow it
+    stack = [0]
+    while stack:
+        j = stack.pop()
+        file_order.append(j)
+        stack.extend(reversed(rig.children(j)))
     columns = []
-    for j in range(J):
+    for j in file_order:
         rotation_channels = [c for c in channels[j] if c.endswith("rotation")]
         euler = None
         if rotation_channels:
