@@ -23,6 +23,8 @@ examples:
   physmocap export runs/walk/result.npz --to glb         # BVH, GLB or OpenSim files from any earlier run
   physmocap evaluate runs/walk/result.npz [--truth truth.npz]   # every metric of a run
   physmocap batch videos/ -o runs/season                 # many videos at once; resumes, survives bad files
+  physmocap retarget runs/walk/result.npz --character hero.glb  # the motion on your own character (BVH/GLB rig)
+  physmocap capture video.mp4 --character hero.bvh       # capture, then retarget into runs/video/character/
 
 outputs of capture (in the -o folder):
   result.npz    joints, generalised coordinates, camera, floor, flags (see README "Result file")
@@ -62,6 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="run folder (default: runs/<video name>)")
     cap.add_argument("--observations", type=Path, help="fit this observations .npz instead of detecting")
     _add_capture_options(cap)
+    _add_character_arguments(cap, required=False)
 
     batch = sub.add_parser(
         "batch", help="capture many videos (or observations files): local processes, or a Ray cluster",
@@ -136,6 +139,21 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--seed", type=int, default=0,
                        help="seed of every random draw (synthetic data, initial weights, batches)")
 
+    ret = sub.add_parser("retarget", help="motion of a result.npz on your own character (BVH or glTF/GLB rig)",
+                         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                         description="Retarget a run's motion onto a character: uniform scale by the legs, IK with "
+                                     "the character's bone lengths and planted feet on its own soles, physics on its "
+                                     "own body model (bone lengths and mass distribution); writes character.bvh (the "
+                                     "character's hierarchy), character.glb (glTF characters), result.npz and "
+                                     "retarget.json. See README 'Your own character'.")
+    ret.add_argument("result", type=Path, help="a result.npz")
+    _add_character_arguments(ret, required=True)
+    ret.add_argument("-o", "--output", type=Path, default=None,
+                     help="folder (default: character/ beside the result)")
+    ret.add_argument("--physics", choices=("physcap", "trajopt", "none"), default="physcap",
+                     help="physics on the character's body model")
+    ret.add_argument("--config", type=Path, help="TOML settings file (physics and trajopt settings)")
+
     det = sub.add_parser("detect", help="run only the 2D/3D keypoint detector and write an observations file",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     det.add_argument("video", type=Path)
@@ -157,6 +175,15 @@ def _add_capture_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-overlay", action="store_true", help="skip rendering overlay.mp4")
     p.add_argument("--accept-truncated", action="store_true",
                    help="capture the frames a truncated video still holds instead of stopping")
+
+
+def _add_character_arguments(p: argparse.ArgumentParser, required: bool) -> None:
+    p.add_argument("--character", type=Path, required=required, metavar="RIG",
+                   help="your character: a BVH file (its hierarchy and rest pose) or a skinned .glb/.gltf/.vrm"
+                        + ("" if required else "; the motion is also retargeted onto it, into OUT/character/"))
+    p.add_argument("--character-map", type=Path, default=None, metavar="TOML",
+                   help="bones the automatic mapping misses, the file's unit, and the character's mass and its "
+                        "distribution (README 'Your own character')")
 
 
 def _add_settings_arguments(p: argparse.ArgumentParser) -> None:
@@ -246,6 +273,8 @@ def cmd_capture(args) -> int:
         probe_video(args.video)  # fail fast, before any folder is made
     name = (args.video or args.observations).stem
     out = args.output or Path("runs") / name
+    if args.character is not None:
+        _check_character(args.character, args.character_map)  # fail fast, before the capture
     summary = run_capture(out, settings, video=args.video, observations=args.observations,
                           overlay=not args.no_overlay, progress=_progress_factory(sys.stderr.isatty()))
     invalid = summary.frames - summary.valid_frames
@@ -278,6 +307,44 @@ def cmd_capture(args) -> int:
     times = ", ".join(f"{k} {v:.1f} s" for k, v in summary.stage_seconds.items())
     print(f"time: {times}" + (f" (cached: {', '.join(summary.cached_stages)})" if summary.cached_stages else ""))
     print(f"results in {out}/: " + ", ".join(Path(p).name for p in summary.files.values()))
+    if args.character is not None:
+        _retarget(Path(summary.files["result"]), args.character, args.character_map, out / "character",
+                  settings.physics.method, settings)
+    return 0
+
+
+def _check_character(path: Path, character_map: Path | None) -> None:
+    from .retarget.character import build_character
+    from .retarget.mapping import load_character_config
+    from .retarget.rig import read_rig
+
+    config = load_character_config(character_map)
+    build_character(read_rig(path, config.units_to_metres), config)
+
+
+def _retarget(result: Path, character: Path, character_map: Path | None, out: Path, physics: str, settings) -> None:
+    from .retarget import retarget_result
+
+    report = retarget_result(result, character, out, character_map=character_map, physics=physics,
+                             settings=settings)
+    m, c = report.metrics, report.character
+    print(f"character {Path(character).name}: {c['joints']} joints, {c['height_m']:.2f} m, {c['mass_kg']:.1f} kg; "
+          f"scale {m['scale']:.3f}, physics: {m['physics']}")
+    grf = "" if m["grf_mean_percent_bw"] is None else f", mean GRF {m['grf_mean_percent_bw']:.0f}% of its weight"
+    kept = "-" if m["contact_frames_kept"] is None else f"{100 * m['contact_frames_kept']:.1f}%"
+    print(f"on the character: foot skate {m['skate_percent']:.2f}%, penetration {m['penetration_percent']:.2f}%, "
+          f"contacts kept {kept}, bone directions cosine {m['bone_cosine_rig']:.3f}{grf}")
+    for note in report.notes:
+        print(f"note: {note}")
+    print(f"character results in {out}/: " + ", ".join(Path(p).name for p in report.files.values()))
+
+
+def cmd_retarget(args) -> int:
+    from .config import load_settings
+
+    settings = load_settings(args.config).check() if args.config else None
+    _retarget(args.result, args.character, args.character_map, args.output or args.result.parent / "character",
+              args.physics, settings)
     return 0
 
 
@@ -454,7 +521,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         commands = {"capture": cmd_capture, "live": cmd_live, "export": cmd_export, "evaluate": cmd_evaluate,
-                    "train-contacts": cmd_train_contacts, "detect": cmd_detect, "batch": cmd_batch}
+                    "train-contacts": cmd_train_contacts, "detect": cmd_detect, "batch": cmd_batch,
+                    "retarget": cmd_retarget}
         return commands[args.command](args)
     except InputError as exc:
         print(f"physmocap: error: {exc}", file=sys.stderr)
