@@ -20,6 +20,7 @@ from .balance import BalanceCorrector
 from .floor import FloorRefiner, floor_frame
 from .physcap import FrameOutput, PhysCapTracker
 
+GRAVITY = 9.81  # m/s^2
 MAX_FLATTENING = np.radians(20.0)  # a foot tilted more than this with heel and toe predicted down is a wrong label
 # or a wrong fit, not a flat foot to correct
 
@@ -41,6 +42,8 @@ class PhysicsMotion:
     qp_failures: np.ndarray
     seconds: float
     floor_plane: np.ndarray | None = None
+    unexplained: np.ndarray | None = None  # (T,) bool: frames the contact model could not explain, handed back
+    # as the kinematic motion (blended in and out over settings.unexplained_blend); None: not diagnosed
 
 
 class PhysicsStream:
@@ -75,6 +78,16 @@ class PhysicsStream:
         self._turn, self._quat = np.zeros(4), np.zeros(4)
         # kinematic root positions of the last stationary_speed_interval, oldest first (the stationary gate)
         self._roots: deque[np.ndarray] = deque(maxlen=max(1, round(settings.stationary_speed_interval * fps)) + 1)
+        self._weight = body.mass * GRAVITY
+        # The diagnosis (settings.unexplained_*): the unexplained root force, averaged causally over
+        # unexplained_time, and the kinematic motion's share in the output (0: physics, 1: kinematic)
+        self._unexplained = np.zeros(3)
+        self._unexplained_share = 1.0 - np.exp(-1.0 / (fps * settings.unexplained_time))
+        self._kinematic_share = 0.0
+        self._blend_rate = 1.0 / max(fps * settings.unexplained_blend, 1.0)
+        self._deviation_data = mujoco.MjData(model)
+        self._recent_contacts: deque[np.ndarray] = deque(maxlen=3)
+        self._blend_step = np.zeros(body.nv)
 
     @property
     def floor_plane(self) -> np.ndarray | None:
@@ -108,12 +121,61 @@ class PhysicsStream:
             stationary = self.root_speed() < self.settings.stationary_max_speed
         if self.settings.balance_correction:
             target, corrected = self.balance.correct(q_kin, stationary, contacts)
-        frame = self.tracker.track(target, velocity, acceleration, contacts)
+        # A second backward difference spans the frame and the two before it: contacts in any of them may push.
+        self._recent_contacts.append(np.asarray(contacts, bool))
+        frame = self.tracker.track(target, velocity, acceleration, contacts, np.any(self._recent_contacts, axis=0))
+        pose = self._diagnose(frame, target, velocity)
         if self.floor is None:
-            return self.tracker.qpos.copy(), frame, corrected
+            return pose, frame, corrected
         frame.contact_forces = self.floor.vector_to_kinematic(frame.contact_forces)
         frame.residual[:3] = self.floor.vector_to_kinematic(frame.residual[:3])
-        return self.floor.to_kinematic(self.tracker.qpos), frame, corrected
+        return self.floor.to_kinematic(pose), frame, corrected
+
+    def _diagnose(self, frame: FrameOutput, target: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+        """Bounds the frame's forces (settings.max_force) and judges whether the contact model explains the
+        frame: the root force the kinematic motion needs and its contacts cannot give (FrameOutput.unexplained)
+        averaged over unexplained_time above unexplained_force, a diverged step or failed QP, a force over the
+        bound, or the character farther than stray_distance from its target. Sets frame.unexplained_flag and
+        returns the pose to hand out (nq,): the character's, blended towards the frame's kinematic target over
+        unexplained_blend while frames are flagged; a character fully handed over restarts from the target."""
+        s = self.settings
+        bound = s.max_force * self._weight
+        out_of_bounds = False
+        for forces in (frame.contact_forces, frame.residual[:3], frame.residual[3:]):  # torque: bound x 1 m
+            if not np.isfinite(forces).all():
+                forces[:] = 0.0
+                out_of_bounds = True
+            size = float(np.linalg.norm(forces.sum(axis=0) if forces.ndim == 2 else forces))
+            if size > bound:
+                forces *= bound / size
+                out_of_bounds = True
+        unexplained = frame.unexplained[:3] if np.isfinite(frame.unexplained).all() else np.zeros(3)
+        self._unexplained += self._unexplained_share * (unexplained - self._unexplained)
+        flagged = (out_of_bounds or frame.diverged or frame.qp_failures > 0
+                   or (s.unexplained_force is not None
+                       and np.linalg.norm(self._unexplained) > s.unexplained_force * self._weight)
+                   or self._deviation(target) > s.stray_distance)
+        frame.unexplained_flag = flagged
+        self._kinematic_share = min(1.0, self._kinematic_share + self._blend_rate) if flagged else \
+            max(0.0, self._kinematic_share - self._blend_rate)
+        if self._kinematic_share >= 1.0:
+            self.tracker.reset(target, velocity)
+            return target.copy()
+        pose = self.tracker.qpos.copy()
+        if self._kinematic_share > 0.0:
+            mujoco.mj_differentiatePos(self.tracker.model, self._blend_step, 1.0, pose, target)
+            mujoco.mj_integratePos(self.tracker.model, pose, self._blend_step, self._kinematic_share)
+        return pose
+
+    def _deviation(self, target: np.ndarray) -> float:
+        """m: mean distance between the character's bodies and the target pose's."""
+        model, data = self.tracker.model, self._deviation_data
+        data.qpos[:] = target
+        mujoco.mj_kinematics(model, data)
+        kinematic = data.xpos[1:].copy()
+        data.qpos[:] = self.tracker.qpos
+        mujoco.mj_kinematics(model, data)
+        return float(np.linalg.norm(data.xpos[1:] - kinematic, axis=1).mean())
 
     def _target_on_floor(self, q_kin: np.ndarray, contacts: np.ndarray) -> np.ndarray:
         """q_kin with each foot whose heel and toe are both predicted in contact turned flat (about the ankle, by
@@ -188,12 +250,12 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     T = len(qpos_kin)
     stream = PhysicsStream(body, settings, fps, refine_floor)
     out = PhysicsMotion(qpos_kin.copy(), np.zeros((T, 4, 3)), np.zeros((T, 6)), np.zeros((T, 4), bool),
-                        np.zeros(T, bool), np.zeros(T, int), 0.0)
+                        np.zeros(T, bool), np.zeros(T, int), 0.0, unexplained=np.zeros(T, bool))
     first = 0 if valid is None or not np.any(valid) else int(np.argmax(valid))
     for t in range(first, T):
         out.qpos[t], frame, out.corrected[t] = stream.push(qpos_kin[t], contacts[t], bool(stationary[t]))
-        out.grf[t], out.residual[t], out.contacts[t], out.qp_failures[t] = (
-            frame.contact_forces, frame.residual, frame.active, frame.qp_failures)
+        out.grf[t], out.residual[t], out.contacts[t], out.qp_failures[t], out.unexplained[t] = (
+            frame.contact_forces, frame.residual, frame.active, frame.qp_failures, frame.unexplained_flag)
         if progress:
             progress(t + 1, T)
     out.seconds = time.perf_counter() - start
