@@ -279,9 +279,10 @@ class PhysicsSettings:
     # written (the residual torque: this times body weight times 1 m); beyond it they are scaled down and the frame
     # is flagged unexplained. A running human's peak vertical force is 2-3 body weights, a drop landing about 5-8
     # (ours); 1 .. 100
-    unexplained_force: float | None = 0.5  # body weights: frames whose root force that the contacts cannot give
-    # (eq. 6's misfit), averaged over unexplained_time, exceeds this are flagged unexplained and handed back as the
-    # kinematic motion: hands or a raised floor carrying the weight (ours; None: no such diagnosis; a QP failure,
+    unexplained_force: float | None = 0.5  # body weights: frames whose upward root force that the kinematic motion
+    # needs and no contact on the floor can give (eq. 6's misfit), averaged over unexplained_time, exceeds this
+    # are flagged unexplained and handed back as the kinematic motion: hands or a raised floor carrying the
+    # weight (ours; None: no such diagnosis; a QP failure,
     # a diverged step, a force over max_force or a pose farther than stray_distance are still flagged).
     # Details: docs/decisions/physics-limits.md; 0.05 .. 10
     unexplained_time: float = 0.2  # s, time constant of that average; 0.01 .. 2

@@ -223,9 +223,8 @@ class PhysCapTracker:
 
     # ---- one video frame ----------------------------------------------------------------------------------
     def track(self, q_kin: np.ndarray, qd_kin: np.ndarray, qdd_kin: np.ndarray,
-              predicted_contacts: np.ndarray, recent_contacts: np.ndarray | None = None) -> FrameOutput:
-        """Advance the character by one frame towards the kinematic pose (steps ii-v, n times). recent_contacts
-        (4,): contacts predicted in any of the frames qdd_kin spans (default: this frame's), for the misfit."""
+              predicted_contacts: np.ndarray) -> FrameOutput:
+        """Advance the character by one frame towards the kinematic pose (steps ii-v, n times)."""
         s, n = self.settings, self.substeps
         forces_sum, residual_sum = np.zeros((4, 3)), np.zeros(6)
         failures, diverged = 0, False
@@ -261,17 +260,16 @@ class PhysCapTracker:
             forces_sum += forces
             residual_sum += torque[:6]
         self._previous_target[:] = q_kin
-        unexplained = self.kinematic_misfit(q_kin, qd_kin, qdd_kin,
-                                            predicted_contacts if recent_contacts is None else recent_contacts)
+        unexplained = self.kinematic_misfit(q_kin, qd_kin, qdd_kin)
         return FrameOutput(forces_sum / n, residual_sum / n, active, failures, records, unexplained, diverged)
 
-    def kinematic_misfit(self, q_kin: np.ndarray, qd_kin: np.ndarray, qdd_kin: np.ndarray,
-                         predicted_contacts: np.ndarray) -> np.ndarray:
+    def kinematic_misfit(self, q_kin: np.ndarray, qd_kin: np.ndarray, qdd_kin: np.ndarray) -> np.ndarray:
         """(6,) the root force (world, N) and torque (pelvis frame, N m) that the kinematic motion itself needs
-        (inverse dynamics at its pose, velocity and acceleration) and that no admissible force at its predicted
-        contacts within contact_height of the floor can give (eq. 6-7 solved for the kinematic motion): zero in
-        flight that follows gravity and on feet that carry the body, about the body's weight where hands or a
-        raised floor carry it. Overwrites the step buffers (recomputed at the next step)."""
+        (inverse dynamics at its pose, velocity and acceleration) and that no admissible force at its sole points
+        within contact_height of the floor can give (eq. 6-7 solved for the kinematic motion), whatever the
+        predicted contacts: zero in flight that follows gravity and on feet that carry the body, about the
+        body's weight where hands or a raised floor carry it. A missed contact label is the tracker's problem, not
+        the contact model's (the stray check catches what it costs). Overwrites the step buffers (recomputed at the next step)."""
         m, d = self.model, self.target_data
         d.qpos[:], d.qvel[:] = q_kin, qd_kin
         mujoco.mj_kinematics(m, d)
@@ -282,5 +280,5 @@ class PhysCapTracker:
         mujoco.mj_fullM(m, d, self.mass_matrix)
         for j, site in enumerate(self.sites):
             mujoco.mj_jacSite(m, d, self.contact_jacobian[j], None, site)
-        active = predicted_contacts & (d.site_xpos[self.sites, 2] < self.settings.contact_height)
+        active = d.site_xpos[self.sites, 2] < self.settings.contact_height
         return self.ground_reaction_forces(qdd_kin, self.bias, active)[2]

@@ -86,7 +86,6 @@ class PhysicsStream:
         self._kinematic_share = 0.0
         self._blend_rate = 1.0 / max(fps * settings.unexplained_blend, 1.0)
         self._deviation_data = mujoco.MjData(model)
-        self._recent_contacts: deque[np.ndarray] = deque(maxlen=3)
         self._blend_step = np.zeros(body.nv)
 
     @property
@@ -121,9 +120,7 @@ class PhysicsStream:
             stationary = self.root_speed() < self.settings.stationary_max_speed
         if self.settings.balance_correction:
             target, corrected = self.balance.correct(q_kin, stationary, contacts)
-        # A second backward difference spans the frame and the two before it: contacts in any of them may push.
-        self._recent_contacts.append(np.asarray(contacts, bool))
-        frame = self.tracker.track(target, velocity, acceleration, contacts, np.any(self._recent_contacts, axis=0))
+        frame = self.tracker.track(target, velocity, acceleration, contacts)
         pose = self._diagnose(frame, target, velocity)
         if self.floor is None:
             return pose, frame, corrected
@@ -133,8 +130,9 @@ class PhysicsStream:
 
     def _diagnose(self, frame: FrameOutput, target: np.ndarray, velocity: np.ndarray) -> np.ndarray:
         """Bounds the frame's forces (settings.max_force) and judges whether the contact model explains the
-        frame: the root force the kinematic motion needs and its contacts cannot give (FrameOutput.unexplained)
-        averaged over unexplained_time above unexplained_force, a diverged step or failed QP, a force over the
+        frame: the upward root force the kinematic motion needs and no contact on the floor can give
+        (FrameOutput.unexplained[2]: something else holds the body up) averaged over unexplained_time above
+        unexplained_force, a diverged step or failed QP, a force over the
         bound, or the character farther than stray_distance from its target. Sets frame.unexplained_flag and
         returns the pose to hand out (nq,): the character's, blended towards the frame's kinematic target over
         unexplained_blend while frames are flagged; a character fully handed over restarts from the target."""
@@ -153,7 +151,7 @@ class PhysicsStream:
         self._unexplained += self._unexplained_share * (unexplained - self._unexplained)
         flagged = (out_of_bounds or frame.diverged or frame.qp_failures > 0
                    or (s.unexplained_force is not None
-                       and np.linalg.norm(self._unexplained) > s.unexplained_force * self._weight)
+                       and self._unexplained[2] > s.unexplained_force * self._weight)
                    or self._deviation(target) > s.stray_distance)
         frame.unexplained_flag = flagged
         self._kinematic_share = min(1.0, self._kinematic_share + self._blend_rate) if flagged else \
