@@ -16,6 +16,8 @@ MediaPipe-like noise, the true intrinsics and height, 8 s at 30 fps, seeds 0 and
              percentile, cm), and jitter (mean joint acceleration, m/s^2) against its kinematic input.
   methods    kinematic offline, B.4-refined, PhysCap on refined, trajopt: the synthetic table's metrics, the
              frames flagged and the physics stage's time.
+  speed      frames per CPU second of the physics stage at 25, 30 and 60 fps, this tree against another
+             (--against SRC, default ../main/src), in alternating child processes.
 
     .venv/bin/python benchmarks/bench_physics_limits.py [--parts framerate diagnosis online methods] [--quick]
 
@@ -30,6 +32,7 @@ import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loa
 import argparse
 import dataclasses
 import json
+import os
 import pickle
 import sys
 import tempfile
@@ -301,6 +304,44 @@ def part_methods(clips, seeds) -> dict:
     return dict(rows=rows, summary=summary)
 
 
+SPEED_RATES = (25.0, 30.0, 60.0)
+
+
+def time_physics(repeats: int) -> dict:
+    """CPU seconds per frame of run_physcap (median of `repeats`) on the 60 fps 131_01 case's B.4-refined motion
+    resampled to each of SPEED_RATES; run in a child process whose PYTHONPATH picks the code under test."""
+    case = build_case(CLIPS[0], 0, 60.0, online=False)
+    motion, refined = case["refined"].motion, case["refined"]
+    out = {}
+    for fps in SPEED_RATES:
+        qpos, source = resample_motion(motion.body, motion.qpos, 60.0, fps)
+        runs = []
+        for _ in range(repeats):
+            start = time.process_time()
+            run_physcap(motion.body, qpos, fps, refined.contacts[source], case["stationary"][source],
+                        case["settings"].physics)
+            runs.append((time.process_time() - start) / len(qpos))
+        out[f"{fps:g}"] = float(np.median(runs))
+    return out
+
+
+def part_speed(against: str, rounds: int = 3, repeats: int = 3) -> dict:
+    """Frames per CPU second of this tree's PhysCap and of the tree whose src folder is `against` (e.g. main's),
+    alternating child processes, `rounds` each; the median per rate."""
+    import subprocess
+
+    build_case(CLIPS[0], 0, 60.0, online=False)  # cached before timing
+    mine = str(Path(__file__).resolve().parents[1] / "src")
+    seconds = {"this branch": [], "against": []}
+    for _ in range(rounds):
+        for label, src in (("this branch", mine), ("against", against)):
+            done = subprocess.run([sys.executable, __file__, "--time-only", str(repeats)], capture_output=True,
+                                  text=True, env={**os.environ, "PYTHONPATH": src}, check=True)
+            seconds[label].append(json.loads(done.stdout.strip().splitlines()[-1]))
+    return {label: {rate: 1.0 / float(np.median([run[rate] for run in runs])) for rate in runs[0]}
+            for label, runs in seconds.items()} | dict(against=against, load_average=os.getloadavg()[0])
+
+
 # ---- report ---------------------------------------------------------------------------------------------------
 def markdown(out: dict) -> str:
     lines = []
@@ -339,6 +380,16 @@ def markdown(out: dict) -> str:
                          f"{s['kinematic_slide_median_cm']:.2f} ({s['kinematic_slide_p95_cm']:.2f}) | "
                          f"{s['jitter']:.2f} | {s['kinematic_jitter']:.2f} | {s['flagged_percent']:.2f} |")
         lines.append("")
+    if "speed" in out:
+        sp = out["speed"]
+        lines += [f"**Speed** (frames per CPU second of the physics stage, median of 3 child processes x 3 runs, "
+                  f"alternating; load average {sp['load_average']:.1f})", "",
+                  "| code | " + " | ".join(f"{r} fps" for r in sp["this branch"]) + " |",
+                  "|---|" + "---|" * len(sp["this branch"])]
+        for label in ("this branch", "against"):
+            name = label if label == "this branch" else f"before ({sp['against']})"
+            lines.append(f"| {name} | " + " | ".join(f"{v:.0f}" for v in sp[label].values()) + " |")
+        lines.append("")
     if "methods" in out:
         lines += ["**Offline methods**", "", "| method | root-rel. mm | Procrustes mm | global root mm | "
                   "skate % | float % | penetr. % | jitter m/s² | e_smooth mm | GRF mean % BW | GRF mean walks % BW "
@@ -360,7 +411,13 @@ def main(argv=None) -> dict:
     parser.add_argument("--parts", nargs="+", default=["framerate", "diagnosis", "online", "methods"])
     parser.add_argument("--quick", action="store_true", help="three clips (two for framerate), one seed")
     parser.add_argument("--json", default=str(RESULTS / "physics_limits.json"))
+    parser.add_argument("--against", default=str(Path(__file__).resolve().parents[2] / "main" / "src"),
+                        help="src folder of the code to time against in part speed (default: ../main/src)")
+    parser.add_argument("--time-only", type=int, default=None, help=argparse.SUPPRESS)  # child of part speed
     args = parser.parse_args(argv)
+    if args.time_only:
+        print(json.dumps(time_physics(args.time_only)))
+        return {}
     clips = CLIPS[:3] if args.quick else CLIPS
     seeds = (0,) if args.quick else (0, 1)
     walking = [c for c in clips if c.split("/")[-1] in WALKING]
@@ -376,6 +433,8 @@ def main(argv=None) -> dict:
             out[part] = part_online(clips, seeds)
         elif part == "methods":
             out[part] = part_methods(clips, seeds)
+        elif part == "speed":
+            out[part] = part_speed(args.against)
         out[part]["minutes"] = (time.perf_counter() - start) / 60
     RESULTS.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(out, indent=1))
