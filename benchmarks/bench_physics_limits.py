@@ -332,9 +332,9 @@ def part_speed(against: str, rounds: int = 3, repeats: int = 3) -> dict:
 
     build_case(CLIPS[0], 0, 60.0, online=False)  # cached before timing
     mine = str(Path(__file__).resolve().parents[1] / "src")
-    seconds = {"this branch": [], "against": []}
+    seconds = {"this branch": [], "before": []}
     for _ in range(rounds):
-        for label, src in (("this branch", mine), ("against", against)):
+        for label, src in (("this branch", mine), ("before", against)):
             done = subprocess.run([sys.executable, __file__, "--time-only", str(repeats)], capture_output=True,
                                   text=True, env={**os.environ, "PYTHONPATH": src}, check=True)
             seconds[label].append(json.loads(done.stdout.strip().splitlines()[-1]))
@@ -352,8 +352,8 @@ def markdown(out: dict) -> str:
                   "max mm | ms/frame |", "|---|---|---|---|---|---|---|---|---|"]
         for r in out["framerate"]["rows"]:
             lines.append(f"| {r['clip']} | {r['fps']:g} | {r['finite']} | {r['largest_force_bw']:.2f} | "
-                         f"{r['flagged_percent']:.1f} | {r['physics_vs_60_mm']:.1f} | {r['physics_vs_60_p95_mm']:.1f} | "
-                         f"{r['physics_vs_60_max_mm']:.1f} | {r['ms_per_frame']:.2f} |")
+                         f"{r['flagged_percent']:.1f} | {r['physics_vs_60_mm']:.1f} | "
+                         f"{r['physics_vs_60_p95_mm']:.1f} | {r['physics_vs_60_max_mm']:.1f} | {r['ms_per_frame']:.2f} |")
         lines.append("")
     if "diagnosis" in out:
         rows = out["diagnosis"]["rows"]
@@ -386,7 +386,7 @@ def markdown(out: dict) -> str:
                   f"alternating; load average {sp['load_average']:.1f})", "",
                   "| code | " + " | ".join(f"{r} fps" for r in sp["this branch"]) + " |",
                   "|---|" + "---|" * len(sp["this branch"])]
-        for label in ("this branch", "against"):
+        for label in ("this branch", "before"):
             name = label if label == "this branch" else f"before ({sp['against']})"
             lines.append(f"| {name} | " + " | ".join(f"{v:.0f}" for v in sp[label].values()) + " |")
         lines.append("")

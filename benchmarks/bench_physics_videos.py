@@ -78,7 +78,8 @@ def score(result_path: Path) -> dict:
                 largest_contact_force_bw=float(np.linalg.norm(result["grf"].sum(axis=1), axis=-1).max() / weight),
                 largest_residual_force_bw=float(np.linalg.norm(result["residual_root_force"][:, :3], axis=-1).max()
                                                 / weight),
-                jitter=metrics.mean_acceleration(final, fps), kinematic_jitter=metrics.mean_acceleration(kinematic, fps),
+                jitter=metrics.mean_acceleration(final, fps),
+                kinematic_jitter=metrics.mean_acceleration(kinematic, fps),
                 slide_median_cm=float(np.median(physics_slide)) if physics_slide.size else float("nan"),
                 kinematic_slide_median_cm=float(np.median(kinematic_slide)) if kinematic_slide.size else float("nan"),
                 physics_deviation_mm=1000 * float(result["physics_deviation"][valid].mean()))
@@ -127,7 +128,8 @@ def main(argv=None) -> dict:
             lines.append(f"| {r['video']} | {r['exit_code']} | {r['wall_s']:.0f} | {r['frames']} ({r['fps']:.0f}) | "
                          f"{r['flagged_frames']} | {r['largest_contact_force_bw']:.2f} | "
                          f"{r['largest_residual_force_bw']:.2f} | {r['all_finite']} | {r['jitter']:.1f} "
-                         f"({r['kinematic_jitter']:.1f}) | {r['slide_median_cm']:.2f} ({r['kinematic_slide_median_cm']:.2f}) |")
+                         f"({r['kinematic_jitter']:.1f}) | {r['slide_median_cm']:.2f} "
+                         f"({r['kinematic_slide_median_cm']:.2f}) |")
         else:
             lines.append(f"| {r['video']} | {r['exit_code']} | {r['wall_s']:.0f} | {r['last_line']} | | | | | | |")
     Path(args.json).with_suffix(".md").write_text("\n".join(lines) + "\n")

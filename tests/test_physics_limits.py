@@ -79,8 +79,8 @@ def test_at_10_fps_a_jump_stays_finite_and_bounded(body):
 
 
 def raised(body, fps=30.0, frames=120, start=40, end=80, height=0.3):
-    """Standing still, lifted `height` above the floor from frame `start` to `end` (ramps of 12 frames, a step up onto a box) with the
-    feet still called in contact: something other than the floor carries the body. Returns poses and the frames
+    """Standing still, lifted `height` above the floor from frame `start` to `end` (ramps of 12 frames, a step up
+    onto a box) with the feet still called in contact: something other than the floor carries the body. Returns poses and the frames
     lifted by more than half the height."""
     q = np.repeat(body.rest_qpos[None], frames, axis=0)
     lift = np.clip(np.minimum(np.arange(frames) - start, end - np.arange(frames)) / 12.0, 0.0, 1.0) * height
@@ -140,3 +140,31 @@ def test_non_finite_or_huge_forces_are_bounded_and_flagged(body, monkeypatch):
     assert np.linalg.norm(physics.residual[:, :3], axis=1).max() <= bound * (1 + 1e-9)
     assert physics.unexplained.all()
     assert np.isfinite(physics.qpos).all()
+
+
+def test_the_result_file_carries_the_unexplained_frames(body, tmp_path):
+    import dataclasses
+
+    from physmocap.camera import Camera, Floor
+    from physmocap.kinematics.calibration import Calibration
+    from physmocap.kinematics.stage import KinematicMotion
+    from physmocap.result import build_result, load_result, save_result
+    from test_fit import observe
+
+    q, _ = raised(body)
+    T = len(q)
+    camera = Camera.from_settings((1280, 720), fov=60)
+    R = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])
+    camera = camera.with_extrinsics(R, -R @ np.array([0.0, -4.0, 1.0]))
+    motion = KinematicMotion(body, Calibration(body.lengths, 1.0, 30, ()), camera,
+                             Floor(R[:, 2], float(-R[:, 2] @ camera.t)), q, np.zeros(T), np.ones(T, bool), 0.0, False)
+    obs = observe(body, q, camera)
+    contacts, stationary = np.ones((T, 4), bool), np.zeros(T, bool)
+    physics = run_physcap(body, q, 30.0, contacts, stationary, PhysicsSettings())
+    assert physics.unexplained.any()
+    save_result(tmp_path / "result.npz", build_result(obs, motion, {}, {}, contacts, stationary, physics))
+    np.testing.assert_array_equal(load_result(tmp_path / "result.npz")["physics_unexplained"], physics.unexplained)
+    # Without physics, or physics read back from an older cache that did not keep the flags: none flagged.
+    assert not build_result(obs, motion, {}, {}, contacts, stationary)["physics_unexplained"].any()
+    older = dataclasses.replace(physics, unexplained=None)
+    assert build_result(obs, motion, {}, {}, contacts, stationary, older)["physics_unexplained"].dtype == bool

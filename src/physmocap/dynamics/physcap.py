@@ -269,7 +269,8 @@ class PhysCapTracker:
         within contact_height of the floor can give (eq. 6-7 solved for the kinematic motion), whatever the
         predicted contacts: zero in flight that follows gravity and on feet that carry the body, about the
         body's weight where hands or a raised floor carry it. A missed contact label is the tracker's problem, not
-        the contact model's (the stray check catches what it costs). Overwrites the step buffers (recomputed at the next step)."""
+        the contact model's (the stray check catches what it costs). Overwrites the step buffers (recomputed at
+        the next step)."""
         m, d = self.model, self.target_data
         d.qpos[:], d.qvel[:] = q_kin, qd_kin
         mujoco.mj_kinematics(m, d)
