@@ -85,7 +85,6 @@ class PhysicsStream:
         self._unexplained_share = 1.0 - np.exp(-1.0 / (fps * settings.unexplained_time))
         self._kinematic_share = 0.0
         self._blend_rate = 1.0 / max(fps * settings.unexplained_blend, 1.0)
-        self._deviation_data = mujoco.MjData(model)
         self._blend_step = np.zeros(body.nv)
 
     @property
@@ -152,7 +151,7 @@ class PhysicsStream:
         flagged = (out_of_bounds or frame.diverged or frame.qp_failures > 0
                    or (s.unexplained_force is not None
                        and self._unexplained[2] > s.unexplained_force * self._weight)
-                   or self._deviation(target) > s.stray_distance)
+                   or self._deviation() > s.stray_distance)
         frame.unexplained_flag = flagged
         self._kinematic_share = min(1.0, self._kinematic_share + self._blend_rate) if flagged else \
             max(0.0, self._kinematic_share - self._blend_rate)
@@ -165,15 +164,12 @@ class PhysicsStream:
             mujoco.mj_integratePos(self.tracker.model, pose, self._blend_step, self._kinematic_share)
         return pose
 
-    def _deviation(self, target: np.ndarray) -> float:
-        """m: mean distance between the character's bodies and the target pose's."""
-        model, data = self.tracker.model, self._deviation_data
-        data.qpos[:] = target
-        mujoco.mj_kinematics(model, data)
-        kinematic = data.xpos[1:].copy()
-        data.qpos[:] = self.tracker.qpos
-        mujoco.mj_kinematics(model, data)
-        return float(np.linalg.norm(data.xpos[1:] - kinematic, axis=1).mean())
+    def _deviation(self) -> float:
+        """m: mean distance between the character's bodies at the start of the frame's last step and the
+        target's, from the kinematics the tracker computed for both (tracker.data at the last step,
+        tracker.target_data at the frame's target by PhysCapTracker.kinematic_misfit)."""
+        character, target = self.tracker.data.xpos[1:], self.tracker.target_data.xpos[1:]
+        return float(np.linalg.norm(character - target, axis=1).mean())
 
     def _target_on_floor(self, q_kin: np.ndarray, contacts: np.ndarray) -> np.ndarray:
         """q_kin with each foot whose heel and toe are both predicted in contact turned flat (about the ankle, by
