@@ -86,6 +86,7 @@ class PhysicsStream:
         self._kinematic_share = 0.0
         self._blend_rate = 1.0 / max(fps * settings.unexplained_blend, 1.0)
         self._blend_step = np.zeros(body.nv)
+        self._deviation_data = mujoco.MjData(model)
 
     @property
     def floor_plane(self) -> np.ndarray | None:
@@ -165,11 +166,12 @@ class PhysicsStream:
         return pose
 
     def _deviation(self) -> float:
-        """m: mean distance between the character's bodies at the start of the frame's last step and the
-        target's, from the kinematics the tracker computed for both (tracker.data at the last step,
-        tracker.target_data at the frame's target by PhysCapTracker.kinematic_misfit)."""
-        character, target = self.tracker.data.xpos[1:], self.tracker.target_data.xpos[1:]
-        return float(np.linalg.norm(character - target, axis=1).mean())
+        """m: mean distance between the character's bodies after the frame and the frame target's (whose
+        kinematics PhysCapTracker.kinematic_misfit left in tracker.target_data)."""
+        data = self._deviation_data
+        data.qpos[:] = self.tracker.qpos
+        mujoco.mj_kinematics(self.tracker.model, data)
+        return float(np.linalg.norm(data.xpos[1:] - self.tracker.target_data.xpos[1:], axis=1).mean())
 
     def _target_on_floor(self, q_kin: np.ndarray, contacts: np.ndarray) -> np.ndarray:
         """q_kin with each foot whose heel and toe are both predicted in contact turned flat (about the ankle, by
