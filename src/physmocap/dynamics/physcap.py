@@ -63,8 +63,8 @@ class FrameOutput:
     active: np.ndarray  # (4,) bool, contacts used in the frame's last step
     qp_failures: int  # steps whose QP failed and fell back
     records: list[SubstepRecord] = field(default_factory=list)
-    # (6,) root force (world, N) and torque (pelvis frame, N m) that the desired motion asks for and the contact
-    # forces cannot give (eq. 6's misfit): the load that hands, a raised floor or a wrong contact would carry
+    # (6,) root force (world, N) and torque (pelvis frame, N m) that the frame's kinematic motion needs and no
+    # contact on the floor can give (PhysCapTracker.kinematic_misfit): the load hands or a raised floor carry
     unexplained: np.ndarray = field(default_factory=lambda: np.zeros(6))
     diverged: bool = False  # a step's accelerations diverged and the character restarted from the target
     unexplained_flag: bool = False  # set by the stage's diagnosis (stage.PhysicsStream)

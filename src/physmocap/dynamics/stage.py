@@ -132,8 +132,8 @@ class PhysicsStream:
         """Bounds the frame's forces (settings.max_force) and judges whether the contact model explains the
         frame: the upward root force the kinematic motion needs and no contact on the floor can give
         (FrameOutput.unexplained[2]: something else holds the body up) averaged over unexplained_time above
-        unexplained_force, a diverged step or failed QP, a force over the
-        bound, or the character farther than stray_distance from its target. Sets frame.unexplained_flag and
+        unexplained_force, a diverged step or failed QP, a force over the bound, or the character farther than
+        stray_distance from its target. Sets frame.unexplained_flag and
         returns the pose to hand out (nq,): the character's, blended towards the frame's kinematic target over
         unexplained_blend while frames are flagged; a character fully handed over restarts from the target."""
         s = self.settings
