@@ -105,9 +105,10 @@ def build_case(name: str, seed: int, fps: float = FPS, noise: NoiseModel = MEDIA
 
 
 def physcap_offline(case: dict):
+    """PhysCap on the B.4-refined kinematics, as offline capture runs it."""
     refined, settings = case["refined"], case["settings"]
     return refined.motion, run_physcap(refined.motion.body, refined.motion.qpos, case["obs"].fps, refined.contacts,
-                                       case["stationary"], settings.physics)
+                                       case["stationary"], settings.physics, refined_input=True)
 
 
 def physcap_online(case: dict, calibrated: bool = False, physics=None):

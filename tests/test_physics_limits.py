@@ -168,3 +168,20 @@ def test_the_result_file_carries_the_unexplained_frames(body, tmp_path):
     assert not build_result(obs, motion, {}, {}, contacts, stationary)["physics_unexplained"].any()
     older = dataclasses.replace(physics, unexplained=None)
     assert build_result(obs, motion, {}, {}, contacts, stationary, older)["physics_unexplained"].dtype == bool
+
+
+def test_refined_kinematics_are_tracked_without_lifting_their_targets(body):
+    # B.4 placed the feet: a fit 3 cm under the floor is lifted out of it, refined kinematics are not (the floor
+    # holds the character up and the residual shows the conflict instead).
+    q = standing(body, 40)
+    q[:, 2] -= 0.03
+    contacts, stationary = np.ones((40, 4), bool), np.zeros(40, bool)
+    lifted = run_physcap(body, q, 30.0, contacts, stationary, PhysicsSettings())
+    refined = run_physcap(body, q, 30.0, contacts, stationary, PhysicsSettings(), refined_input=True)
+    weight = body.mass * G
+    assert np.abs(lifted.residual[20:, 2]).max() < 0.02 * weight
+    assert np.abs(refined.residual[20:, 2]).mean() > 0.2 * weight
+
+
+def standing(body, frames):
+    return np.repeat(body.rest_qpos[None], frames, axis=0)

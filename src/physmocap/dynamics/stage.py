@@ -51,9 +51,10 @@ class PhysicsStream:
     kinematic velocities causally, lifts targets whose feet sink out of the floor, corrects balance, and tracks.
     With refine_floor (an online fit whose floor was estimated, not given) the floor is refined as frames arrive
     and the character runs on the refined floor; poses and forces come back in the kinematic world
-    (`onto_refined_floor` moves both onto the final floor)."""
+    (`onto_refined_floor` moves both onto the final floor). refined_input: see `run_physcap`."""
 
-    def __init__(self, body: BodyModel, settings: PhysicsSettings, fps: float, refine_floor: bool = False):
+    def __init__(self, body: BodyModel, settings: PhysicsSettings, fps: float, refine_floor: bool = False,
+                 refined_input: bool = False):
         self.body, self.settings, self.fps = body, settings, fps
         self.floor = (FloorRefiner(body, fps, settings.floor_refit_interval, np.radians(settings.floor_tilt_rate),
                                    settings.floor_lift_rate, settings.floor_refine_after)
@@ -70,8 +71,11 @@ class PhysicsStream:
         # foot is turned (0 .. 1, smoothed), and the share of a new frame's value taken in (settings.target_lift_time)
         self._lift = 0.0
         self._flatness = np.zeros(2)
+        # Kinematics refined by Rempe's B.4 (refined_input) already rest their feet on the floor: lifting and
+        # flattening them again only raised the feet (docs/decisions/physics-default.md).
         self._lift_share = (1.0 - np.exp(-1.0 / (fps * settings.target_lift_time))
-                            if settings.target_lift_time is not None and settings.foot_lock != "never" else 0.0)
+                            if settings.target_lift_time is not None and settings.foot_lock != "never"
+                            and not refined_input else 0.0)
         model = self.tracker.model
         feet = [model.body(f"{side}_foot").id for side in ("left", "right")]
         self._feet = [(foot, model.body_parentid[foot], model.jnt_qposadr[model.body_jntadr[foot]]) for foot in feet]
@@ -236,15 +240,17 @@ def kinematic_derivatives(body: BodyModel, qpos: np.ndarray, fps: float) -> tupl
 
 def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.ndarray, stationary: np.ndarray,
                 settings: PhysicsSettings, progress=None, refine_floor: bool = False,
-                valid: np.ndarray | None = None) -> PhysicsMotion:
+                valid: np.ndarray | None = None, refined_input: bool = False) -> PhysicsMotion:
     """Track the kinematic motion (T, nq) with the physics character; contacts (T, 4) and stationary (T,)
     come from the contact stage. Causal: frame t uses frames up to t only. refine_floor: see PhysicsStream.
     valid: (T,) frames with a detected person (default all); the character starts at the first, and the frames
     before it keep the kinematic pose without forces (a whole-clip fit extrapolates them without data, and a
-    character started there can begin metres off)."""
+    character started there can begin metres off). refined_input: the kinematics come from Rempe's B.4 refinement
+    (offline, PhysicsSettings.refine_offline), whose feet already rest on the floor: targets are not lifted or
+    flattened (target_lift_time, flatten_feet are for fits whose feet sink)."""
     start = time.perf_counter()
     T = len(qpos_kin)
-    stream = PhysicsStream(body, settings, fps, refine_floor)
+    stream = PhysicsStream(body, settings, fps, refine_floor, refined_input)
     out = PhysicsMotion(qpos_kin.copy(), np.zeros((T, 4, 3)), np.zeros((T, 6)), np.zeros((T, 4), bool),
                         np.zeros(T, bool), np.zeros(T, int), 0.0, unexplained=np.zeros(T, bool))
     first = 0 if valid is None or not np.any(valid) else int(np.argmax(valid))
