@@ -59,6 +59,11 @@ def build_result(obs: Observations, motion: KinematicMotion, stage_seconds: dict
         residual_root_force=np.zeros((T, 6)) if physics is None else physics.residual,
         physics=np.str_("none" if physics is None else physics_method),
         physics_fallback=np.zeros(T, bool) if physics is None else physics.qp_failures > 0,
+        # frames the physics' contact model could not explain (hands or a raised floor carrying the body, a force
+        # over PhysicsSettings.max_force, a failed solver): the final motion there is the kinematic one, blended in
+        # and out over PhysicsSettings.unexplained_blend
+        physics_unexplained=(np.zeros(T, bool) if physics is None or physics.unexplained is None
+                             else np.asarray(physics.unexplained, bool)),
         balance_corrected=np.zeros(T, bool) if physics is None else physics.corrected,
         camera_K=motion.camera.K,
         camera_R=motion.camera.R,
