@@ -17,14 +17,15 @@ import numpy as np
 
 from .config import Settings
 from .contacts.features import CAUSAL_WINDOW
+from .contacts.footlock import lock_feet
 from .contacts.predict import load_weights, network_probabilities
 from .dynamics.stage import PhysicsMotion, PhysicsStream, onto_refined_floor
 from .errors import InputError
 from .kinematics.online import OnlineFitter
 from .kinematics.stage import KinematicMotion, reprojection_errors
 from .landmarks import NUM_LANDMARKS
-from .presets import foot_lock, foot_point_heights
 from .motion import Observations
+from .stages import stored_precision
 
 _END = object()
 
@@ -133,11 +134,8 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
             window = np.array(keypoints[start:index + 1])
             valid = np.array([r == "" for r in reasons[start:index + 1]])
             _, flags = network_probabilities(window, valid, fps, contact_weights, "causal")
-            contacts, stationary = flags[-1, :4], bool(flags[-1, 4])
-            if settings.physics.foot_lock != "auto":
-                heights = foot_point_heights(fitter.body, q[None])
-                contacts = foot_lock(contacts[None], heights, settings.physics.foot_lock,
-                                     settings.physics.contact_height)[0]
+            stationary = bool(flags[-1, 4])
+            contacts = lock_feet(flags[-1:, :4], fitter.body, q[None], settings.physics)[0]
             contacts_by_frame[index] = (contacts, stationary)
             details = dict(contacts=contacts, stationary=stationary)
             final = q
@@ -158,6 +156,7 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
             detect_seconds = item[1]
             break
         index, kp, wl, reason = item
+        kp, wl = stored_precision(kp), stored_precision(wl)  # as the observations file keeps them (stages.as_stored)
         keypoints.append(kp)
         world.append(wl)
         reasons.append(reason)
