@@ -24,6 +24,7 @@ import os
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -35,8 +36,23 @@ from .kinematics.stage import KinematicMotion
 from .motion import Observations
 from .result import RESULT_POINTS, build_result, save_result
 from .run_folder import locked_run_folder, previous_outputs, remove_stale_outputs
-from .stages import (DETECT, KINEMATICS, PHYSCAP, REFINE, TRAJOPT, ProgressFactory, Runner, file_digest,
-                     motion_digest, observations_digest, arrays_digest)
+from .stages import (
+    DETECT,
+    KINEMATICS,
+    PHYSCAP,
+    REFINE,
+    TRAJOPT,
+    ProgressFactory,
+    Runner,
+    arrays_digest,
+    file_digest,
+    motion_digest,
+    observations_digest,
+)
+
+if TYPE_CHECKING:
+    from .dynamics.stage import PhysicsMotion
+    from .trajopt.stage import TrajoptMotion
 
 log = logging.getLogger("physmocap")
 
@@ -101,16 +117,16 @@ def _observe_and_fit(runner: Runner, video: Path | None,
     """The observations (detected, cached or read from `observations`) and the kinematic motion. Online and
     without cached detections, detection and the causal fit run together in live order (`_stream`)."""
     if video is None:
+        assert observations is not None, "run_capture needs a video or an observations file"
         obs = Observations.load(observations)
     else:
         video_key = (file_digest(video),)
-        obs = runner.lookup(DETECT, video_key) if runner.settings.online else None
-        if obs is None and runner.settings.online:
+        cached = runner.lookup(DETECT, video_key) if runner.settings.online else None
+        if cached is None and runner.settings.online:
             obs, motion = _stream(runner, video, video_key)
             runner.seconds["detect"] = obs.seconds_per_frame * obs.num_frames
             return obs, motion
-        if obs is None:
-            obs = runner.run(DETECT, video_key, video)
+        obs = runner.run(DETECT, video_key, video) if cached is None else cached
         check_truncation(video, obs, runner.settings)
         runner.seconds["detect"] = obs.seconds_per_frame * obs.num_frames
     return obs, runner.run(KINEMATICS, (observations_digest(obs),), obs)
@@ -129,13 +145,13 @@ def _stream(runner: Runner, video: Path, video_key: tuple[str]) -> tuple[Observa
 
 
 def _physics(runner: Runner, obs: Observations, motion: KinematicMotion, contacts: np.ndarray,
-             stationary: np.ndarray):
+             stationary: np.ndarray) -> tuple[KinematicMotion, np.ndarray, PhysicsMotion | TrajoptMotion | None, dict]:
     """The physics the settings ask for: (kinematic motion, contacts, physics motion or None, physics report).
     Trajopt and offline PhysCap start from the B.4-refined motion and its contacts; PhysCap's motion and the
     kinematic one are moved onto the floor the physics refined (online), so that both stand on z = 0."""
     from .dynamics.stage import onto_refined_floor
 
-    settings, report = runner.settings, {}
+    settings, report = runner.settings, dict[str, Any]()
     method = settings.physics.method
     if method == "trajopt" or (method == "physcap" and settings.physics.refine_offline and not settings.online):
         refined = runner.run(REFINE, (observations_digest(obs), motion_digest(motion), _flags_digest(contacts)),
@@ -143,13 +159,14 @@ def _physics(runner: Runner, obs: Observations, motion: KinematicMotion, contact
         motion, contacts, report["refinement"] = refined.motion, refined.contacts, refined.report
         runner.seconds["refine"] = refined.report["seconds"]
     inputs = (observations_digest(obs), motion_digest(motion))
+    physics: PhysicsMotion | TrajoptMotion
     if method == "trajopt":
         physics = runner.run(TRAJOPT, (*inputs, _flags_digest(contacts)), obs, motion, contacts)
         report.update(physics.report())
     elif method == "physcap":
-        physics = runner.run(PHYSCAP, (*inputs, _flags_digest(contacts, stationary)), obs, motion, contacts,
+        tracked = runner.run(PHYSCAP, (*inputs, _flags_digest(contacts, stationary)), obs, motion, contacts,
                              stationary)
-        motion, physics = onto_refined_floor(motion, physics)
+        motion, physics = onto_refined_floor(motion, tracked)
     else:
         return motion, contacts, None, report
     runner.seconds["physics"] = physics.seconds
@@ -279,9 +296,10 @@ def _summary(out_dir: Path, source: str, obs: Observations, motion: KinematicMot
              files: dict[str, str]) -> RunSummary:
     error = motion.reprojection_error
     invalid = np.flatnonzero(~motion.valid)
+    why = np.asarray(obs.invalid_reason, dtype=object)
     reasons: dict[str, list[str]] = {}
-    for reason in sorted(set(obs.invalid_reason[invalid].tolist())):
-        reasons[reason or "invalid"] = _frame_ranges(invalid[obs.invalid_reason[invalid] == reason])
+    for reason in sorted(set(why[invalid].tolist())):
+        reasons[reason or "invalid"] = _frame_ranges(invalid[why[invalid] == reason])
     swaps = np.zeros(obs.num_frames, bool) if motion.foot_swaps is None else np.asarray(motion.foot_swaps, bool)
     strayed = motion.valid & (result["physics_deviation"] > settings.physics.stray_distance)
     return RunSummary(

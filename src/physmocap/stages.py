@@ -18,7 +18,6 @@ import functools
 import hashlib
 import json
 import logging
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -89,7 +88,7 @@ def _imported_modules(name: str, source: bytes) -> set[str]:
     return {m for m in found if module_path(m) is not None}
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def code_closure(*modules: str) -> tuple[str, ...]:
     """`modules` and every physmocap module they import, transitively, sorted."""
     seen: set[str] = set()
