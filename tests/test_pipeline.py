@@ -148,6 +148,43 @@ def test_a_damaged_cache_of_every_stage_is_rebuilt_to_the_clean_result(short_obs
         assert rebuilt_stage in again.cached_stages
 
 
+def _stage_outputs(motion, obs):
+    """An output of every stage, as CacheFolder stores it."""
+    from physmocap.dynamics.stage import PhysicsMotion
+    from physmocap.trajopt.stage import TrajoptMotion
+
+    T = len(motion.qpos)
+    zeros = np.zeros((T, 3))
+    return {
+        "observations": obs,
+        "kinematics": motion,
+        "refined": stages.RefinedMotion(motion, np.ones((T, 4), bool), {"seconds": 1.0}),
+        "physics": PhysicsMotion(motion.qpos, np.ones((T, 4, 3)), np.zeros((T, 6)), np.ones((T, 4), bool),
+                                 np.zeros(T, bool), np.zeros(T, int), 1.0),
+        "trajopt": TrajoptMotion(motion.qpos, np.ones((T, 4, 3)), np.zeros((T, 6)), np.ones((T, 4), bool),
+                                 np.ones(T, bool), np.zeros(T, bool), np.zeros(T, int), zeros, zeros, zeros,
+                                 np.zeros((T, 4, 3)), [], 1.0),
+    }
+
+
+@pytest.mark.parametrize("damage", [_truncate, _empty, _drop_an_array], ids=lambda f: f.__name__.strip("_"))
+def test_every_stage_entry_is_checked_before_use(demo_folder, tmp_path, damage, caplog):
+    obs = Observations.load(demo_folder / "cache" / "observations.npz")
+    motion = stages.KINEMATICS.read(demo_folder / "cache" / "kinematics.npz")
+    cache = stages.CacheFolder(tmp_path)
+    outputs = _stage_outputs(motion, obs)
+    for stage in stages.STAGES:
+        cache.store(stage, "k", outputs[stage.file])
+        loaded = cache.load(stage, "k")
+        assert type(loaded) is type(outputs[stage.file])
+        assert cache.load(stage, "another key") is None  # other inputs, settings or code
+        damage(cache.paths(stage)[0])
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="physmocap"):
+            assert cache.load(stage, "k") is None
+        assert f"{stage.file}.npz is damaged" in caplog.text and "recomputing" in caplog.text
+
+
 def test_a_damaged_key_file_is_recomputed(short_observations, tmp_path, caplog):
     run_capture(tmp_path, Settings(), observations=short_observations, overlay=False)
     (tmp_path / "cache" / "kinematics.key").write_text("{not json")
