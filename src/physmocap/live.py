@@ -122,10 +122,7 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
     if fitter.body is None:
         raise InputError(f"{source}: no person was found in any frame.")
     T = len(reasons)
-    reason_array = np.array(reasons, dtype=object)
-    obs = Observations(np.stack(keypoints) if T else np.zeros((0, NUM_LANDMARKS, 3)), np.stack(world), fps,
-                       image_size, valid=reason_array == "", invalid_reason=reason_array, source=str(source),
-                       seconds_per_frame=reader.seconds / max(T, 1))
+    obs = _observations(keypoints, world, reasons, fps, image_size, str(source), reader.seconds / max(T, 1))
     q = np.stack([after.qpos[i] for i in range(T)])
     motion = KinematicMotion(fitter.body, fitter.calibration, fitter.camera, fitter.floor, q,
                              reprojection_errors(fitter.body, fitter.camera, q, obs), obs.valid.copy(), fit_seconds,
@@ -135,16 +132,21 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
         motion, physics = onto_refined_floor(motion, physics)
     warmup = min(T, int(np.argmax(np.cumsum(obs.valid) >= fitter.warmup)) + 1) if obs.valid.any() else T
     steady = np.array([after.latency[i] for i in range(warmup, T)]) * 1000
-    contacts = np.array([after.contacts[i] for i in range(T)]).reshape(T, 4)
-    stationary = np.array([after.stationary[i] for i in range(T)], bool)
-    return LiveReport(obs, motion, contacts, stationary, physics, wall, T / wall,
-                      _statistic(np.median, steady), _statistic(lambda x: np.percentile(x, 95), steady), warmup,
+    contacts, stationary = after.contact_flags(T)
+    median, p95 = (float(np.median(steady)), float(np.percentile(steady, 95))) if len(steady) else (np.nan, np.nan)
+    return LiveReport(obs, motion, contacts, stationary, physics, wall, T / wall, median, p95, warmup,
                       reader.seconds / max(T, 1) * 1000, fit_seconds / max(T, 1) * 1000,
                       after.seconds / max(T, 1) * 1000)
 
 
-def _statistic(function: Callable[[np.ndarray], Any], values: np.ndarray) -> float:
-    return float(function(values)) if len(values) else float("nan")
+def _observations(keypoints: list[np.ndarray], world: list[np.ndarray], reasons: list[str], fps: float,
+                  image_size: tuple[int, int], source: str, seconds_per_frame: float) -> Observations:
+    """The frames' detections gathered into Observations ("" reasons mark valid frames)."""
+    why = np.array(reasons, dtype=object)
+    empty = np.zeros((0, NUM_LANDMARKS, 3))
+    return Observations(np.stack(keypoints) if keypoints else empty, np.stack(world) if world else empty, fps,
+                        image_size, valid=why == "", invalid_reason=why, source=source,
+                        seconds_per_frame=seconds_per_frame)
 
 
 class _DetectionThread(threading.Thread):
@@ -230,6 +232,11 @@ class _AfterFit:
             details.update(grf=frame.contact_forces, residual=frame.residual)
         self.seconds += time.perf_counter() - started
         return final, details
+
+    def contact_flags(self, T: int) -> tuple[np.ndarray, np.ndarray]:
+        """(T, 4) contacts after foot-lock and (T,) stationary flags of frames 0 .. T-1."""
+        return (np.array([self.contacts[i] for i in range(T)], bool).reshape(T, 4),
+                np.array([self.stationary[i] for i in range(T)], bool))
 
     def physics_motion(self, T: int) -> PhysicsMotion | None:
         """The tracked motion of frames 0 .. T-1 (in the kinematic world), None without physics."""

@@ -18,7 +18,7 @@ import functools
 import hashlib
 import json
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
@@ -66,12 +66,14 @@ def module_source(name: str) -> bytes:
     return b"" if path is None else path.read_bytes()
 
 
-def _imported_modules(name: str, source: bytes) -> set[str]:
+@functools.cache
+def _imported_modules(name: str) -> frozenset[str]:
     """The physmocap modules that module `name` imports anywhere in its body (functions included)."""
+    source = module_source(name)
     path = module_path(name)
     package = name if path is not None and path.name == "__init__.py" else name.rpartition(".")[0]
     found: set[str] = set()
-    for node in ast.walk(ast.parse(source)):
+    for node in _import_statements(ast.parse(source).body):
         if isinstance(node, ast.Import):
             found.update(alias.name for alias in node.names if alias.name.split(".")[0] == PACKAGE)
         elif isinstance(node, ast.ImportFrom):
@@ -85,7 +87,16 @@ def _imported_modules(name: str, source: bytes) -> set[str]:
             # `from .pkg import module` imports a module, not only a name
             found.update(f"{base}.{alias.name}" for alias in node.names
                          if module_path(f"{base}.{alias.name}") is not None)
-    return {m for m in found if module_path(m) is not None}
+    return frozenset(m for m in found if module_path(m) is not None)
+
+
+def _import_statements(body: list) -> Iterator[ast.Import | ast.ImportFrom]:
+    """The import statements among `body` and the statements nested in it (functions, classes, branches)."""
+    for node in body:
+        if isinstance(node, ast.Import | ast.ImportFrom):
+            yield node
+        for field in ("body", "orelse", "finalbody", "handlers"):
+            yield from _import_statements(getattr(node, field, None) or [])
 
 
 @functools.cache
@@ -97,7 +108,7 @@ def code_closure(*modules: str) -> tuple[str, ...]:
         name = todo.pop()
         if name not in seen:
             seen.add(name)
-            todo.extend(_imported_modules(name, module_source(name)) - seen)
+            todo.extend(_imported_modules(name) - seen)
     return tuple(sorted(seen))
 
 
