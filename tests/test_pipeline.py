@@ -73,6 +73,11 @@ def test_keys_change_with_inputs_and_the_stages_own_settings():
         settings, "v")
 
 
+def test_a_stage_naming_a_missing_module_fails_loudly():
+    with pytest.raises(ValueError, match="physmocap.kinematics.moved_away"):
+        stages.code_version("physmocap.kinematics.moved_away")
+
+
 def test_the_code_closure_follows_imports_inside_functions():
     # kinematics.stage imports kinematics.online inside a function; the stage's version must cover it.
     assert "physmocap.kinematics.online" in stages.code_closure("physmocap.kinematics.stage")

@@ -101,7 +101,11 @@ def _import_statements(body: list) -> Iterator[ast.Import | ast.ImportFrom]:
 
 @functools.cache
 def code_closure(*modules: str) -> tuple[str, ...]:
-    """`modules` and every physmocap module they import, transitively, sorted."""
+    """`modules` and every physmocap module they import, transitively, sorted. ValueError for a module that does
+    not exist (a stage naming a moved module would otherwise lose track of its code)."""
+    missing = [name for name in modules if module_path(name) is None]
+    if missing:
+        raise ValueError(f"no source for the stage module(s) {', '.join(missing)}")
     seen: set[str] = set()
     todo = list(modules)
     while todo:
