@@ -1,4 +1,12 @@
-"""physmocap: physics-based monocular 3D human motion capture."""
+"""physmocap: physics-based monocular 3D human motion capture.
+
+    import physmocap
+    result = physmocap.capture("video.mp4", physics="trajopt")   # a Result; the run folder is runs/video
+    result.joint("left_ankle")                                   # (T, 3) metres, Z up, floor z = 0
+    physmocap.export(result, to="glb")
+
+See physmocap.api for the arguments and docs/architecture.md for how a capture flows through the stages.
+"""
 
 import os
 
@@ -7,4 +15,10 @@ import os
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
+# The submodule physmocap.export is loaded first: loading it later would rebind the name `export` to the module,
+# hiding the API function.
+from . import export as _export_module  # noqa: E402, F401 - after the BLAS threads are set
+from .api import Result, capture, export, load_result  # noqa: E402
+
 __version__ = "0.1.0"
+__all__ = ["Result", "capture", "export", "load_result", "__version__"]

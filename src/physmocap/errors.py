@@ -10,3 +10,8 @@ class InputError(Exception):
 
 class ReconstructionError(Exception):
     """The input was readable but nothing usable could be reconstructed from it."""
+
+
+class OutputLocationError(InputError):
+    """The output folder cannot be used: not writable, a file in its place, or another run writing into it.
+    (A kind of InputError: the user fixes it by choosing another place or waiting.)"""

@@ -9,22 +9,24 @@ from __future__ import annotations
 import queue
 import threading
 import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Callable, Iterator
+from typing import Any
 
 import cv2
 import numpy as np
 
 from .config import Settings
 from .contacts.features import CAUSAL_WINDOW
+from .contacts.footlock import lock_feet
 from .contacts.predict import load_weights, network_probabilities
 from .dynamics.stage import PhysicsMotion, PhysicsStream, onto_refined_floor
 from .errors import InputError
 from .kinematics.online import OnlineFitter
 from .kinematics.stage import KinematicMotion, reprojection_errors
 from .landmarks import NUM_LANDMARKS
-from .presets import foot_lock, foot_point_heights
 from .motion import Observations
+from .stages import stored_precision
 
 _END = object()
 
@@ -84,80 +86,26 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
     on_pose: called with (frame index, final qpos, details) as soon as each pose is ready; details holds the
         frame's contacts (4,), stationary flag and, with physics, grf (4, 3) and residual (6,).
     """
-    from .detect.mediapipe_pose import PersonFollower
-
     frames, fps, image_size, close = _open_source(source)
-    detections: queue.Queue = queue.Queue(maxsize=8)
-    decoded_at: dict[int, float] = {}
-    failure: list[BaseException] = []
-
-    def detect_all():
-        follower = PersonFollower(image_size, fps, person_box=settings.detect.person_box,
-                                  max_width=settings.detect.max_width)
-        start = time.perf_counter()
-        try:
-            for index, frame in frames:
-                if max_frames is not None and index >= max_frames:
-                    break
-                if realtime:
-                    time.sleep(max(0.0, start + index / fps - time.perf_counter()))
-                decoded_at[index] = time.perf_counter()
-                detections.put((index, *follower.detect(index, frame)))
-        except BaseException as exc:  # handed to the fitting thread, which raises it
-            failure.append(exc)
-        finally:
-            follower.close()
-            close()
-            detections.put((_END, follower.seconds))
-
+    reader = _DetectionThread(frames, fps, image_size, close, settings, realtime, max_frames)
     fitter = OnlineFitter(settings, fps, image_size)
-    contact_weights = load_weights("causal")
-    keypoints, world, reasons, latency = [], [], [], {}
-    qpos: dict[int, np.ndarray] = {}
-    fit_seconds = after_fit_seconds = 0.0  # the kinematic fit; contacts and physics after it
+    after = _AfterFit(settings, fps)
+    keypoints: list[np.ndarray] = []
+    world: list[np.ndarray] = []
+    reasons: list[str] = []
+    fit_seconds = 0.0
     started = time.perf_counter()
-    reader = threading.Thread(target=detect_all, name="physmocap-detect", daemon=True)
     reader.start()
 
-    physics_on = settings.physics.method == "physcap"
-    contacts_by_frame: dict[int, tuple[np.ndarray, bool]] = {}
-    physics_frames: dict[int, tuple] = {}
-    physics: PhysicsStream | None = None
-
     def deliver(results):
-        nonlocal physics, after_fit_seconds
         for index, q in results:
-            qpos[index] = q
-            t0 = time.perf_counter()
-            start = max(0, index - CAUSAL_WINDOW.length + 1)
-            window = np.array(keypoints[start:index + 1])
-            valid = np.array([r == "" for r in reasons[start:index + 1]])
-            _, flags = network_probabilities(window, valid, fps, contact_weights, "causal")
-            contacts, stationary = flags[-1, :4], bool(flags[-1, 4])
-            if settings.physics.foot_lock != "auto":
-                heights = foot_point_heights(fitter.body, q[None])
-                contacts = foot_lock(contacts[None], heights, settings.physics.foot_lock,
-                                     settings.physics.contact_height)[0]
-            contacts_by_frame[index] = (contacts, stationary)
-            details = dict(contacts=contacts, stationary=stationary)
-            final = q
-            if physics_on:
-                if physics is None:
-                    physics = PhysicsStream(fitter.body, settings.physics, fps, settings.camera.floor is None)
-                final, frame, corrected = physics.push(q, contacts, stationary)
-                physics_frames[index] = (final, frame, corrected)
-                details.update(grf=frame.contact_forces, residual=frame.residual)
-            after_fit_seconds += time.perf_counter() - t0
-            latency[index] = time.perf_counter() - decoded_at[index]
+            final, details = after.push(index, q, fitter.body, keypoints, reasons)
+            after.latency[index] = time.perf_counter() - reader.decoded_at[index]
             if on_pose:
                 on_pose(index, final, details)
 
-    while True:
-        item = detections.get()
-        if item[0] is _END:
-            detect_seconds = item[1]
-            break
-        index, kp, wl, reason = item
+    for _, kp, wl, reason in reader.detections():
+        kp, wl = stored_precision(kp), stored_precision(wl)  # as the observations file keeps them (stages.as_stored)
         keypoints.append(kp)
         world.append(wl)
         reasons.append(reason)
@@ -171,34 +119,132 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
     deliver(results)
     wall = time.perf_counter() - started
     reader.join()
-    if failure:
-        raise failure[0]
     if fitter.body is None:
         raise InputError(f"{source}: no person was found in any frame.")
     T = len(reasons)
-    reason_array = np.array(reasons, dtype=object)
-    obs = Observations(np.stack(keypoints) if T else np.zeros((0, NUM_LANDMARKS, 3)), np.stack(world), fps,
-                       image_size, valid=reason_array == "", invalid_reason=reason_array, source=str(source),
-                       seconds_per_frame=detect_seconds / max(T, 1))
-    q = np.stack([qpos[i] for i in range(T)])
-    contacts = np.array([contacts_by_frame[i][0] for i in range(T)])
-    stationary = np.array([contacts_by_frame[i][1] for i in range(T)])
-    physics_motion = None
-    if physics_on:
-        frames = [physics_frames[i] for i in range(T)]
-        physics_motion = PhysicsMotion(np.stack([f[0] for f in frames]),
-                                       np.stack([f[1].contact_forces for f in frames]),
-                                       np.stack([f[1].residual for f in frames]), np.stack([f[1].active for f in frames]),
-                                       np.array([f[2] for f in frames]), np.array([f[1].qp_failures for f in frames]),
-                                       after_fit_seconds, physics.floor_plane if physics is not None else None)
+    obs = _observations(keypoints, world, reasons, fps, image_size, str(source), reader.seconds / max(T, 1))
+    q = np.stack([after.qpos[i] for i in range(T)])
     motion = KinematicMotion(fitter.body, fitter.calibration, fitter.camera, fitter.floor, q,
                              reprojection_errors(fitter.body, fitter.camera, q, obs), obs.valid.copy(), fit_seconds,
                              True)
-    if physics_motion is not None:  # both on the floor the physics refined, which becomes z = 0
-        motion, physics_motion = onto_refined_floor(motion, physics_motion)
+    physics = after.physics_motion(T)
+    if physics is not None:  # both on the floor the physics refined, which becomes z = 0
+        motion, physics = onto_refined_floor(motion, physics)
     warmup = min(T, int(np.argmax(np.cumsum(obs.valid) >= fitter.warmup)) + 1) if obs.valid.any() else T
-    steady = np.array([latency[i] for i in range(warmup, T)]) * 1000
-    return LiveReport(obs, motion, contacts, stationary, physics_motion, wall, T / wall, float(np.median(steady)) if len(steady) else float("nan"),
-                      float(np.percentile(steady, 95)) if len(steady) else float("nan"), warmup,
-                      detect_seconds / max(T, 1) * 1000, fit_seconds / max(T, 1) * 1000,
-                      after_fit_seconds / max(T, 1) * 1000)
+    steady = np.array([after.latency[i] for i in range(warmup, T)]) * 1000
+    contacts, stationary = after.contact_flags(T)
+    median, p95 = (float(np.median(steady)), float(np.percentile(steady, 95))) if len(steady) else (np.nan, np.nan)
+    return LiveReport(obs, motion, contacts, stationary, physics, wall, T / wall, median, p95, warmup,
+                      reader.seconds / max(T, 1) * 1000, fit_seconds / max(T, 1) * 1000,
+                      after.seconds / max(T, 1) * 1000)
+
+
+def _observations(keypoints: list[np.ndarray], world: list[np.ndarray], reasons: list[str], fps: float,
+                  image_size: tuple[int, int], source: str, seconds_per_frame: float) -> Observations:
+    """The frames' detections gathered into Observations ("" reasons mark valid frames)."""
+    why = np.array(reasons, dtype=object)
+    empty = np.zeros((0, NUM_LANDMARKS, 3))
+    return Observations(np.stack(keypoints) if keypoints else empty, np.stack(world) if world else empty, fps,
+                        image_size, valid=why == "", invalid_reason=why, source=source,
+                        seconds_per_frame=seconds_per_frame)
+
+
+class _DetectionThread(threading.Thread):
+    """Decodes frames and runs the detector on them, handing (index, keypoints, landmarks, invalid reason) to
+    the fitting thread through a short queue; an exception in it is raised again by `join`."""
+
+    def __init__(self, frames, fps: float, image_size: tuple[int, int], close: Callable[[], None],
+                 settings: Settings, realtime: bool, max_frames: int | None):
+        super().__init__(name="physmocap-detect", daemon=True)
+        self.frames, self.fps, self.image_size, self.close = frames, fps, image_size, close
+        self.settings, self.realtime, self.max_frames = settings, realtime, max_frames
+        self.queue: queue.Queue = queue.Queue(maxsize=8)
+        self.decoded_at: dict[int, float] = {}  # perf_counter when each frame was decoded
+        self.seconds = 0.0  # spent detecting
+        self.failure: BaseException | None = None
+
+    def run(self) -> None:
+        from .detect.mediapipe_pose import PersonFollower
+
+        follower = PersonFollower(self.image_size, self.fps, person_box=self.settings.detect.person_box,
+                                  max_width=self.settings.detect.max_width)
+        start = time.perf_counter()
+        try:
+            for index, frame in self.frames:
+                if self.max_frames is not None and index >= self.max_frames:
+                    break
+                if self.realtime:
+                    time.sleep(max(0.0, start + index / self.fps - time.perf_counter()))
+                self.decoded_at[index] = time.perf_counter()
+                self.queue.put((index, *follower.detect(index, frame)))
+        except BaseException as exc:  # handed to the fitting thread, which raises it
+            self.failure = exc
+        finally:
+            follower.close()
+            self.close()
+            self.seconds = follower.seconds
+            self.queue.put(_END)
+
+    def detections(self) -> Iterator[tuple[int, np.ndarray, np.ndarray, str]]:
+        while (item := self.queue.get()) is not _END:
+            yield item
+
+    def join(self, timeout: float | None = None) -> None:
+        super().join(timeout)
+        if self.failure is not None:
+            raise self.failure
+
+
+class _AfterFit:
+    """What follows the fit, one frame at a time: the causal contact network, foot-lock (contacts.footlock, as
+    the offline pipeline) and, with physcap, the physics tracker; it keeps every frame's output for the report."""
+
+    def __init__(self, settings: Settings, fps: float):
+        self.settings, self.fps = settings, fps
+        self.weights = load_weights("causal")
+        self.physics_on = settings.physics.method == "physcap"
+        self.stream: PhysicsStream | None = None
+        self.qpos: dict[int, np.ndarray] = {}
+        self.latency: dict[int, float] = {}  # seconds from decoding to the final pose
+        self.contacts: dict[int, np.ndarray] = {}  # (4,) bool after foot-lock
+        self.stationary: dict[int, bool] = {}
+        self.physics_frames: dict[int, tuple] = {}
+        self.seconds = 0.0
+
+    def push(self, index: int, q: np.ndarray, body, keypoints: list, reasons: list) -> tuple[np.ndarray, dict]:
+        """Frame `index`'s fitted pose q (nq,) -> its final pose and the details `on_pose` receives."""
+        started = time.perf_counter()
+        self.qpos[index] = q
+        first = max(0, index - CAUSAL_WINDOW.length + 1)
+        window = np.array(keypoints[first:index + 1])
+        valid = np.array([r == "" for r in reasons[first:index + 1]])
+        _, flags = network_probabilities(window, valid, self.fps, self.weights, "causal")
+        stationary = bool(flags[-1, 4])
+        contacts = lock_feet(flags[-1:, :4], body, q[None], self.settings.physics)[0]
+        self.contacts[index], self.stationary[index] = contacts, stationary
+        details: dict[str, Any] = dict(contacts=contacts, stationary=stationary)
+        final = q
+        if self.physics_on:
+            if self.stream is None:
+                self.stream = PhysicsStream(body, self.settings.physics, self.fps, self.settings.camera.floor is None)
+            final, frame, corrected = self.stream.push(q, contacts, stationary)
+            self.physics_frames[index] = (final, frame, corrected)
+            details.update(grf=frame.contact_forces, residual=frame.residual)
+        self.seconds += time.perf_counter() - started
+        return final, details
+
+    def contact_flags(self, T: int) -> tuple[np.ndarray, np.ndarray]:
+        """(T, 4) contacts after foot-lock and (T,) stationary flags of frames 0 .. T-1."""
+        return (np.array([self.contacts[i] for i in range(T)], bool).reshape(T, 4),
+                np.array([self.stationary[i] for i in range(T)], bool))
+
+    def physics_motion(self, T: int) -> PhysicsMotion | None:
+        """The tracked motion of frames 0 .. T-1 (in the kinematic world), None without physics."""
+        if not self.physics_on:
+            return None
+        frames = [self.physics_frames[i] for i in range(T)]
+        return PhysicsMotion(
+            qpos=np.stack([f[0] for f in frames]), grf=np.stack([f[1].contact_forces for f in frames]),
+            residual=np.stack([f[1].residual for f in frames]), contacts=np.stack([f[1].active for f in frames]),
+            corrected=np.array([f[2] for f in frames]), qp_failures=np.array([f[1].qp_failures for f in frames]),
+            seconds=self.seconds, floor_plane=None if self.stream is None else self.stream.floor_plane)

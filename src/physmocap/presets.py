@@ -1,14 +1,9 @@
-"""Per-activity presets, the smoothing strength and foot-lock: the controls users know from commercial tools.
+"""Per-activity presets and the smoothing strength: the controls users know from commercial tools (foot-lock, the
+third, lives in `contacts.footlock`).
 
 A preset is a named set of overrides of `physmocap.config.Settings` fields, {section: {field: value}}, applied on
 top of the defaults or a settings file; options given on the command line after it still win. The smoothing
-strength scales the fit's temporal weights. Foot-lock decides which foot points may be in contact before
-physics runs:
-
-- "auto": the contacts the contact stage predicted;
-- "always": every foot point (left heel, left toe, right heel, right toe) within the contact height of the floor,
-  whatever was predicted: for motion that stays on the ground (standing, slow walking, work on the spot);
-- "never": no contact at all: for airborne or swimming motion, where the floor must never pull a foot down.
+strength scales the fit's temporal weights.
 """
 
 from __future__ import annotations
@@ -19,12 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from .body.kinematics import forward_kinematics
-from .body.model import CONTACT_POINTS, BodyModel
 from .config import Settings
+from .contacts.footlock import FOOT_LOCK_MODES, foot_lock  # noqa: F401 - their old home, still imported by tests
 from .errors import InputError
-
-FOOT_LOCK_MODES: tuple[str, ...] = ("auto", "always", "never")
 
 
 @dataclass(frozen=True)
@@ -93,32 +85,3 @@ def apply_smoothing(settings: Settings, strength: float) -> Settings:
     fit = dataclasses.replace(settings.fit, weight_smooth=settings.fit.weight_smooth * strength,
                               weight_depth=settings.fit.weight_depth * strength)
     return dataclasses.replace(settings, fit=fit).check()
-
-
-def foot_point_heights(body: BodyModel, qpos: np.ndarray) -> np.ndarray:
-    """(T, 4) heights above the floor z = 0, metres, of the contact points (CONTACT_POINTS order) of the motion
-    qpos (T, nq) in the world frame."""
-    points = forward_kinematics(body, qpos).points[:, body.point_index(CONTACT_POINTS)]
-    return points[..., 2]
-
-
-def foot_lock(predicted: np.ndarray, heights: np.ndarray, mode: str, contact_height: float) -> np.ndarray:
-    """Contact flags (T, 4) to hand to physics, for the foot-lock `mode` (see the module docstring).
-
-    predicted: (T, 4) bool, the contact stage's flags (left heel, left toe, right heel, right toe).
-    heights: (T, 4) metres above the floor of the same points (e.g. `foot_point_heights` of the kinematic motion).
-    contact_height: metres; "always" sets a point's flag while the point is at most this high
-    (physics.contact_height, the same threshold the tracker applies to predicted contacts).
-    """
-    predicted = np.asarray(predicted, dtype=bool)
-    heights = np.asarray(heights, dtype=float)
-    if mode not in FOOT_LOCK_MODES:
-        raise InputError(f"foot-lock must be one of {', '.join(FOOT_LOCK_MODES)}, got '{mode}'.")
-    if predicted.ndim != 2 or predicted.shape[1] != len(CONTACT_POINTS) or heights.shape != predicted.shape:
-        raise ValueError(f"predicted and heights must both have shape (T, 4), got {predicted.shape} and "
-                         f"{heights.shape}.")
-    if mode == "auto":
-        return predicted.copy()
-    if mode == "always":
-        return heights <= contact_height
-    return np.zeros_like(predicted)

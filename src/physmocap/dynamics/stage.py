@@ -45,6 +45,20 @@ class PhysicsMotion:
     unexplained: np.ndarray | None = None  # (T,) bool: frames the contact model could not explain, handed back
     # as the kinematic motion (blended in and out over settings.unexplained_blend); None: not diagnosed
 
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """Every field as named arrays for an .npz file (no floor_plane: nan); `from_arrays` rebuilds it."""
+        arrays = {f.name: np.asarray(getattr(self, f.name)) for f in dataclasses.fields(self)}
+        arrays["floor_plane"] = np.full(4, np.nan) if self.floor_plane is None else np.asarray(self.floor_plane)
+        return arrays
+
+    @classmethod
+    def from_arrays(cls, arrays) -> "PhysicsMotion":
+        """The motion `to_arrays` gave (a KeyError names a missing array)."""
+        values = {f.name: arrays[f.name] for f in dataclasses.fields(cls)}
+        values["seconds"] = float(values["seconds"])
+        values["floor_plane"] = None if np.isnan(values["floor_plane"]).any() else values["floor_plane"]
+        return cls(**values)
+
 
 class PhysicsStream:
     """The physics stage one frame at a time (live capture, and `run_physcap` frame by frame): estimates the

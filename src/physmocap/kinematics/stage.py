@@ -64,6 +64,39 @@ class KinematicMotion:
     online: bool
     foot_swaps: np.ndarray | None = None
 
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """Every field as named arrays (the skeleton's lengths as JSON text), for an .npz file; `from_arrays`
+        rebuilds the motion exactly."""
+        import json
+
+        T = len(self.qpos)
+        return dict(qpos=self.qpos, lengths=np.str_(json.dumps(self.body.lengths.__dict__)),
+                    mass=np.float64(self.body.mass), camera_K=self.camera.K, camera_R=self.camera.R,
+                    camera_t=self.camera.t, image_size=np.array(self.camera.image_size), floor=self.floor.plane,
+                    floor_inliers=np.float64(self.floor.inlier_fraction),
+                    reprojection_error=np.full(T, np.nan) if self.reprojection_error is None
+                    else self.reprojection_error, valid=self.valid, seconds=np.float64(self.seconds),
+                    online=np.bool_(self.online), landmark_scale=np.float64(self.calibration.landmark_scale),
+                    frames_used=np.int64(self.calibration.frames_used),
+                    replaced=np.array(self.calibration.replaced, dtype=str),
+                    foot_swaps=np.zeros(T, bool) if self.foot_swaps is None else np.asarray(self.foot_swaps, bool))
+
+    @classmethod
+    def from_arrays(cls, arrays) -> "KinematicMotion":
+        """The motion `to_arrays` gave (a KeyError names a missing array)."""
+        import json
+
+        lengths = SkeletonLengths(**json.loads(str(arrays["lengths"])))
+        size = arrays["image_size"]
+        camera = Camera(arrays["camera_K"], arrays["camera_R"], arrays["camera_t"], (int(size[0]), int(size[1])))
+        plane = Floor.from_plane(arrays["floor"])
+        calibration = Calibration(lengths, float(arrays["landmark_scale"]), int(arrays["frames_used"]),
+                                  tuple(str(x) for x in arrays["replaced"]))
+        return cls(build_body_model(lengths, float(arrays["mass"])), calibration, camera,
+                   Floor(plane.normal, plane.offset, float(arrays["floor_inliers"])), arrays["qpos"],
+                   arrays["reprojection_error"], arrays["valid"], float(arrays["seconds"]), bool(arrays["online"]),
+                   arrays["foot_swaps"])
+
 
 def make_targets(keypoints_2d: np.ndarray, landmarks_3d: np.ndarray, valid: np.ndarray, depth: np.ndarray,
                  camera: Camera, calibration: Calibration, fit: FitSettings) -> FitTargets:

@@ -147,6 +147,25 @@ class TrajoptMotion:
             line += f"; NOT converged{why} (kinematic motion kept): frames {', '.join(self.failed_frames)}"
         return line
 
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """Every field as named arrays for an .npz file (the window reports as JSON text); `from_arrays`
+        rebuilds it."""
+        import json
+
+        arrays = {f.name: np.asarray(getattr(self, f.name)) for f in dataclasses.fields(self)}
+        arrays["windows"] = np.str_(json.dumps([w.to_dict() for w in self.windows]))
+        return arrays
+
+    @classmethod
+    def from_arrays(cls, arrays) -> "TrajoptMotion":
+        """The motion `to_arrays` gave (a KeyError names a missing array)."""
+        import json
+
+        values = {f.name: arrays[f.name] for f in dataclasses.fields(cls)}
+        values["windows"] = [WindowReport.from_dict(w) for w in json.loads(str(values["windows"]))]
+        values["seconds"] = float(values["seconds"])
+        return cls(**values)
+
 
 def window_ranges(frames: int, fps: float, settings: TrajoptSettings) -> list[tuple[int, int, int]]:
     """(start, stop, keep) frame indices of the windows: frames start..stop (inclusive) are solved and start..keep-1
