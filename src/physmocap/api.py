@@ -111,8 +111,8 @@ def capture(source: PathLike, out_dir: PathLike | None = None, *, physics: str |
     source: a video file, or an observations file (.npz, see the README) to skip detection.
     out_dir: the run folder; default runs/<source's name>. Stages whose inputs, settings and code are unchanged
         come from its cache, so a second call with a new physics setting does not detect again.
-    physics: "none", "physcap" (per frame, real time) or "trajopt" (Rempe et al., whole clip); default "none"
-        offline and "physcap" online, as the command line.
+    physics: "physcap" (per frame; the default, as on the command line), "trajopt" (Rempe et al., whole clip,
+        offline only) or "none" (kinematics only).
     online: fit causally frame by frame (as live capture does) instead of the whole clip at once.
     height: the person's standing height, metres; mass: their mass, kilograms (defaults: the settings').
     config: a TOML settings file, applied first.
@@ -126,8 +126,7 @@ def capture(source: PathLike, out_dir: PathLike | None = None, *, physics: str |
     source = Path(source)
     settings = load_settings(None if config is None else Path(config))
     settings = settings.replace(None, online=online) if online else settings
-    method = physics or ("physcap" if settings.online else None)
-    settings = settings.replace("physics", method=method) if method else settings
+    settings = settings.replace("physics", method=physics) if physics else settings
     body = {k: v for k, v in (("height", height), ("mass", mass)) if v is not None}
     settings = settings.replace("body", **body) if body else settings
     settings = _with_overrides(settings, overrides).check()

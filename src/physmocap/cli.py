@@ -17,7 +17,7 @@ examples:
   physmocap capture video.mp4 --person-box 100,50,400,700   # follow the person inside this box
   physmocap detect video.mp4 -o obs.npz                  # only the detector; any other detector can
   physmocap capture --observations obs.npz -o runs/x     # ...write this file format and be fitted
-  physmocap capture video.mp4 --physics physcap          # PhysCap physics on the offline fit
+  physmocap capture video.mp4 --physics trajopt          # Rempe et al.'s trajectory optimisation instead
   physmocap live 0 -o runs/cam                           # live from camera 0: detection, fit, contacts, physics
   physmocap live video.mp4 --max-frames 200              # a file played at its own frame rate, as a camera
   physmocap export runs/walk/result.npz --to glb         # BVH, GLB or OpenSim files from any earlier run
@@ -169,8 +169,9 @@ def _add_capture_options(p: argparse.ArgumentParser) -> None:
     """The options of one capture, shared by `capture` and `batch`."""
     p.add_argument("--online", action="store_true", help="causal frame-by-frame fit (live use)")
     p.add_argument("--physics", choices=("none", "physcap", "trajopt"), default=None,
-                   help="physics after the kinematic fit: PhysCap's real-time tracker (default with --online), "
-                        "Rempe et al.'s trajectory optimisation of the whole clip, or none (default offline)")
+                   help="physics after the kinematic fit: PhysCap's tracker (default; offline it tracks Rempe "
+                        "et al.'s refined kinematics), Rempe et al.'s trajectory optimisation of the whole clip "
+                        "(offline only), or none (kinematics only)")
     _add_settings_arguments(p)
     p.add_argument("--no-overlay", action="store_true", help="skip rendering overlay.mp4")
     p.add_argument("--accept-truncated", action="store_true",
@@ -233,9 +234,8 @@ def settings_from_args(args):
         s = s.replace("fit", one_euro=True)
     if args.online:
         s = s.replace(None, online=True)
-    physics = getattr(args, "physics", None) or ("physcap" if s.online else None)
-    if physics is not None:
-        s = s.replace("physics", method=physics)
+    if getattr(args, "physics", None) is not None:
+        s = s.replace("physics", method=args.physics)
     return s.check()
 
 
@@ -300,6 +300,7 @@ def cmd_capture(args) -> int:
                 if summary.physics == "trajopt" else "the physics QP failed and fell back on frames ")
         print("warning: " + what + _first_ranges(summary.physics_fallback_frames))
     _warn_strayed(summary, settings)
+    _note_physics_floor_height(summary)
     print(f"median reprojection error {summary.median_reprojection_error_px:.1f} px "
           f"({summary.median_reprojection_error_percent_of_height:.2f}% of the person's height)"
           + (f"; after physics {summary.median_reprojection_error_final_px:.1f} px" if summary.physics != "none"
@@ -431,8 +432,23 @@ def cmd_live(args) -> int:
             print(f"warning: the physics QP fell back on {int(np.sum(report.physics.qp_failures > 0))} frames")
         _note_foot_swaps(summary)
         _warn_strayed(summary, settings)
+        _note_physics_floor_height(summary)
         print(f"results in {args.output}/: live.jsonl, " + ", ".join(Path(p).name for p in summary.files.values()))
     return 0
+
+
+def _note_physics_floor_height(summary) -> None:
+    """Terminal lines for frames the physics could not explain, an untrusted floor, and the assumed height."""
+    if summary.physics_unexplained_frame_count:
+        print(f"note: physics: {summary.physics_unexplained_frame_count} frames "
+              f"({_first_ranges(summary.physics_unexplained_frames)}) could not be explained by the feet on the "
+              "floor (hands, a raised floor or a jump off an object?); the kinematic motion is kept there, blended "
+              "over 0.2 s (result.npz physics_unexplained)")
+    if summary.floor and not summary.floor.get("trusted", True):
+        print("warning: the floor fitted to the feet disagrees with the person's own vertical by "
+              f"{summary.floor.get('prior_disagreement_degrees') or float('nan'):.0f} degrees: it is not trusted, "
+              "and the person's vertical is taken as the floor's normal (give --floor if you know it)")
+    print(summary.body_height_note)
 
 
 def _first_ranges(ranges: list[str], shown: int = 6) -> str:

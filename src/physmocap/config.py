@@ -143,7 +143,8 @@ class FitSettings:
 class PhysicsSettings:
     """Physics after the kinematic fit. PhysCap stage III (Shimada et al. 2020, 4.3 and 5.1) for "physcap"."""
 
-    method: str = "none"  # "none", "physcap" (per frame, real time) or "trajopt" (Rempe et al., whole clip)
+    method: str = "physcap"  # "physcap" (per frame; the default: docs/decisions/physics-default.md), "trajopt"
+    # (Rempe et al., whole clip) or "none" (kinematics only)
     refine_offline: bool = True  # offline runs: PhysCap tracks the kinematics after Rempe's B.4 refinement (the
     # one trajopt starts from: contact velocity, smoothing and floor terms, trajopt.kinematic_* weights) instead
     # of the plain fit; online runs cannot (it needs the whole clip). Synthetic set (8 clips x 2 seeds):

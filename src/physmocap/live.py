@@ -19,6 +19,7 @@ import numpy as np
 from .config import Settings
 from .contacts.features import CAUSAL_WINDOW
 from .contacts.footlock import lock_feet
+from .contacts.baselines import CAUSAL_SIZE_WINDOW, velocity_2d
 from .contacts.predict import load_weights, network_probabilities
 from .dynamics.stage import PhysicsMotion, PhysicsStream, onto_refined_floor
 from .errors import InputError
@@ -219,7 +220,11 @@ class _AfterFit:
         window = np.array(keypoints[first:index + 1])
         valid = np.array([r == "" for r in reasons[first:index + 1]])
         _, flags = network_probabilities(window, valid, self.fps, self.weights, "causal")
-        stationary = bool(flags[-1, 4])
+        # the stationary flag of the causal 2D root-speed heuristic, over the frames it reads (clamped at 0, as the
+        # whole-clip computation of pipeline.contacts_stage is)
+        past = np.clip(np.arange(index - CAUSAL_SIZE_WINDOW.length + 1, index + 1), 0, None)
+        stationary = bool(velocity_2d(np.array([keypoints[i] for i in past]),
+                                      np.array([reasons[i] == "" for i in past]), self.fps, causal=True)[1][-1])
         contacts = lock_feet(flags[-1:, :4], body, q[None], self.settings.physics)[0]
         self.contacts[index], self.stationary[index] = contacts, stationary
         details: dict[str, Any] = dict(contacts=contacts, stationary=stationary)
@@ -247,4 +252,5 @@ class _AfterFit:
             qpos=np.stack([f[0] for f in frames]), grf=np.stack([f[1].contact_forces for f in frames]),
             residual=np.stack([f[1].residual for f in frames]), contacts=np.stack([f[1].active for f in frames]),
             corrected=np.array([f[2] for f in frames]), qp_failures=np.array([f[1].qp_failures for f in frames]),
-            seconds=self.seconds, floor_plane=None if self.stream is None else self.stream.floor_plane)
+            seconds=self.seconds, floor_plane=None if self.stream is None else self.stream.floor_plane,
+            unexplained=np.array([f[1].unexplained_flag for f in frames], bool))

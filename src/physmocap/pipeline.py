@@ -32,6 +32,7 @@ from .config import Settings
 from .contacts.footlock import lock_feet
 from .errors import InputError
 from .io.atomic import write_text
+from .kinematics.calibration import height_line
 from .kinematics.stage import KinematicMotion
 from .motion import Observations
 from .result import RESULT_POINTS, build_result, save_result
@@ -85,6 +86,14 @@ class RunSummary:
     # physics.stray_distance on average from the kinematic motion's
     files: dict[str, str] = field(default_factory=dict)
     removed_stale_outputs: list[str] = field(default_factory=list)  # an earlier run's outputs this run did not write
+
+    physics_unexplained_frames: list[str] = field(default_factory=list)  # frames the feet on the floor cannot
+    # explain (hands or a raised floor carrying weight, a jump off an object, a diverged step): kinematics kept
+    physics_unexplained_frame_count: int = 0
+    body_height_m: float = float("nan")  # the standing height the skeleton was scaled to
+    body_height_source: str = "given"  # "given" (settings, the 1.70 m default included) or "estimated"
+    body_height_note: str = ""  # the line that says which height was assumed and how to set it
+    floor: dict = field(default_factory=dict)  # the floor's confidence (camera.Floor.confidence)
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=2)
@@ -201,17 +210,14 @@ def check_truncation(video: Path, obs: Observations, settings: Settings) -> None
 def contacts_stage(obs: Observations, settings: Settings) -> tuple[np.ndarray, np.ndarray]:
     """Foot contacts (T, 4) and the stationary flag (T,) from the 2D keypoints, fast enough not to need a cache.
 
-    Online: the causal network for both. Offline: the centred network's contacts, and the stationary flag of
-    the 2D root-speed heuristic, which beats both networks on the hand-labelled real frames (0.93 against
-    0.72 and 0.86, benchmarks/results/contacts.md)."""
+    Contacts: the causal network online, the centred one offline. The stationary flag: the 2D root-speed
+    heuristic (causal online), which beats both networks on the hand-labelled real frames
+    (BENCHMARKS.md, "Foot contacts")."""
     from .contacts.baselines import velocity_2d
     from .contacts.predict import predict_contacts
 
-    if settings.online:
-        contacts, stationary, _ = predict_contacts(obs, "causal")
-        return contacts, stationary
-    contacts, _, _ = predict_contacts(obs, "centred")
-    return contacts, velocity_2d(obs.keypoints_2d, obs.valid, obs.fps)[1]
+    contacts, _, _ = predict_contacts(obs, "causal" if settings.online else "centred")
+    return contacts, velocity_2d(obs.keypoints_2d, obs.valid, obs.fps, causal=settings.online)[1]
 
 
 def _frame_ranges(frames: np.ndarray) -> list[str]:
@@ -312,7 +318,13 @@ def _summary(out_dir: Path, source: str, obs: Observations, motion: KinematicMot
         foot_swap_frames=_frame_ranges(np.flatnonzero(swaps)), foot_swap_frame_count=int(swaps.sum()),
         physics_report=physics_report, files=files,
         median_reprojection_error_final_px=_nanmedian(result["reprojection_error_final"]),
-        physics_strayed_frames=_frame_ranges(np.flatnonzero(strayed)))
+        physics_strayed_frames=_frame_ranges(np.flatnonzero(strayed)),
+        physics_unexplained_frames=_frame_ranges(np.flatnonzero(result["physics_unexplained"])),
+        physics_unexplained_frame_count=int(np.count_nonzero(result["physics_unexplained"])),
+        body_height_m=float(motion.calibration.lengths.standing_height),
+        body_height_source=motion.calibration.height_source,
+        body_height_note=height_line(motion.calibration, type(settings.body)().height),
+        floor=motion.floor.confidence())
 
 
 def _nanmedian(x: np.ndarray) -> float:

@@ -62,7 +62,7 @@ def build_result(obs: Observations, motion: KinematicMotion, stage_seconds: dict
         # frames the physics' contact model could not explain (hands or a raised floor carrying the body, a force
         # over PhysicsSettings.max_force, a failed solver): the final motion there is the kinematic one, blended in
         # and out over PhysicsSettings.unexplained_blend
-        physics_unexplained=(np.zeros(T, bool) if physics is None or physics.unexplained is None
+        physics_unexplained=(np.zeros(T, bool) if getattr(physics, "unexplained", None) is None  # trajopt: none
                              else np.asarray(physics.unexplained, bool)),
         balance_corrected=np.zeros(T, bool) if physics is None else physics.corrected,
         camera_K=motion.camera.K,

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..body import kinematics as kin
 from ..body.model import BodyModel
-from ..camera import Floor, floor_in_camera
+from ..camera import floor_in_camera
 from ..config import PhysicsSettings
 from ..kinematics.stage import KinematicMotion, rigid_transform_qpos
 from .balance import BalanceCorrector
@@ -290,7 +290,7 @@ def onto_refined_floor(motion: KinematicMotion, physics: PhysicsMotion) -> tuple
     R_camera = camera.R @ rotation.T
     new_camera = camera.with_extrinsics(R_camera, camera.t - R_camera @ shift)
     plane = floor_in_camera(new_camera.R, new_camera.t)
-    floor = Floor(plane[:3], float(plane[3]), motion.floor.inlier_fraction)
+    floor = dataclasses.replace(motion.floor, normal=plane[:3], offset=float(plane[3]))
     motion = dataclasses.replace(motion, camera=new_camera, floor=floor,
                                  qpos=rigid_transform_qpos(motion.qpos, rotation, shift))
     residual = physics.residual.copy()

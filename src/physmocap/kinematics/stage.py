@@ -79,7 +79,13 @@ class KinematicMotion:
                     online=np.bool_(self.online), landmark_scale=np.float64(self.calibration.landmark_scale),
                     frames_used=np.int64(self.calibration.frames_used),
                     replaced=np.array(self.calibration.replaced, dtype=str),
-                    foot_swaps=np.zeros(T, bool) if self.foot_swaps is None else np.asarray(self.foot_swaps, bool))
+                    foot_swaps=np.zeros(T, bool) if self.foot_swaps is None else np.asarray(self.foot_swaps, bool),
+                    height=np.float64(self.calibration.height),
+                    detector_height=np.float64(self.calibration.detector_height),
+                    height_source=np.str_(self.calibration.height_source),
+                    floor_tilt_spread=np.float64(self.floor.tilt_spread),
+                    floor_prior_disagreement=np.float64(self.floor.prior_disagreement),
+                    floor_trusted=np.bool_(self.floor.trusted), floor_source=np.str_(self.floor.source))
 
     @classmethod
     def from_arrays(cls, arrays) -> "KinematicMotion":
@@ -91,9 +97,12 @@ class KinematicMotion:
         camera = Camera(arrays["camera_K"], arrays["camera_R"], arrays["camera_t"], (int(size[0]), int(size[1])))
         plane = Floor.from_plane(arrays["floor"])
         calibration = Calibration(lengths, float(arrays["landmark_scale"]), int(arrays["frames_used"]),
-                                  tuple(str(x) for x in arrays["replaced"]))
-        return cls(build_body_model(lengths, float(arrays["mass"])), calibration, camera,
-                   Floor(plane.normal, plane.offset, float(arrays["floor_inliers"])), arrays["qpos"],
+                                  tuple(str(x) for x in arrays["replaced"]), float(arrays["height"]),
+                                  float(arrays["detector_height"]), str(arrays["height_source"]))
+        floor = Floor(plane.normal, plane.offset, float(arrays["floor_inliers"]), float(arrays["floor_tilt_spread"]),
+                      float(arrays["floor_prior_disagreement"]), bool(arrays["floor_trusted"]),
+                      str(arrays["floor_source"]))
+        return cls(build_body_model(lengths, float(arrays["mass"])), calibration, camera, floor, arrays["qpos"],
                    arrays["reprojection_error"], arrays["valid"], float(arrays["seconds"]), bool(arrays["online"]),
                    arrays["foot_swaps"])
 
