@@ -51,6 +51,8 @@ def plot_grf(result: dict[str, np.ndarray], out_png: str | os.PathLike) -> None:
             axes.plot(t, grf[:, heel, 2] + grf[:, toe, 2], color=FOOT_COLOURS[side], label=f"{side} foot")
         axes.plot(t, grf[..., 2].sum(axis=1), color="0.2", linewidth=1.0, label="both feet")
         axes.set_title("Vertical ground reaction force (solved by physics)")
+    elif len(t) < 3:
+        axes.set_title("No force plot: the motion's acceleration needs at least 3 frames")
     else:
         body = body_from_result(result)
         com = center_of_mass(body, forward_kinematics(body, result["qpos"]))

@@ -90,8 +90,10 @@ def run_metrics(result: dict[str, np.ndarray]) -> list[Metric]:
     kp_points, kp_landmarks = _keypoint_pairs(result)
     keypoints = np.asarray(result["keypoints_2d"], dtype=float)[:, kp_landmarks]
     keypoints = np.where(np.asarray(result["valid"], bool)[:, None, None], keypoints, 0.0)
+    accelerations = len(contacts) >= 3  # second differences need three frames; shorter runs leave those out
     for motion, (points, qpos) in motions.items():
-        put("mean_acceleration", motion, metrics.mean_acceleration(points[:, joints], fps))
+        if accelerations:
+            put("mean_acceleration", motion, metrics.mean_acceleration(points[:, joints], fps))
         foot = metrics.foot_contact_errors(points[:, feet], contacts, fps=fps)
         for name in ("floating_percent", "penetration_percent", "skate_percent"):
             put(name, motion, foot[name])
@@ -99,10 +101,11 @@ def run_metrics(result: dict[str, np.ndarray]) -> list[Metric]:
         put("mpe", motion, 1000 * mpe)
         put("pnp_percent", motion, pnp)
         com = center_of_mass(body, forward_kinematics(body, qpos))
-        implied = metrics.grf_statistics(metrics.implied_grf(com, mass, fps), mass, contacts)
-        put("implied_grf_mean_percent_bw", motion, implied["mean_percent_bw"])
-        put("implied_grf_max_percent_bw", motion, implied["max_percent_bw"])
-        put("implied_grf_ballistic_percent_bw", motion, implied["ballistic_percent_bw"])
+        if accelerations:
+            implied = metrics.grf_statistics(metrics.implied_grf(com, mass, fps), mass, contacts)
+            put("implied_grf_mean_percent_bw", motion, implied["mean_percent_bw"])
+            put("implied_grf_max_percent_bw", motion, implied["max_percent_bw"])
+            put("implied_grf_ballistic_percent_bw", motion, implied["ballistic_percent_bw"])
         vertices, counts = support_polygons(points[:, feet], contacts)
         supported = counts > 0
         over = com_over_support(com, vertices, counts)
