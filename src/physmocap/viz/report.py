@@ -22,6 +22,7 @@ from ..body.kinematics import center_of_mass, forward_kinematics
 from ..body.model import CONTACT_POINTS, JOINT_NAMES
 from ..export import body_from_result
 from ..io.atomic import write_text
+from ..io.finite import finite_result
 from ..landmarks import LANDMARK_INDEX
 from .. import metrics
 from .plots import write_plots
@@ -217,6 +218,7 @@ def write_report(run_dir: str | os.PathLike, result: dict[str, np.ndarray]) -> d
     """Write the plots (run_dir/plots/*.png), metrics.json and report.html into the run folder `run_dir`, linking
     the outputs already there (write the viewer, overlay and exports first). Returns {kind: path}."""
     run_dir = Path(run_dir)
+    result = finite_result(result, str(run_dir / "report.html"))
     plots = write_plots(result, run_dir / "plots")
     rows = run_metrics(result)
     metrics_path, report_path = run_dir / "metrics.json", run_dir / "report.html"
