@@ -266,8 +266,11 @@ def _fit_offline(obs: Observations, settings: Settings, progress) -> KinematicMo
                                   None if (s.camera.focal or s.camera.fov) else obs.camera_K)
     calibration = calibrate(obs, s.body.height, frames=s.body.calibration_frames)
     body = build_body_model(calibration.lengths, s.body.mass)
-    depth = smooth_depth(raw_depth(obs.keypoints_2d, obs.landmarks_3d, obs.valid, camera.focal, calibration,
-                                   s.fit.min_confidence))
+    depth = raw_depth(obs.keypoints_2d, obs.landmarks_3d, obs.valid, camera.focal, calibration, s.fit.min_confidence)
+    if not np.isfinite(depth).any():
+        raise ReconstructionError(f"{obs.source}: no frame shows enough of the person with enough confidence to "
+                                  "place them in depth.")
+    depth = smooth_depth(depth)
     targets = make_targets(obs.keypoints_2d, obs.landmarks_3d, obs.valid, depth, camera, calibration, s.fit)
     fitter = KinematicFitter(body, camera, s.fit, obs.fps)
     qpos = fit_streams(fitter, targets, obs.valid, s.fit.offline_chunk, s.fit.offline_start_iterations,
