@@ -173,6 +173,8 @@ CASES = [
                                                   p / "out", "--floor", "0,0,-1,4"], {2}, ["floor"]),
     ("--floor normal flipped", lambda p: ["capture", "--observations", save_obs(p / "o.npz"), "-o", p / "out",
                                           "--floor", "-0,1,0,-1.415"], {2}, ["upside down"]),
+    ("--floor normal flipped, on a video", lambda p: ["capture", _one_frame_video(p, 2), "-o", p / "out",
+                                                      "--floor", "0,1,0,-1.415"], {2}, ["upside down"]),
     ("--floor 4 m below the feet", lambda p: ["capture", "--observations", save_obs(p / "o.npz"), "-o", p / "out",
                                               "--floor", "0,-1,0,5"], {2}, ["above"]),
     ("--floor negative first number as written",

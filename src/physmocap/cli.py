@@ -267,6 +267,8 @@ def cmd_capture(args) -> int:
     _check_physics_frames(args.video or args.observations, frames, settings)
     name = (args.video or args.observations).stem
     out = check_output_folder(args.output or Path("runs") / name)
+    if args.video is not None and settings.camera.floor is not None and not settings.online:
+        _check_floor_on_detections(args.video, out, settings)
     summary = run_capture(out, settings, video=args.video, observations=args.observations,
                           overlay=not args.no_overlay, progress=_progress_factory())
     invalid = summary.frames - summary.valid_frames
@@ -300,6 +302,17 @@ def cmd_capture(args) -> int:
     print(f"time: {times}" + (f" (cached: {', '.join(summary.cached_stages)})" if summary.cached_stages else ""))
     print(f"results in {out}/: " + ", ".join(Path(p).name for p in summary.files.values()))
     return 0
+
+
+def _check_floor_on_detections(video: Path, out: Path, settings) -> None:
+    """A given floor checked against the person before the fit: the detector runs first (its result is the
+    run's cached detection stage, which the capture then reuses)."""
+    from .pipeline import detect_stage
+    from .plausibility import check_observations
+
+    obs, _ = detect_stage(video, out, settings, _progress_factory())
+    for warning in check_observations(obs, settings, str(video)):
+        print(f"warning: {warning}")
 
 
 def _check_physics_frames(source: Path | str, frames: int, settings) -> None:
