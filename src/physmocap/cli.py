@@ -451,7 +451,7 @@ def cmd_train_contacts(args) -> int:
 
     if not (args.data / "mocap").is_dir():
         raise InputError(f"{args.data}: no mocap/ folder of training data here (give --data).")
-    out = check_output_folder(getattr(args, "out", WEIGHTS_DIR))
+    out = getattr(args, "out", WEIGHTS_DIR)  # checked by writing: training checks its data first
     train_contacts(args.data, out, seed=args.seed)
     print(f"weights written to {out}")
     return 0
@@ -510,8 +510,10 @@ def _user_error(exc: BaseException, outputs: list[Path]) -> PhysmocapError | Non
         for folder in outputs:
             if where is not None and (where == folder or folder in where.parents):
                 return output_error(exc, folder)
+        if where is not None and isinstance(exc, (PermissionError, IsADirectoryError)):
+            return InputError(f"{exc.filename}: cannot be read ({exc.strerror}).")
     if isinstance(exc, MemoryError):
-        return InputError("the input is too large for this machine's memory (try a shorter clip or --max-width).")
+        return InputError("the input is too large for this machine's memory (try a shorter clip).")
     return None
 
 
