@@ -159,12 +159,8 @@ CASES = [
      {0}, []),
     ("NaN for half the landmarks", lambda p: ["capture", "--observations", _half_nan(p), "-o", p / "out",
                                               "--physics", "physcap", "--no-overlay"], {0}, []),
-    pytest.param("no torso on the first frame",
-                 lambda p: ["capture", "--observations", _no_torso_first(p), "-o", p / "out", "--physics", "none"],
-                 {0, 2, 3}, [], marks=pytest.mark.xfail(
-                     reason="the fit's first pose needs the torso: the floor helper's NaN-robust calibration and "
-                            "initial pose fix it; until then the crash-log sentence (exit 1), never a traceback",
-                     strict=False)),
+    ("no torso on the first frame",
+     lambda p: ["capture", "--observations", _no_torso_first(p), "-o", p / "out", "--physics", "none"], {0}, []),
     ("--floor with NaN", lambda p: ["capture", "--observations", save_obs(p / "o.npz"), "-o", p / "out",
                                     "--floor", "nan,-1,0,1.2"], {2}, ["finite"]),
     ("--floor vertical plane", lambda p: ["capture", "--observations", save_obs(p / "o.npz"), "-o", p / "out",
