@@ -342,3 +342,39 @@ def test_writers_hold_non_finite_frames_and_name_them(result_with_holes, tmp_pat
             if path.endswith((".bvh", ".trc", ".mot")):
                 assert not re.search(rb"\b(nan|inf)\b", text, re.IGNORECASE), path
     assert "frames 2, 4 hold non-finite values" in caplog.text, caplog.text
+
+
+@pytest.mark.parametrize("name, words", [("EROFS", "read-only"), ("ENOSPC", "disk is full"),
+                                         ("EACCES", "no permission")])
+def test_write_failures_of_the_output_folder_are_exit_4(tmp_path, monkeypatch, name, words):
+    """A read-only file system, a full disk, no permission (which root cannot meet here) on the probe file, as
+    the file system reports them."""
+    import errno
+    from pathlib import Path
+
+    code = getattr(errno, name)
+
+    def refuse(self, data):
+        raise OSError(code, os.strerror(code), str(self))
+
+    monkeypatch.setattr(Path, "write_bytes", refuse)
+    obs = tmp_path / "o.npz"
+    np.savez(obs, **observation_arrays(3))
+    exit_code, _, err = run_cli("capture", "--observations", obs, "-o", tmp_path / "out")
+    assert exit_code == 4 and words in err and str(tmp_path / "out") in err, err
+
+
+def test_a_write_failure_during_the_run_is_exit_4(tmp_path, monkeypatch):
+    import errno
+
+    import physmocap.pipeline as pipeline
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "out" / "result.npz"))
+
+    monkeypatch.setattr(pipeline, "save_result", full)
+    obs = tmp_path / "o.npz"
+    np.savez(obs, **observation_arrays(3))
+    code, _, err = run_cli("capture", "--observations", obs, "-o", tmp_path / "out", "--physics", "none",
+                           "--no-overlay")
+    assert code == 4 and "result.npz" in err and "disk is full" in err, err
