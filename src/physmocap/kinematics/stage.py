@@ -167,8 +167,11 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 
 def smooth_depth(depth: np.ndarray, width: int = 9) -> np.ndarray:
-    """Centred running median; gaps take their neighbours' values."""
+    """Centred running median; gaps take their neighbours' values. ReconstructionError without a finite value."""
     good = np.isfinite(depth)
+    if not good.any():
+        raise ReconstructionError("no frame shows enough of the person with enough confidence to place them in "
+                                  "depth.")
     filled = np.interp(np.arange(len(depth)), np.flatnonzero(good), depth[good])
     pad = width // 2
     padded = np.pad(filled, pad, mode="edge")
