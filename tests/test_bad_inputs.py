@@ -9,7 +9,6 @@ import contextlib
 import io
 import os
 import re
-import sys
 
 import numpy as np
 import pytest
@@ -19,9 +18,7 @@ from physmocap.camera import Camera
 from physmocap.cli import _join_negative_number_lists, _progress_factory, main
 from physmocap.errors import EXIT_CODES
 from conftest import DEMO_VIDEO
-
-sys.path.insert(0, os.path.dirname(__file__))
-from test_fit import observe, walking_motion  # noqa: E402
+from test_fit import observe, walking_motion
 
 TRUE_FLOOR = "0,-0.990268,0.139173,1.188322"  # the camera below: 1.2 m high, pitched 8 degrees down
 

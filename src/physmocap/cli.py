@@ -57,7 +57,7 @@ NUMBER_LIST_OPTIONS = ("--floor", "--person-box")
 def _join_negative_number_lists(argv: list[str]) -> list[str]:
     """`--floor -0.1,1,0,2` as `--floor=-0.1,1,0,2`: argparse would read the value as an unknown option."""
     out: list[str] = []
-    for i, token in enumerate(argv):
+    for token in argv:
         if out and out[-1] in NUMBER_LIST_OPTIONS and re.fullmatch(r"-[\d.][^\s]*", token):
             out[-1] = f"{out[-1]}={token}"
         else:
