@@ -26,6 +26,8 @@ from __future__ import annotations
 import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
 
 import argparse
+import csv
+import functools
 import json
 import time
 from pathlib import Path
@@ -46,7 +48,7 @@ from physmocap.motion import Observations
 LABELS = REPO / "benchmarks" / "labels" / "contacts_real.toml"
 DETECTIONS = REPO / "runs" / "contacts" / "detections"
 SEEN_MOTION_SEED = 7  # none of training's draws (seed 0; the held-out subjects: 1)
-METHODS = ("causal network", "centred network", "always contact", "2D velocity", "3D velocity")
+METHODS = ("causal network", "centred network", "always contact", "2D velocity", "2D velocity, causal", "3D velocity")
 SPEED_GRID_2D = np.round(np.arange(0.05, 2.01, 0.05), 2)  # person sizes per second
 SPEED_GRID_3D = np.round(np.arange(0.1, 5.01, 0.1), 2)  # m/s
 TIMING_FRAMES = 3000
@@ -60,8 +62,8 @@ def predictions(method: str, obs: Observations, weights: Path, heuristics: Heuri
         return contacts, stationary
     if method == "always contact":
         return always_contact(obs.num_frames, obs.valid)
-    if method == "2D velocity":
-        return velocity_2d(obs.keypoints_2d, obs.valid, obs.fps, heuristics)
+    if method.startswith("2D velocity"):
+        return velocity_2d(obs.keypoints_2d, obs.valid, obs.fps, heuristics, causal=method.endswith("causal"))
     return velocity_3d(obs.landmarks_3d, obs.valid, obs.fps, heuristics), None
 
 
@@ -148,17 +150,27 @@ def inference_ms(weights: Path) -> dict[str, float]:
 
 
 TRANSITION_BINS = (0.0, 0.05, 0.1, 0.2, np.inf)  # s from the nearest change of a site's label
+MOTION_KINDS = (("dance", ("dance", "salsa", "indian")), ("jump or hop", ("jump", "hop")), ("run", ("run", "jog")),
+                ("sports", ("basketball", "soccer", "martial", "boxing", "punch", "sword")), ("walk", ("walk",)))
+"""Kinds of motion by the first keyword found in a clip's CMU description (or acRNN file name); else "other"."""
 
 
-def seconds_to_label_change(contacts: np.ndarray, fps: float) -> np.ndarray:
-    """(T, 4) seconds from each entry to the nearest change of its site's label (inf where it never changes)."""
-    frames = np.arange(len(contacts))
-    distance = np.full(contacts.shape, np.inf)
-    for site in range(contacts.shape[1]):
-        changes = np.flatnonzero(np.diff(contacts[:, site].astype(np.int8))) + 0.5
-        if len(changes):
-            distance[:, site] = np.abs(frames[:, None] - changes[None]).min(axis=1) / fps
-    return distance
+@functools.cache
+def cmu_descriptions() -> dict[str, str]:
+    """'<subject>_<trial>' -> lower-case CMU description, from ../shared/data/mocap/cmu_index.csv."""
+    with open(MOCAP / "cmu_index.csv", newline="") as file:
+        rows = list(csv.reader(file))[1:]
+    return {f"{int(r[0])}_{int(r[1])}": r[2].lower() for r in rows if len(r) > 2 and r[0].isdigit() and r[1].isdigit()}
+
+
+def motion_kind(clip_name: str) -> str:
+    """The kind of motion (`MOTION_KINDS`) of a clip: "02_01", "006_08" or "acrnn_salsa_03"."""
+    if clip_name.startswith("acrnn"):
+        description = clip_name
+    else:
+        subject, trial = clip_name.split("_")[:2]
+        description = cmu_descriptions().get(f"{int(subject)}_{int(trial)}", "")
+    return next((kind for kind, words in MOTION_KINDS if any(w in description for w in words)), "other")
 
 
 def error_locations(sequences: list[SyntheticSequence], weights: Path) -> dict[str, dict[str, dict[str, float]]]:
@@ -173,7 +185,9 @@ def error_locations(sequences: list[SyntheticSequence], weights: Path) -> dict[s
             distance.append(seconds_to_label_change(s.contacts, s.fps))
             subject.append(np.full(s.contacts.shape, s.subject))
         wrong, distance, subject = map(np.concatenate, (wrong, distance, subject))
+        kind = np.concatenate([np.full(s.contacts.shape, motion_kind(s.name.split("#")[0])) for s in sequences])
         groups = {f"subject {name}": subject == name for name in TEST_SUBJECTS}
+        groups.update({f"motion: {name}": kind == name for name in sorted(set(kind.ravel()))})
         groups.update({f"{low}-{high} s from a label change": (distance >= low) & (distance < high)
                        for low, high in zip(TRANSITION_BINS[:-1], TRANSITION_BINS[1:])})
         result[mode] = {name: {"entries": float(inside.mean()), "accuracy": float(1.0 - wrong[inside].mean()),
@@ -225,7 +239,7 @@ def main() -> None:
 
     frames_synthetic = sum(s.num_frames for s in test)
     lines = [
-        "# Foot contacts and stationary flag (issue 3)", "",
+        "# Foot contacts and stationary flag (issues 3 and 18)", "",
         f"Command: `.venv/bin/python benchmarks/bench_contacts.py`. Git {git_revision()}; {machine_description()}; "
         f"load average {load:.1f} at the start; {time.perf_counter() - started:.0f} s.", "",
         f"Networks: the shipped weights (`{args.weights.relative_to(REPO) if args.weights.is_relative_to(REPO) else args.weights}`), trained by "

@@ -86,15 +86,33 @@ def projection_jacobian_camera(K: np.ndarray, pc: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Floor:
-    """Plane n . x + d = 0 in the camera frame, n a unit vector pointing up (away from the ground)."""
+    """Plane n . x + d = 0 in the camera frame, n a unit vector pointing up (away from the ground), and how far
+    it can be trusted: inlier_fraction, the share of the foot points it was fitted to within 10 cm of it;
+    tilt_spread, degrees, the spread of its normal under a bootstrap of the foot points over seconds;
+    prior_disagreement, degrees, between the plane of the feet alone and the person's own vertical (nan where
+    not measured); trusted, False where they disagree so far that the normal is the person's vertical instead;
+    source: "feet and posture", "feet" (fit_floor alone), "posture" (not trusted) or "given" (the user's)."""
 
     normal: np.ndarray
     offset: float
     inlier_fraction: float = 1.0
+    tilt_spread: float = 0.0
+    prior_disagreement: float = float("nan")
+    trusted: bool = True
+    source: str = "given"
 
     @property
     def plane(self) -> np.ndarray:
         return np.append(self.normal, self.offset)
+
+    def confidence(self) -> dict:
+        """The confidence fields for a result file: finite numbers, None where not measured."""
+        def finite(x):
+            return float(x) if np.isfinite(x) else None
+
+        return dict(trusted=bool(self.trusted), source=self.source, inlier_fraction=finite(self.inlier_fraction),
+                    tilt_spread_degrees=finite(self.tilt_spread),
+                    prior_disagreement_degrees=finite(self.prior_disagreement))
 
     @staticmethod
     def from_plane(plane) -> "Floor":
@@ -177,7 +195,23 @@ def fit_floor(points_camera: np.ndarray, up_prior: np.ndarray, prior_weight: flo
     n = residuals.normal(sol.x)
     dist = np.abs(points_camera @ n + sol.x[2])
     inliers = dist < outlier_distance
-    return Floor(n, float(sol.x[2]), float(inliers.mean())), inliers
+    return Floor(n, float(sol.x[2]), float(inliers.mean()), source="feet"), inliers
+
+
+def angle_degrees(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle between two unit vectors (3,), degrees."""
+    return float(np.degrees(np.arccos(np.clip(np.dot(a, b), -1.0, 1.0))))
+
+
+def robust_offset(points: np.ndarray, normal: np.ndarray, huber_scale: float = 0.02, iterations: int = 10) -> float:
+    """The offset d of the plane normal . x + d = 0 through points (N, 3) for a fixed unit normal: Huber
+    location of -points . normal, by iteratively reweighted means from the median."""
+    values = -points @ normal
+    d = float(np.median(values))
+    for _ in range(iterations):
+        weights = np.minimum(1.0, huber_scale / np.maximum(np.abs(values - d), 1e-12))
+        d = float(np.sum(weights * values) / np.sum(weights))
+    return d
 
 
 def world_from_floor(floor: Floor, anchor_camera: np.ndarray, camera_x=np.array([1.0, 0.0, 0.0])):

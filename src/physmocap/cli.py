@@ -28,6 +28,9 @@ examples:
   physmocap live video.mp4 --max-frames 200              # a file played at its own frame rate, as a camera
   physmocap export runs/walk/result.npz --to glb         # BVH, GLB or OpenSim files from any earlier run
   physmocap evaluate runs/walk/result.npz [--truth truth.npz]   # every metric of a run
+  physmocap batch videos/ -o runs/season                 # many videos at once; resumes, survives bad files
+  physmocap retarget runs/walk/result.npz --character hero.glb  # the motion on your own character (BVH/GLB rig)
+  physmocap capture video.mp4 --character hero.bvh       # capture, then retarget into runs/video/character/
 
 outputs of capture (in the -o folder):
   result.npz    joints, generalised coordinates, camera, floor, flags (see README "Result file")
@@ -81,14 +84,36 @@ def build_parser() -> argparse.ArgumentParser:
     cap.add_argument("-o", "--output", type=Path, default=None,
                      help="run folder (default: runs/<video name>)")
     cap.add_argument("--observations", type=Path, help="fit this observations .npz instead of detecting")
-    cap.add_argument("--online", action="store_true", help="causal frame-by-frame fit (live use)")
-    cap.add_argument("--physics", choices=("none", "physcap", "trajopt"), default=None,
-                     help="physics after the kinematic fit: PhysCap's real-time tracker (default with --online), "
-                          "Rempe et al.'s trajectory optimisation of the whole clip, or none (default offline)")
-    _add_settings_arguments(cap)
-    cap.add_argument("--no-overlay", action="store_true", help="skip rendering overlay.mp4")
-    cap.add_argument("--accept-truncated", action="store_true",
-                     help="capture the frames a truncated video still holds instead of stopping")
+    _add_capture_options(cap)
+    _add_character_arguments(cap, required=False)
+
+    batch = sub.add_parser(
+        "batch", help="capture many videos (or observations files): local processes, or a Ray cluster",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Capture every input into OUT/<name>/ as `capture` would, several at once. A broken input is "
+                    "recorded with its reason and the batch goes on; re-running the same command skips finished "
+                    "runs and resumes unfinished ones from their cached stages; Ctrl-C stops cleanly. "
+                    "OUT/batch.csv and OUT/index.html hold one row per input (status, frames, wall time, "
+                    "plausibility figures, links to each run's report and viewer), updated as runs finish. "
+                    "Exit status: 0 every input done, 1 some failed, 2 bad arguments, 130 interrupted.",
+        epilog="examples:\n"
+               "  physmocap batch videos/ -o runs/season            # every video under videos/, one per core\n"
+               "  physmocap batch list.txt a.mp4 obs.npz -o runs/x  # a list file (one path a line), a video, "
+               "observations\n"
+               "  physmocap batch videos/ -o runs/x --workers 1     # one at a time\n"
+               "  physmocap batch videos/ -o /shared/runs --ray auto   # on the Ray cluster this machine belongs to\n"
+               "See README \"Many videos\" for clusters.")
+    batch.add_argument("inputs", nargs="+", type=Path, metavar="INPUT",
+                       help="video file, observations .npz, folder (searched for videos, subfolders too) or text "
+                            "file (.txt, .list) listing such paths one a line")
+    batch.add_argument("-o", "--output", type=Path, required=True, help="batch folder: one run folder per input")
+    batch.add_argument("--workers", type=int, default=None,
+                       help="runs at once (default: one per CPU core this process may use, fewer if memory is "
+                            "short; with --ray ADDRESS the cluster's CPUs decide)")
+    batch.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
+                       help="run on Ray: alone, a local Ray instance; with auto or host:port, the existing cluster "
+                            "(inputs and OUT on a file system every node shares)")
+    _add_capture_options(batch)
 
     live = sub.add_parser("live", help="live capture from a camera or a video played at its frame rate",
                           formatter_class=argparse.ArgumentDefaultsHelpFormatter,
@@ -127,12 +152,28 @@ def build_parser() -> argparse.ArgumentParser:
                                        "synthetic observations of CMU motion capture (needs torch; about 10 "
                                        "minutes on one core). The same data and seed give the same weights; "
                                        "training.json beside them records the recipe and the held-out scores.")
-    train.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[3] / "shared" / "data",
-                       help="the shared data folder (with mocap/)")
-    train.add_argument("--out", type=Path, default=argparse.SUPPRESS,
-                       help="weights folder (default: the shipped weights inside the package, replaced)")
+    train.add_argument("--data", type=Path, required=True,
+                       help="the data folder holding mocap/ (the project's is ../shared/data)")
+    train.add_argument("--out", type=Path, required=True,
+                       help="folder for causal.npz, centred.npz and training.json (replaced); to ship them, copy "
+                            "them into src/physmocap/data/contacts")
     train.add_argument("--seed", type=int, default=0,
                        help="seed of every random draw (synthetic data, initial weights, batches)")
+
+    ret = sub.add_parser("retarget", help="motion of a result.npz on your own character (BVH or glTF/GLB rig)",
+                         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                         description="Retarget a run's motion onto a character: uniform scale by the legs, IK with "
+                                     "the character's bone lengths and planted feet on its own soles, physics on its "
+                                     "own body model (bone lengths and mass distribution); writes character.bvh (the "
+                                     "character's hierarchy), character.glb (glTF characters), result.npz and "
+                                     "retarget.json. See README 'Your own character'.")
+    ret.add_argument("result", type=Path, help="a result.npz")
+    _add_character_arguments(ret, required=True)
+    ret.add_argument("-o", "--output", type=Path, default=None,
+                     help="folder (default: character/ beside the result)")
+    ret.add_argument("--physics", choices=("physcap", "trajopt", "none"), default="physcap",
+                     help="physics on the character's body model")
+    ret.add_argument("--config", type=Path, help="TOML settings file (physics and trajopt settings)")
 
     det = sub.add_parser("detect", help="run only the 2D/3D keypoint detector and write an observations file",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -143,6 +184,27 @@ def build_parser() -> argparse.ArgumentParser:
     det.add_argument("--max-width", type=int, default=None,
                      help="downscale what the detector sees to this width, pixels (default: native)")
     return parser
+
+
+def _add_capture_options(p: argparse.ArgumentParser) -> None:
+    """The options of one capture, shared by `capture` and `batch`."""
+    p.add_argument("--online", action="store_true", help="causal frame-by-frame fit (live use)")
+    p.add_argument("--physics", choices=("none", "physcap", "trajopt"), default=None,
+                   help="physics after the kinematic fit: PhysCap's real-time tracker (default with --online), "
+                        "Rempe et al.'s trajectory optimisation of the whole clip, or none (default offline)")
+    _add_settings_arguments(p)
+    p.add_argument("--no-overlay", action="store_true", help="skip rendering overlay.mp4")
+    p.add_argument("--accept-truncated", action="store_true",
+                   help="capture the frames a truncated video still holds instead of stopping")
+
+
+def _add_character_arguments(p: argparse.ArgumentParser, required: bool) -> None:
+    p.add_argument("--character", type=Path, required=required, metavar="RIG",
+                   help="your character: a BVH file (its hierarchy and rest pose) or a skinned .glb/.gltf/.vrm"
+                        + ("" if required else "; the motion is also retargeted onto it, into OUT/character/"))
+    p.add_argument("--character-map", type=Path, default=None, metavar="TOML",
+                   help="bones the automatic mapping misses, the file's unit, and the character's mass and its "
+                        "distribution (README 'Your own character')")
 
 
 def _add_settings_arguments(p: argparse.ArgumentParser) -> None:
@@ -266,6 +328,8 @@ def cmd_capture(args) -> int:
             print(f"warning: {warning}")
     _check_physics_frames(args.video or args.observations, frames, settings)
     name = (args.video or args.observations).stem
+    if args.character is not None:
+        _check_character(args.character, args.character_map)  # fail fast, before the capture
     out = check_output_folder(args.output or Path("runs") / name)
     if args.video is not None and settings.camera.floor is not None and not settings.online:
         _check_floor_on_detections(args.video, out, settings)
@@ -301,6 +365,9 @@ def cmd_capture(args) -> int:
     times = ", ".join(f"{k} {v:.1f} s" for k, v in summary.stage_seconds.items())
     print(f"time: {times}" + (f" (cached: {', '.join(summary.cached_stages)})" if summary.cached_stages else ""))
     print(f"results in {out}/: " + ", ".join(Path(p).name for p in summary.files.values()))
+    if args.character is not None:
+        _retarget(Path(summary.files["result"]), args.character, args.character_map, out / "character",
+                  settings.physics.method, settings)
     return 0
 
 
@@ -326,6 +393,69 @@ def _check_physics_frames(source: Path | str, frames: int, settings) -> None:
 
         raise ReconstructionError(f"{source}: a single frame has no motion for physics to follow "
                                   "(capture it with --physics none).")
+
+
+def _check_character(path: Path, character_map: Path | None) -> None:
+    from .retarget.character import build_character
+    from .retarget.mapping import load_character_config
+    from .retarget.rig import read_rig
+
+    config = load_character_config(character_map)
+    build_character(read_rig(path, config.units_to_metres), config)
+
+
+def _retarget(result: Path, character: Path, character_map: Path | None, out: Path, physics: str, settings) -> None:
+    from .retarget import retarget_result
+
+    report = retarget_result(result, character, out, character_map=character_map, physics=physics,
+                             settings=settings)
+    m, c = report.metrics, report.character
+    print(f"character {Path(character).name}: {c['joints']} joints, {c['height_m']:.2f} m, {c['mass_kg']:.1f} kg; "
+          f"scale {m['scale']:.3f}, physics: {m['physics']}")
+    grf = "" if m["grf_mean_percent_bw"] is None else f", mean GRF {m['grf_mean_percent_bw']:.0f}% of its weight"
+    kept = "-" if m["contact_frames_kept"] is None else f"{100 * m['contact_frames_kept']:.1f}%"
+    print(f"on the character: foot skate {m['skate_percent']:.2f}%, penetration {m['penetration_percent']:.2f}%, "
+          f"contacts kept {kept}, bone directions cosine {m['bone_cosine_rig']:.3f}{grf}")
+    for note in report.notes:
+        print(f"note: {note}")
+    print(f"character results in {out}/: " + ", ".join(Path(p).name for p in report.files.values()))
+
+
+def cmd_retarget(args) -> int:
+    from .config import load_settings
+
+    settings = load_settings(args.config).check() if args.config else None
+    _retarget(args.result, args.character, args.character_map, args.output or args.result.parent / "character",
+              args.physics, settings)
+    return 0
+
+
+def cmd_batch(args) -> int:
+    from .batch import expand_inputs, run_batch
+    from .errors import InputError
+
+    if args.workers is not None and args.workers < 1:
+        raise InputError(f"--workers must be at least 1, got {args.workers}.")
+    if args.output.exists() and not args.output.is_dir():
+        raise InputError(f"{args.output}: is a file, not a batch folder (-o).")
+    settings = settings_from_args(args)
+    inputs = expand_inputs(args.inputs, args.output)
+    address = None if args.ray in (None, "local") else args.ray
+    if address is not None and address != "auto" and ":" not in address:
+        raise InputError(f"--ray {address}: not a cluster address (auto or host:port); put --ray after the "
+                         "inputs, or give it an address.")
+    records = run_batch(inputs, args.output, settings, overlay=not args.no_overlay, workers=args.workers,
+                        ray=args.ray is not None, ray_address=address)
+    done = [r for r in records if r["status"] == "done"]
+    failed = [r for r in records if r["status"] == "failed"]
+    earlier = sum(int(r["resumed"] or 0) for r in done)
+    print(f"batch: {len(done)} of {len(records)} inputs done"
+          + (f" ({earlier} finished by an earlier run, skipped)" if earlier else "")
+          + (f", {len(failed)} failed" if failed else "") + f"; {sum(int(r['frames'] or 0) for r in done)} frames")
+    for record in failed:
+        print(f"  failed (exit status {record['exit_status']}): {record['reason']}")
+    print(f"summary in {args.output / 'batch.csv'} and {args.output / 'index.html'}")
+    return 1 if failed else 0
 
 
 def cmd_live(args) -> int:
@@ -446,14 +576,12 @@ def _number(value) -> str:
 
 
 def cmd_train_contacts(args) -> int:
-    from .contacts.predict import WEIGHTS_DIR
     from .contacts.train import train_contacts
 
     if not (args.data / "mocap").is_dir():
         raise InputError(f"{args.data}: no mocap/ folder of training data here (give --data).")
-    out = getattr(args, "out", WEIGHTS_DIR)  # checked by writing: training checks its data first
-    train_contacts(args.data, out, seed=args.seed)
-    print(f"weights written to {out}")
+    train_contacts(args.data, args.out, seed=args.seed)  # the folder is checked by writing: data first
+    print(f"weights written to {args.out}")
     return 0
 
 
@@ -471,7 +599,7 @@ def cmd_detect(args) -> int:
 
 
 COMMANDS = {"capture": cmd_capture, "live": cmd_live, "export": cmd_export, "evaluate": cmd_evaluate,
-            "train-contacts": cmd_train_contacts, "detect": cmd_detect}
+            "train-contacts": cmd_train_contacts, "detect": cmd_detect, "batch": cmd_batch, "retarget": cmd_retarget}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -527,7 +655,8 @@ def _output_locations(args) -> list[Path]:
     if output is None:
         return []
     output = Path(output).resolve()
-    return [output] if args.command in ("capture", "live", "export", "train-contacts") else [output.parent]
+    return [output] if args.command in ("capture", "live", "export", "train-contacts", "batch", "retarget") \
+        else [output.parent]
 
 
 def _report_bug(exc: BaseException, outputs: list[Path]) -> int:

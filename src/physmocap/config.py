@@ -24,6 +24,9 @@ class BodySettings:
     mass: float = 70.0  # kg, the person's mass; 20 .. 250
     calibration_frames: int = 0  # frames whose 3D landmarks set the bone lengths; 0: all (offline; the online fit
     # calibrates on its first 3 s); 1 .. 10000. All frames: synthetic root-relative error 37.1 -> 33.5 mm (measured)
+    estimate_height: bool = False  # true: the height is read from the detector's 3D landmarks as metres
+    # (kinematics.calibration.estimate_height) instead of `height`, which stays the fallback; see BENCHMARKS.md,
+    # "Floor, other detectors and height (issue 17)", for how metric MediaPipe's landmarks are on real video
 
     def check(self) -> None:
         _within("body.height", self.height, 1.0, 2.3, "m")
@@ -272,6 +275,26 @@ class PhysicsSettings:
     # clips outside the test subjects 48.5 -> 47.3 mm; 0.4 m/s kept less of the gain (37.8 / 48.3); 0.01 .. 10
     stationary_speed_interval: float = 0.2  # s over which that speed is measured, ending at the frame (the
     # labels measure it over 0.2 s centred on the frame); 0.01 .. 2
+    max_step: float | None = 0.011  # s: the longest integration step; each frame is split into the fewest equal
+    # steps of at most this (ceil(frame interval / max_step)), so that 8-120 fps inputs integrate alike (ours;
+    # None: `iterations` steps per frame whatever its length). Semi-implicit Euler on the PD is stable only while
+    # kp h^2 + 2 kd h < 4, h < 0.022 s at the root's gains; half that keeps the paper's 4 steps at 24-30 fps.
+    # The fixed 4 steps per frame gave 0.025 s steps at 10 fps: a real 10 fps video reached 100 times body weight.
+    # Details: docs/decisions/physics-frame-rate.md; 0.001 .. 0.02
+    max_force: float = 10.0  # body weights: the largest contact force (the frame's sum) and residual root force
+    # written (the residual torque: this times body weight times 1 m); beyond it they are scaled down and the frame
+    # is flagged unexplained. A running human's peak vertical force is 2-3 body weights, a drop landing about 5-8
+    # (ours); 1 .. 100
+    unexplained_force: float | None = 0.5  # body weights: frames whose upward root force that the kinematic motion
+    # needs and no contact on the floor can give (eq. 6's misfit), averaged over unexplained_time, exceeds this
+    # (more than half the weight carried by something else: hands, a raised floor) are flagged unexplained and
+    # handed back as the kinematic motion (ours; None: no such diagnosis, while a QP failure, a diverged step, a
+    # force over max_force or a pose farther than stray_distance are still flagged). A 0.3 m box under synthetic
+    # walks: 88-94% of its frames flagged, none of the same walks without it. docs/decisions/physics-limits.md;
+    # 0.05 .. 10
+    unexplained_time: float = 0.2  # s, time constant of that average; 0.01 .. 2
+    unexplained_blend: float = 0.2  # s over which the output passes from the physics to the kinematic motion and
+    # back around flagged frames (no jump); 0 .. 2
 
     def check(self) -> None:
         if self.method not in ("none", "physcap", "trajopt"):
@@ -296,6 +319,13 @@ class PhysicsSettings:
         if self.stationary_max_speed is not None:
             _within("physics.stationary_max_speed", self.stationary_max_speed, 0.01, 10.0, "m/s")
         _within("physics.stationary_speed_interval", self.stationary_speed_interval, 0.01, 2.0, "s")
+        if self.max_step is not None:
+            _within("physics.max_step", self.max_step, 0.001, 0.02, "s")
+        _within("physics.max_force", self.max_force, 1.0, 100.0, "body weights")
+        if self.unexplained_force is not None:
+            _within("physics.unexplained_force", self.unexplained_force, 0.05, 10.0, "body weights")
+        _within("physics.unexplained_time", self.unexplained_time, 0.01, 2.0, "s")
+        _within("physics.unexplained_blend", self.unexplained_blend, 0.0, 2.0, "s")
         _within("physics.acceleration_feedforward", self.acceleration_feedforward, 0.0, 1.0, "")
         _within("physics.velocity_smoothing", self.velocity_smoothing, 0.0, 1.0, "s")
         _within("physics.rotation_velocity_share", self.rotation_velocity_share, 0.0, 1.0, "")

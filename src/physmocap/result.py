@@ -60,12 +60,20 @@ def build_result(obs: Observations, motion: KinematicMotion, stage_seconds: dict
         residual_root_force=np.zeros((T, 6)) if physics is None else physics.residual,
         physics=np.str_("none" if physics is None else physics_method),
         physics_fallback=np.zeros(T, bool) if physics is None else physics.qp_failures > 0,
+        # frames the physics' contact model could not explain (hands or a raised floor carrying the body, a force
+        # over PhysicsSettings.max_force, a failed solver): the final motion there is the kinematic one, blended in
+        # and out over PhysicsSettings.unexplained_blend
+        physics_unexplained=(np.zeros(T, bool) if physics is None or physics.unexplained is None
+                             else np.asarray(physics.unexplained, bool)),
         balance_corrected=np.zeros(T, bool) if physics is None else physics.corrected,
         camera_K=motion.camera.K,
         camera_R=motion.camera.R,
         camera_t=motion.camera.t,
         image_size=np.array(obs.image_size),
         floor=motion.floor.plane,
+        floor_trusted=np.bool_(motion.floor.trusted),  # False: the floor is level with the posture, not the feet
+        floor_confidence=np.str_(json.dumps(motion.floor.confidence())),
+        body_height_source=np.str_(motion.calibration.height_source),  # "given" (default 1.70 m too) or "estimated"
         keypoints_2d=obs.keypoints_2d,
         valid=motion.valid,
         invalid_reason=np.asarray(obs.invalid_reason, dtype=str),

@@ -30,6 +30,7 @@ FOOT_LANDMARKS: tuple[str, ...] = ("left_heel", "left_foot_index", "right_heel",
 FOOT_INDICES = [LANDMARK_INDEX[name] for name in FOOT_LANDMARKS]
 SPEED_INTERVAL = 1.0 / 30.0  # s, as labels.LabelSettings.contact_speed_interval
 SIZE_WINDOW = WindowSpec(length=9, reference=4)
+CAUSAL_SIZE_WINDOW = WindowSpec(length=9, reference=8)  # the same median over the last 9 frames only
 
 
 @dataclass(frozen=True)
@@ -53,12 +54,16 @@ def always_contact(num_frames: int, valid: np.ndarray | None = None) -> tuple[np
 
 
 def velocity_2d(
-    keypoints_2d: np.ndarray, valid: np.ndarray, fps: float, settings: HeuristicSettings = HeuristicSettings()
+    keypoints_2d: np.ndarray, valid: np.ndarray, fps: float, settings: HeuristicSettings = HeuristicSettings(),
+    causal: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """2D velocity heuristic. keypoints_2d (T, 33, 3) pixels; valid (T,). Returns contacts (T, 4), stationary (T,)."""
+    """2D velocity heuristic. keypoints_2d (T, 33, 3) pixels; valid (T,). Returns contacts (T, 4), stationary (T,).
+    causal: measure the person's size over the last 9 frames instead of the 9 around each frame, so that each
+    frame's flags depend on the past only (online and live capture)."""
     valid = np.asarray(valid, bool)
     points = select_keypoints(keypoints_2d, valid)
-    size = person_size(points[window_indices(len(points), np.arange(len(points)), SIZE_WINDOW)])
+    window = CAUSAL_SIZE_WINDOW if causal else SIZE_WINDOW
+    size = person_size(points[window_indices(len(points), np.arange(len(points)), window)])
     xy = points[..., :2]
     hips = xy[:, list(HIP_POINTS)].mean(axis=1)
     foot_speed = point_speed(xy[:, list(FOOT_POINTS)], fps, SPEED_INTERVAL, centred=False) / size[:, None]

@@ -19,8 +19,9 @@ One scalar joins every window: the frame interval in units of 1/30 s (REFERENCE_
 trained at 12-60 fps, and the same foot speed is a 5x different displacement per frame at 12 and at 60 fps;
 without the interval the networks could not tell a slow slide at 12 fps from a fast swing at 60 fps.
 
-Frames that are not valid (no person) are filled from the nearest valid frame with confidence 0, so a window
-never holds zeros as positions; windows reaching past the clip's ends repeat the end frame.
+Frames that are not valid (no person), and points a detector did not see (confidence 0 or NaN), are filled from
+the nearest frame that saw them with confidence 0, so a window never holds zeros as positions; windows reaching
+past the clip's ends repeat the end frame.
 """
 
 from __future__ import annotations
@@ -85,27 +86,50 @@ CAUSAL_WINDOW = WindowSpec(length=7, reference=6, outputs=1)
 CENTRED_WINDOW = WindowSpec(length=9, reference=4, outputs=5)
 
 
+# Where a point that is never seen in the clip (another detector's file: COCO's 17 joints have no heel or toe)
+# takes its position from, in FEATURE_LANDMARKS positions, with confidence 0: the sole points from the ankle,
+# the rest from their other side (a missing point at the image origin would wreck the root and the scale).
+_STAND_IN = {8: 6, 9: 7, 10: 6, 11: 7, 0: 1, 1: 0, 2: 3, 3: 2, 4: 5, 5: 4, 6: 7, 7: 6}
+
+
 def select_keypoints(keypoints_2d: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """The network's keypoints of every frame, invalid frames filled from the nearest valid one.
+    """The network's keypoints of every frame, unseen ones filled with confidence 0.
 
     keypoints_2d: (T, 33, 3) pixels and confidence. valid: (T,) bool.
-    Returns (T, 12, 3) float32: FEATURE_LANDMARKS' x, y (pixels) and confidence (0 in filled frames). All zeros
-    if no frame is valid.
+    Returns (T, 12, 3) float32: FEATURE_LANDMARKS' x, y (pixels) and confidence. A point is unseen in a frame
+    that is not valid, or where its confidence is 0 or its position not finite; it takes its position from the
+    nearest frame where it is seen, or, if it is never seen, from its stand-in (`_STAND_IN`), with confidence 0.
+    All zeros if no frame is valid.
     """
     keypoints_2d = np.asarray(keypoints_2d)
     valid = np.asarray(valid, dtype=bool)
     if keypoints_2d.ndim != 3 or keypoints_2d.shape[1:] != (NUM_LANDMARKS, 3) or valid.shape != keypoints_2d.shape[:1]:
         raise InputError(f"keypoints_2d {keypoints_2d.shape} and valid {valid.shape}: expected (T, 33, 3) and (T,).")
     points = keypoints_2d[:, FEATURE_INDICES].astype(np.float32)
-    if valid.all() or not valid.any():
-        return points if valid.any() else np.zeros_like(points)
+    seen = valid[:, None] & np.isfinite(points).all(axis=2) & (points[..., 2] > 0)
+    if seen.all():
+        return points
+    if not seen.any():
+        return np.zeros_like(points)
+    filled = points.copy()
     frames = np.arange(len(valid))
-    valid_frames = np.flatnonzero(valid)
-    after = np.clip(np.searchsorted(valid_frames, frames), 0, len(valid_frames) - 1)
-    before = np.clip(after - 1, 0, len(valid_frames) - 1)
-    nearer = np.where(np.abs(valid_frames[before] - frames) <= np.abs(valid_frames[after] - frames), before, after)
-    filled = points[valid_frames[nearer]]
-    filled[~valid, :, 2] = 0.0
+    for j in range(NUM_FEATURE_POINTS):
+        seen_frames = np.flatnonzero(seen[:, j])
+        if len(seen_frames) == 0 or len(seen_frames) == len(frames):
+            continue
+        after = np.clip(np.searchsorted(seen_frames, frames), 0, len(seen_frames) - 1)
+        before = np.clip(after - 1, 0, len(seen_frames) - 1)
+        nearer = np.where(np.abs(seen_frames[before] - frames) <= np.abs(seen_frames[after] - frames), before, after)
+        filled[:, j] = points[seen_frames[nearer], j]
+    never = ~seen.any(axis=0)
+    for j in np.flatnonzero(never):
+        stand_in = _STAND_IN[j]
+        if never[stand_in]:  # neither side seen: the middle of whatever is seen
+            stand_in = [k for k in range(NUM_FEATURE_POINTS) if not never[k]]
+            filled[:, j, :2] = filled[:, stand_in, :2].mean(axis=1)
+        else:
+            filled[:, j, :2] = filled[:, stand_in, :2]
+    filled[..., 2] = np.where(seen, points[..., 2], 0.0)
     return filled
 
 

@@ -11,111 +11,18 @@ learning rate starts at 2e-3 and decays on a cosine to zero (Rempe: 1e-4 with ea
 set; the larger rate reaches a low loss within the few epochs that a 2-core machine affords, and the fixed
 schedule needs no validation subject taken from the few training subjects).
 
-Every figure below was measured with labels judged over the interval before each frame only (before
-`LabelSettings.rest_on_either_side`, which labels landing frames in contact; see labels.py) and every "real" one
-against the first hand labels, before sports2d_box was relabelled (session 7: its in-jumps had been labelled as
-contact; benchmarks/labels/contacts_real.md). Comparisons between them stand; the weights of that recipe scored
-0.927 on the relabelled real frames, not 0.901.
-
-The recipe's sizes were chosen with CMU subjects 1 and 7 held out of training as validation (never the test
-subjects; scripts/contact_validation.py). Variety of the synthetic data mattered most: at the same number of
-steps, 48, 96 and 192 variants per clip scored 0.943 (labels without merged short runs), 0.947 and 0.951 on them,
-and 48 variants seen for 2 epochs instead of 4 lost 0.012. A causal network twice as wide (256 channels) scored
-0.928 against 0.925 (real 0.890 against 0.887), within the noise, so it keeps 128. Hence 256
-variants per clip (1.26 million frames), each seen twice (9,800 steps per network). Within 0.006 either way on
-validation and on the hand-labelled real frames, so left out: training noise scaled per sequence by 0.25-2x
-(0.935 against 0.931; real 0.878 against 0.882) and a minimum phase length on the predictions; decision
-thresholds of 0.4 or 0.6 trade validation against real accuracy (0.942 / 0.899 and 0.950 / 0.869 against 0.948 /
-0.886). The labels' merging of short runs (`LabelSettings.min_phase_seconds`) changed neither (0.931 both).
-
-With the labels' 1.0 m/s and the mirrored votes of `predict.network_probabilities` (validation accuracy
-without / with them; 2 epochs; "real": the hand-labelled frames, looked at only after the choice):
-- learning rate 2e-3 instead of 1e-3: centred 0.924 / 0.931 -> 0.930 / 0.936 at 32 variants per clip, causal
-  0.908 / 0.914 -> 0.922 / 0.928; with the centred dropout 0.1 as well, at 96 variants, 0.946 / 0.950 ->
-  0.950 / 0.953 (real 0.907 -> 0.919).
-- centred dropout 0.1 instead of Rempe's 0.3 (32 variants, 1e-3): 0.0 0.929 / 0.935, 0.1 0.928 / 0.934,
-  0.3 0.924 / 0.931, 0.5 0.913 / 0.920. The causal network's 0.2 against 0: 0.914 against 0.916, kept.
-- not kept: training motion played at 0.7-1.6 times its speed instead of 0.8-1.25
-  (`SyntheticSettings.playback_speed_range`; validation and test sequences stay at 0.8-1.25,
-  `dataset.held_out_settings`), 48 variants, seeds 0-2: centred 0.941 -> 0.946, causal 0.935 -> 0.936 (means;
-  real 0.908 -> 0.909 and 0.909 -> 0.908); with subjects 2 and 5 held out instead (seed 0), centred 0.902 ->
-  0.904, real 0.887 -> 0.893. Retrained in full it scored the same on the test subjects and its contacts hurt
-  trajopt (see the field's comment).
-- not kept: the contact class weighted twice in the loss (`TrainSettings.positive_weight` 2): 0.924 -> 0.903
-  (real 0.901 -> 0.920, the trade of a lower decision threshold); a second network of another seed whose votes
-  join the first's: 0.931 -> 0.931 with the mirrored votes; people on a stage 0.7 m below to 1.5 m above the
-  camera's ground (wider camera elevations): 0.931 -> 0.932 (real 0.902 -> 0.898).
-
-The held-out gap is one of unseen motion, not of fitting: on the training subjects' own clips under new draws of
-camera, body, rate and noise (Rempe et al.'s protocol, whose test motions may be training motions on another
-character; bench_contacts.py, "seen motions") the shipped networks score 0.981 (centred) and 0.972 (causal),
-against 0.885 and 0.852 on the held-out subjects. Trained with the same recipe and seed but with no subject held
-out, the test subjects' clips joining training under training's draws (benchmarks/bench_contacts_data_gap.py), the
-networks score 0.965 / F1 0.974 (centred) and 0.945 / 0.959 (causal) on the held-out test sequences: labels, input and networks reach the
-issue's 0.95 / 0.96 once a motion is known, and what the four training subjects in ../shared/data lack is the
-motion itself (stances on the ball of the foot, a sideways dribble's skimming feet).
-
-The held-out test errors (centred 0.888) are not label errors: the labels' heel and toe sites and floor agree with
-the BVH's own joints on both skeletons (scripts/contact_label_geometry.py; see labels.py). Most are in test subject
-131, the only held-out body on the raw CMU skeleton (55 % of the entries, accuracy 0.862, heels 0.815, against
-0.919 on subject 6's CC3 avatar, which every training CC3 clip shares), in stances on the ball of the foot with
-the heel 5-12 cm up (8.2 % of the test subjects' foot-time, 2.3 % of the training subjects'; accuracy 0.461, 24 %
-of the errors) and in feet that skim the floor faster than 1 m/s (006_08's sideways dribble; 0.730, 23 %)
-(scripts/contact_errors.py). Tried for them, with subjects 1 and 7 held out (48 variants, 2 epochs, centred,
-mirrored votes, training seeds 0-2 unless said; `scripts/contact_validation.py`), none kept:
-- each training foot's heel and toe moved along the heel -> toe line by a random factor of 0.9-1.25 (foot length
-  against the leg: 0.22 on the CC3 avatar, 0.23 on raw subject 2, 0.25 on raw subject 131; a flat foot keeps its
-  heights): 0.946 against 0.946 on the same training sequences (a placebo draw of the factor; real 0.906 against
-  0.907), causal (seed 0) 0.934 against 0.936, with subjects 2 and 5 held out (their raw clips 02_01 and 05_06 in
-  validation; seed 0) 0.907 against 0.906; with the ankle's height above the heel -> toe line scaled by 0.75-1.5
-  as well, 0.944 (real 0.910).
-- a 13-frame centred window (5 outputs) instead of Rempe's 9: 0.942 against 0.941 on data seed 0, and 0.943 /
-  0.942 against 0.946 / 0.944 on data seeds 1 and 2, though the real frames gained in all five pairs (0.916
-  against 0.908 on average).
-- frames with a raised heel or a skimming foot (`labels.hard_frames`; 30 % of the training subjects' synthetic
-  frames, 12-54 % per subject, 46 % of the test subjects') drawn as batch targets `TrainSettings.hard_frame_weight`
-  times as often as the others, with as many steps. Data seeds 0-5, means; weights 1 / 2 / 4 / 8: with 1 and 7 held
-  out 0.944 / 0.947 / 0.949 / 0.950 (every seed gained; their hard frames 0.924 -> 0.934; real 0.908 / 0.912 /
-  0.905 / 0.900), with 2 and 5 held out 0.901 / 0.900 / 0.898 / 0.895 (hard frames 0.845 -> 0.854, the others
-  0.916 -> 0.905; real 0.886 / 0.885 / 0.876 / 0.877). It helps where the validation subjects have more of that
-  motion than the training ones (1 and 7: 13 and 54 % hard frames; 2 and 5: 12 and 36 %) and costs where they have
-  less. Raised heels alone at weight 4: 0.946 and 0.902 (their frames, seed 0: 0.812 -> 0.841 and 0.740 -> 0.749),
-  real 0.902 and 0.880.
-- label entries within 0.02 or 0.05 s of a change of their label (at least the frames either side, where a site
-  crosses the thresholds) left out of the loss (`TrainSettings.label_change_margin` of commit 1eed517), data seeds
-  0-5: 0.944 -> 0.944 / 0.941 with 1 and 7 held out, 0.901 -> 0.898 / 0.894 with 2 and 5 (real +0.000 / +0.004 and
-  +0.001 / +0.003).
-- the training bodies' legs varied (`SyntheticSettings.thigh_share_scale_range` and `hip_width_scale_range` of
-  commit 74eb76c, each drawn from its own generator, so every other draw of a data seed stayed): the thigh's share
-  of the leg (0.489 on the CC3 avatar and raw subject 2, 0.513 on raw subject 131) scaled by 0.94-1.06, the knee
-  moved in the leg's plane with hip, ankle and leg length kept; the hips' horizontal separation (0.199 of the leg
-  on the CC3 avatar, 0.161 on raw subject 2, 0.171 on raw subject 131) scaled by 0.8-1.1, the legs moved rigidly
-  sideways. Data seeds 0-5, means, against 0.901 (2 and 5 held out) and 0.944 (1 and 7): knee 0.901 and 0.945,
-  hips 0.901 and 0.944, both 0.902 and 0.945; every paired difference within +-0.002. Real frames: both +0.007
-  with 2 and 5 held out (every seed +0.003 to +0.012), +0.001 with 1 and 7. The 2,5 split cannot show a
-  raw-skeleton effect: its only usable raw clip, 02_01, has 3 % of its entries and scores 0.967 against 0.902 for
-  the CC3 clips and 0.956 for the same walk on the CC3 avatar (002_01; data seed 1, with or without the knees),
-  so its gap against 1 and 7 is not a body gap.
-- stances on the ball of the foot synthesised from the training subjects' flat ones (`raise_heels` of commit
-  afa270a: a flat stance of at least 0.3 s raised with probability p, the foot turned about its toe site until the
-  heel is 4-12 cm up, rising and lowering over 0.1 s, the knee bent by two-link IK; its own generator, so every
-  other draw stayed). Data seeds 0-2, means, p = 0 / 0.15 / 0.3: with 1 and 7 held out 0.946 / 0.945 / 0.942
-  (hard frames 0.925 / 0.926 / 0.924), with 2 and 5 held out 0.901 / 0.893 / 0.892 (hard frames 0.848 / 0.857 /
-  0.860), and the hand-labelled real frames fell 0.946 / 0.877 / 0.812 and 0.930 / 0.839 / 0.816 (taiji, basketball
-  and pose2sim's standing walker: flat feet called raised). Made-up raised heels teach a cue that real flat feet
-  show too.
-Those runs also show that the draw of training sequences moves validation accuracy more than the weights' seed
-does: the shipped recipe on training sequences of data seeds 0, 1 and 2 (`--data-seed`, weights' seed 0) scored
-0.941, 0.946 and 0.944 (real 0.908, 0.911, 0.905), against 0.941 / 0.942 / 0.940 for weights' seeds 0-2 on data
-seed 0. A change that adds a random draw to the synthesis shifts every later draw (cameras, rates, noise), so
-compare it against a placebo draw or over several data seeds.
+The measurements behind the recipe (what was tried, the figures, what was kept) are in
+docs/decisions/contact-training.md.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
+import subprocess
 import time
+from collections.abc import Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -128,8 +35,8 @@ from .. import metrics
 from ..errors import InputError
 from ..io.atomic import atomic_path, write_text
 from .dataset import (
-    TEST_SUBJECTS, SyntheticSequence, SyntheticSettings, held_out_settings, load_clips, make_sequences, mocap_files,
-    split_by_subject,
+    TEST_SUBJECTS, SyntheticSequence, SyntheticSettings, held_out_settings, iter_sequences, load_clips, make_sequences,
+    mocap_files, split_by_subject,
 )
 from .features import REFERENCE_FPS, VALUES_PER_POINT, WindowSpec, inputs_from_windows, select_keypoints
 from .networks import FRAME_CHANNELS, NUM_OUTPUTS, OUTPUT_NAMES, CausalNetSpec, CentredNetSpec
@@ -282,17 +189,20 @@ class FrameTable:
     hard: np.ndarray
 
     @classmethod
-    def from_sequences(cls, sequences: list[SyntheticSequence]) -> "FrameTable":
-        lengths = np.array([s.num_frames for s in sequences])
-        starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
-        return cls(
-            points=np.concatenate([select_keypoints(s.keypoints_2d, s.valid) for s in sequences]),
-            interval=np.concatenate([np.full(s.num_frames, REFERENCE_FPS / s.fps, np.float32) for s in sequences]),
-            labels=np.concatenate([np.column_stack([s.contacts, s.stationary]) for s in sequences]).astype(np.float32),
-            sequence_start=np.repeat(starts, lengths),
-            sequence_length=np.repeat(lengths, lengths),
-            hard=np.concatenate([s.hard for s in sequences]),
-        )
+    def from_sequences(cls, sequences: Iterable[SyntheticSequence]) -> "FrameTable":
+        """The table of `sequences`, consumed one at a time (only its rows of each are kept)."""
+        points, interval, labels, hard, lengths = [], [], [], [], []
+        for s in sequences:
+            points.append(select_keypoints(s.keypoints_2d, s.valid))
+            interval.append(np.full(s.num_frames, REFERENCE_FPS / s.fps, np.float32))
+            labels.append(np.column_stack([s.contacts, s.stationary]).astype(np.float32))
+            hard.append(s.hard)
+            lengths.append(s.num_frames)
+        sizes = np.array(lengths)
+        starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+        return cls(points=np.concatenate(points), interval=np.concatenate(interval), labels=np.concatenate(labels),
+                   sequence_start=np.repeat(starts, sizes), sequence_length=np.repeat(sizes, sizes),
+                   hard=np.concatenate(hard))
 
     def __len__(self) -> int:
         return len(self.points)
@@ -380,6 +290,27 @@ def evaluate(params: dict[str, np.ndarray], mode: Mode, sequences: list[Syntheti
             "f1": scores["f1"], "stationary_accuracy": stationary["accuracy"]}
 
 
+def data_digest(files: list[Path], root: Path) -> str:
+    """sha256 over the files' paths relative to root and their bytes: which data made the weights."""
+    digest = hashlib.sha256()
+    for path in sorted(files):
+        digest.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes())
+    return digest.hexdigest()
+
+
+def git_revision() -> str:
+    """The source tree's git commit (with "+changes" when it has uncommitted ones), or "unknown" outside git."""
+    here = Path(__file__).resolve().parent
+    try:
+        commit = subprocess.run(["git", "-C", str(here), "rev-parse", "HEAD"], capture_output=True, text=True,
+                                timeout=10, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(here), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=10, check=True).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return commit + ("+changes" if dirty else "")
+
+
 def train_contacts(
     data_root: str | os.PathLike,
     out_dir: str | os.PathLike,
@@ -414,12 +345,12 @@ def train_contacts(
     if max_clips is not None:
         train_files, test_files = train_files[:max_clips], test_files[:max_clips]
     train_clips, test_clips = load_clips(train_files), load_clips(test_files)
-    train_sequences = make_sequences(train_clips, seed, settings.synthetic)
+    table = FrameTable.from_sequences(iter_sequences(train_clips, seed, settings.synthetic))
     test_sequences = make_sequences(test_clips, seed + 1, held_out_settings(settings.synthetic),
                                     variants=settings.test_variants_per_clip)
-    table = FrameTable.from_sequences(train_sequences)
     data_seconds = time.perf_counter() - started
-    log(f"synthetic data: {len(train_sequences)} training sequences ({len(table)} frames) from {len(train_clips)} "
+    log(f"synthetic data: {len(train_clips) * settings.synthetic.variants_per_clip} training sequences "
+        f"({len(table)} frames) from {len(train_clips)} "
         f"clips, {len(test_sequences)} test sequences, {data_seconds:.1f} s")
 
     out_dir = Path(out_dir)
@@ -453,6 +384,8 @@ def train_contacts(
         "data_seconds": data_seconds,
         "total_seconds": time.perf_counter() - started,
         "torch": torch.__version__,
+        "data_sha256": data_digest(train_files + test_files, data_root),
+        "git_revision": git_revision(),
         "settings": asdict(settings),
         **results,
     }

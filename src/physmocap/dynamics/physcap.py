@@ -14,6 +14,7 @@ world, root angular velocity in the pelvis frame); forces in newtons.
 from __future__ import annotations
 
 import copy
+import math
 from dataclasses import dataclass, field
 
 import daqp
@@ -28,6 +29,17 @@ MAX_ACCELERATION = 1e4  # m/s^2 or rad/s^2, about 50 times the fastest human lim
 MAX_DESIRED_ACCELERATION = 2e3  # m/s^2 or rad/s^2, the PD targets' bound: about ten times the fastest human limb
 # motions. A fit that flips a wrist back and forth between frames (60 rad/s each way, seen on real video) would
 # otherwise ask the stiff PD for 1e4 and trip the divergence guard.
+
+
+def integration_steps(settings: PhysicsSettings, fps: float) -> tuple[int, float]:
+    """(steps per frame, step in s): with settings.max_step, the fewest equal steps of at most max_step that
+    fill one frame interval, so that the integration's stability and the PD's behaviour (gains in 1/s^2 and 1/s)
+    do not depend on the frame rate; else the legacy settings.iterations steps of settings.step (or of one frame
+    / iterations)."""
+    if settings.max_step is not None:
+        steps = max(1, math.ceil(1.0 / (fps * settings.max_step) - 1e-9))
+        return steps, 1.0 / (fps * steps)
+    return settings.iterations, settings.step if settings.step is not None else 1.0 / (fps * settings.iterations)
 
 
 @dataclass
@@ -51,6 +63,11 @@ class FrameOutput:
     active: np.ndarray  # (4,) bool, contacts used in the frame's last step
     qp_failures: int  # steps whose QP failed and fell back
     records: list[SubstepRecord] = field(default_factory=list)
+    # (6,) root force (world, N) and torque (pelvis frame, N m) that the frame's kinematic motion needs and no
+    # contact on the floor can give (PhysCapTracker.kinematic_misfit): the load hands or a raised floor carry
+    unexplained: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    diverged: bool = False  # a step's accelerations diverged and the character restarted from the target
+    unexplained_flag: bool = False  # set by the stage's diagnosis (stage.PhysicsStream)
 
 
 class PhysCapTracker:
@@ -61,7 +78,7 @@ class PhysCapTracker:
         self.model = copy.copy(body.mujoco_model())  # its own: the foot geoms get the touch margin
         self.data = mujoco.MjData(self.model)
         nv = self.model.nv
-        self.dt = settings.step if settings.step is not None else 1.0 / (fps * settings.iterations)
+        self.substeps, self.dt = integration_steps(settings, fps)
         self.kp = np.full(nv, settings.kp_joint)
         self.kd = np.full(nv, settings.kd_joint)
         self.kp[:3], self.kd[:3] = settings.kp_root_translation, settings.kd_root_translation
@@ -93,11 +110,14 @@ class PhysCapTracker:
         self.qpos = np.zeros(self.model.nq)
         self.qvel = np.zeros(nv)
         self.target_data = mujoco.MjData(self.model)  # kinematics of the frame's target pose
+        self._previous_target = np.zeros(self.model.nq)  # the last frame's target: the steps move from it
+        self._target_step = np.zeros(nv)
         self._no_rows, self._no_bounds = np.zeros((0, nv)), np.zeros(0)
 
     def reset(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
         self.qpos[:] = qpos
         self.qvel[:] = qvel
+        self._previous_target[:] = qpos
 
     # ---- the pieces of one step -------------------------------------------------------------------------
     def _dynamics(self):
@@ -130,22 +150,23 @@ class PhysCapTracker:
                    - self.kd * self.qvel)
         return np.clip(desired, -MAX_DESIRED_ACCELERATION, MAX_DESIRED_ACCELERATION, out=desired)
 
-    def ground_reaction_forces(self, qdd_des, bias, active) -> tuple[np.ndarray, bool]:
+    def ground_reaction_forces(self, qdd_des, bias, active) -> tuple[np.ndarray, bool, np.ndarray]:
         """Eq. (6-7): forces (4, 3) at the active contacts that best produce the root's desired acceleration,
-        pushing only, inside the friction pyramid. Returns the forces and whether the QP solved."""
+        pushing only, inside the friction pyramid. Returns the forces, whether the QP solved, and the root wrench
+        (6,) the forces leave unexplained (the desired one where no contact is active or the QP failed)."""
         forces = np.zeros((4, 3))
+        target = self.mass_matrix[:6] @ qdd_des + bias[:6]
         if not active.any():
-            return forces, True
+            return forces, True, target
         k = int(active.sum())
         root_rows = self.contact_jacobian[active][:, :, :6].reshape(3 * k, 6)  # (J^T restricted to the root)^T
-        target = self.mass_matrix[:6] @ qdd_des + bias[:6]
         H = root_rows @ root_rows.T + self.grf_regularisation[:3 * k, :3 * k]
         x, _, exitflag, _ = daqp.solve(H, -root_rows @ target, self.grf_rows[:4 * k, :3 * k],
                                        self._pyramid_upper[:4 * k], self._pyramid_lower[:4 * k])
         if exitflag != 1:
-            return forces, False
+            return forces, False, target
         forces[active] = x.reshape(k, 3)
-        return forces, True
+        return forces, True, target - root_rows.T @ x
 
     def pose_accelerations(self, qdd_des, bias, forces, active, heights,
                            released) -> tuple[np.ndarray, np.ndarray, bool]:
@@ -204,16 +225,19 @@ class PhysCapTracker:
     def track(self, q_kin: np.ndarray, qd_kin: np.ndarray, qdd_kin: np.ndarray,
               predicted_contacts: np.ndarray) -> FrameOutput:
         """Advance the character by one frame towards the kinematic pose (steps ii-v, n times)."""
-        s = self.settings
-        forces_sum, residual_sum, failures = np.zeros((4, 3)), np.zeros(6), 0
+        s, n = self.settings, self.substeps
+        forces_sum, residual_sum = np.zeros((4, 3)), np.zeros(6)
+        failures, diverged = 0, False
         records = []
         active = np.zeros(4, bool)
         target = np.empty_like(q_kin)
-        for i in range(s.iterations):
-            # The steps advance the character through the frame: step i aims at where the kinematic motion is
-            # at its end time, moving along the kinematic velocity, so that the last step lands on frame t.
-            target[:] = q_kin
-            mujoco.mj_integratePos(self.model, target, qd_kin, -(s.iterations - 1 - i) * self.dt)
+        # The steps advance the character through the frame: step i aims at the pose interpolated (on the
+        # manifold) between the last frame's target and this one at the step's end time, so that the last step
+        # lands on frame t whatever the number of steps.
+        mujoco.mj_differentiatePos(self.model, self._target_step, 1.0, self._previous_target, q_kin)
+        for i in range(n):
+            target[:] = self._previous_target
+            mujoco.mj_integratePos(self.model, target, self._target_step, (i + 1) / n)
             bias, heights, touching = self._dynamics()
             if i == 0:  # judged once per frame, where the character stands at its start
                 released = self._released_contacts(q_kin)
@@ -221,19 +245,41 @@ class PhysCapTracker:
             if s.foot_lock != "never":  # airborne or swimming motion: the floor does not push back
                 active |= touching
             qdd_des = self.desired_acceleration(target, qd_kin, qdd_kin)
-            forces, grf_ok = self.ground_reaction_forces(qdd_des, bias, active)
+            forces, grf_ok, _ = self.ground_reaction_forces(qdd_des, bias, active)
             qdd, torque, pose_ok = self.pose_accelerations(qdd_des, bias, forces, active, heights, released)
             failures += (not grf_ok) + (not pose_ok)
             if self.record:
                 records.append(SubstepRecord(self.qpos.copy(), self.qvel.copy(), qdd, torque, forces, active.copy()))
             if not np.abs(qdd).max() < MAX_ACCELERATION:  # also catches NaN
                 # Diverging (a wildly implausible target): restart from the target at rest, counted as a fallback.
-                failures += 1
+                failures, diverged = failures + 1, True
                 self.reset(target, np.zeros_like(self.qvel))
                 continue
             self.qvel += self.dt * qdd  # eq. (1): velocity first, then position with the new velocity
             mujoco.mj_integratePos(self.model, self.qpos, self.qvel, self.dt)
             forces_sum += forces
             residual_sum += torque[:6]
-        n = s.iterations
-        return FrameOutput(forces_sum / n, residual_sum / n, active, failures, records)
+        self._previous_target[:] = q_kin
+        unexplained = self.kinematic_misfit(q_kin, qd_kin, qdd_kin)
+        return FrameOutput(forces_sum / n, residual_sum / n, active, failures, records, unexplained, diverged)
+
+    def kinematic_misfit(self, q_kin: np.ndarray, qd_kin: np.ndarray, qdd_kin: np.ndarray) -> np.ndarray:
+        """(6,) the root force (world, N) and torque (pelvis frame, N m) that the kinematic motion itself needs
+        (inverse dynamics at its pose, velocity and acceleration) and that no admissible force at its sole points
+        within contact_height of the floor can give (eq. 6-7 solved for the kinematic motion), whatever the
+        predicted contacts: zero in flight that follows gravity and on feet that carry the body, about the
+        body's weight where hands or a raised floor carry it. A missed contact label is the tracker's problem, not
+        the contact model's (the stray check catches what it costs). Overwrites the step buffers (recomputed at
+        the next step)."""
+        m, d = self.model, self.target_data
+        d.qpos[:], d.qvel[:] = q_kin, qd_kin
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_crb(m, d)
+        mujoco.mj_comVel(m, d)
+        mujoco.mj_rne(m, d, 0, self.bias)
+        mujoco.mj_fullM(m, d, self.mass_matrix)
+        for j, site in enumerate(self.sites):
+            mujoco.mj_jacSite(m, d, self.contact_jacobian[j], None, site)
+        active = d.site_xpos[self.sites, 2] < self.settings.contact_height
+        return self.ground_reaction_forces(qdd_kin, self.bias, active)[2]

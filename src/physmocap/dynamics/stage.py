@@ -20,6 +20,7 @@ from .balance import BalanceCorrector
 from .floor import FloorRefiner, floor_frame
 from .physcap import FrameOutput, PhysCapTracker
 
+GRAVITY = 9.81  # m/s^2
 MAX_FLATTENING = np.radians(20.0)  # a foot tilted more than this with heel and toe predicted down is a wrong label
 # or a wrong fit, not a flat foot to correct
 
@@ -41,6 +42,8 @@ class PhysicsMotion:
     qp_failures: np.ndarray
     seconds: float
     floor_plane: np.ndarray | None = None
+    unexplained: np.ndarray | None = None  # (T,) bool: frames the contact model could not explain, handed back
+    # as the kinematic motion (blended in and out over settings.unexplained_blend); None: not diagnosed
 
 
 class PhysicsStream:
@@ -48,9 +51,10 @@ class PhysicsStream:
     kinematic velocities causally, lifts targets whose feet sink out of the floor, corrects balance, and tracks.
     With refine_floor (an online fit whose floor was estimated, not given) the floor is refined as frames arrive
     and the character runs on the refined floor; poses and forces come back in the kinematic world
-    (`onto_refined_floor` moves both onto the final floor)."""
+    (`onto_refined_floor` moves both onto the final floor). refined_input: see `run_physcap`."""
 
-    def __init__(self, body: BodyModel, settings: PhysicsSettings, fps: float, refine_floor: bool = False):
+    def __init__(self, body: BodyModel, settings: PhysicsSettings, fps: float, refine_floor: bool = False,
+                 refined_input: bool = False):
         self.body, self.settings, self.fps = body, settings, fps
         self.floor = (FloorRefiner(body, fps, settings.floor_refit_interval, np.radians(settings.floor_tilt_rate),
                                    settings.floor_lift_rate, settings.floor_refine_after)
@@ -67,14 +71,26 @@ class PhysicsStream:
         # foot is turned (0 .. 1, smoothed), and the share of a new frame's value taken in (settings.target_lift_time)
         self._lift = 0.0
         self._flatness = np.zeros(2)
+        # Kinematics refined by Rempe's B.4 (refined_input) already rest their feet on the floor: lifting and
+        # flattening them again only raised the feet (docs/decisions/physics-default.md).
         self._lift_share = (1.0 - np.exp(-1.0 / (fps * settings.target_lift_time))
-                            if settings.target_lift_time is not None and settings.foot_lock != "never" else 0.0)
+                            if settings.target_lift_time is not None and settings.foot_lock != "never"
+                            and not refined_input else 0.0)
         model = self.tracker.model
         feet = [model.body(f"{side}_foot").id for side in ("left", "right")]
         self._feet = [(foot, model.body_parentid[foot], model.jnt_qposadr[model.body_jntadr[foot]]) for foot in feet]
         self._turn, self._quat = np.zeros(4), np.zeros(4)
         # kinematic root positions of the last stationary_speed_interval, oldest first (the stationary gate)
         self._roots: deque[np.ndarray] = deque(maxlen=max(1, round(settings.stationary_speed_interval * fps)) + 1)
+        self._weight = body.mass * GRAVITY
+        # The diagnosis (settings.unexplained_*): the unexplained root force, averaged causally over
+        # unexplained_time, and the kinematic motion's share in the output (0: physics, 1: kinematic)
+        self._unexplained = np.zeros(3)
+        self._unexplained_share = 1.0 - np.exp(-1.0 / (fps * settings.unexplained_time))
+        self._kinematic_share = 0.0
+        self._blend_rate = 1.0 / max(fps * settings.unexplained_blend, 1.0)
+        self._blend_step = np.zeros(body.nv)
+        self._deviation_data = mujoco.MjData(model)
 
     @property
     def floor_plane(self) -> np.ndarray | None:
@@ -109,11 +125,57 @@ class PhysicsStream:
         if self.settings.balance_correction:
             target, corrected = self.balance.correct(q_kin, stationary, contacts)
         frame = self.tracker.track(target, velocity, acceleration, contacts)
+        pose = self._diagnose(frame, target, velocity)
         if self.floor is None:
-            return self.tracker.qpos.copy(), frame, corrected
+            return pose, frame, corrected
         frame.contact_forces = self.floor.vector_to_kinematic(frame.contact_forces)
         frame.residual[:3] = self.floor.vector_to_kinematic(frame.residual[:3])
-        return self.floor.to_kinematic(self.tracker.qpos), frame, corrected
+        return self.floor.to_kinematic(pose), frame, corrected
+
+    def _diagnose(self, frame: FrameOutput, target: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+        """Bounds the frame's forces (settings.max_force) and judges whether the contact model explains the
+        frame: the upward root force the kinematic motion needs and no contact on the floor can give
+        (FrameOutput.unexplained[2]: something else holds the body up) averaged over unexplained_time above
+        unexplained_force, a diverged step or failed QP, a force over the bound, or the character farther than
+        stray_distance from its target. Sets frame.unexplained_flag and
+        returns the pose to hand out (nq,): the character's, blended towards the frame's kinematic target over
+        unexplained_blend while frames are flagged; a character fully handed over restarts from the target."""
+        s = self.settings
+        bound = s.max_force * self._weight
+        out_of_bounds = False
+        for forces in (frame.contact_forces, frame.residual[:3], frame.residual[3:]):  # torque: bound x 1 m
+            if not np.isfinite(forces).all():
+                forces[:] = 0.0
+                out_of_bounds = True
+            size = float(np.linalg.norm(forces.sum(axis=0) if forces.ndim == 2 else forces))
+            if size > bound:
+                forces *= bound / size
+                out_of_bounds = True
+        unexplained = frame.unexplained[:3] if np.isfinite(frame.unexplained).all() else np.zeros(3)
+        self._unexplained += self._unexplained_share * (unexplained - self._unexplained)
+        flagged = (out_of_bounds or frame.diverged or frame.qp_failures > 0
+                   or (s.unexplained_force is not None
+                       and self._unexplained[2] > s.unexplained_force * self._weight)
+                   or self._deviation() > s.stray_distance)
+        frame.unexplained_flag = flagged
+        self._kinematic_share = min(1.0, self._kinematic_share + self._blend_rate) if flagged else \
+            max(0.0, self._kinematic_share - self._blend_rate)
+        if self._kinematic_share >= 1.0:
+            self.tracker.reset(target, velocity)
+            return target.copy()
+        pose = self.tracker.qpos.copy()
+        if self._kinematic_share > 0.0:
+            mujoco.mj_differentiatePos(self.tracker.model, self._blend_step, 1.0, pose, target)
+            mujoco.mj_integratePos(self.tracker.model, pose, self._blend_step, self._kinematic_share)
+        return pose
+
+    def _deviation(self) -> float:
+        """m: mean distance between the character's bodies after the frame and the frame target's (whose
+        kinematics PhysCapTracker.kinematic_misfit left in tracker.target_data)."""
+        data = self._deviation_data
+        data.qpos[:] = self.tracker.qpos
+        mujoco.mj_kinematics(self.tracker.model, data)
+        return float(np.linalg.norm(data.xpos[1:] - self.tracker.target_data.xpos[1:], axis=1).mean())
 
     def _target_on_floor(self, q_kin: np.ndarray, contacts: np.ndarray) -> np.ndarray:
         """q_kin with each foot whose heel and toe are both predicted in contact turned flat (about the ankle, by
@@ -178,22 +240,24 @@ def kinematic_derivatives(body: BodyModel, qpos: np.ndarray, fps: float) -> tupl
 
 def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.ndarray, stationary: np.ndarray,
                 settings: PhysicsSettings, progress=None, refine_floor: bool = False,
-                valid: np.ndarray | None = None) -> PhysicsMotion:
+                valid: np.ndarray | None = None, refined_input: bool = False) -> PhysicsMotion:
     """Track the kinematic motion (T, nq) with the physics character; contacts (T, 4) and stationary (T,)
     come from the contact stage. Causal: frame t uses frames up to t only. refine_floor: see PhysicsStream.
     valid: (T,) frames with a detected person (default all); the character starts at the first, and the frames
     before it keep the kinematic pose without forces (a whole-clip fit extrapolates them without data, and a
-    character started there can begin metres off)."""
+    character started there can begin metres off). refined_input: the kinematics come from Rempe's B.4 refinement
+    (offline, PhysicsSettings.refine_offline), whose feet already rest on the floor: targets are not lifted or
+    flattened (target_lift_time, flatten_feet are for fits whose feet sink)."""
     start = time.perf_counter()
     T = len(qpos_kin)
-    stream = PhysicsStream(body, settings, fps, refine_floor)
+    stream = PhysicsStream(body, settings, fps, refine_floor, refined_input)
     out = PhysicsMotion(qpos_kin.copy(), np.zeros((T, 4, 3)), np.zeros((T, 6)), np.zeros((T, 4), bool),
-                        np.zeros(T, bool), np.zeros(T, int), 0.0)
+                        np.zeros(T, bool), np.zeros(T, int), 0.0, unexplained=np.zeros(T, bool))
     first = 0 if valid is None or not np.any(valid) else int(np.argmax(valid))
     for t in range(first, T):
         out.qpos[t], frame, out.corrected[t] = stream.push(qpos_kin[t], contacts[t], bool(stationary[t]))
-        out.grf[t], out.residual[t], out.contacts[t], out.qp_failures[t] = (
-            frame.contact_forces, frame.residual, frame.active, frame.qp_failures)
+        out.grf[t], out.residual[t], out.contacts[t], out.qp_failures[t], out.unexplained[t] = (
+            frame.contact_forces, frame.residual, frame.active, frame.qp_failures, frame.unexplained_flag)
         if progress:
             progress(t + 1, T)
     out.seconds = time.perf_counter() - start

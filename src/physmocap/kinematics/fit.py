@@ -520,11 +520,28 @@ def neutral_qpos(body: BodyModel) -> np.ndarray:
 
 def initial_qpos(body: BodyModel, camera: Camera, targets: FitTargets, frame: int) -> np.ndarray:
     """A starting pose for one frame: the neutral pose, pelvis oriented from hips and shoulders, placed on the
-    camera ray of the hip midpoint at the estimated depth. (1, nq)"""
+    camera ray of the hip midpoint at the estimated depth. (1, nq)
+
+    Where the frame does not show them (weight 0: another detector's file, a frame with no torso), the
+    orientation comes from the nearest frame whose hips and shoulders are seen, else facing the camera upright;
+    the ray from the frame's hips, else from the middle of its seen keypoints, else from the image centre."""
     q = neutral_qpos(body)
     idx = {b: i for i, (_, b) in enumerate(MARKERS)}
-    q[3:7] = matrix_to_quat(root_orientation(targets.targets_3d[frame]))
-    hips = 0.5 * (targets.keypoints[frame, idx["left_hip"]] + targets.keypoints[frame, idx["right_hip"]])
-    ray = np.linalg.solve(camera.K, np.append(hips, 1.0))
+    torso = [idx[n] for n in ("left_hip", "right_hip", "left_shoulder", "right_shoulder")]
+    seen_3d = np.flatnonzero((targets.weight_3d[:, torso] > 0).all(axis=1))
+    if len(seen_3d):
+        q[3:7] = matrix_to_quat(root_orientation(targets.targets_3d[seen_3d[np.argmin(np.abs(seen_3d - frame))]]))
+    else:
+        forward, up = -camera.R[2], -camera.R[1]  # towards the camera; the camera's up, in the world
+        q[3:7] = matrix_to_quat(np.stack([forward, np.cross(up, forward), up], axis=1))
+    seen = targets.weight_3d[frame] > 0  # seen at all: the 2D weight is 0 below the confidence threshold too
+    hips = [idx["left_hip"], idx["right_hip"]]
+    if seen[hips].all():
+        centre = 0.5 * (targets.keypoints[frame, hips[0]] + targets.keypoints[frame, hips[1]])
+    elif seen.any():
+        centre = targets.keypoints[frame, seen].mean(axis=0)
+    else:
+        centre = camera.K[:2, 2]
+    ray = np.linalg.solve(camera.K, np.append(centre, 1.0))
     q[0:3] = camera.R.T @ (ray * targets.depth[frame] - camera.t)
     return q[None]

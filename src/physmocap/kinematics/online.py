@@ -3,6 +3,7 @@ streams side by side, the offline fit's starting point."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections import deque
 from dataclasses import dataclass
 from typing import Callable
@@ -16,7 +17,7 @@ from ..camera import Camera, Floor, world_from_floor
 from ..config import Settings
 from ..detect.foot_swaps import CausalFootSwaps, find_foot_swaps, swap_feet, undo_foot_swaps
 from ..motion import Observations
-from .calibration import calibrate
+from .calibration import calibrate, resolve_height
 from .fit import FitTargets, KinematicFitter, initial_qpos
 from .stage import estimate_floor, make_targets, move_world_to_floor, raw_depth, refine_lengths, smooth_depth
 
@@ -178,7 +179,8 @@ class OnlineFitter:
         swaps = find_foot_swaps(held) if s.fit.undo_foot_swaps else np.zeros(len(valid), dtype=bool)
         held = undo_foot_swaps(held, swaps)  # the warm-up is held back: its swaps are found as offline
         k2, k3 = held.keypoints_2d, held.landmarks_3d
-        self.calibration = calibrate(held, s.body.height, frames=0)
+        height, source = resolve_height(held, s.body.height, s.body.estimate_height)
+        self.calibration = dataclasses.replace(calibrate(held, height, frames=0), height_source=source)
         self.body = build_body_model(self.calibration.lengths, s.body.mass)
         first = int(np.argmax(valid))
         depth = raw_depth(k2, k3, valid, self.camera.focal, self.calibration, s.fit.min_confidence)
@@ -194,7 +196,7 @@ class OnlineFitter:
             targets = make_targets(k2, k3, valid, smooth_depth(depth), self.camera, self.calibration, s.fit)
             poses = np.array([q for q, _ in fitted])
             self.calibration = refine_lengths(self.body, self.camera, np.concatenate(
-                [np.repeat(poses[:1], first, axis=0), poses]), targets, self.calibration, s.body.height)
+                [np.repeat(poses[:1], first, axis=0), poses]), targets, self.calibration, self.calibration.height)
             self.body = build_body_model(self.calibration.lengths, s.body.mass)
             self.fitter = KinematicFitter(self.body, self.camera, s.fit, self.fps)
             fitted = self._fit_held(k2, k3, valid, depth, first)

@@ -4,6 +4,7 @@ express the motion in the world frame (Z up, floor z = 0)."""
 from __future__ import annotations
 
 import dataclasses
+import logging
 import time
 import warnings
 from dataclasses import dataclass
@@ -14,15 +15,24 @@ import numpy as np
 from ..body import kinematics as kin
 from ..body.model import CONTACT_POINTS, BodyModel, SkeletonLengths, build_body_model
 from ..body.rotations import matrix_to_quat, quat_multiply
-from ..camera import Camera, Floor, fit_floor, world_from_floor
+from ..camera import Camera, Floor, angle_degrees, fit_floor, robust_offset, world_from_floor
 from ..config import FitSettings, Settings
 from ..detect.foot_swaps import find_foot_swaps, undo_foot_swaps
 from ..errors import ReconstructionError
 from ..motion import Observations
-from .calibration import Calibration, calibrate, plausible_length
+from .calibration import Calibration, calibrate, plausible_length, resolve_height
 from .filters import one_euro_qpos
 from .fit import MARKER_LANDMARKS, MARKERS, FitTargets, KinematicFitter
 
+log = logging.getLogger("physmocap")
+
+# The floor (estimate_floor; chosen on the validation clips of benchmarks/bench_floor_height.py, see
+# docs/decisions/floor-posture-prior.md).
+FLOOR_PRIOR_WEIGHT = 0.02  # fit_floor's pull towards the posture vertical (0.05 before the posture prior)
+FEET_ONLY_PRIOR_WEIGHT = 0.002  # the same for the plane of the feet alone, against which the posture is checked
+FLOOR_AGREEMENT = 10.0  # degrees: the feet's plane may lean this far from the posture before it is not trusted
+FLOOR_BOOTSTRAP_DRAWS = 16
+FLOOR_OUTLIER_DISTANCE = 0.10  # m: foot points farther from the floor are its outliers
 
 # Lengths the offline fit measures again against its first fit (refine_lengths), in the order they are solved for.
 REFINED_LENGTHS = ("thigh", "shank", "upper_arm", "forearm", "heel_back", "toe_front", "ankle_height")
@@ -57,11 +67,16 @@ class KinematicMotion:
 
 def make_targets(keypoints_2d: np.ndarray, landmarks_3d: np.ndarray, valid: np.ndarray, depth: np.ndarray,
                  camera: Camera, calibration: Calibration, fit: FitSettings) -> FitTargets:
-    """Per-frame observations (T, 33, 3) -> what the fit pulls towards, in the camera's world frame."""
+    """Per-frame observations (T, 33, 3) -> what the fit pulls towards, in the camera's world frame. Landmarks
+    the detector did not see (confidence 0, or not finite) weigh nothing in either term."""
     kp = keypoints_2d[:, MARKER_LANDMARKS]
-    conf = np.where(kp[..., 2] >= fit.min_confidence, kp[..., 2], 0.0) * valid[:, None]
-    targets_3d = (landmarks_3d[:, MARKER_LANDMARKS] * calibration.landmark_scale) @ camera.R  # camera -> world
-    weight_3d = np.sqrt(fit.weight_3d) * valid[:, None] * np.sqrt(np.clip(kp[..., 2], 0.3, 1.0))
+    landmarks = landmarks_3d[:, MARKER_LANDMARKS]
+    seen = (kp[..., 2] > 0) & np.isfinite(kp).all(axis=2) & np.isfinite(landmarks).all(axis=2) & valid[:, None]
+    conf = np.where(seen & (kp[..., 2] >= fit.min_confidence), kp[..., 2], 0.0)
+    kp = np.where(seen[..., None], kp, 0.0)
+    targets_3d = (np.where(seen[..., None], landmarks, 0.0) * calibration.landmark_scale) @ camera.R  # camera -> world
+    # A seen but doubtful landmark keeps some 3D weight: the 3D term holds the pose where the 2D term lets go.
+    weight_3d = np.sqrt(fit.weight_3d) * seen * np.sqrt(np.clip(kp[..., 2], 0.3, 1.0))
     marker = np.where(HAND_MARKERS, np.sqrt(fit.hand_weight), 1.0)
     return FitTargets(kp[..., :2], np.sqrt(fit.weight_2d * conf) * marker, targets_3d, weight_3d * marker, depth)
 
@@ -195,15 +210,47 @@ def move_world_to_floor(qpos: np.ndarray, camera: Camera, floor: Floor, anchor_f
     return qpos, camera.with_extrinsics(R_new, t_new)
 
 
+def posture_vertical(body: BodyModel, qpos: np.ndarray, camera: Camera, valid: np.ndarray) -> np.ndarray:
+    """(3,) the person's own vertical in the camera frame: per frame the unit axis from the middle of the four
+    sole points to the centre of mass, its median over the valid frames. A body cannot keep its centre of mass
+    away from above its support for long (it would fall), so over a clip this axis leans as little as the
+    posture does, whichever way the person turns."""
+    pose = kin.forward_kinematics(body, qpos)
+    com = camera.to_camera(kin.center_of_mass(body, pose))
+    soles = camera.to_camera(pose.points[:, body.point_index(CONTACT_POINTS)])
+    return _unit(np.median(_unit(com - soles.mean(axis=1))[valid], axis=0))
+
+
+def floor_tilt_spread(points: np.ndarray, frames: np.ndarray, up: np.ndarray, fitted: np.ndarray,
+                      fps: float, draws: int = FLOOR_BOOTSTRAP_DRAWS, seed: int = 0) -> float:
+    """Degrees, RMS angle to `fitted` of the normals that estimate_floor's fit finds on resamplings of the foot
+    points (points (N, 3), camera frame; frames (N,) the frame of each) by blocks of one second (a still foot
+    gives many nearly equal points, which are one piece of evidence, not many); 90 with under two blocks."""
+    block = np.asarray(frames) // max(1, int(round(fps)))
+    blocks = np.unique(block)
+    if len(blocks) < 2:
+        return 90.0
+    rng = np.random.default_rng(seed)
+    angles = []
+    for _ in range(draws):
+        sample = np.concatenate([points[block == b] for b in rng.choice(blocks, len(blocks))])
+        angles.append(angle_degrees(fit_floor(sample, up, prior_weight=FLOOR_PRIOR_WEIGHT)[0].normal, fitted))
+    return float(np.sqrt(np.mean(np.square(angles))))
+
+
 def estimate_floor(body: BodyModel, qpos: np.ndarray, camera: Camera, fps: float, valid: np.ndarray) -> Floor:
-    """Floor from the feet, in the camera frame, when no contact labels exist yet: the lowest sole point of
-    each frame while it is slow, fitted robustly (Huber), regularised towards the body's mean vertical axis."""
+    """Floor from the feet and the person's posture, in the camera frame, when no contact labels exist yet.
+
+    A robust (Huber) plane through the lowest sole point of each frame while it is slow, its tilt pulled
+    towards the person's own vertical (`posture_vertical`) with FLOOR_PRIOR_WEIGHT. Its confidence: the share of
+    those points within FLOOR_OUTLIER_DISTANCE of it, the spread of its normal under a bootstrap over seconds
+    (`floor_tilt_spread`), and the angle between the vertical and the plane the feet alone give (nearly free of
+    the prior). Beyond FLOOR_AGREEMENT degrees the feet say something no posture explains (points taken from a
+    lifted foot, a wrong depth) and the floor is not trusted: it is then level with the posture, through the
+    same points, a warning is logged and Floor.trusted says so."""
     pts = camera.to_camera(kin.forward_kinematics(body, qpos).points)
+    up = posture_vertical(body, qpos, camera, valid)
     soles = pts[:, body.point_index(CONTACT_POINTS)]  # (T, 4, 3)
-    names = body.point_names
-    ankles = 0.5 * (pts[:, names.index("left_ankle")] + pts[:, names.index("right_ankle")])
-    up = np.median((pts[:, names.index("neck")] - ankles)[valid], axis=0)
-    up /= np.linalg.norm(up)
     height = soles @ up
     lowest = height <= height.min(axis=1, keepdims=True) + 0.03
     speed = np.zeros(soles.shape[:2])
@@ -212,8 +259,20 @@ def estimate_floor(body: BodyModel, qpos: np.ndarray, camera: Camera, fps: float
     chosen = lowest & slow & valid[:, None]
     if chosen.sum() < 8:
         chosen = lowest & valid[:, None]
-    floor, _ = fit_floor(soles[chosen], up)
-    return floor
+    points, frames = soles[chosen], np.nonzero(chosen)[0]
+    floor, _ = fit_floor(points, up, prior_weight=FLOOR_PRIOR_WEIGHT)
+    feet_only, _ = fit_floor(points, up, prior_weight=FEET_ONLY_PRIOR_WEIGHT)
+    disagreement = angle_degrees(feet_only.normal, up)
+    spread = floor_tilt_spread(points, frames, up, floor.normal, fps)
+    if disagreement <= FLOOR_AGREEMENT:
+        normal, offset, source, trusted = floor.normal, floor.offset, "feet and posture", True
+    else:
+        normal, offset, source, trusted = up, robust_offset(points, up), "posture", False
+        log.warning("The floor through the feet is tilted %.0f degrees from the person's posture (more than %.0f): "
+                    "it cannot be trusted, and the floor is taken level with the posture instead; give it with "
+                    "--floor if it is known.", disagreement, FLOOR_AGREEMENT)
+    inliers = float(np.mean(np.abs(points @ normal + offset) < FLOOR_OUTLIER_DISTANCE))
+    return Floor(normal, offset, inliers, spread, disagreement, trusted, source)
 
 
 def fit_motion(obs: Observations, settings: Settings,
@@ -267,7 +326,8 @@ def _fit_offline(obs: Observations, settings: Settings, progress) -> KinematicMo
     obs = undo_foot_swaps(obs, swaps)
     camera = Camera.from_settings(obs.image_size, s.camera.focal, s.camera.fov,
                                   None if (s.camera.focal or s.camera.fov) else obs.camera_K)
-    calibration = calibrate(obs, s.body.height, frames=s.body.calibration_frames)
+    height, source = resolve_height(obs, s.body.height, s.body.estimate_height)
+    calibration = dataclasses.replace(calibrate(obs, height, frames=s.body.calibration_frames), height_source=source)
     body = build_body_model(calibration.lengths, s.body.mass)
     depth = raw_depth(obs.keypoints_2d, obs.landmarks_3d, obs.valid, camera.focal, calibration, s.fit.min_confidence)
     if not np.isfinite(depth).any():
@@ -284,7 +344,7 @@ def _fit_offline(obs: Observations, settings: Settings, progress) -> KinematicMo
             [np.ones_like(scale), np.ones_like(scale), 1.0 / scale], axis=1)[:, None])
         targets = make_targets(obs.keypoints_2d, obs.landmarks_3d, obs.valid, depth, camera, calibration, s.fit)
     if s.fit.refine_lengths:
-        calibration = refine_lengths(body, camera, qpos, targets, calibration, s.body.height)
+        calibration = refine_lengths(body, camera, qpos, targets, calibration, calibration.height)
         body = build_body_model(calibration.lengths, s.body.mass)
         fitter = KinematicFitter(body, camera, s.fit, obs.fps)
     qpos = hold_outside_valid(fitter.fit_offline(qpos, targets).qpos, obs.valid)

@@ -227,6 +227,8 @@ REFERENCE_CROWN_ABOVE_HEAD_JOINT = 0.19
 # of the MTP joint above the sole depends on the skeleton: `_SkeletonLayout.toe_base_above_sole`).
 HEEL_BEHIND_ANKLE = 0.35  # heel site behind the ankle, along the sole (about 4.7 cm)
 TOE_AHEAD_OF_TOE_BASE = 0.25  # toe site ahead of the MTP joint, under the proximal toes (about 3.4 cm)
+DAZ_TOE_BASE_ABOVE_SOLE = 0.20  # the Daz foot's End Site above the sole, fraction of ankle -> End Site (see load_mocap)
+DAZ_DEFAULT_FOOT_PITCH_DEGREES = 15.0
 # Range a measured flat-foot pitch (of the ankle -> MTP line below the sole plane) is clamped to, and the largest
 # difference between the feet taken as real rather than caused by a foot that stands mostly on its toes.
 FOOT_PITCH_RANGE = (np.radians(5.0), np.radians(40.0))
@@ -398,6 +400,57 @@ def _cc3_layout(bvh: BvhData) -> _SkeletonLayout:
     )
 
 
+def _asf_layout(bvh: BvhData) -> _SkeletonLayout:
+    """Raw CMU skeleton with the ASF joint names (hip, lfemur, ltibia, lfoot, ltoes, ...; CMU subject 16).
+
+    Same rest pose and units as `_cmu_layout` (facing +Z, left +X, up +Y; CMU length units); each BVH joint sits
+    at the start of the ASF bone it is named after, so the hip is `lfemur`, the knee `ltibia`, the ankle `lfoot`,
+    the MTP joint `ltoes`, the shoulder `lhumerus`, the elbow `lradius` and the wrist `lwrist`.
+    """
+    points = {"spine": "upperback", "neck": "lowerneck", "head": "head"}
+    for prefix, s in (("left_", "l"), ("right_", "r")):
+        for part, bone in (("hip", "femur"), ("knee", "tibia"), ("ankle", "foot"), ("shoulder", "humerus"),
+                           ("elbow", "radius"), ("wrist", "wrist")):
+            points[prefix + part] = s + bone
+    forward, left = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
+    hands = ("lhand", "rhand")
+    distal = np.stack([_unit(_first_child_offset(bvh, hand)) for hand in hands])
+    thumb = _unit(forward - (distal @ forward)[:, None] * distal)
+    return _SkeletonLayout(
+        kind="cmu_asf", points=points, toe_bases=("ltoes", "rtoes"), foot_left_local=left,
+        head_forward_local=forward, head_left_local=left, hands=hands, hand_distal_local=distal,
+        hand_thumb_local=thumb, units_to_metres=CMU_UNITS_TO_METRES, default_foot_pitch=np.radians(25.0),
+        toe_base_above_sole=0.15,  # the raw CMU skeleton's value (`_cmu_layout`)
+    )
+
+
+def _daz_layout(bvh: BvhData) -> _SkeletonLayout:
+    """The Daz (Aiko3) skeleton of cgspeed's "Daz-friendly" CMU release (hip, abdomen, chest, neck, head, lCollar,
+    lShldr, lForeArm, lHand, lButtock, lThigh, lShin, lFoot), centimetres, Y up.
+
+    Its rest pose is a T-pose facing +Z with the person's left at +X, every local frame aligned with those axes.
+    spine = chest (the top of the abdomen, mid-back), neck = neck (base of the neck). The foot has no toe joint:
+    its End Site, 12-13 cm from the ankle (as far as the CC3 avatar's MTP joint), stands for the MTP joint. The
+    hand frames come from the finger offsets as for the CC3 skeleton.
+    """
+    offsets = {joint.name: joint.offset for joint in bvh.joints}
+    points = {"spine": "chest", "neck": "neck", "head": "head"}
+    for prefix, s in (("left_", "l"), ("right_", "r")):
+        for part, bone in (("hip", "Thigh"), ("knee", "Shin"), ("ankle", "Foot"), ("shoulder", "Shldr"),
+                           ("elbow", "ForeArm"), ("wrist", "Hand")):
+            points[prefix + part] = s + bone
+    distal = np.stack([_unit(offsets[f"{s}Mid1"]) for s in "lr"])
+    thumb = np.stack([offsets[f"{s}Index1"] - offsets[f"{s}Pinky1"] for s in "lr"])
+    thumb = _unit(thumb - np.sum(thumb * distal, axis=1, keepdims=True) * distal)
+    return _SkeletonLayout(
+        kind="daz", points=points, toe_bases=("lFoot_End", "rFoot_End"), foot_left_local=np.array([1.0, 0.0, 0.0]),
+        head_forward_local=np.array([0.0, 0.0, 1.0]), head_left_local=np.array([1.0, 0.0, 0.0]),
+        hands=("lHand", "rHand"), hand_distal_local=distal, hand_thumb_local=thumb,
+        units_to_metres=CC3_UNITS_TO_METRES, default_foot_pitch=np.radians(DAZ_DEFAULT_FOOT_PITCH_DEGREES),
+        toe_base_above_sole=DAZ_TOE_BASE_ABOVE_SOLE,
+    )
+
+
 def _skeleton_layout(bvh: BvhData, source: str) -> _SkeletonLayout:
     """The layout of a raw CMU or CC3 skeleton; InputError naming `source` for any other or an incomplete one."""
     names = set(bvh.joint_names)
@@ -405,8 +458,13 @@ def _skeleton_layout(bvh: BvhData, source: str) -> _SkeletonLayout:
         build = _cc3_layout
     elif "Hips" in names and ("LeftUpLeg" in names or "LeftHip" in names):
         build = _cmu_layout
+    elif "lfemur" in names:
+        build = _asf_layout
+    elif "lThigh" in names and "abdomen" in names:
+        build = _daz_layout
     else:
-        raise InputError(f"{source}: unknown BVH skeleton (neither CMU 'Hips/LeftUpLeg' nor CC3 'CC_Base_Hip').")
+        raise InputError(f"{source}: unknown BVH skeleton (not CMU 'Hips/LeftUpLeg', CMU ASF 'lfemur', Daz "
+                         "'abdomen/lThigh' nor CC3 'CC_Base_Hip').")
     try:
         layout = build(bvh)
     except KeyError as missing:
@@ -430,13 +488,22 @@ def _frame_from_axes(rotations: np.ndarray, forward_local: np.ndarray, left_loca
     return np.stack([first, second, np.cross(first, second)], axis=2)
 
 
+ACRNN_SUBJECTS: dict[str, str] = {"salsa": "60", "indian": "94", "martial": "135"}
+"""CMU subjects of the acRNN dance clips (acrnn_<kind>_<n>.bvh), as ../shared/data/mocap/cmu_daz_cgspeed_dance's
+README gives them: not verified per trial, and the salsa clips mix subjects 60 and 61, so each kind is one subject."""
+
+
 def cmu_subject(path: str | os.PathLike) -> str:
-    """CMU subject id from a file name: '02_01.bvh' -> '2', '131_01' -> '131', '002_01.bvh' -> '2'."""
+    """CMU subject id from a file name: '02_01.bvh' -> '2', '131_01' -> '131', '002_01.bvh' -> '2',
+    'acrnn_salsa_03.bvh' -> '60' (`ACRNN_SUBJECTS`)."""
     stem = Path(path).name.split(".")[0]
     match = re.fullmatch(r"0*(\d+)_\d+", stem)
-    if match is None:
-        raise InputError(f"{path}: not a CMU file name of the form <subject>_<trial>.bvh.")
-    return match.group(1)
+    if match is not None:
+        return match.group(1)
+    match = re.fullmatch(r"acrnn_([a-z]+)_\d+", stem)
+    if match is not None and match.group(1) in ACRNN_SUBJECTS:
+        return ACRNN_SUBJECTS[match.group(1)]
+    raise InputError(f"{path}: not a CMU file name of the form <subject>_<trial>.bvh or acrnn_<dance>_<n>.bvh.")
 
 
 def sole_sites(
@@ -513,7 +580,8 @@ def floor_tilt(toe_bases: np.ndarray, fps: float) -> np.ndarray | None:
 
     def fit(keep: np.ndarray) -> np.ndarray:
         normal_matrix = design[keep].T @ design[keep] + keep.sum() * ridge
-        return np.linalg.solve(normal_matrix, design[keep].T @ points[keep, 2])
+        # lstsq: a foot whose every still point was dropped as an outlier leaves its intercept undetermined
+        return np.linalg.lstsq(normal_matrix, design[keep].T @ points[keep, 2], rcond=None)[0]
 
     keep = np.ones(len(points), dtype=bool)
     coefficients = fit(keep)
@@ -590,6 +658,11 @@ def load_mocap(path: str | os.PathLike) -> MocapClip:
         jump = np.linalg.norm(world[1, direct_columns] - world[0, direct_columns], axis=-1).max()
         notes.append(f"dropped frame 0: a pose prepended to the capture (a point moves {jump:.2f} m to frame 1)")
         first = 1
+    # A converter's T-pose that is not the exact rest pose (the Daz files' values are rounded) still jumps.
+    while first < 2 and len(world) - first > 2 and (np.linalg.norm(
+            world[first + 1, direct_columns] - world[first, direct_columns], axis=-1).max() * fps > IMPLAUSIBLE_SPEED):
+        notes.append(f"dropped frame {first}: an implausible jump to the next frame")
+        first += 1
     if len(world) - first < 2:
         raise InputError(f"{path}: the clip has fewer than 2 frames.")
     world = world[first:]

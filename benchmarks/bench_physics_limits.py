@@ -1,0 +1,448 @@
+"""Physics on real footage (issue 17), on the synthetic ground-truth set: PhysCap at any frame rate, its diagnosis
+of frames the contact model cannot explain, the online tracker's planted feet, and the offline methods side by
+side (kinematic, B.4-refined kinematics, PhysCap on the refined kinematics, trajectory optimisation).
+
+Cases as bench_synthetic.py: CMU clips of the contact networks' held-out subjects (6, 131), random cameras,
+MediaPipe-like noise, the true intrinsics and height, 8 s at 30 fps, seeds 0 and 1. Parts:
+
+  framerate  131_01 and 006_01 at 60 fps (offline fit refined by B.4), that kinematic motion resampled to 10, 24
+             and 30 fps (the same motion), PhysCap at each rate: finite values, largest force, and the physics
+             joints of each rate against the 60 fps run at common times.
+  diagnosis  the walking clips with a box: from 3.0 to 5.5 s the whole motion is raised 0.3 m (0.5 s ramps),
+             the floor staying at z = 0 (a raised floor, or hands carrying the body). Truly unexplainable frames:
+             lifted by 0.1 m or more (the feet above the contact height while bearing weight). Reports the share
+             of them flagged (PhysicsMotion.unexplained), and the frames flagged on the ordinary clips.
+  online     PhysCap on the online fit: slide of the contact points in use, per frame (median and 95th
+             percentile, cm), and jitter (mean joint acceleration, m/s^2) against its kinematic input.
+  methods    kinematic offline, B.4-refined, PhysCap on refined, trajopt: the synthetic table's metrics, the
+             frames flagged and the physics stage's time.
+  speed      frames per CPU second of the physics stage at 25, 30 and 60 fps, this tree against another
+             (--against SRC, default ../main/src), in alternating child processes.
+
+    .venv/bin/python benchmarks/bench_physics_limits.py [--parts framerate diagnosis online methods] [--quick]
+
+Writes benchmarks/results/physics_limits.json and .md. Fits are cached under the system's temporary folder
+(physmocap_bench_physics_limits) so that parts can be rerun alone.
+"""
+
+from __future__ import annotations
+
+import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
+
+import argparse
+import dataclasses
+import json
+import os
+import pickle
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_synthetic import CLIPS, FPS, SECONDS, WALKING, first_seconds, model_height  # noqa: E402
+from common import MOCAP, RESULTS  # noqa: E402
+from physmocap import metrics  # noqa: E402
+from physmocap.body import kinematics as kin  # noqa: E402
+from physmocap.body.model import CONTACT_POINTS  # noqa: E402
+from physmocap.config import Settings  # noqa: E402
+from physmocap.contacts.noise import MEDIAPIPE_NOISE  # noqa: E402
+from physmocap.contacts.predict import predict_contacts  # noqa: E402
+from physmocap.dynamics.stage import run_physcap  # noqa: E402
+from physmocap.evaluation import score_against_truth, to_truth_world  # noqa: E402
+from physmocap.kinematics.stage import fit_motion  # noqa: E402
+from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
+from physmocap.mocap.synthetic import NoiseModel, make_observations, random_camera, resample  # noqa: E402
+from physmocap.trajopt import refine_kinematics, run_trajopt  # noqa: E402
+
+CACHE = Path(tempfile.gettempdir()) / "physmocap_bench_physics_limits"
+GRAVITY = 9.81
+BOX = dict(start=3.0, end=5.5, ramp=0.5, height=0.3)  # s, s, s, m
+RATES = (10.0, 24.0, 30.0, 60.0)
+
+
+def box_lift(times: np.ndarray) -> np.ndarray:
+    """(T,) m: the box's lift of the whole motion at each time (smooth ramps up and down)."""
+    up = np.clip((times - BOX["start"]) / BOX["ramp"], 0.0, 1.0)
+    down = np.clip((BOX["end"] - times) / BOX["ramp"], 0.0, 1.0)
+    ramp = np.minimum(up, down)
+    return BOX["height"] * (3 * ramp ** 2 - 2 * ramp ** 3)
+
+
+def build_case(name: str, seed: int, fps: float = FPS, noise: NoiseModel = MEDIAPIPE_NOISE, box: bool = False,
+               online: bool = True) -> dict:
+    """Observations, truth, the kinematic fits and the contacts of one clip; cached on disk."""
+    key = f"{name.split('/')[-1][:-4]}_{seed}_{fps:g}{'_box' if box else ''}"
+    path = CACHE / f"{key}.pkl"
+    if path.exists():
+        return pickle.loads(path.read_bytes())
+    clip = first_seconds(resample(load_mocap(MOCAP / name), fps), SECONDS)
+    lift = box_lift(np.arange(clip.num_frames) / fps) if box else np.zeros(clip.num_frames)
+    positions = clip.positions.copy()
+    positions[:, :, 2] += lift[:, None]
+    clip = dataclasses.replace(clip, positions=positions)
+    rng = np.random.default_rng(seed)
+    K, R, t = random_camera(clip, rng)
+    obs, truth = make_observations(clip, K, R, t, rng, noise)
+    settings = Settings().replace("body", height=model_height(truth["landmarks_world"]))
+    calibrated = settings.replace("camera", floor=tuple(float(v) for v in truth["floor"]))
+    case = dict(name=key, obs=obs, truth=truth, lift=lift, settings=settings)
+    offline = fit_motion(obs, settings)
+    contacts, stationary, _ = predict_contacts(obs, "centred")
+    refined = refine_kinematics(obs, offline, contacts, settings.fit, settings.trajopt)
+    case.update(offline=offline, contacts=contacts, stationary=stationary, refined=refined)
+    if online:
+        causal, causal_stationary, _ = predict_contacts(obs, "causal")
+        case.update(online=fit_motion(obs, settings.replace(None, online=True)),
+                    online_calibrated=fit_motion(obs, calibrated.replace(None, online=True)),
+                    causal=causal, causal_stationary=causal_stationary)
+    CACHE.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(pickle.dumps(case))
+    return case
+
+
+def physcap_offline(case: dict):
+    """PhysCap on the B.4-refined kinematics, as offline capture runs it."""
+    refined, settings = case["refined"], case["settings"]
+    return refined.motion, run_physcap(refined.motion.body, refined.motion.qpos, case["obs"].fps, refined.contacts,
+                                       case["stationary"], settings.physics, refined_input=True)
+
+
+def physcap_online(case: dict, calibrated: bool = False, physics=None):
+    motion = case["online_calibrated" if calibrated else "online"]
+    physics = physics or case["settings"].physics
+    return motion, run_physcap(motion.body, motion.qpos, case["obs"].fps, case["causal"], case["causal_stationary"],
+                               physics, refine_floor=not calibrated)
+
+
+def points_in_truth(motion, qpos: np.ndarray, truth: dict) -> np.ndarray:
+    return to_truth_world(kin.forward_kinematics(motion.body, qpos).points, motion.camera.R, motion.camera.t, truth)
+
+
+def largest_force_bw(physics, mass: float) -> float:
+    return float(np.linalg.norm(physics.grf.sum(axis=1), axis=-1).max() / (mass * GRAVITY))
+
+
+# ---- parts ----------------------------------------------------------------------------------------------------
+def resample_motion(body, qpos: np.ndarray, fps: float, new_fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """The motion (T, nq) at another frame rate, interpolated on the manifold between the nearest frames; returns
+    it and, for each new frame, the index of the source frame at or before it."""
+    model = body.mujoco_model()
+    times = np.arange(int(np.floor((len(qpos) - 1) / fps * new_fps + 1e-9)) + 1) / new_fps
+    position = times * fps
+    lower = np.minimum(np.floor(position + 1e-9).astype(int), len(qpos) - 2)
+    out = np.empty((len(times), qpos.shape[1]))
+    step = np.zeros(model.nv)
+    for k, (i, w) in enumerate(zip(lower, position - lower)):
+        mujoco.mj_differentiatePos(model, step, 1.0, qpos[i], qpos[i + 1])
+        out[k] = qpos[i]
+        mujoco.mj_integratePos(model, out[k], step, float(w))
+    return out, lower
+
+
+def part_framerate(clips) -> dict:
+    """The 60 fps offline case's B.4-refined kinematic motion resampled to each rate (the same motion), PhysCap at
+    each rate; joints against the 60 fps run at common times. Runs on older code too (no `unexplained` there)."""
+    rows = []
+    for name in clips:
+        case = build_case(name, 0, 60.0, online=False)
+        motion, refined = case["refined"].motion, case["refined"]
+        body = motion.body
+        runs = {}
+        for fps in RATES:
+            qpos, source = resample_motion(body, motion.qpos, 60.0, fps)
+            physics = run_physcap(body, qpos, fps, refined.contacts[source], case["stationary"][source],
+                                  case["settings"].physics)
+            runs[fps] = dict(times=np.arange(len(qpos)) / fps, physics=physics,
+                             points=kin.forward_kinematics(body, physics.qpos).points)
+        reference = runs[60.0]
+        for fps in RATES:
+            run, physics = runs[fps], runs[fps]["physics"]
+            index = [i for i, time in enumerate(run["times"]) if time >= 0.5
+                     and np.isclose(reference["times"], time, atol=1e-6).any()]
+            match = [int(np.argmin(np.abs(reference["times"] - run["times"][i]))) for i in index]
+            distance = np.linalg.norm(run["points"][index] - reference["points"][match], axis=-1).mean(axis=1)
+            flagged = getattr(physics, "unexplained", None)
+            rows.append(dict(clip=name.split("/")[-1], fps=fps,
+                             finite=bool(np.isfinite(physics.qpos).all() and np.isfinite(physics.grf).all()),
+                             largest_force_bw=largest_force_bw(physics, body.mass),
+                             flagged_percent=float("nan") if flagged is None else 100 * float(flagged.mean()),
+                             physics_vs_60_mm=1000 * float(distance.mean()),
+                             physics_vs_60_p95_mm=1000 * float(np.percentile(distance, 95)),
+                             physics_vs_60_max_mm=1000 * float(distance.max()),
+                             common_times=len(index), ms_per_frame=1000 * physics.seconds / len(physics.qpos)))
+            print("framerate", rows[-1], flush=True)
+    return dict(rows=rows)
+
+
+def part_diagnosis(clips, seeds) -> dict:
+    rows = []
+    for name in clips:
+        for seed in seeds:
+            for box in (True, False):
+                case = build_case(name, seed, box=box)
+                truly = case["lift"] >= 0.1
+                for method, (motion, physics) in (("physcap on offline", physcap_offline(case)),
+                                                  ("physcap on online", physcap_online(case)),
+                                                  ("physcap on online, calibrated floor",
+                                                   physcap_online(case, calibrated=True))):
+                    flagged = physics.unexplained
+                    truth = case["truth"]
+                    final = points_in_truth(motion, physics.qpos, truth)
+                    true_points = truth["joints_world"]
+                    names = [str(n) for n in truth["joint_names"]]
+                    pelvis = names.index("pelvis")
+                    root_error = np.linalg.norm(final[:, motion.body.point_names.index("pelvis")]
+                                                - true_points[:, pelvis], axis=-1)
+                    rows.append(dict(clip=name.split("/")[-1], seed=seed, box=box, method=method,
+                                     frames=len(flagged), truly_unexplained=int(truly.sum()),
+                                     flagged=int(flagged.sum()),
+                                     recall_percent=100 * float(flagged[truly].mean()) if truly.any() else None,
+                                     false_flag_percent=100 * float(flagged[~truly].mean()),
+                                     largest_force_bw=largest_force_bw(physics, motion.body.mass),
+                                     root_error_in_box_mm=(1000 * float(root_error[truly].mean()) if truly.any()
+                                                           else None),
+                                     finite=bool(np.isfinite(physics.qpos).all())))
+                    print("diagnosis", rows[-1], flush=True)
+    return dict(rows=rows, box=BOX)
+
+
+def contact_slide_cm(body, qpos: np.ndarray, contacts: np.ndarray) -> np.ndarray:
+    """cm: the horizontal displacement of every contact point from frame t-1 to t where it is in contact in both."""
+    points = kin.forward_kinematics(body, qpos).points[:, body.point_index(CONTACT_POINTS)]
+    step = 100 * np.linalg.norm(np.diff(points[:, :, :2], axis=0), axis=-1)
+    held = contacts[1:] & contacts[:-1]
+    return step[held]
+
+
+def part_online(clips, seeds, physics_settings=None) -> dict:
+    rows = []
+    for name in clips:
+        for seed in seeds:
+            case = build_case(name, seed)
+            for calibrated in (False, True):
+                motion, physics = physcap_online(case, calibrated, physics_settings)
+                body, fps = motion.body, case["obs"].fps
+                slide = contact_slide_cm(body, physics.qpos, physics.contacts)
+                kinematic_slide = contact_slide_cm(body, motion.qpos, physics.contacts)
+                joints = kin.forward_kinematics(body, physics.qpos).points
+                joints_kin = kin.forward_kinematics(body, motion.qpos).points
+                rows.append(dict(clip=name.split("/")[-1], seed=seed, calibrated=calibrated, slides=slide.tolist(),
+                                 kinematic_slides=kinematic_slide.tolist(),
+                                 jitter=metrics.mean_acceleration(joints, fps),
+                                 kinematic_jitter=metrics.mean_acceleration(joints_kin, fps),
+                                 flagged_percent=100 * float(physics.unexplained.mean())))
+                print("online", {k: v for k, v in rows[-1].items() if "slides" not in k},
+                      "median slide %.2f cm" % np.median(slide), flush=True)
+    summary = {}
+    for calibrated in (False, True):
+        sel = [r for r in rows if r["calibrated"] == calibrated]
+        slides = np.concatenate([r["slides"] for r in sel])
+        kinematic = np.concatenate([r["kinematic_slides"] for r in sel])
+        summary["calibrated floor" if calibrated else "estimated floor"] = dict(
+            slide_median_cm=float(np.median(slides)), slide_p95_cm=float(np.percentile(slides, 95)),
+            kinematic_slide_median_cm=float(np.median(kinematic)),
+            kinematic_slide_p95_cm=float(np.percentile(kinematic, 95)),
+            jitter=float(np.mean([r["jitter"] for r in sel])),
+            kinematic_jitter=float(np.mean([r["kinematic_jitter"] for r in sel])),
+            flagged_percent=float(np.mean([r["flagged_percent"] for r in sel])))
+    return dict(rows=[{k: v for k, v in r.items() if "slides" not in k} for r in rows], summary=summary)
+
+
+METHODS = ("kinematic offline", "kinematic refined (B.4)", "physcap on refined", "trajopt")
+
+
+def part_methods(clips, seeds) -> dict:
+    rows = []
+    for name in clips:
+        for seed in seeds:
+            case = build_case(name, seed)
+            truth, fps = case["truth"], case["obs"].fps
+            for method in METHODS:
+                grf, residual, flagged, seconds = None, None, None, 0.0
+                if method == "kinematic offline":
+                    motion, qpos, seconds = case["offline"], case["offline"].qpos, case["offline"].seconds
+                elif method == "kinematic refined (B.4)":
+                    motion, qpos = case["refined"].motion, case["refined"].motion.qpos
+                    seconds = case["offline"].seconds + case["refined"].seconds
+                elif method == "physcap on refined":
+                    motion, physics = physcap_offline(case)
+                    qpos, grf, residual, flagged = physics.qpos, physics.grf, physics.residual, physics.unexplained
+                    seconds = case["offline"].seconds + case["refined"].seconds + physics.seconds
+                else:
+                    motion = case["refined"].motion
+                    start = time.perf_counter()
+                    result = run_trajopt(motion.body, motion.qpos, fps, case["refined"].contacts,
+                                         case["settings"].trajopt)
+                    qpos, grf, flagged = result.qpos, result.grf, result.qp_failures > 0
+                    grf = grf if result.converged.all() else None
+                    seconds = case["offline"].seconds + case["refined"].seconds + time.perf_counter() - start
+                pose = kin.forward_kinematics(motion.body, qpos)
+                points = to_truth_world(pose.points, motion.camera.R, motion.camera.t, truth)
+                com = to_truth_world(kin.center_of_mass(motion.body, pose), motion.camera.R, motion.camera.t, truth)
+                row = score_against_truth(points, motion.body.point_names, com, truth, motion.body.mass, grf,
+                                          residual)
+                row.update(method=method, clip=name.split("/")[-1], seed=seed,
+                           jitter=metrics.mean_acceleration(pose.points, fps),
+                           flagged_percent=0.0 if flagged is None else 100 * float(np.mean(flagged)),
+                           largest_force_bw=(float("nan") if grf is None else
+                                             float(np.linalg.norm(grf.sum(axis=1), axis=-1).max())
+                                             / (motion.body.mass * GRAVITY)),
+                           seconds_per_second=seconds / (len(qpos) / fps))
+                rows.append(row)
+                print("methods", method, row["clip"], seed, "root-rel %.1f skate %.1f float %.1f" % (
+                    row["mpjpe_root_mm"], row["skate_percent"], row["floating_percent"]), flush=True)
+    summary = {}
+    for method in METHODS:
+        sel = [r for r in rows if r["method"] == method]
+        keys = [k for k, v in sel[0].items() if isinstance(v, float)]
+        summary[method] = {k: float(np.nanmean([r[k] for r in sel])) for k in keys}
+        summary[method]["grf_mean_percent_bw_walking"] = float(np.nanmean(
+            [r["grf_mean_percent_bw"] for r in sel if r["clip"] in WALKING]))
+    return dict(rows=rows, summary=summary)
+
+
+SPEED_RATES = (25.0, 30.0, 60.0)
+
+
+def time_physics(repeats: int) -> dict:
+    """CPU seconds per frame of run_physcap (median of `repeats`) on the 60 fps 131_01 case's B.4-refined motion
+    resampled to each of SPEED_RATES; run in a child process whose PYTHONPATH picks the code under test."""
+    case = build_case(CLIPS[0], 0, 60.0, online=False)
+    motion, refined = case["refined"].motion, case["refined"]
+    out = {}
+    for fps in SPEED_RATES:
+        qpos, source = resample_motion(motion.body, motion.qpos, 60.0, fps)
+        runs = []
+        for _ in range(repeats):
+            start = time.process_time()
+            run_physcap(motion.body, qpos, fps, refined.contacts[source], case["stationary"][source],
+                        case["settings"].physics)
+            runs.append((time.process_time() - start) / len(qpos))
+        out[f"{fps:g}"] = float(np.median(runs))
+    return out
+
+
+def part_speed(against: str, rounds: int = 3, repeats: int = 3) -> dict:
+    """Frames per CPU second of this tree's PhysCap and of the tree whose src folder is `against` (e.g. main's),
+    alternating child processes, `rounds` each; the median per rate."""
+    import subprocess
+
+    build_case(CLIPS[0], 0, 60.0, online=False)  # cached before timing
+    mine = str(Path(__file__).resolve().parents[1] / "src")
+    seconds = {"this branch": [], "before": []}
+    for _ in range(rounds):
+        for label, src in (("this branch", mine), ("before", against)):
+            done = subprocess.run([sys.executable, __file__, "--time-only", str(repeats)], capture_output=True,
+                                  text=True, env={**os.environ, "PYTHONPATH": src}, check=True)
+            seconds[label].append(json.loads(done.stdout.strip().splitlines()[-1]))
+    return {label: {rate: 1.0 / float(np.median([run[rate] for run in runs])) for rate in runs[0]}
+            for label, runs in seconds.items()} | dict(against=against, load_average=os.getloadavg()[0])
+
+
+# ---- report ---------------------------------------------------------------------------------------------------
+def markdown(out: dict) -> str:
+    lines = []
+    if "framerate" in out:
+        lines += ["**Same motion at 10, 24, 30, 60 fps** (the 60 fps case's B.4-refined kinematics resampled; "
+                  "PhysCap; mean joint distance to the 60 fps run at common times from 0.5 s on)", "",
+                  "| clip | fps | finite | largest force BW | flagged % | physics vs 60 fps: mean mm | p95 mm | "
+                  "max mm | ms/frame |", "|---|---|---|---|---|---|---|---|---|"]
+        for r in out["framerate"]["rows"]:
+            lines.append(f"| {r['clip']} | {r['fps']:g} | {r['finite']} | {r['largest_force_bw']:.2f} | "
+                         f"{r['flagged_percent']:.1f} | {r['physics_vs_60_mm']:.1f} | "
+                         f"{r['physics_vs_60_p95_mm']:.1f} | {r['physics_vs_60_max_mm']:.1f} | {r['ms_per_frame']:.2f} |")
+        lines.append("")
+    if "diagnosis" in out:
+        rows = out["diagnosis"]["rows"]
+        lines += ["**Diagnosis: a box under the walk** (0.3 m from 3.0 to 5.5 s; truly unexplainable: lifted >= 0.1 m)",
+                  "", "| method | share of truly unexplainable frames flagged % | frames flagged elsewhere on "
+                  "the box clips % | frames flagged on the ordinary clips % | root error in the box mm | "
+                  "largest force BW |", "|---|---|---|---|---|---|"]
+        for method in dict.fromkeys(r["method"] for r in rows):
+            box = [r for r in rows if r["method"] == method and r["box"]]
+            plain = [r for r in rows if r["method"] == method and not r["box"]]
+            recall = 100 * sum(r["recall_percent"] * r["truly_unexplained"] / 100 for r in box) / sum(
+                r["truly_unexplained"] for r in box)
+            lines.append(f"| {method} | {recall:.1f} | {np.mean([r['false_flag_percent'] for r in box]):.1f} | "
+                         f"{np.mean([r['false_flag_percent'] for r in plain]):.2f} | "
+                         f"{np.mean([r['root_error_in_box_mm'] for r in box]):.0f} | "
+                         f"{max(r['largest_force_bw'] for r in rows if r['method'] == method):.2f} |")
+        lines.append("")
+    if "online" in out:
+        lines += ["**Online PhysCap: contact slide and jitter**", "",
+                  "| floor | slide median cm/frame | slide p95 cm/frame | input's slide at those contacts median "
+                  "(p95) | jitter m/s² | input's jitter m/s² | flagged % |", "|---|---|---|---|---|---|---|"]
+        for floor, s in out["online"]["summary"].items():
+            lines.append(f"| {floor} | {s['slide_median_cm']:.2f} | {s['slide_p95_cm']:.2f} | "
+                         f"{s['kinematic_slide_median_cm']:.2f} ({s['kinematic_slide_p95_cm']:.2f}) | "
+                         f"{s['jitter']:.2f} | {s['kinematic_jitter']:.2f} | {s['flagged_percent']:.2f} |")
+        lines.append("")
+    if "speed" in out:
+        sp = out["speed"]
+        lines += [f"**Speed** (frames per CPU second of the physics stage, median of 3 child processes x 3 runs, "
+                  f"alternating; load average {sp['load_average']:.1f})", "",
+                  "| code | " + " | ".join(f"{r} fps" for r in sp["this branch"]) + " |",
+                  "|---|" + "---|" * len(sp["this branch"])]
+        for label in ("this branch", "before"):
+            name = label if label == "this branch" else f"before ({sp['against']})"
+            lines.append(f"| {name} | " + " | ".join(f"{v:.0f}" for v in sp[label].values()) + " |")
+        lines.append("")
+    if "methods" in out:
+        lines += ["**Offline methods**", "", "| method | root-rel. mm | Procrustes mm | global root mm | "
+                  "skate % | float % | penetr. % | jitter m/s² | e_smooth mm | GRF mean % BW | GRF mean walks % BW "
+                  "| GRF max % BW | ballistic % BW | flagged % | s per s of video |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+        for method, s in out["methods"]["summary"].items():
+            lines.append(
+                f"| {method} | {s['mpjpe_root_mm']:.1f} | {s['mpjpe_procrustes_mm']:.1f} | {s['global_root_mm']:.1f} "
+                f"| {s['skate_percent']:.1f} | {s['floating_percent']:.1f} | {s['penetration_percent']:.2f} | "
+                f"{s['jitter']:.2f} | {s['e_smooth_mm']:.2f} | {s['grf_mean_percent_bw']:.1f} | "
+                f"{s['grf_mean_percent_bw_walking']:.1f} | {s['grf_max_percent_bw']:.0f} | "
+                f"{s['grf_ballistic_percent_bw']:.1f} | {s['flagged_percent']:.2f} | {s['seconds_per_second']:.2f} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--parts", nargs="+", default=["framerate", "diagnosis", "online", "methods"])
+    parser.add_argument("--quick", action="store_true", help="three clips (two for framerate), one seed")
+    parser.add_argument("--json", default=str(RESULTS / "physics_limits.json"))
+    parser.add_argument("--against", default=str(Path(__file__).resolve().parents[2] / "main" / "src"),
+                        help="src folder of the code to time against in part speed (default: ../main/src)")
+    parser.add_argument("--time-only", type=int, default=None, help=argparse.SUPPRESS)  # child of part speed
+    args = parser.parse_args(argv)
+    if args.time_only:
+        print(json.dumps(time_physics(args.time_only)))
+        return {}
+    clips = CLIPS[:3] if args.quick else CLIPS
+    seeds = (0,) if args.quick else (0, 1)
+    walking = [c for c in clips if c.split("/")[-1] in WALKING]
+    path = Path(args.json)
+    out = json.loads(path.read_text()) if path.exists() else {}
+    for part in args.parts:
+        start = time.perf_counter()
+        if part == "framerate":
+            out[part] = part_framerate(CLIPS[:2])
+        elif part == "diagnosis":
+            out[part] = part_diagnosis(walking, seeds)
+        elif part == "online":
+            out[part] = part_online(clips, seeds)
+        elif part == "methods":
+            out[part] = part_methods(clips, seeds)
+        elif part == "speed":
+            out[part] = part_speed(args.against)
+        out[part]["minutes"] = (time.perf_counter() - start) / 60
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(out, indent=1))
+    path.with_suffix(".md").write_text(markdown(out))
+    print(markdown(out))
+    return out
+
+
+if __name__ == "__main__":
+    main()

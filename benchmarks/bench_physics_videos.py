@@ -1,0 +1,141 @@
+"""Physics on the real videos (issue 17): `physmocap capture VIDEO --physics physcap --no-overlay` on every video in
+../shared/data/videos/ (one view of the multi-view set) and on a 10 fps re-encode of sports2d_demo.mp4 (every
+third frame, OpenCV), each run once as a user would. Per video: exit code, wall time, frames flagged as
+unexplained by the physics (result.npz physics_unexplained), the largest contact force and residual root force
+in body weights, whether every number in result.npz is finite, and the physics' jitter (mean joint acceleration)
+and foot slide during contact against its own kinematic input (result.npz joints_world_kinematic).
+
+    .venv/bin/python benchmarks/bench_physics_videos.py [--physics physcap] [--videos NAME ...]
+
+Writes benchmarks/results/physics_videos.json and .md; runs go to a temporary folder.
+"""
+
+from __future__ import annotations
+
+import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from common import REPO, RESULTS, VIDEOS  # noqa: E402
+from physmocap import metrics  # noqa: E402
+from physmocap.body.model import CONTACT_POINTS  # noqa: E402
+
+VIDEOS_RUN = ("hybrik_taiji.mp4", "intel_highcam_walk_stand.mp4", "mmhuman3d_single_person_demo.mp4",
+              "sam2_soccer_juggling.mp4", "sports2d_demo.mp4", "pose2sim_demo_singleperson/cam01.mp4")
+GRAVITY = 9.81
+
+
+def reencode(source: Path, target: Path, keep_every: int) -> float:
+    """Every `keep_every`-th frame of `source` written to `target` at fps / keep_every; returns the new fps."""
+    capture = cv2.VideoCapture(str(source))
+    fps = capture.get(cv2.CAP_PROP_FPS) / keep_every
+    size = (int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+    writer = cv2.VideoWriter(str(target), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
+    index = 0
+    while True:
+        ok, frame = capture.read()
+        if not ok:
+            break
+        if index % keep_every == 0:
+            writer.write(frame)
+        index += 1
+    capture.release()
+    writer.release()
+    return fps
+
+
+def slide_cm(points: np.ndarray, contacts: np.ndarray) -> np.ndarray:
+    """cm per frame: horizontal motion of each sole point between frames where it is in contact in both."""
+    step = 100 * np.linalg.norm(np.diff(points[:, :, :2], axis=0), axis=-1)
+    return step[contacts[1:] & contacts[:-1]]
+
+
+def score(result_path: Path) -> dict:
+    result = dict(np.load(result_path, allow_pickle=False))
+    names = [str(n) for n in result["joint_names"]]
+    feet = [names.index(n) for n in CONTACT_POINTS]
+    fps, weight = float(result["fps"]), float(result["body_mass"]) * GRAVITY
+    valid = result["valid"].astype(bool)
+    final, kinematic = result["joints_world"][valid], result["joints_world_kinematic"][valid]
+    contacts = result["contacts"][valid].astype(bool)
+    non_finite = sorted(k for k, v in result.items() if np.asarray(v).dtype.kind in "fc" and not np.isfinite(v).all())
+    flagged = result.get("physics_unexplained", np.zeros(len(valid), bool))
+    physics_slide, kinematic_slide = slide_cm(final[:, feet], contacts), slide_cm(kinematic[:, feet], contacts)
+    return dict(frames=int(len(valid)), fps=fps, valid_frames=int(valid.sum()), all_finite=not non_finite,
+                non_finite_keys=non_finite,
+                flagged_frames=int(np.sum(flagged)),
+                largest_contact_force_bw=float(np.linalg.norm(result["grf"].sum(axis=1), axis=-1).max() / weight),
+                largest_residual_force_bw=float(np.linalg.norm(result["residual_root_force"][:, :3], axis=-1).max()
+                                                / weight),
+                jitter=metrics.mean_acceleration(final, fps),
+                kinematic_jitter=metrics.mean_acceleration(kinematic, fps),
+                slide_median_cm=float(np.median(physics_slide)) if physics_slide.size else float("nan"),
+                kinematic_slide_median_cm=float(np.median(kinematic_slide)) if kinematic_slide.size else float("nan"),
+                physics_deviation_mm=1000 * float(result["physics_deviation"][valid].mean()))
+
+
+def run_video(video: Path, out: Path, physics: str) -> dict:
+    command = [sys.executable, "-m", "physmocap.cli", "capture", str(video), "-o", str(out), "--physics", physics,
+               "--no-overlay"]
+    start = time.perf_counter()
+    done = subprocess.run(command, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(REPO / "src")})
+    row = dict(video=video.name, exit_code=done.returncode, wall_s=time.perf_counter() - start,
+               last_line=(done.stdout.strip().splitlines() or [""])[-1][-200:],
+               traceback="Traceback" in done.stderr, stderr_tail=done.stderr.strip()[-300:])
+    if done.returncode == 0 and (out / "result.npz").exists():
+        row.update(score(out / "result.npz"))
+    return row
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--physics", default="physcap")
+    parser.add_argument("--videos", nargs="*", default=None, help="names under the videos folder (default: all)")
+    parser.add_argument("--json", default=str(RESULTS / "physics_videos.json"))
+    parser.add_argument("--runs", default=None, help="keep the run folders here (default: a temporary folder)")
+    args = parser.parse_args(argv)
+    rows = []
+    with tempfile.TemporaryDirectory() as folder:
+        work = Path(args.runs or folder)
+        videos = [VIDEOS / name for name in (args.videos or VIDEOS_RUN)]
+        if args.videos is None:
+            slow = work / "sports2d_demo_10fps.mp4"
+            reencode(VIDEOS / "sports2d_demo.mp4", slow, 3)
+            videos.append(slow)
+        for video in videos:
+            row = run_video(video, work / video.stem, args.physics)
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    out = dict(physics=args.physics, rows=rows, load_average=os.getloadavg()[0])
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    Path(args.json).write_text(json.dumps(out, indent=1))
+    lines = [f"| video | exit | wall s | frames (fps) | flagged | largest contact force BW | largest residual BW | "
+             f"all finite | jitter m/s² (kinematic input) | foot slide in contact cm/frame, median (input) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if "frames" in r:
+            lines.append(f"| {r['video']} | {r['exit_code']} | {r['wall_s']:.0f} | {r['frames']} ({r['fps']:.0f}) | "
+                         f"{r['flagged_frames']} | {r['largest_contact_force_bw']:.2f} | "
+                         f"{r['largest_residual_force_bw']:.2f} | {r['all_finite']} | {r['jitter']:.1f} "
+                         f"({r['kinematic_jitter']:.1f}) | {r['slide_median_cm']:.2f} "
+                         f"({r['kinematic_slide_median_cm']:.2f}) |")
+        else:
+            lines.append(f"| {r['video']} | {r['exit_code']} | {r['wall_s']:.0f} | {r['last_line']} | | | | | | |")
+    Path(args.json).with_suffix(".md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    return out
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,182 @@
+"""Retargeting onto characters (issue 19): every test rig on synthetic clips and real videos, with and without
+physics on the character.
+
+Sources (result.npz of `capture --physics none`, run here through the pipeline and cached in the work folder):
+synthetic clips (CMU motion capture seen by a random camera with detector-like noise, as bench_synthetic) and real
+videos. Rigs: a Mixamo-named rig (our own motion.bvh export, "mixamorig:" names, centimetres), the Daz skeleton of
+cmu_daz_cgspeed and the Character Creator skeleton of cmu_iclone_cc3_retarget (tests/data), a cartoon (short legs,
+large head, long arms) with de Leva's mass distribution and with 40 % of 36.5 kg in its head (Rempe E.6's Ty), and
+a skinned GLB mannequin. Figures per source x rig x physics: foot skate and penetration on the character (Rempe's
+metrics against the source's contacts), contact point-frames kept, mean bone-direction cosine to the source (rig
+joints), largest bone-length change, mean GRF in the character's body weights, centre-of-mass height over hip
+height, time per frame of the retargeting (IK) and of the physics.
+
+    .venv/bin/python benchmarks/bench_retarget.py [--quick] [--trajopt] [--work DIR]
+
+Writes benchmarks/results/retarget.json and retarget.md.
+"""
+
+from __future__ import annotations
+
+import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from common import MOCAP, RESULTS, VIDEOS, machine_description  # noqa: E402
+from physmocap.body.model import SkeletonLengths, build_body_model, template_lengths  # noqa: E402
+from physmocap.config import Settings  # noqa: E402
+from physmocap.io.bvh_export import write_bvh  # noqa: E402
+from physmocap.io.glb import write_glb  # noqa: E402
+from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
+from physmocap.mocap.synthetic import make_observations, random_camera, resample  # noqa: E402
+from physmocap.pipeline import run_capture  # noqa: E402
+from physmocap.result import load_result  # noqa: E402
+from physmocap.retarget import retarget_result  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+TEST_DATA = REPO / "tests" / "data"
+SYNTHETIC = ("cmu_raw_cgspeed/131_01.bvh", "cmu_iclone_cc3_retarget/006_01.bvh")
+REAL = ("hybrik_taiji.mp4", "sports2d_demo.mp4", "intel_highcam_walk_stand.mp4")
+FPS, SECONDS = 30.0, 8.0
+CARTOON = dict(hip_width=0.16, thigh=0.22, shank=0.20, ankle_height=0.05, heel_back=0.03, toe_front=0.12,
+               spine_low=0.06, spine_up=0.30, shoulder_width=0.30, upper_arm=0.33, forearm=0.31, hand_length=0.09,
+               hand_width=0.04, head_height=0.20, head_top=0.22, ear_width=0.16, nose_forward=0.14, nose_down=-0.02,
+               eye_forward=0.11, eye_up=0.06, eye_width=0.04)
+TRAJOPT_RIGS = ("mixamo", "cartoon 40% head")  # trajopt takes about 0.25 s per frame: two rigs, two sources
+TRAJOPT_SOURCES = ("synthetic 131_01", "real hybrik_taiji")
+HEAVY_HEAD = "[mass]\ntotal = 36.5\n[mass.fractions]\nhead = 0.40\n"
+
+
+def make_rigs(work: Path) -> dict[str, tuple[Path, Path | None]]:
+    """Rig name -> (character file, TOML map or None)."""
+    rigs = work / "rigs"
+    rigs.mkdir(parents=True, exist_ok=True)
+    human = build_body_model(template_lengths(1.60), 60.0)
+    write_bvh(rigs / "mixamo.bvh", human, human.rest_qpos[None], 30.0, units="cm")
+    text = (rigs / "mixamo.bvh").read_text()
+    (rigs / "mixamo.bvh").write_text(text.replace("ROOT ", "ROOT mixamorig:").replace("JOINT ", "JOINT mixamorig:"))
+    cartoon = build_body_model(SkeletonLengths(**CARTOON), 36.5)
+    write_bvh(rigs / "cartoon.bvh", cartoon, cartoon.rest_qpos[None], 30.0, units="cm")
+    (rigs / "heavy_head.toml").write_text(HEAVY_HEAD)
+    mannequin = build_body_model(template_lengths(1.58), 55.0)
+    write_glb(rigs / "mannequin.glb", mannequin, mannequin.rest_qpos[None], 30.0)
+    return {"mixamo": (rigs / "mixamo.bvh", None), "daz": (TEST_DATA / "rig_daz_cgspeed.bvh", None),
+            "cc3": (TEST_DATA / "rig_cc3_iclone.bvh", None), "cartoon de Leva": (rigs / "cartoon.bvh", None),
+            "cartoon 40% head": (rigs / "cartoon.bvh", rigs / "heavy_head.toml"),
+            "glb mannequin": (rigs / "mannequin.glb", None)}
+
+
+def synthetic_source(name: str, work: Path, seed: int = 0) -> Path:
+    """result.npz of the pipeline (offline fit, no physics) on synthetic observations of a mocap clip."""
+    out = work / "sources" / Path(name).stem
+    if (out / "result.npz").is_file():
+        return out / "result.npz"
+    clip = resample(load_mocap(MOCAP / name), FPS)
+    frames = int(SECONDS * FPS)
+    import dataclasses
+
+    clip = dataclasses.replace(clip, positions=clip.positions[:frames], head_rotation=clip.head_rotation[:frames],
+                               hand_rotations=clip.hand_rotations[:frames])
+    rng = np.random.default_rng(seed)
+    K, R, t = random_camera(clip, rng)
+    obs, _ = make_observations(clip, K, R, t, rng)
+    out.mkdir(parents=True, exist_ok=True)
+    obs.save(out / "observations.npz")
+    run_capture(out, Settings().replace("physics", method="none"), observations=out / "observations.npz",
+                overlay=False)
+    return out / "result.npz"
+
+
+def real_source(video: str, work: Path) -> Path:
+    """result.npz of `capture VIDEO --physics none --no-overlay`."""
+    out = work / "sources" / Path(video).stem
+    if not (out / "result.npz").is_file():
+        run_capture(out, Settings().replace("physics", method="none"), video=VIDEOS / video, overlay=False)
+    return out / "result.npz"
+
+
+def run(work: Path, quick: bool, trajopt: bool) -> dict:
+    rigs = make_rigs(work)
+    sources = {f"synthetic {Path(n).stem}": synthetic_source(n, work) for n in SYNTHETIC[: 1 if quick else None]}
+    sources.update({f"real {Path(v).stem}": real_source(v, work) for v in REAL[: 1 if quick else None]})
+    methods = ["none", "physcap"] + (["trajopt"] if trajopt else [])
+    rows = []
+    for source_name, source in sources.items():
+        for rig_name, (rig, toml) in rigs.items():
+            for method in methods:
+                if method == "trajopt" and (rig_name not in TRAJOPT_RIGS or source_name not in TRAJOPT_SOURCES):
+                    continue
+                out = work / "out" / source_name.replace(" ", "_") / rig_name.replace(" ", "_") / method
+                started = time.perf_counter()
+                report = retarget_result(source, rig, out, character_map=toml, physics=method)
+                wall = time.perf_counter() - started
+                result = load_result(report.files["result"])
+                hips = result["joints_world"][:, [10, 15], 2].mean()
+                row = dict(source=source_name, rig=rig_name, **report.metrics,
+                           com_over_hip_height=float(result["center_of_mass"][:, 2].mean() / hips),
+                           mass_kg=report.character["mass_kg"], height_m=report.character["height_m"],
+                           wall_seconds=wall)
+                rows.append(row)
+                print(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}),
+                      flush=True)
+    com = []
+    for source_name in sources:
+        paths = {}
+        for rig_name in ("mixamo", "cartoon de Leva", "cartoon 40% head"):
+            out = work / "out" / source_name.replace(" ", "_") / rig_name.replace(" ", "_") / "physcap"
+            result = load_result(out / "result.npz")
+            paths[rig_name] = result["center_of_mass"] / float(result["retarget_scale"])  # at the source's size
+        com.append(dict(source=source_name, **{
+            f"{a} vs {b} mean COM distance at source size (cm)": float(100 * np.linalg.norm(
+                paths[a] - paths[b], axis=1).mean())
+            for a, b in (("cartoon 40% head", "mixamo"), ("cartoon de Leva", "mixamo"),
+                         ("cartoon 40% head", "cartoon de Leva"))}))
+    return dict(machine=machine_description(), rows=rows, com_paths=com)
+
+
+def markdown(data: dict) -> str:
+    lines = ["# Retargeting (issue 19)", "", f"Machine: {data['machine']}", "",
+             "| source | rig | physics | skate % | penetration % | contacts kept % | bone cos | bone length err (m) "
+             "| GRF % BW | COM / hip height | IK ms/frame | physics ms/frame |", "|" + "---|" * 12]
+    for r in data["rows"]:
+        grf = "-" if r["grf_mean_percent_bw"] is None else f"{r['grf_mean_percent_bw']:.1f}"
+        kept = "-" if r["contact_frames_kept"] is None else f"{100 * r['contact_frames_kept']:.1f}"
+        lines.append(f"| {r['source']} | {r['rig']} | {r['physics']} | {r['skate_percent']:.2f} | "
+                     f"{r['penetration_percent']:.2f} | {kept} | {r['bone_cosine_rig']:.4f} | "
+                     f"{r['bone_length_error_m']:.1e} | {grf} | {r['com_over_hip_height']:.3f} | "
+                     f"{r['retarget_ms_per_frame']:.1f} | {r['physics_ms_per_frame']:.1f} |")
+    lines += ["", "Centre-of-mass paths (PhysCap), both scaled back to the source's size:", ""]
+    for c in data["com_paths"]:
+        lines.append(f"- {c['source']}: " + "; ".join(f"{k} {v:.1f}" for k, v in c.items() if k != "source"))
+    physcap = [r for r in data["rows"] if r["physics"] == "physcap"]
+    lines += ["", f"Median IK {statistics.median(r['retarget_ms_per_frame'] for r in physcap):.1f} ms/frame, "
+                  f"PhysCap {statistics.median(r['physics_ms_per_frame'] for r in physcap):.1f} ms/frame."]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true", help="one synthetic clip and one video")
+    parser.add_argument("--trajopt", action="store_true",
+                        help="also trajectory optimisation (two rigs on two sources; several minutes)")
+    parser.add_argument("--work", type=Path, default=Path("/tmp/physmocap_bench_retarget"),
+                        help="folder for the sources' runs and the outputs (reused when present)")
+    args = parser.parse_args(argv)
+    data = run(args.work, args.quick, args.trajopt)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "retarget.json").write_text(json.dumps(data, indent=1))
+    (RESULTS / "retarget.md").write_text(markdown(data))
+    print(markdown(data))
+    return data
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,165 @@
+"""Retargeting a motion of the project's skeleton onto a character's body model (Rempe et al. 2020, appendix D):
+uniform scale by the leg length, then inverse kinematics on positions with the character's fixed bone lengths
+and joint limits, the feet's contact points on the character's own soles and planted where the source's are.
+
+Both skeletons have the same joints and the same rest directions, so the source's joint rotations with its root
+scaled give the character the source's bone directions exactly (`scaled_qpos`); only the feet then miss the
+floor or slide where proportions differ (another ankle height, foot length, thigh-to-shank ratio). The IK
+(`solve_feet`) keeps every joint near that pose and puts each contact point, while the source has it in contact,
+on one fixed spot of the floor for the whole contact (its median over the contact), and every contact point on or
+above the floor; hinges stay within their limits. Frames are independent, so all are solved at once
+(Levenberg-Marquardt, one small system per frame).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..body import kinematics as kin
+from ..body.model import CONTACT_POINTS, JOINT_NAMES, BodyModel
+
+POSE_WEIGHT = 1.0  # each joint's pull towards the scaled source pose (residual in metres)
+CONTACT_WEIGHT = 30.0  # a contact point's pull to its planted spot; much stronger than the pose, so feet stay put
+FLOOR_WEIGHT = 30.0  # a contact point below the floor, pushed up
+IK_ITERATIONS = 12
+STEP_TOLERANCE = 1e-6  # stop once no frame's Gauss-Newton step exceeds this (metres or radians)
+IK_DAMPING = 1e-4  # Levenberg-Marquardt damping relative to the normal matrix's mean diagonal
+BLEND_FRAMES = 3  # a contact point eases between its planted spot and its free target over this many frames
+
+
+@dataclass
+class Retargeted:
+    """qpos: (T, nq) the character's motion after IK; scaled: (T, nq) before it; scale: the uniform scale;
+    planted: (T, 4, 3) the contact points' planted spots (nan where not in contact)."""
+
+    qpos: np.ndarray
+    scaled: np.ndarray
+    scale: float
+    planted: np.ndarray
+
+
+def leg_length(lengths) -> float:
+    return lengths.thigh + lengths.shank
+
+
+def scaled_qpos(source_qpos: np.ndarray, scale: float, lift: float = 0.0) -> np.ndarray:
+    """(T, nq) the source's joint rotations with its root position times `scale` (about the origin on the floor),
+    raised by `lift` metres (the character's ankle height above its soles less the scaled source's)."""
+    qpos = np.array(source_qpos, dtype=float)
+    qpos[:, 0:3] *= scale
+    qpos[:, 2] += lift
+    return qpos
+
+
+def contact_runs(flags: np.ndarray) -> list[tuple[int, int]]:
+    """[(start, end)) of each run of True in a (T,) bool array."""
+    padded = np.concatenate([[False], flags.astype(bool), [False]])
+    edges = np.flatnonzero(np.diff(padded.astype(int)))
+    return list(zip(edges[0::2], edges[1::2]))
+
+
+def planted_spots(points: np.ndarray, contacts: np.ndarray) -> np.ndarray:
+    """(T, 4, 3) the floor spot of each contact point during each of its contacts (median over the contact of its
+    position, on z = 0); nan outside contacts. points: (T, 4, 3); contacts: (T, 4) bool."""
+    out = np.full(points.shape, np.nan)
+    for k in range(points.shape[1]):
+        for start, end in contact_runs(contacts[:, k]):
+            spot = np.median(points[start:end, k], axis=0)
+            spot[2] = 0.0
+            out[start:end, k] = spot
+    return out
+
+
+def _blend_weights(contacts: np.ndarray) -> np.ndarray:
+    """(T, 4) 0..1: 1 inside a contact, rising/falling linearly over BLEND_FRAMES frames outside it, so that a foot
+    eases onto and off its planted spot instead of jumping."""
+    T = len(contacts)
+    weights = contacts.astype(float)
+    for k in range(contacts.shape[1]):
+        for start, end in contact_runs(contacts[:, k]):
+            for d in range(1, BLEND_FRAMES + 1):
+                w = 1.0 - d / (BLEND_FRAMES + 1)
+                if start - d >= 0:
+                    weights[start - d, k] = max(weights[start - d, k], w)
+                if end - 1 + d < T:
+                    weights[end - 1 + d, k] = max(weights[end - 1 + d, k], w)
+    return weights
+
+
+def _extend_spots(spots: np.ndarray, contacts: np.ndarray) -> np.ndarray:
+    """The planted spots carried into the blend frames beside each contact."""
+    out = spots.copy()
+    T = len(contacts)
+    for k in range(contacts.shape[1]):
+        for start, end in contact_runs(contacts[:, k]):
+            for d in range(1, BLEND_FRAMES + 1):
+                if start - d >= 0 and not contacts[start - d, k]:
+                    out[start - d, k] = np.where(np.isnan(out[start - d, k]), spots[start, k], out[start - d, k])
+                if end - 1 + d < T and not contacts[end - 1 + d, k]:
+                    out[end - 1 + d, k] = np.where(np.isnan(out[end - 1 + d, k]), spots[end - 1, k],
+                                                   out[end - 1 + d, k])
+    return out
+
+
+def solve_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray,
+               iterations: int = IK_ITERATIONS) -> tuple[np.ndarray, np.ndarray]:
+    """IK of every frame: joints (JOINT_NAMES) towards their positions in `qpos` (T, nq) (a frame whose lowest
+    contact point is below the floor lifted out of it first), contact points (CONTACT_POINTS) in contact (T, 4)
+    onto their planted spots, every contact point on or above z = 0, hinges within their limits. Returns the
+    solved qpos (T, nq) and the planted spots (T, 4, 3)."""
+    joints = body.point_index(JOINT_NAMES)
+    feet = body.point_index(CONTACT_POINTS)
+    contact_columns = np.array([list(JOINT_NAMES).index(n) for n in CONTACT_POINTS])
+    qpos = np.array(qpos, dtype=float)
+    # A frame sunk into the floor is first lifted whole out of it, so that the joints' targets stand on the floor.
+    qpos[:, 2] += np.maximum(0.0, -kin.forward_kinematics(body, qpos).points[:, feet, 2].min(axis=1))
+    targets = kin.forward_kinematics(body, qpos).points[:, joints]
+    spots = planted_spots(targets[:, contact_columns], contacts)
+    blend = _blend_weights(contacts)
+    eased = _extend_spots(spots, contacts)
+    goal = targets.copy()
+    goal_feet = np.where(np.isnan(eased), targets[:, contact_columns],
+                         blend[..., None] * np.nan_to_num(eased) + (1 - blend[..., None]) * targets[:, contact_columns])
+    goal[:, contact_columns] = goal_feet
+    weights = np.full(goal.shape[:2], POSE_WEIGHT)
+    weights[:, contact_columns] = POSE_WEIGHT + (CONTACT_WEIGHT - POSE_WEIGHT) * blend
+    tab = kin.tables(body)
+    hinge_q = tab.qadr[tab.hinge_bodies]
+    limits = np.array([body.bodies[b].limit for b in tab.hinge_bodies])
+    q = qpos.copy()
+    q[:, hinge_q] = np.clip(q[:, hinge_q], limits[:, 0], limits[:, 1])
+    point_ids = np.concatenate([joints, feet])
+    below = np.zeros((len(q), len(feet)), bool)
+    for _ in range(iterations):
+        pose = kin.forward_kinematics(body, q)
+        J_all = kin.point_jacobian(body, pose, point_ids)  # (T, n, 3, nv)
+        p_joints = pose.points[:, joints]
+        r_pose = weights[..., None] * (p_joints - goal)  # (T, 20, 3)
+        J_pose = weights[..., None, None] * J_all[:, :len(joints)]
+        heights = pose.points[:, feet, 2]
+        below |= heights < 0.0  # once found below the floor a point stays held on it: no flip-flopping active set
+        r_floor = FLOOR_WEIGHT * np.where(below, heights, 0.0)  # (T, 4)
+        J_floor = FLOOR_WEIGHT * below[..., None] * J_all[:, len(joints):, 2]  # (T, 4, nv)
+        T, nv = len(q), body.nv
+        r = np.concatenate([r_pose.reshape(T, -1), r_floor], axis=1)
+        J = np.concatenate([J_pose.reshape(T, -1, nv), J_floor], axis=1)
+        H = J.transpose(0, 2, 1) @ J
+        g = (J.transpose(0, 2, 1) @ r[..., None])[..., 0]
+        damping = IK_DAMPING * np.trace(H, axis1=1, axis2=2)[:, None, None] / nv + 1e-9
+        step = -np.linalg.solve(H + damping * np.eye(nv), g[..., None])[..., 0]
+        q = kin.integrate(body, q, step)
+        q[:, hinge_q] = np.clip(q[:, hinge_q], limits[:, 0], limits[:, 1])
+        if np.abs(step).max() < STEP_TOLERANCE:
+            break
+    return q, spots
+
+
+def retarget_qpos(body: BodyModel, source_qpos: np.ndarray, source_lengths, contacts: np.ndarray) -> Retargeted:
+    """The source motion (T, nq) of a skeleton with `source_lengths` (SkeletonLengths) on `body`: uniform scale
+    by the leg lengths, the soles brought to the character's, then `solve_feet`."""
+    scale = leg_length(body.lengths) / leg_length(source_lengths)
+    scaled = scaled_qpos(source_qpos, scale, body.lengths.ankle_height - scale * source_lengths.ankle_height)
+    qpos, spots = solve_feet(body, scaled, np.asarray(contacts, bool))
+    return Retargeted(qpos, scaled, scale, spots)

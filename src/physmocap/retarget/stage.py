@@ -1,0 +1,232 @@
+"""The retarget stage: a run's result.npz and a character file in, the motion on the character out.
+
+    DIR/
+      character.bvh   the character's own hierarchy, names, offsets and channel orders, animated
+      character.glb   (glTF characters) the same mesh, skin and nodes with the animation "physmocap" added
+      result.npz      the result contract on the character: its joints, generalised coordinates, forces, mass
+      retarget.json   the character's measurements, the mapping, and the figures of `retarget_metrics`
+
+Steps: read and map the rig, build the character's body model (character.py), retarget (solve.py), run the
+physics on the character's body model (PhysCap, or trajectory optimisation), move the rig with it (writers.py).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..body import kinematics as kin
+from ..body.model import CONTACT_POINTS
+from ..config import Settings
+from ..errors import InputError
+from ..export import body_from_result
+from ..io.atomic import write_text
+from ..metrics import FLOATING_THRESHOLD, SKATE_REFERENCE_FPS, SKATE_THRESHOLD, foot_contact_errors, grf_statistics
+from ..result import RESULT_POINTS, load_result, save_result
+from .character import Character, build_character
+from .mapping import load_character_config
+from .rig import read_rig
+from .solve import retarget_qpos, solve_feet
+from .writers import rig_motion, rig_positions, write_rig_bvh, write_rig_glb
+
+PHYSICS_METHODS = ("physcap", "trajopt", "none")
+# Bones compared between the source and the character (body-model points), and the same on the rig (roles).
+BODY_BONES = (("pelvis", "spine"), ("spine", "neck"), ("neck", "head"), ("left_hip", "right_hip"),
+              ("left_shoulder", "right_shoulder"),
+              *((f"{s}_{a}", f"{s}_{b}") for s in ("left", "right")
+                for a, b in (("shoulder", "elbow"), ("elbow", "wrist"), ("hip", "knee"), ("knee", "ankle"),
+                             ("ankle", "toe"))))
+RIG_BONES = (("left_hip", "right_hip"), ("left_shoulder", "right_shoulder"), ("hips_mid", "shoulders_mid"),
+             *((f"{s}_{a}", f"{s}_{b}") for s in ("left", "right")
+               for a, b in (("shoulder", "elbow"), ("elbow", "wrist"), ("hip", "knee"), ("knee", "ankle"))))
+
+
+@dataclass
+class RetargetReport:
+    """files: name -> path; metrics: see `retarget_metrics`; character: its measurements; notes."""
+
+    files: dict[str, str]
+    metrics: dict
+    character: dict
+    notes: list[str] = field(default_factory=list)
+
+    def to_json(self) -> str:
+        return json.dumps(dict(files=self.files, metrics=self.metrics, character=self.character, notes=self.notes),
+                          indent=2)
+
+
+def _directions(points: np.ndarray, names: list[str], bones) -> np.ndarray:
+    """(T, n, 3) unit directions of the bones (pairs of names) of points (T, P, 3)."""
+    a = points[:, [names.index(x) for x, _ in bones]]
+    b = points[:, [names.index(y) for _, y in bones]]
+    d = b - a
+    return d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-12)
+
+
+def _rig_role_points(character: Character, positions: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    roles = [r for r in character.bones if r != "head"]
+    pts = [positions[:, character.bones[r]] for r in roles]
+    b = character.bones
+    roles += ["hips_mid", "shoulders_mid"]
+    pts += [(positions[:, b["left_hip"]] + positions[:, b["right_hip"]]) / 2,
+            (positions[:, b["left_shoulder"]] + positions[:, b["right_shoulder"]]) / 2]
+    return np.stack(pts, axis=1), roles
+
+
+def retarget_metrics(character: Character, source_points: np.ndarray, qpos: np.ndarray, positions: np.ndarray,
+                     contacts: np.ndarray, fps: float, grf: np.ndarray | None) -> dict:
+    """Figures of a retargeted motion (issue 19), all finite or None:
+
+    skate_percent, penetration_percent, floating_percent: Rempe's foot metrics (metrics.foot_contact_errors) of
+        the character's heel and toe points against the source's contacts; contact_frames_kept: share of the
+        source's contact point-frames in which the character's point is within FLOATING_THRESHOLD of the floor
+        and not sliding more than the skate threshold; bone_cosine_body / bone_cosine_rig: mean cosine between
+        the source's bone directions and the body model's / the rig's (limbs, hip and shoulder lines, trunk);
+        bone_length_error_m: the largest change of any rig bone's length over the motion; grf_mean_percent_bw:
+        mean net ground reaction force in the character's body weights (None without physics); com: mean centre
+        of mass height as a share of the standing height."""
+    body = character.body
+    pose = kin.forward_kinematics(body, qpos)
+    feet = pose.points[:, body.point_index(CONTACT_POINTS)]
+    contacts = np.asarray(contacts, bool)
+    foot = foot_contact_errors(feet, contacts, fps)
+    heights = feet[..., 2]
+    steps = np.zeros(contacts.shape)
+    steps[1:] = np.linalg.norm(np.diff(feet[..., :2], axis=0), axis=-1)
+    sliding = np.zeros_like(contacts)
+    sliding[1:] = contacts[1:] & contacts[:-1] & (steps[1:] > SKATE_THRESHOLD * SKATE_REFERENCE_FPS / fps)
+    kept = contacts & (np.abs(heights) <= FLOATING_THRESHOLD) & ~sliding
+    names = list(RESULT_POINTS)
+    body_points = pose.points[:, body.point_index(RESULT_POINTS)]
+    cos_body = np.sum(_directions(body_points, names, BODY_BONES) * _directions(source_points, names, BODY_BONES), -1)
+    rig_points, roles = _rig_role_points(character, positions)
+    source_roles = np.stack([source_points[:, names.index(r)] if r in names else
+                             (source_points[:, names.index("left_hip")] + source_points[:, names.index("right_hip")]) / 2
+                             if r == "hips_mid" else
+                             (source_points[:, names.index("left_shoulder")]
+                              + source_points[:, names.index("right_shoulder")]) / 2 for r in roles], axis=1)
+    cos_rig = np.sum(_directions(rig_points, roles, RIG_BONES) * _directions(source_roles, roles, RIG_BONES), -1)
+    parents = character.rig.parents
+    children = np.flatnonzero(parents >= 0)
+    rest_lengths = np.linalg.norm(character.rest[children] - character.rest[parents[children]], axis=-1)
+    lengths = np.linalg.norm(positions[:, children] - positions[:, parents[children]], axis=-1)
+    com = kin.center_of_mass(body, pose)
+    return dict(
+        frames=int(len(qpos)),  # those measured
+        skate_percent=foot["skate_percent"], penetration_percent=foot["penetration_percent"],
+        floating_percent=foot["floating_percent"],
+        contact_frames_kept=float(kept.sum() / contacts.sum()) if contacts.any() else None,
+        bone_cosine_body=float(cos_body.mean()), bone_cosine_rig=float(cos_rig.mean()),
+        bone_length_error_m=float(np.abs(lengths - rest_lengths).max()) if len(children) else 0.0,
+        grf_mean_percent_bw=None if grf is None else grf_statistics(grf, body.mass)["mean_percent_bw"],
+        com_height_share=float(com[:, 2].mean() / body.height),
+    )
+
+
+def retarget_result(result_path: str | os.PathLike, character_path: str | os.PathLike, out_dir: str | os.PathLike,
+                    *, character_map: str | os.PathLike | None = None, physics: str = "physcap",
+                    settings: Settings | None = None) -> RetargetReport:
+    """Retarget the motion of a result.npz onto a character (BVH or glTF) and write DIR (see the module)."""
+    if physics not in PHYSICS_METHODS:
+        raise InputError(f"physics must be one of {', '.join(PHYSICS_METHODS)}, got {physics!r}.")
+    settings = settings or Settings()
+    source = load_result(result_path)
+    out_dir = Path(out_dir)
+    config = load_character_config(character_map)
+    rig = read_rig(character_path, config.units_to_metres)
+    source_body = body_from_result(source)
+    character = build_character(rig, config, float(source["body_mass"]), float(source["body_height"]))
+    body = character.body
+    fps = float(source["fps"])
+    contacts = np.asarray(source["contacts"], bool)
+    stationary = np.asarray(source["stationary"], bool)
+    valid = np.asarray(source["valid"], bool)
+    T = len(source["qpos"])
+
+    started = time.perf_counter()
+    retargeted = retarget_qpos(body, source["qpos"], source_body.lengths, contacts)
+    retarget_seconds = time.perf_counter() - started
+    notes = list(character.notes)
+    started = time.perf_counter()
+    grf, residual, fallback, corrected = None, np.zeros((T, 6)), np.zeros(T, bool), np.zeros(T, bool)
+    qpos, used_contacts, simulated = retargeted.qpos, contacts, None
+    # Physics runs over the frames from the first to the last with a person; the capture's extrapolation before and
+    # after them (no observations) keeps the kinematic motion, without forces, as the pipeline's physics does.
+    span = slice(*((int(np.argmax(valid)), T - int(np.argmax(valid[::-1]))) if valid.any() else (0, 0)))
+    if physics != "none" and span.stop - span.start >= 3:
+        if physics == "physcap":
+            from ..dynamics.stage import run_physcap
+
+            motion = run_physcap(body, retargeted.qpos[span], fps, contacts[span], stationary[span],
+                                 settings.physics, valid=valid[span])
+        else:
+            from ..trajopt.stage import run_trajopt
+
+            motion = run_trajopt(body, retargeted.qpos[span], fps, contacts[span], settings.trajopt, None,
+                                 valid[span])
+        grf, used_contacts, simulated = np.zeros((T, 4, 3)), contacts.copy(), retargeted.qpos.copy()
+        grf[span], residual[span], used_contacts[span] = motion.grf, motion.residual, motion.contacts
+        fallback[span], corrected[span], simulated[span] = motion.qp_failures > 0, motion.corrected, motion.qpos
+        if fallback.any():
+            notes.append(f"physics fell back on {int(fallback.sum())} frames (kinematic motion kept there)")
+        # The tracker's feet can drift a few centimetres off their spots (balance correction, soft contacts); the
+        # same IK plants them again on the simulated motion (docs/decisions/retarget-feet-after-physics.md).
+        qpos, _ = solve_feet(body, simulated, contacts)
+    physics_seconds = time.perf_counter() - started
+
+    rig_moves = rig_motion(character, qpos)
+    positions = rig_positions(character, rig_moves)
+    files = {"bvh": str(out_dir / "character.bvh"), "result": str(out_dir / "result.npz"),
+             "report": str(out_dir / "retarget.json")}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_rig_bvh(files["bvh"], character, rig_moves, fps)
+    if rig.kind == "gltf":
+        files["glb"] = str(out_dir / "character.glb")
+        write_rig_glb(files["glb"], character, rig_moves, fps)
+
+    points = body.point_index(RESULT_POINTS)
+    final = kin.forward_kinematics(body, qpos).points[:, points]
+    kinematic = kin.forward_kinematics(body, retargeted.qpos).points[:, points]
+    frames = valid if valid.any() else np.ones(T, bool)  # figures over the frames with a person
+    metrics = retarget_metrics(character, source["joints_world"][frames], qpos[frames], positions[frames],
+                               contacts[frames], fps, None if grf is None else grf[frames])
+    metrics.update(retarget_ms_per_frame=1000 * retarget_seconds / T, physics_ms_per_frame=1000 * physics_seconds / T,
+                   physics=physics, scale=retargeted.scale)
+    if simulated is not None:  # the same figures before the feet were planted again
+        before = retarget_metrics(character, source["joints_world"][frames], simulated[frames],
+                                  rig_positions(character, rig_motion(character, simulated[frames])),
+                                  contacts[frames], fps, grf[frames])
+        metrics["simulated"] = {k: before[k] for k in ("skate_percent", "penetration_percent", "floating_percent",
+                                                       "contact_frames_kept", "bone_cosine_rig")}
+        shift = np.linalg.norm(final - kin.forward_kinematics(body, simulated).points[:, points], axis=-1)[frames]
+        metrics["moved_after_physics_m"] = dict(mean=float(shift.mean()),
+                                                frame_max_p99=float(np.percentile(shift.max(axis=1), 99)))
+    result = dict(source)
+    masses = {b.name: round(b.mass, 4) for b in body.bodies}
+    result.update(
+        joints_world=final, joints_world_kinematic=kinematic, qpos=qpos, qpos_kinematic=retargeted.qpos,
+        contacts=np.asarray(used_contacts, bool), grf=np.zeros((T, 4, 3)) if grf is None else grf,
+        residual_root_force=residual, physics=np.str_(physics), physics_fallback=fallback,
+        balance_corrected=corrected, physics_deviation=np.linalg.norm(final - kinematic, axis=-1).mean(axis=1),
+        body_mass=np.float64(body.mass), body_height=np.float64(body.height),
+        body_lengths=np.str_(json.dumps(body.lengths.__dict__)), body_segment_masses=np.str_(json.dumps(masses)),
+        character_file=np.str_(str(character_path)), rig_joint_names=np.array(rig.names),
+        rig_joints_world=positions, center_of_mass=kin.center_of_mass(body, kin.forward_kinematics(body, qpos)),
+        retarget_scale=np.float64(retargeted.scale))
+    for key in ("joints_world", "qpos", "grf", "rig_joints_world"):
+        if not np.all(np.isfinite(result[key])):
+            raise ValueError(f"retargeting produced non-finite {key}")  # a bug, not a user error
+    save_result(files["result"], result)
+    described = dict(file=str(character_path), kind=rig.kind, joints=len(rig.names),
+                     bones={role: rig.names[j] for role, j in character.bones.items()},
+                     units_to_metres=character.units_to_metres, height_m=round(body.height, 4),
+                     mass_kg=round(body.mass, 3), segment_masses_kg=masses,
+                     lengths_m={k: round(v, 4) for k, v in body.lengths.__dict__.items()})
+    report = RetargetReport(files, metrics, described, notes)
+    write_text(files["report"], report.to_json())
+    return report

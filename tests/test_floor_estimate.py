@@ -1,0 +1,95 @@
+"""The floor from the feet and the person's posture (kinematics.stage.estimate_floor): it agrees with the true floor,
+reports its confidence, and when the feet's plane leans far from the posture it is not trusted, says so and
+stays level with the posture instead of leaning the whole motion."""
+
+import logging
+
+import numpy as np
+import pytest
+
+from physmocap.body import kinematics as kin
+from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
+from physmocap.camera import Camera, angle_degrees, robust_offset
+from physmocap.kinematics import stage
+
+
+def standing_and_travelling(body, frames, fps=30.0):
+    """Standing straight with flat feet while gliding along a curve and turning, arms swinging: the soles stay
+    on one plane, spread over a few metres."""
+    t = np.arange(frames) / fps
+    q = np.repeat(body.rest_qpos[None], frames, axis=0)
+    step = np.zeros((frames, body.nv))
+    step[:, 5] = 0.4 * t  # turn about z
+    for side, sign in (("left", 1.0), ("right", -1.0)):
+        step[:, body.dof_address[body.joint_index[f"{side}_shoulder"]]] = sign * (1.2 + 0.3 * np.sin(3 * t))
+    q = kin.integrate(body, q, step)
+    q[:, 0] += 0.8 * t
+    q[:, 1] += 0.5 * np.sin(t)
+    return q
+
+
+@pytest.fixture(scope="module")
+def scene():
+    body = build_body_model(template_lengths(1.7), 70.0)
+    cam = Camera.from_settings((1280, 720), fov=60)
+    pitch = np.radians(12)
+    R = np.array([[1, 0, 0], [0, -np.sin(pitch), -np.cos(pitch)], [0, np.cos(pitch), -np.sin(pitch)]])
+    camera = cam.with_extrinsics(R, -R @ np.array([0.5, -4.0, 1.3]))
+    qpos = standing_and_travelling(body, 90)
+    soles = kin.forward_kinematics(body, qpos).points[:, body.point_index(CONTACT_POINTS)]
+    qpos[:, 2] -= soles[..., 2].min()  # the lowest sole point of the clip on the floor z = 0
+    return body, camera, qpos
+
+
+def rotate_about_x(v, degrees):
+    a = np.radians(degrees)
+    R = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    return R @ v
+
+
+def test_floor_of_a_walk_is_the_true_floor_and_trusted(scene):
+    body, camera, qpos = scene
+    floor = stage.estimate_floor(body, qpos, camera, 30.0, np.ones(len(qpos), bool))
+    assert angle_degrees(floor.normal, camera.R[:, 2]) < 2.0
+    assert floor.trusted and floor.source == "feet and posture"
+    assert floor.inlier_fraction > 0.9 and 0.0 <= floor.tilt_spread < 2.0
+    assert np.isfinite(floor.prior_disagreement) and floor.prior_disagreement < stage.FLOOR_AGREEMENT
+
+
+def test_a_posture_that_leans_a_little_is_outweighed_by_the_feet(scene, monkeypatch):
+    body, camera, qpos = scene
+    leaning = rotate_about_x(camera.R[:, 2], 4.0)
+    monkeypatch.setattr(stage, "posture_vertical", lambda *args: leaning)
+    floor = stage.estimate_floor(body, qpos, camera, 30.0, np.ones(len(qpos), bool))
+    assert floor.trusted
+    assert angle_degrees(floor.normal, camera.R[:, 2]) < angle_degrees(leaning, camera.R[:, 2]) - 1.0
+
+
+def test_feet_far_from_the_posture_are_not_trusted_and_the_floor_stays_level_with_it(scene, monkeypatch, caplog):
+    """Contact points that put the floor 20 degrees from the person's vertical (feet on the wrong points, a wrong
+    depth) must not lean the whole motion: the floor follows the posture, a warning says so."""
+    body, camera, qpos = scene
+    posture = rotate_about_x(camera.R[:, 2], 20.0)
+    monkeypatch.setattr(stage, "posture_vertical", lambda *args: posture)
+    with caplog.at_level(logging.WARNING, logger="physmocap"):
+        floor = stage.estimate_floor(body, qpos, camera, 30.0, np.ones(len(qpos), bool))
+    assert not floor.trusted and floor.source == "posture"
+    assert angle_degrees(floor.normal, posture) < 1e-6
+    assert floor.prior_disagreement > stage.FLOOR_AGREEMENT
+    assert any("cannot be trusted" in r.message for r in caplog.records)
+
+
+def test_posture_vertical_of_a_walk_is_near_the_true_vertical(scene):
+    body, camera, qpos = scene
+    up = stage.posture_vertical(body, qpos, camera, np.ones(len(qpos), bool))
+    assert angle_degrees(up, camera.R[:, 2]) < 5.0
+
+
+def test_robust_offset_ignores_a_few_points_far_off_the_plane():
+    rng = np.random.default_rng(0)
+    normal = np.array([0.0, -0.9, 0.3])
+    normal /= np.linalg.norm(normal)
+    points = rng.normal(size=(200, 3))
+    points -= np.outer(points @ normal + 1.5, normal)  # on the plane normal . x + 1.5 = 0
+    points[:20] += 0.5 * normal  # a lifted foot
+    assert robust_offset(points, normal) == pytest.approx(1.5, abs=0.01)
