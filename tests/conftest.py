@@ -33,3 +33,14 @@ def assert_frame_terms_jacobian(fitter, q, targets, atol=2e-6):
         rp, _ = fitter.frame_terms(qp, *fitter.evaluate(qp), targets)
         rm, _ = fitter.frame_terms(qm, *fitter.evaluate(qm), targets)
         assert np.allclose((rp - rm) / (2 * eps), J[..., k], atol=atol), k
+
+
+# Hypothesis (tests/test_fuzz.py): "ci" by default; `pytest --hypothesis-profile=long` for a deeper search.
+try:
+    from hypothesis import settings as _hypothesis_settings
+
+    _hypothesis_settings.register_profile("ci", max_examples=150, deadline=None, derandomize=True)
+    _hypothesis_settings.register_profile("long", max_examples=1000, deadline=None)
+    _hypothesis_settings.load_profile("ci")
+except ImportError:  # hypothesis is a test dependency; only test_fuzz.py needs it
+    pass

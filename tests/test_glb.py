@@ -178,16 +178,20 @@ def test_root_at_origin_starts_above_the_origin(tmp_path):
     assert hips[0, 1] == pytest.approx(result["qpos"][0, 2], abs=1e-6)
 
 
-def test_rejects_bad_input(tmp_path):
+def test_rejects_bad_input_and_holds_non_finite_frames(tmp_path, caplog):
     result = synthetic_result(frames=3)
     body = body_from_result(result)
-    qpos = result["qpos"].copy()
-    qpos[1, 5] = np.nan
-    with pytest.raises(ValueError, match="non-finite"):
-        write_glb(tmp_path / "nan.glb", body, qpos, 30.0)
     with pytest.raises(ValueError, match="fps"):
         write_glb(tmp_path / "fps.glb", body, result["qpos"], 0.0)
     assert not list(tmp_path.iterdir())
+    qpos = result["qpos"].copy()
+    qpos[1, 5] = np.nan
+    write_glb(tmp_path / "nan.glb", body, qpos, 30.0)
+    assert "frames 1 hold non-finite values" in caplog.text and "nan.glb" in caplog.text
+    held = qpos.copy()
+    held[1] = held[0]
+    write_glb(tmp_path / "held.glb", body, held, 30.0)
+    assert (tmp_path / "nan.glb").read_bytes() == (tmp_path / "held.glb").read_bytes()
 
 
 VALIDATOR_MODULE = Path(__file__).resolve().parents[1] / ".venv" / "node" / "node_modules" / "gltf-validator"

@@ -4,10 +4,16 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
+import os
+import re
 import sys
+import time
 from pathlib import Path
 
 import physmocap  # noqa: F401 - sets single-threaded BLAS before numpy loads
+from .errors import (EXIT_BUG, EXIT_INTERRUPTED, InputError, OutputLocationError, PhysmocapError,
+                     check_output_folder, output_error)
 
 EXAMPLES = """\
 examples:
@@ -41,10 +47,25 @@ def _floats(count: int, name: str):
             values = tuple(float(x) for x in text.split(","))
         except ValueError:
             raise argparse.ArgumentTypeError(f"{name} must be {count} comma-separated numbers, got '{text}'")
-        if len(values) != count:
-            raise argparse.ArgumentTypeError(f"{name} must be {count} comma-separated numbers, got '{text}'")
+        if len(values) != count or not all(math.isfinite(v) for v in values):
+            raise argparse.ArgumentTypeError(f"{name} must be {count} comma-separated finite numbers, got '{text}'")
         return values
     return parse
+
+
+# Options whose value is a comma-separated list of numbers that may begin with a minus sign.
+NUMBER_LIST_OPTIONS = ("--floor", "--person-box")
+
+
+def _join_negative_number_lists(argv: list[str]) -> list[str]:
+    """`--floor -0.1,1,0,2` as `--floor=-0.1,1,0,2`: argparse would read the value as an unknown option."""
+    out: list[str] = []
+    for token in argv:
+        if out and out[-1] in NUMBER_LIST_OPTIONS and re.fullmatch(r"-[\d.][^\s]*", token):
+            out[-1] = f"{out[-1]}={token}"
+        else:
+            out.append(token)
+    return out
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -239,17 +260,44 @@ def settings_from_args(args):
     return s.check()
 
 
-def _progress_factory(enabled: bool):
-    if not enabled:
-        return None
-    from tqdm import tqdm
+PLAIN_PROGRESS_SECONDS = 5.0  # s between progress lines when stderr is not a terminal (a log, CI, a batch job)
 
-    bars = []
+
+def _progress_factory(terminal: bool | None = None, stream=None, interval: float = PLAIN_PROGRESS_SECONDS):
+    """A factory of progress callbacks: `factory(stage, total_frames)` gives `update(frames_done, total)`.
+
+    On a terminal a tqdm bar per stage; otherwise one plain line (stage, frames done, rate) every `interval`
+    seconds and one when the stage ends, so that a log shows a long run moving."""
+    stream = sys.stderr if stream is None else stream
+    if terminal is None:
+        terminal = stream.isatty()
+    if terminal:
+        return _bar_factory(stream)
 
     def factory(name: str, total: int):
-        bar = tqdm(total=total or None, desc=f"{name:>8}", unit="frame", leave=True, file=sys.stderr,
+        started = time.monotonic()
+        last = [started, -1]  # time of the last line, frames it reported
+
+        def update(done: int, total_now: int):
+            now = time.monotonic()
+            finished = bool(total_now) and done >= total_now
+            if done == last[1] or not (finished or now - last[0] >= interval):
+                return
+            last[:] = [now, done]
+            rate = done / max(now - started, 1e-9)
+            of = f"/{total_now}" if total_now else ""
+            print(f"physmocap: {name}: {done}{of} frames, {rate:.1f} frames/s" + (", done" if finished else ""),
+                  file=stream, flush=True)
+        return update
+    return factory
+
+
+def _bar_factory(stream):
+    from tqdm import tqdm
+
+    def factory(name: str, total: int):
+        bar = tqdm(total=total or None, desc=f"{name:>8}", unit="frame", leave=True, file=stream,
                    dynamic_ncols=True)
-        bars.append(bar)
 
         def update(done: int, total_now: int):
             if total_now and bar.total != total_now:
@@ -262,7 +310,6 @@ def _progress_factory(enabled: bool):
 
 
 def cmd_capture(args) -> int:
-    from .errors import InputError
     from .io.video import probe_video
     from .pipeline import run_capture
 
@@ -270,13 +317,24 @@ def cmd_capture(args) -> int:
         raise InputError("capture needs a video file or --observations FILE.")
     settings = settings_from_args(args)
     if args.video is not None:
-        probe_video(args.video)  # fail fast, before any folder is made
+        frames = probe_video(args.video).frame_count  # fail fast, before any folder is made
+    else:
+        from .motion import Observations
+        from .plausibility import check_observations
+
+        obs = Observations.load(args.observations)
+        frames = obs.num_frames
+        for warning in check_observations(obs, settings, str(args.observations)):
+            print(f"warning: {warning}")
+    _check_physics_frames(args.video or args.observations, frames, settings)
     name = (args.video or args.observations).stem
-    out = args.output or Path("runs") / name
     if args.character is not None:
         _check_character(args.character, args.character_map)  # fail fast, before the capture
+    out = check_output_folder(args.output or Path("runs") / name)
+    if args.video is not None and settings.camera.floor is not None and not settings.online:
+        _check_floor_on_detections(args.video, out, settings)
     summary = run_capture(out, settings, video=args.video, observations=args.observations,
-                          overlay=not args.no_overlay, progress=_progress_factory(sys.stderr.isatty()))
+                          overlay=not args.no_overlay, progress=_progress_factory())
     invalid = summary.frames - summary.valid_frames
     print(f"captured {summary.valid_frames}/{summary.frames} frames at {summary.fps:.1f} fps "
           f"({'online' if summary.online else 'offline'} fit, physics: {summary.physics})")
@@ -312,6 +370,30 @@ def cmd_capture(args) -> int:
         _retarget(Path(summary.files["result"]), args.character, args.character_map, out / "character",
                   settings.physics.method, settings)
     return 0
+
+
+def _check_floor_on_detections(video: Path, out: Path, settings) -> None:
+    """A given floor checked against the person before the fit: the detector runs first (its result is the
+    run's cached detection stage, which the capture then reuses)."""
+    from .pipeline import detect_stage
+    from .plausibility import check_observations
+
+    obs, _ = detect_stage(video, out, settings, _progress_factory())
+    for warning in check_observations(obs, settings, str(video)):
+        print(f"warning: {warning}")
+
+
+def _check_physics_frames(source: Path | str, frames: int, settings) -> None:
+    """Offline physics starts from the whole-clip refinement, which differentiates the motion: one frame has none
+    (online physics tracks it frame by frame and takes a single frame)."""
+    physics = settings.physics
+    refines = physics.method == "trajopt" or (physics.method == "physcap" and physics.refine_offline
+                                              and not settings.online)
+    if refines and frames == 1:
+        from .errors import ReconstructionError
+
+        raise ReconstructionError(f"{source}: a single frame has no motion for physics to follow "
+                                  "(capture it with --physics none).")
 
 
 def _check_character(path: Path, character_map: Path | None) -> None:
@@ -383,7 +465,6 @@ def cmd_live(args) -> int:
 
     import numpy as np
 
-    from .errors import InputError
     from .live import stream_capture
     from .pipeline import write_outputs
 
@@ -397,7 +478,7 @@ def cmd_live(args) -> int:
         probe_video(source)
     stream = None
     if args.output is not None:
-        args.output.mkdir(parents=True, exist_ok=True)
+        check_output_folder(args.output)
         stream = open(args.output / "live.jsonl", "w")  # a log written as frames arrive, not a result file
     started = time.perf_counter()
 
@@ -477,7 +558,7 @@ def cmd_export(args) -> int:
         options["units"] = args.units
     if args.root_at_origin:
         options["root_at_origin"] = True
-    files = export_result(args.result, args.to, args.output or args.result.parent, **options)
+    files = export_result(args.result, args.to, check_output_folder(args.output or args.result.parent), **options)
     print("wrote " + ", ".join(str(p) for p in files.values()))
     return 0
 
@@ -485,6 +566,8 @@ def cmd_export(args) -> int:
 def cmd_evaluate(args) -> int:
     from .evaluation import evaluate, write_evaluation
 
+    out = args.output or args.result.parent / "evaluation.json"
+    _check_output_file(out)
     evaluation = evaluate(args.result, args.truth)
     print(f"{'metric':<48} {'final':>12} {'kinematic':>12}")
     for row in evaluation["run"].values():
@@ -492,10 +575,16 @@ def cmd_evaluate(args) -> int:
         print(f"{row['label'] + (' (' + row['unit'] + ')' if row['unit'] else ''):<48} {final:>12} {kinematic:>12}")
     for motion, scores in evaluation.get("truth", {}).items():
         print(f"against the truth, {motion} motion: " + ", ".join(f"{k} {_number(v)}" for k, v in scores.items()))
-    out = args.output or args.result.parent / "evaluation.json"
     write_evaluation(out, evaluation)
     print(f"written to {out}")
     return 0
+
+
+def _check_output_file(path: Path) -> None:
+    """Refuse, before any work, an output file whose place is a folder or whose folder cannot be written."""
+    if path.is_dir():
+        raise OutputLocationError(f"{path}: the output file's name is an existing folder (give a file name).")
+    check_output_folder(path.parent)
 
 
 def _number(value) -> str:
@@ -504,11 +593,10 @@ def _number(value) -> str:
 
 def cmd_train_contacts(args) -> int:
     from .contacts.train import train_contacts
-    from .errors import InputError
 
     if not (args.data / "mocap").is_dir():
         raise InputError(f"{args.data}: no mocap/ folder of training data here (give --data).")
-    train_contacts(args.data, args.out, seed=args.seed)
+    train_contacts(args.data, args.out, seed=args.seed)  # the folder is checked by writing: data first
     print(f"weights written to {args.out}")
     return 0
 
@@ -518,38 +606,97 @@ def cmd_detect(args) -> int:
     from .detect.mediapipe_pose import detect_video
 
     DetectSettings(max_width=args.max_width, person_box=args.person_box).check()
-    factory = _progress_factory(sys.stderr.isatty())
+    _check_output_file(args.output)
     obs = detect_video(args.video, person_box=args.person_box, max_width=args.max_width,
-                       progress=factory("detect", 0) if factory else None)
+                       progress=_progress_factory()("detect", 0))
     obs.save(args.output)
     print(f"{int(obs.valid.sum())}/{obs.num_frames} frames with a person; observations in {args.output}")
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    from .errors import InputError, ReconstructionError
+COMMANDS = {"capture": cmd_capture, "live": cmd_live, "export": cmd_export, "evaluate": cmd_evaluate,
+            "train-contacts": cmd_train_contacts, "detect": cmd_detect, "batch": cmd_batch, "retarget": cmd_retarget}
 
+
+def main(argv: list[str] | None = None) -> int:
+    """Run one command; every outcome is an exit code (physmocap.errors) and at most one sentence on stderr."""
     logging.basicConfig(level=logging.WARNING, format="physmocap: %(message)s")
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(_join_negative_number_lists(sys.argv[1:] if argv is None else list(argv)))
+    except SystemExit as exc:  # --help, --version, or a usage error argparse has already explained
+        return exc.code if isinstance(exc.code, int) else 2
     if args.command is None:
         parser.print_help()
         return 2
     try:
-        commands = {"capture": cmd_capture, "live": cmd_live, "export": cmd_export, "evaluate": cmd_evaluate,
-                    "train-contacts": cmd_train_contacts, "detect": cmd_detect, "batch": cmd_batch,
-                    "retarget": cmd_retarget}
-        return commands[args.command](args)
-    except InputError as exc:
-        print(f"physmocap: error: {exc}", file=sys.stderr)
-        return 2
-    except ReconstructionError as exc:
-        print(f"physmocap: could not reconstruct: {exc}", file=sys.stderr)
-        return 3
+        return COMMANDS[args.command](args)
+    except SystemExit as exc:
+        return exc.code if isinstance(exc.code, int) else EXIT_BUG
     except KeyboardInterrupt:
         print("physmocap: interrupted; finished stages are cached and a re-run resumes from them.",
               file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
+    except BaseException as exc:  # noqa: BLE001 - nothing may escape as a traceback
+        error = _user_error(exc, _output_locations(args))
+        if error is None:
+            return _report_bug(exc, _output_locations(args))
+        print(f"physmocap: {error.prefix}: {_one_line(str(error))}", file=sys.stderr)
+        return error.exit_code
+
+
+def _user_error(exc: BaseException, outputs: list[Path]) -> PhysmocapError | None:
+    """The user-facing error `exc` stands for, or None when it is a bug."""
+    if isinstance(exc, PhysmocapError):
+        return exc
+    if isinstance(exc, OSError):
+        where = Path(exc.filename).resolve() if isinstance(exc.filename, (str, Path)) else None
+        for folder in outputs:
+            if where is not None and (where == folder or folder in where.parents):
+                return output_error(exc, folder)
+        if where is not None and isinstance(exc, (PermissionError, IsADirectoryError)):
+            return InputError(f"{exc.filename}: cannot be read ({exc.strerror}).")
+    if isinstance(exc, MemoryError):
+        return InputError("the input is too large for this machine's memory (try a shorter clip).")
+    return None
+
+
+def _output_locations(args) -> list[Path]:
+    """The folders a command writes into (resolved), for telling write failures from bugs."""
+    output = getattr(args, "output", None) or getattr(args, "out", None)
+    if output is None and getattr(args, "result", None) is not None:
+        output = args.result.parent
+    if output is None and args.command == "capture":
+        output = Path("runs") / (args.video or args.observations or Path("run")).stem
+    if output is None:
+        return []
+    output = Path(output).resolve()
+    return [output] if args.command in ("capture", "live", "export", "train-contacts", "batch", "retarget") \
+        else [output.parent]
+
+
+def _report_bug(exc: BaseException, outputs: list[Path]) -> int:
+    """One sentence asking for a bug report; the traceback goes to a crash log in the run folder (or a temp dir)."""
+    import tempfile
+    import traceback
+
+    text = (f"physmocap {physmocap.__version__}, {time.strftime('%Y-%m-%d %H:%M:%S')}\n"
+            f"command: {' '.join(sys.argv)}\n\n" + "".join(traceback.format_exception(exc)))
+    for folder in [*[f for f in outputs if f.is_dir()], Path(tempfile.gettempdir())]:
+        log = folder / f"physmocap-crash-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.log"
+        try:
+            log.write_text(text)
+            break
+        except OSError:
+            log = None
+    where = f"with the crash log {log}" if log else "(no crash log could be written)"
+    print(f"physmocap: internal error ({type(exc).__name__}: {_one_line(str(exc))[:200]}); this is a bug, "
+          f"please report it {where}.", file=sys.stderr)
+    return EXIT_BUG
+
+
+def _one_line(text: str) -> str:
+    return " ".join(text.split())
 
 
 if __name__ == "__main__":

@@ -8,11 +8,14 @@ give one. Override from a TOML file (`--config`) with the same section and field
 from __future__ import annotations
 
 import dataclasses
+import math
 import tomllib
+import types
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .errors import InputError
+from .errors import InputError, SettingsError
 
 
 @dataclass(frozen=True)
@@ -42,8 +45,8 @@ class CameraSettings:
             _within("camera.focal", self.focal, 1.0, 1e6, "pixels")
         if self.fov is not None:
             _within("camera.fov", self.fov, 10.0, 160.0, "degrees")
-        if self.floor is not None and (len(self.floor) != 4 or sum(x * x for x in self.floor[:3]) < 1e-12):
-            raise InputError(f"camera.floor must be four numbers nx,ny,nz,d with a non-zero normal, got {self.floor}.")
+        if self.floor is not None:
+            _check_floor(self.floor)
 
 
 @dataclass(frozen=True)
@@ -539,6 +542,51 @@ class Settings:
         return dataclasses.asdict(self)
 
 
+def _check_floor(floor) -> None:
+    """Four finite numbers nx,ny,nz,d with a non-zero normal that does not lie along the camera's x axis (the
+    world's x axis is the camera's projected onto the floor; a plane containing the camera's y and z axes is
+    a wall beside the camera)."""
+    numbers = isinstance(floor, (tuple, list)) and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                         for x in floor)
+    if not numbers or len(floor) != 4 or not all(math.isfinite(x) for x in floor):
+        raise SettingsError(f"camera.floor must be four finite numbers nx,ny,nz,d, got {floor}.")
+    norm = math.sqrt(sum(x * x for x in floor[:3]))
+    if norm < 1e-9:
+        raise SettingsError(f"camera.floor must have a non-zero normal nx,ny,nz, got {floor}.")
+    if abs(floor[0]) / norm > math.cos(math.radians(1.0)):
+        raise SettingsError(f"camera.floor {floor} is a vertical plane beside the camera (its normal lies along "
+                            "the camera's x axis), not a floor.")
+
+
+def _has_type(value, hint) -> bool:
+    """Whether a value read from a settings file has the field's type (int where float is asked is fine)."""
+    arms = typing.get_args(hint) if isinstance(hint, types.UnionType) else None
+    if arms:
+        return any(_has_type(value, arm) for arm in arms)
+    if hint is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if hint is int or hint is str or hint is bool:
+        return isinstance(value, hint) and (hint is bool or not isinstance(value, bool))
+    if typing.get_origin(hint) is tuple:
+        items = typing.get_args(hint)
+        if not isinstance(value, tuple):
+            return False
+        if len(items) == 2 and items[1] is Ellipsis:
+            return all(_has_type(v, items[0]) for v in value)
+        return len(value) == len(items) and all(_has_type(v, t) for v, t in zip(value, items))
+    return hint is type(None) and value is None
+
+
+def _type_name(hint) -> str:
+    arms = [a for a in typing.get_args(hint) if a is not type(None)] if isinstance(hint, types.UnionType) else [hint]
+    names = {float: "a number", int: "a whole number", bool: "true or false", str: "text"}
+    if typing.get_origin(arms[0]) is tuple:
+        items = typing.get_args(arms[0])
+        return ("a list of " + names.get(items[0], "values") if items[-1] is Ellipsis
+                else f"a list of {len(items)} " + names.get(items[0], "values").replace("a ", "") + "s")
+    return names.get(arms[0], str(arms[0]))
+
+
 def _within(name: str, value, low, high, unit: str) -> None:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not (low <= value <= high):
         raise InputError(f"{name} = {value} is out of range: expected {low} to {high} {unit}".rstrip() + ".")
@@ -566,7 +614,14 @@ def load_settings(path: str | Path | None = None) -> Settings:
             if unknown:
                 raise InputError(f"{path}: unknown setting {key}.{sorted(unknown)[0]}.")
             value = {k: tuple(v) if isinstance(v, list) else v for k, v in value.items()}
+            hints = typing.get_type_hints(type(getattr(settings, key)))
+            for name, item in value.items():
+                if not _has_type(item, hints[name]):
+                    raise SettingsError(f"{path}: setting {key}.{name} must be {_type_name(hints[name])}, "
+                                        f"got {item!r}.")
             settings = settings.replace(key, **value)
+        elif key == "online" and not isinstance(value, bool):
+            raise SettingsError(f"{path}: setting online must be true or false, got {value!r}.")
         elif key == "online":
             settings = settings.replace(None, online=bool(value))
         else:

@@ -106,8 +106,8 @@ class Observations:
         missing = ~np.isfinite(k2).all(axis=2) | ~np.isfinite(k3).all(axis=2)
         k2[missing] = 0.0
         k3[missing] = 0.0
-        if valid is None:
-            valid = k2[:, :, 2].max(axis=1) > 0
+        seen = k2[:, :, 2].max(axis=1) > 0
+        valid = seen if valid is None else np.asarray(valid, dtype=bool) & seen  # a frame with nothing seen has no pose
         reason = contents.get("invalid_reason")
         return cls(
             keypoints_2d=k2,

@@ -13,6 +13,7 @@ from .body.model import CONTACT_POINTS, JOINT_NAMES, LANDMARK_POINTS
 from .dynamics.stage import PhysicsMotion
 from .errors import InputError
 from .io.atomic import read_npz, save_npz
+from .io.finite import finite_result
 from .kinematics.stage import KinematicMotion, reprojection_errors
 from .motion import Observations
 
@@ -89,7 +90,8 @@ def build_result(obs: Observations, motion: KinematicMotion, stage_seconds: dict
 
 
 def save_result(path: str | os.PathLike, result: dict[str, np.ndarray]) -> None:
-    save_npz(path, **result)
+    """Write result.npz atomically, its per-frame arrays finite (io.finite: blanked frames are named)."""
+    save_npz(path, **finite_result(result, str(path)))
 
 
 def load_result(path: str | os.PathLike) -> dict[str, np.ndarray]:

@@ -29,6 +29,7 @@ from scipy.spatial.transform import Rotation
 from ..body.kinematics import forward_kinematics
 from ..body.model import BodyModel
 from .atomic import write_text
+from .finite import finite_frames
 
 # Body model body name -> BVH joint name.
 BVH_JOINT_NAMES: dict[str, str] = {
@@ -167,16 +168,15 @@ def _format_row(values: np.ndarray) -> str:
     return " ".join(f"{v:.6f}" for v in np.round(values, 6) + 0.0)
 
 
-def checked_motion(body: BodyModel, qpos, fps: float, file_format: str) -> np.ndarray:
-    """qpos as a (T >= 1, nq) float array; ValueError for a bad frame rate, shape or non-finite values."""
+def checked_motion(body: BodyModel, qpos, fps: float, file_format: str, path=None) -> np.ndarray:
+    """qpos as a (T >= 1, nq) float array, its non-finite frames held at the last finite one (a warning names
+    them and the file `path`); ValueError for a bad frame rate or shape."""
     if not np.isfinite(fps) or fps <= 0:
         raise ValueError(f"fps must be positive, got {fps}.")
     qpos = np.atleast_2d(np.asarray(qpos, dtype=float))
     if qpos.ndim != 2 or qpos.shape[1] != body.nq or len(qpos) == 0:
         raise ValueError(f"qpos must have shape (T >= 1, {body.nq}), got {qpos.shape}.")
-    if not np.all(np.isfinite(qpos)):
-        raise ValueError(f"qpos holds non-finite values; {file_format} cannot represent missing frames.")
-    return qpos
+    return finite_frames(qpos, f"{file_format} {path or ''}".rstrip(), body.rest_qpos)
 
 
 def write_bvh(
@@ -196,7 +196,7 @@ def write_bvh(
     """
     if units not in UNIT_SCALE:
         raise ValueError(f"units must be one of {sorted(UNIT_SCALE)}, got {units!r}.")
-    qpos = checked_motion(body, qpos, fps, "BVH")
+    qpos = checked_motion(body, qpos, fps, "BVH", path)
     scale = UNIT_SCALE[units]
 
     joints = bvh_hierarchy(body)

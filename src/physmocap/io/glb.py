@@ -295,7 +295,7 @@ def write_glb(path: str | os.PathLike, body: BodyModel, qpos: np.ndarray, fps: f
     Metres, Y up (see the module docstring). root_at_origin: shift the motion horizontally so that the root starts
     above the origin; its height is kept. The file is written atomically.
     """
-    qpos = checked_motion(body, qpos, fps, "glTF animation")
+    qpos = checked_motion(body, qpos, fps, "glTF animation", path)
     document, binary = glb_document(body, qpos, fps, root_at_origin=root_at_origin)
     with atomic_path(path) as tmp:
         tmp.write_bytes(glb_bytes(document, binary))

@@ -23,6 +23,7 @@ from xml.sax.saxutils import escape
 import numpy as np
 
 from .atomic import write_text
+from .finite import finite_frames
 
 WORLD_TO_OPENSIM = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 TRC_UNITS: dict[str, float] = {"m": 1.0, "mm": 1000.0}
@@ -33,12 +34,11 @@ DEFAULT_FOOT_BODIES: dict[str, str] = {"r": "calcn_r", "l": "calcn_l"}  # gait23
 
 
 def _check_series(array: np.ndarray, shape_tail: tuple[int, ...], name: str) -> np.ndarray:
+    """The array as floats, its non-finite frames held at the last finite one (a warning names `name`)."""
     values = np.asarray(array, dtype=float)
     if values.ndim != 1 + len(shape_tail) or values.shape[1:] != shape_tail or len(values) == 0:
         raise ValueError(f"{name} must have shape (T >= 1, {', '.join(map(str, shape_tail))}), got {values.shape}.")
-    if not np.all(np.isfinite(values)):
-        raise ValueError(f"{name} holds non-finite values.")
-    return values
+    return finite_frames(values, name)
 
 
 def _check_fps(fps: float) -> None:
@@ -57,7 +57,7 @@ def write_trc(path: str | os.PathLike, points_world: np.ndarray, names: Sequence
     if units not in TRC_UNITS:
         raise ValueError(f"units must be one of {sorted(TRC_UNITS)}, got {units!r}.")
     names = [str(n) for n in names]
-    points = _check_series(points_world, (len(names), 3), "points_world")
+    points = _check_series(points_world, (len(names), 3), f"{path}: points_world")
     if any(not n or any(c.isspace() for c in n) for n in names) or len(set(names)) != len(names):
         raise ValueError("marker names must be unique and free of whitespace.")
     T, P = points.shape[:2]
@@ -123,7 +123,10 @@ def write_grf_mot(path: str | os.PathLike, grf: np.ndarray, contact_points: np.n
     grf: (T, 4, 3) N, contact_points: (T, 4, 3) m, world axes, CONTACT_POINTS order. Written atomically.
     """
     _check_fps(fps)
+    grf = _check_series(grf, (4, 3), f"{path}: grf")
+    contact_points = _check_series(contact_points, (4, 3), f"{path}: contact_points")
     labels, values = grf_columns(grf, contact_points)
+    values = finite_frames(values, f"{path}: ground reaction force columns")  # huge inputs may overflow
     T = len(values)
     lines = [Path(path).name, "version=1", f"nRows={T}", f"nColumns={len(labels) + 1}", "inDegrees=no",
              "endheader", "time\t" + "\t".join(labels)]

@@ -503,7 +503,9 @@ def root_orientation(targets_3d: np.ndarray) -> np.ndarray:
     y = left / max(np.linalg.norm(left), 1e-9)
     z = up - np.dot(up, y) * y
     z /= max(np.linalg.norm(z), 1e-9)
-    return np.stack([np.cross(y, z), y, z], axis=1)
+    R = np.stack([np.cross(y, z), y, z], axis=1)
+    # Hips and shoulders unseen (zero or NaN targets): no orientation to read, start upright
+    return R if np.isfinite(R).all() and np.linalg.det(R) > 0.5 else np.eye(3)
 
 
 def neutral_qpos(body: BodyModel) -> np.ndarray:

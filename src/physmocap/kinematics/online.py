@@ -105,8 +105,8 @@ def fit_streams(fitter: KinematicFitter, targets: FitTargets, valid: np.ndarray,
         index = starts[rows] + i
         fitted[index], past = causal_step(fitter, targets.frames(frames[index]), past, iterations,
                                           START_DAMPING_INCREASE)
-        if progress:
-            progress(i + 1, steps)
+        if progress:  # frames fitted so far, over all runs
+            progress(int(np.minimum(ends - starts, i + 1).sum()), len(frames))
     return _fill_gaps(fitter.body, frames, fitted, len(valid))
 
 

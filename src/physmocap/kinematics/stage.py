@@ -224,8 +224,11 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 
 def smooth_depth(depth: np.ndarray, width: int = 9) -> np.ndarray:
-    """Centred running median; gaps take their neighbours' values."""
+    """Centred running median; gaps take their neighbours' values. ReconstructionError without a finite value."""
     good = np.isfinite(depth)
+    if not good.any():
+        raise ReconstructionError("no frame shows enough of the person with enough confidence to place them in "
+                                  "depth.")
     filled = np.interp(np.arange(len(depth)), np.flatnonzero(good), depth[good])
     pad = width // 2
     padded = np.pad(filled, pad, mode="edge")
@@ -368,8 +371,11 @@ def _fit_offline(obs: Observations, settings: Settings, progress) -> KinematicMo
     height, source = resolve_height(obs, s.body.height, s.body.estimate_height)
     calibration = dataclasses.replace(calibrate(obs, height, frames=s.body.calibration_frames), height_source=source)
     body = build_body_model(calibration.lengths, s.body.mass)
-    depth = smooth_depth(raw_depth(obs.keypoints_2d, obs.landmarks_3d, obs.valid, camera.focal, calibration,
-                                   s.fit.min_confidence))
+    depth = raw_depth(obs.keypoints_2d, obs.landmarks_3d, obs.valid, camera.focal, calibration, s.fit.min_confidence)
+    if not np.isfinite(depth).any():
+        raise ReconstructionError(f"{obs.source}: no frame shows enough of the person with enough confidence to "
+                                  "place them in depth.")
+    depth = smooth_depth(depth)
     targets = make_targets(obs.keypoints_2d, obs.landmarks_3d, obs.valid, depth, camera, calibration, s.fit)
     fitter = KinematicFitter(body, camera, s.fit, obs.fps)
     qpos = fit_streams(fitter, targets, obs.valid, s.fit.offline_chunk, s.fit.offline_start_iterations,

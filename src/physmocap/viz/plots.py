@@ -14,6 +14,7 @@ from ..body.kinematics import center_of_mass, forward_kinematics
 from ..body.model import CONTACT_POINTS
 from ..export import body_from_result
 from ..io.atomic import atomic_path
+from ..io.finite import finite_result
 from ..metrics import GRAVITY, implied_grf
 
 FOOT_COLOURS = {"left": "#1e88e5", "right": "#fb8c00"}
@@ -51,6 +52,8 @@ def plot_grf(result: dict[str, np.ndarray], out_png: str | os.PathLike) -> None:
             axes.plot(t, grf[:, heel, 2] + grf[:, toe, 2], color=FOOT_COLOURS[side], label=f"{side} foot")
         axes.plot(t, grf[..., 2].sum(axis=1), color="0.2", linewidth=1.0, label="both feet")
         axes.set_title("Vertical ground reaction force (solved by physics)")
+    elif len(t) < 3:
+        axes.set_title("No force plot: the motion's acceleration needs at least 3 frames")
     else:
         body = body_from_result(result)
         com = center_of_mass(body, forward_kinematics(body, result["qpos"]))
@@ -123,6 +126,7 @@ def plot_foot_heights(result: dict[str, np.ndarray], out_png: str | os.PathLike)
 def write_plots(result: dict[str, np.ndarray], out_dir: str | os.PathLike) -> dict[str, str]:
     """All plots into `out_dir` (PLOT_FILES names); returns {plot: path}."""
     out_dir = Path(out_dir)
+    result = finite_result(result, str(out_dir))
     paths = {key: str(out_dir / name) for key, name in PLOT_FILES.items()}
     plot_grf(result, paths["grf"])
     plot_contacts(result, paths["contacts"])

@@ -22,6 +22,7 @@ from ..body.kinematics import center_of_mass, forward_kinematics
 from ..body.model import CONTACT_POINTS, JOINT_NAMES
 from ..export import body_from_result
 from ..io.atomic import write_text
+from ..io.finite import finite_result
 from ..landmarks import LANDMARK_INDEX
 from .. import metrics
 from .plots import write_plots
@@ -90,8 +91,10 @@ def run_metrics(result: dict[str, np.ndarray]) -> list[Metric]:
     kp_points, kp_landmarks = _keypoint_pairs(result)
     keypoints = np.asarray(result["keypoints_2d"], dtype=float)[:, kp_landmarks]
     keypoints = np.where(np.asarray(result["valid"], bool)[:, None, None], keypoints, 0.0)
+    accelerations = len(contacts) >= 3  # second differences need three frames; shorter runs leave those out
     for motion, (points, qpos) in motions.items():
-        put("mean_acceleration", motion, metrics.mean_acceleration(points[:, joints], fps))
+        if accelerations:
+            put("mean_acceleration", motion, metrics.mean_acceleration(points[:, joints], fps))
         foot = metrics.foot_contact_errors(points[:, feet], contacts, fps=fps)
         for name in ("floating_percent", "penetration_percent", "skate_percent"):
             put(name, motion, foot[name])
@@ -99,10 +102,11 @@ def run_metrics(result: dict[str, np.ndarray]) -> list[Metric]:
         put("mpe", motion, 1000 * mpe)
         put("pnp_percent", motion, pnp)
         com = center_of_mass(body, forward_kinematics(body, qpos))
-        implied = metrics.grf_statistics(metrics.implied_grf(com, mass, fps), mass, contacts)
-        put("implied_grf_mean_percent_bw", motion, implied["mean_percent_bw"])
-        put("implied_grf_max_percent_bw", motion, implied["max_percent_bw"])
-        put("implied_grf_ballistic_percent_bw", motion, implied["ballistic_percent_bw"])
+        if accelerations:
+            implied = metrics.grf_statistics(metrics.implied_grf(com, mass, fps), mass, contacts)
+            put("implied_grf_mean_percent_bw", motion, implied["mean_percent_bw"])
+            put("implied_grf_max_percent_bw", motion, implied["max_percent_bw"])
+            put("implied_grf_ballistic_percent_bw", motion, implied["ballistic_percent_bw"])
         vertices, counts = support_polygons(points[:, feet], contacts)
         supported = counts > 0
         over = com_over_support(com, vertices, counts)
@@ -214,6 +218,7 @@ def write_report(run_dir: str | os.PathLike, result: dict[str, np.ndarray]) -> d
     """Write the plots (run_dir/plots/*.png), metrics.json and report.html into the run folder `run_dir`, linking
     the outputs already there (write the viewer, overlay and exports first). Returns {kind: path}."""
     run_dir = Path(run_dir)
+    result = finite_result(result, str(run_dir / "report.html"))
     plots = write_plots(result, run_dir / "plots")
     rows = run_metrics(result)
     metrics_path, report_path = run_dir / "metrics.json", run_dir / "report.html"

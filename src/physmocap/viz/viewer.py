@@ -23,6 +23,7 @@ from ..body.kinematics import center_of_mass, forward_kinematics
 from ..body.model import CONTACT_POINTS
 from ..export import body_from_result
 from ..io.atomic import write_text
+from ..io.finite import finite_result
 from ..metrics import GRAVITY
 from .overlay import SKELETON_EDGE_NAMES, force_arrow_scale
 
@@ -127,7 +128,7 @@ def viewer_payload(result: dict[str, np.ndarray], video: str | None) -> dict:
         "metresPerNewton": force_arrow_scale(float(result["body_mass"]), float(result["body_height"])),
         "bodyWeight": weight,
         "ghostOffset": ghost.tolist(),
-        "cameraCentre": (-np.asarray(result["camera_R"]).T @ np.asarray(result["camera_t"])).tolist(),
+        "cameraCentre": np.nan_to_num(-np.asarray(result["camera_R"]).T @ np.asarray(result["camera_t"])).tolist(),
         "video": video,
     }
 
@@ -150,5 +151,6 @@ def write_viewer(result: dict[str, np.ndarray], out_path: str | os.PathLike,
     to the page's folder (the run folder's overlay.mp4 by default), or None for no video panel. A video that is
     missing when the page opens leaves a note in its panel and the 3D view plays on its own clock."""
     out_path = Path(out_path)
+    result = finite_result(result, str(out_path))
     title = f"physmocap · {out_path.parent.name or 'run'}"
     write_text(out_path, viewer_html(result, None if video is None else Path(video).as_posix(), title))

@@ -1,0 +1,78 @@
+"""Only finite numbers reach a file: every writer passes its per-frame arrays through `finite_frames`, which
+holds a frame with any non-finite value at the last finite frame (the first finite one before it) and says, as
+a logging warning naming the file, which frames it blanked."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+log = logging.getLogger("physmocap")
+
+# Per-frame float arrays of result.npz (first axis: frames); the rest are flags, text or per-run constants.
+RESULT_FRAME_ARRAYS = ("joints_world", "joints_world_kinematic", "qpos", "qpos_kinematic", "grf",
+                       "residual_root_force", "physics_deviation", "person_height_px")
+
+
+def frame_ranges(frames) -> str:
+    """[3, 4, 5, 9] -> '3-5, 9'."""
+    frames = [int(f) for f in frames]
+    parts, start = [], None
+    for i, f in enumerate(frames):
+        start = f if start is None else start
+        if i + 1 == len(frames) or frames[i + 1] != f + 1:
+            parts.append(str(start) if start == f else f"{start}-{f}")
+            start = None
+    return ", ".join(parts)
+
+
+def finite_frames(values, what: str, fallback=None) -> np.ndarray:
+    """values (T, ...) as floats with every frame that holds a NaN or infinity replaced by the last finite frame
+    before it (before the first finite frame: that one). A clip without a finite frame takes `fallback` (one
+    frame's values, e.g. the rest pose; default zeros). `what` names the array and file in the warning."""
+    values = np.array(values, dtype=float)
+    if values.ndim == 0 or len(values) == 0:
+        return values
+    bad = ~np.isfinite(values.reshape(len(values), -1)).all(axis=1)
+    if not bad.any():
+        return values
+    good = np.flatnonzero(~bad)
+    if len(good) == 0:
+        values[:] = 0.0 if fallback is None else np.asarray(fallback, dtype=float)
+        log.warning(f"{what}: no frame is finite; all {len(values)} frames written as "
+                    f"{'zeros' if fallback is None else 'the rest pose'}.")
+        return values
+    source = np.maximum.accumulate(np.where(bad, -1, np.arange(len(values))))
+    source[source < 0] = good[0]
+    log.warning(f"{what}: frames {frame_ranges(np.flatnonzero(bad))} hold non-finite values; written as the "
+                "nearest earlier finite frame.")
+    return values[source]
+
+
+def finite_value(value: float, what: str, fallback: float) -> float:
+    """A per-run number (e.g. a mass), `fallback` with a warning when it is not finite."""
+    value = float(value)
+    if np.isfinite(value):
+        return value
+    log.warning(f"{what} is {value}; written as {fallback:g}.")
+    return fallback
+
+
+def finite_result(result: dict[str, np.ndarray], where: str) -> dict[str, np.ndarray]:
+    """A copy of result.npz's arrays whose per-frame float arrays (RESULT_FRAME_ARRAYS) are finite, blanked as
+    `finite_frames` does; per-frame errors (reprojection) may stay NaN where not measured."""
+    out = dict(result)
+    for key in RESULT_FRAME_ARRAYS:
+        if key in out:
+            out[key] = finite_frames(out[key], f"{where}: {key}", _rest_pose(out) if key.startswith("qpos") else None)
+    return out
+
+
+def _rest_pose(result: dict[str, np.ndarray]) -> np.ndarray | None:
+    """The rest pose of the result's body, the stand-in for a motion without a single finite frame."""
+    if np.isfinite(np.asarray(result["qpos"], dtype=float)).all(axis=-1).any():
+        return None  # some frame is finite: the fallback is not needed
+    from ..export import body_from_result
+
+    return body_from_result(result).rest_qpos

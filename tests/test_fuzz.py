@@ -1,0 +1,183 @@
+"""Property-based tests (hypothesis): generated observations files and settings files run through the command line
+in-process always end with a documented exit code, no traceback on stderr and nothing half-written in -o.
+
+CI runs the default profile (a few hundred examples, well under two minutes); `pytest tests/test_fuzz.py
+--hypothesis-profile=long` runs thousands (see BENCHMARKS.md, "Bad inputs (issue 22)")."""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, event, given, settings, strategies as st
+
+from test_bad_inputs import assert_clean, observation_arrays, run_cli
+
+TEMPLATE = observation_arrays(5)
+
+frame_counts = st.integers(0, 5)
+frame_rates = st.floats(0.5, 240.0)
+image_sizes = st.sampled_from([(1280, 720), (640, 480), (1, 1), (64, 48), (7680, 4320), (720, 1280)])
+nan_shares = st.sampled_from([0.0, 0.0, 0.1, 0.5, 0.9, 1.0])
+coordinate_scales = st.sampled_from([1.0, 1.0, 1.0, 0.5, 3.0, 1e-3, 20.0])  # of the template's pixels
+confidences = st.sampled_from(["template", "uniform", "uniform", "zero", "low"])
+# At most one way in which the file is broken (None: a well-formed file, perhaps with odd values)
+breakages = st.sampled_from([None] * 8 + [
+    "landmarks_32", "flat", "3d_mismatch", "missing_fps", "missing_3d", "scalar_size", "zero_fps", "nan_fps",
+    "inf_fps", "negative_size", "camera_K_zeros", "camera_K_nan", "camera_K_negative", "coordinates_1e9",
+    "coordinates_negative", "confidence_above_one", "confidence_negative", "valid_wrong_length"])
+
+
+@st.composite
+def observations_files(draw):
+    """The arrays of an observations file (see README "The observations file"): the walker of test_bad_inputs
+    with random frame counts, rates, image sizes, confidences, NaN patterns and scales, and at most one breakage."""
+    T = draw(frame_counts)
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    k2 = np.resize(TEMPLATE["keypoints_2d"], (T, 33, 3)).copy()
+    k3 = np.resize(TEMPLATE["landmarks_3d"], (T, 33, 3)).copy()
+    k2[..., :2] = k2[..., :2] * draw(coordinate_scales) + rng.normal(
+        scale=draw(st.sampled_from([0.0, 2.0, 50.0])), size=(T, 33, 2))
+    k3 = k3 + rng.normal(scale=draw(st.sampled_from([0.0, 0.02, 0.3])), size=k3.shape)
+    k2[..., 2] = {"template": k2[..., 2], "uniform": rng.random((T, 33)), "zero": np.zeros((T, 33)),
+                  "low": 0.05 * rng.random((T, 33))}[draw(confidences)]
+    hidden = rng.random((T, 33)) < draw(nan_shares)
+    k2[hidden] = np.nan
+    k3[hidden] = np.nan
+    size = np.array(draw(image_sizes))
+    arrays = dict(keypoints_2d=k2, landmarks_3d=k3, fps=np.float64(draw(frame_rates)), image_size=size)
+    if draw(st.booleans()):
+        arrays["camera_K"] = np.array([[draw(st.floats(10, 1e5)), 0, size[0] / 2], [0, 0, size[1] / 2], [0, 0, 1]])
+        arrays["camera_K"][1, 1] = arrays["camera_K"][0, 0]
+    if draw(st.booleans()):
+        arrays["valid"] = rng.random(T) < 0.8
+    broken = draw(breakages)
+    changes = {
+        "landmarks_32": lambda: {"keypoints_2d": k2[:, :32]}, "flat": lambda: {"keypoints_2d": k2.reshape(T, 99)},
+        "3d_mismatch": lambda: {"landmarks_3d": k3[: max(T - 1, 0)]}, "scalar_size": lambda: {"image_size": 640},
+        "zero_fps": lambda: {"fps": 0.0}, "nan_fps": lambda: {"fps": np.nan}, "inf_fps": lambda: {"fps": np.inf},
+        "negative_size": lambda: {"image_size": -size}, "camera_K_zeros": lambda: {"camera_K": np.zeros((3, 3))},
+        "camera_K_nan": lambda: {"camera_K": np.full((3, 3), np.nan)},
+        "camera_K_negative": lambda: {"camera_K": np.diag([-500.0, -500.0, 1.0])},
+        "coordinates_1e9": lambda: {"keypoints_2d": np.concatenate([k2[..., :2] * 1e9, k2[..., 2:]], axis=-1)},
+        "coordinates_negative": lambda: {"keypoints_2d": np.concatenate([-k2[..., :2], k2[..., 2:]], axis=-1)},
+        "confidence_above_one": lambda: {"keypoints_2d": np.concatenate([k2[..., :2], 1 + k2[..., 2:]], axis=-1)},
+        "confidence_negative": lambda: {"keypoints_2d": np.concatenate([k2[..., :2], -k2[..., 2:]], axis=-1)},
+        "valid_wrong_length": lambda: {"valid": np.ones(T + 1, bool)},
+    }
+    if broken in ("missing_fps", "missing_3d"):
+        del arrays["fps" if broken == "missing_fps" else "landmarks_3d"]
+    elif broken is not None:
+        arrays.update(changes[broken]())
+    return arrays
+
+
+@st.composite
+def settings_files(draw):
+    """A TOML settings file: known and unknown sections and keys, each value either near the setting's default
+    (scaled, toggled, a subset) or of any TOML type and range; now and then broken TOML."""
+    import dataclasses
+
+    from physmocap.config import Settings
+
+    defaults = {f.name: {g.name: getattr(getattr(Settings(), f.name), g.name)
+                         for g in dataclasses.fields(getattr(Settings(), f.name))}
+                for f in dataclasses.fields(Settings) if f.name != "online"}
+    junk = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**12, 10**12), st.booleans(),
+                     st.text(max_size=8), st.lists(st.floats(-1e3, 1e3), max_size=5),
+                     st.lists(st.text(max_size=4), max_size=3))
+    lines = []
+    for _ in range(draw(st.integers(1, 3))):
+        section = draw(st.sampled_from(sorted(defaults) + ["nonsense"]))
+        lines.append(f"[{section}]")
+        known = defaults.get(section, {})
+        keys = draw(st.lists(st.sampled_from(sorted(known) + ["unknown_key"]), min_size=1, max_size=3, unique=True))
+        for key in keys:
+            near = key in known and draw(st.integers(0, 9)) < 7
+            value = _near(draw, known[key]) if near else draw(junk)
+            if value is not None:
+                lines.append(f"{key} = {_toml_value(value)}")
+    if draw(st.integers(0, 9)) == 0:
+        lines.insert(0, f"online = {_toml_value(draw(st.one_of(st.booleans(), junk)))}")
+    if draw(st.integers(0, 19)) == 0:
+        lines.append("this is [not toml")
+    return "\n".join(lines) + "\n"
+
+
+def _near(draw, default):
+    """A value like `default`: a float or int scaled by 0.25-4, a bool either way, a tuple's subset or itself."""
+    if isinstance(default, bool):
+        return draw(st.booleans())
+    if isinstance(default, (int, float)):
+        value = default * draw(st.sampled_from([0.25, 0.5, 1.0, 2.0, 4.0])) if default else draw(st.floats(0, 1))
+        return int(value) if isinstance(default, int) else float(value)
+    if isinstance(default, tuple):
+        return list(draw(st.lists(st.sampled_from(default), unique=True))) if default else []
+    return default if isinstance(default, str) else None
+
+
+def _toml_value(value) -> str:
+    import math
+
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf") if math.isinf(value) else repr(value)
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"').encode("unicode_escape").decode("ascii") + '"'
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    return str(value)
+
+
+FAST = ["--physics", "none", "--no-overlay"]
+
+
+def _crash_log(out: Path) -> str:
+    """The traceback of the crash log a bug left in `out`, for the failure message."""
+    return "\n".join(log.read_text()[-3000:] for log in out.glob("physmocap-crash-*.log"))
+
+
+def _crash_site(out: Path) -> str:
+    """The innermost physmocap frame of a crash log in `out` (for the statistics), or ''."""
+    sites = [line.strip() for line in _crash_log(out).splitlines() if "physmocap/" in line and "File" in line]
+    return sites[-1].split("physmocap/")[-1] if sites else ""
+
+
+@settings(suppress_health_check=[HealthCheck.too_slow])
+@given(observations_files(), st.sampled_from([FAST, FAST, FAST + ["--online"], ["--physics", "physcap",
+                                                                                 "--no-overlay", "--online"]]))
+def test_any_observations_file_ends_in_a_documented_exit(arrays, options):
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "obs.npz"
+        np.savez(path, **arrays)
+        out = Path(tmp) / "out"
+        code, _, err = run_cli("capture", "--observations", path, "-o", out, *options)
+        event(f"exit {code}")  # --hypothesis-show-statistics: the share of each exit code
+        if code == 1:
+            event(f"crash at {_crash_site(out)}")
+        assert_clean(code, err, out)
+        assert code != 1, _crash_log(out)  # 1 is a bug: its crash log is in `out`
+
+
+@pytest.fixture(scope="module")
+def good_observations(tmp_path_factory):
+    path = tmp_path_factory.mktemp("fuzz") / "obs.npz"
+    np.savez(path, **observation_arrays(3))
+    return path
+
+
+@settings(suppress_health_check=[HealthCheck.too_slow,
+                                                                  HealthCheck.function_scoped_fixture])
+@given(settings_files())
+def test_any_settings_file_ends_in_a_documented_exit(good_observations, text):
+    with tempfile.TemporaryDirectory() as tmp:
+        config = Path(tmp) / "settings.toml"
+        config.write_text(text)
+        out = Path(tmp) / "out"
+        code, _, err = run_cli("capture", "--observations", good_observations, "-o", out, "--config", config, *FAST)
+        event(f"exit {code}")
+        assert_clean(code, err, out)
+        assert code != 1, _crash_log(out)
