@@ -23,7 +23,7 @@ from typing import Iterator
 import physmocap  # noqa: F401 - single-threaded BLAS before numpy loads
 
 from ..config import Settings
-from ..errors import InputError, ReconstructionError
+from ..errors import PhysmocapError
 
 RUN_RECORD = "batch.json"
 ERROR_FILE = "error.txt"
@@ -113,10 +113,9 @@ def capture_one(task: BatchTask) -> dict:
             summary = run_capture(run_dir, task.settings, **source, overlay=task.overlay, progress=None)
     except _Terminated:
         os._exit(128 + signal.SIGTERM)  # the run unwound; nothing of this worker is needed any more
-    except InputError as exc:
-        return failed_record(task, 2, str(exc), time.perf_counter() - started)
-    except ReconstructionError as exc:
-        return failed_record(task, 3, f"could not reconstruct: {exc}", time.perf_counter() - started)
+    except PhysmocapError as exc:  # the exit status and line `physmocap capture` would give
+        reason = str(exc) if exc.prefix == "error" else f"{exc.prefix}: {exc}"
+        return failed_record(task, exc.exit_code, reason, time.perf_counter() - started)
     except Exception as exc:  # a bug must not stop the batch: recorded, with its traceback beside the run
         from ..io.atomic import write_text
 
