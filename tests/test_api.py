@@ -18,7 +18,7 @@ def test_capture_returns_the_result_with_its_summary(captured):
     result = captured
     assert result.path.name == "result.npz" and result.folder.name == "taiji"
     T = result.num_frames
-    assert 23.9 < result.fps < 24.1 and T == 96 and result.physics == "none"
+    assert 23.9 < result.fps < 24.1 and T == 96 and result.physics == "physcap"
     assert result.joints_world.shape == (T, len(result.joint_names), 3)
     assert result.joint("left_ankle").shape == (T, 3) and np.isfinite(result.joint("head")).all()
     assert result.contacts.shape == (T, 4) and result.grf.shape == (T, 4, 3) and result.valid.all()

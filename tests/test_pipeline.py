@@ -23,11 +23,13 @@ from physmocap.run_folder import LOCK_FILE, locked_run_folder
 FRAMES = 48  # of the demo clip's observations: enough for calibration, refinement and physics, and quick
 
 
+KINEMATICS_ONLY = Settings().replace("physics", method="none")  # the runs these tests make need no physics
+
 @pytest.fixture(scope="module")
 def demo_folder(tmp_path_factory):
     """A fresh run of the demo video without physics or overlay (its cache holds the detections)."""
     out = tmp_path_factory.mktemp("demo")
-    run_capture(out, Settings(), video=DEMO_VIDEO, overlay=False)
+    run_capture(out, KINEMATICS_ONLY, video=DEMO_VIDEO, overlay=False)
     return out
 
 
@@ -191,10 +193,10 @@ def test_every_stage_entry_is_checked_before_use(demo_folder, tmp_path, damage, 
 
 
 def test_a_damaged_key_file_is_recomputed(short_observations, tmp_path, caplog):
-    run_capture(tmp_path, Settings(), observations=short_observations, overlay=False)
+    run_capture(tmp_path, KINEMATICS_ONLY, observations=short_observations, overlay=False)
     (tmp_path / "cache" / "kinematics.key").write_text("{not json")
     with caplog.at_level(logging.WARNING, logger="physmocap"):
-        summary = run_capture(tmp_path, Settings(), observations=short_observations, overlay=False)
+        summary = run_capture(tmp_path, KINEMATICS_ONLY, observations=short_observations, overlay=False)
     assert summary.cached_stages == [] and "kinematics.key is damaged" in caplog.text
 
 
@@ -204,13 +206,13 @@ def test_a_foreign_observations_cache_is_not_trusted(demo_folder, short_observat
     # Another clip's detections put in place of this video's, its key file left as it was.
     shutil.copy(short_observations, out / "cache" / "observations.npz")
     with caplog.at_level(logging.WARNING, logger="physmocap"):
-        summary = run_capture(out, Settings(), video=DEMO_VIDEO, overlay=False)
+        summary = run_capture(out, KINEMATICS_ONLY, video=DEMO_VIDEO, overlay=False)
     assert "detect" not in summary.cached_stages and summary.frames == 96
     assert "checksum" in caplog.text
     # Another video's cache folder, key files and all: its key names other bytes, so detection runs again.
     other = tmp_path / "other.mp4"
     other.write_bytes(DEMO_VIDEO.read_bytes() + b"\0")  # a different file that decodes to the same frames
-    summary = run_capture(out, Settings(), video=other, overlay=False)
+    summary = run_capture(out, KINEMATICS_ONLY, video=other, overlay=False)
     assert "detect" not in summary.cached_stages
 
 
@@ -223,9 +225,9 @@ def test_a_second_run_into_a_locked_folder_is_refused(short_observations, tmp_pa
         held.write("4242")
         held.flush()
         with pytest.raises(OutputLocationError, match="another physmocap run .*4242.* writing into this folder"):
-            run_capture(tmp_path, Settings(), observations=short_observations, overlay=False)
+            run_capture(tmp_path, KINEMATICS_ONLY, observations=short_observations, overlay=False)
     assert not (tmp_path / "result.npz").exists()
-    run_capture(tmp_path, Settings(), observations=short_observations, overlay=False)  # released: runs
+    run_capture(tmp_path, KINEMATICS_ONLY, observations=short_observations, overlay=False)  # released: runs
     with locked_run_folder(tmp_path), locked_run_folder(tmp_path):  # one process may nest
         pass
 
@@ -234,7 +236,7 @@ def test_an_output_folder_that_is_a_file_is_refused(short_observations, tmp_path
     target = tmp_path / "taken"
     target.write_text("")
     with pytest.raises(OutputLocationError, match="is a file"):
-        run_capture(target, Settings(), observations=short_observations, overlay=False)
+        run_capture(target, KINEMATICS_ONLY, observations=short_observations, overlay=False)
 
 
 def test_partial_files_and_stale_outputs_are_removed(demo_folder, tmp_path):
@@ -244,7 +246,7 @@ def test_partial_files_and_stale_outputs_are_removed(demo_folder, tmp_path):
     for path in partial:
         path.write_bytes(b"half")
     (out / "overlay.mp4").write_bytes(b"an earlier run's overlay")
-    summary = run_capture(out, Settings(), video=DEMO_VIDEO, overlay=False)
+    summary = run_capture(out, KINEMATICS_ONLY, video=DEMO_VIDEO, overlay=False)
     assert not any(p.exists() for p in partial)
     assert not (out / "overlay.mp4").exists() and str(out / "overlay.mp4") in summary.removed_stale_outputs
     assert "overlay.mp4" not in (out / "report.html").read_text()
@@ -255,7 +257,7 @@ def test_partial_files_and_stale_outputs_are_removed(demo_folder, tmp_path):
 
 @pytest.mark.parametrize("online", [False, pytest.param(True, marks=pytest.mark.slow)], ids=["offline", "online"])
 def test_fresh_cached_and_observations_runs_agree(demo_folder, tmp_path, online):
-    settings = Settings(online=online)
+    settings = Settings(online=online).replace("physics", method="none")
     fresh = demo_folder if not online else tmp_path / "fresh"
     if online:
         run_capture(fresh, settings, video=DEMO_VIDEO, overlay=False)

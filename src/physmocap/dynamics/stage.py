@@ -49,6 +49,7 @@ class PhysicsMotion:
         """Every field as named arrays for an .npz file (no floor_plane: nan); `from_arrays` rebuilds it."""
         arrays = {f.name: np.asarray(getattr(self, f.name)) for f in dataclasses.fields(self)}
         arrays["floor_plane"] = np.full(4, np.nan) if self.floor_plane is None else np.asarray(self.floor_plane)
+        arrays["unexplained"] = np.zeros(0, bool) if self.unexplained is None else np.asarray(self.unexplained, bool)
         return arrays
 
     @classmethod
@@ -57,6 +58,7 @@ class PhysicsMotion:
         values = {f.name: arrays[f.name] for f in dataclasses.fields(cls)}
         values["seconds"] = float(values["seconds"])
         values["floor_plane"] = None if np.isnan(values["floor_plane"]).any() else values["floor_plane"]
+        values["unexplained"] = None if len(values["unexplained"]) == 0 else values["unexplained"]
         return cls(**values)
 
 

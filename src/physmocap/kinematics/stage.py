@@ -95,11 +95,11 @@ class KinematicMotion:
         lengths = SkeletonLengths(**json.loads(str(arrays["lengths"])))
         size = arrays["image_size"]
         camera = Camera(arrays["camera_K"], arrays["camera_R"], arrays["camera_t"], (int(size[0]), int(size[1])))
-        plane = Floor.from_plane(arrays["floor"])
+        plane = np.asarray(arrays["floor"], float)  # as stored: renormalising would change its last bits
         calibration = Calibration(lengths, float(arrays["landmark_scale"]), int(arrays["frames_used"]),
                                   tuple(str(x) for x in arrays["replaced"]), float(arrays["height"]),
                                   float(arrays["detector_height"]), str(arrays["height_source"]))
-        floor = Floor(plane.normal, plane.offset, float(arrays["floor_inliers"]), float(arrays["floor_tilt_spread"]),
+        floor = Floor(plane[:3], float(plane[3]), float(arrays["floor_inliers"]), float(arrays["floor_tilt_spread"]),
                       float(arrays["floor_prior_disagreement"]), bool(arrays["floor_trusted"]),
                       str(arrays["floor_source"]))
         return cls(build_body_model(lengths, float(arrays["mass"])), calibration, camera, floor, arrays["qpos"],
