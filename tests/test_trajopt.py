@@ -3,6 +3,10 @@ the solutions against physics (Newton at every frame, forces in the pyramid, sti
 
 import dataclasses
 import logging
+import signal
+import subprocess
+import sys
+import time
 
 import casadi as ca
 import mujoco
@@ -23,6 +27,7 @@ from physmocap.trajopt.reduced import (boundary_velocity, euler_to_matrix, matri
                                        world_inertia)
 from physmocap.trajopt.splines import Node, Segment, Trajectory, hermite_weights
 from physmocap.trajopt.stage import run_trajopt, window_ranges
+from conftest import DEMO_VIDEO
 
 FPS = 30.0
 G = 9.81
@@ -524,3 +529,41 @@ def test_a_solution_far_from_the_input_is_not_used(body, caplog):
     assert np.array_equal(result.qpos, q) and np.all(result.grf == 0) and np.all(result.qp_failures == 1)
     assert "reject_departure" in caplog.text and "departed" in result.summary()
     assert "NOT used" in result.windows[0].describe()
+
+
+# The CLI, with each IPOPT run announced on stdout so that the test can interrupt one while it runs.
+ANNOUNCING_CLI = """
+import sys
+from physmocap.cli import main
+from physmocap.trajopt.problem import Program
+solve = Program.solve
+def announced(self, *args, **kwargs):
+    print("IPOPT starts", flush=True)
+    return solve(self, *args, **kwargs)
+Program.solve = announced
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_ctrl_c_inside_the_solver_stops_the_run_and_caches_nothing(tmp_path):
+    out = tmp_path / "run"
+    capture = ["capture", str(DEMO_VIDEO), "-o", str(out), "--no-overlay"]
+    first = subprocess.run([sys.executable, "-m", "physmocap.cli", *capture, "--physics", "none"],
+                           capture_output=True, text=True, timeout=600)
+    assert first.returncode == 0, first.stderr
+    child = subprocess.Popen([sys.executable, "-c", ANNOUNCING_CLI, *capture, "--physics", "trajopt"],
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines, runs = [], 0
+    for line in child.stdout:
+        lines.append(line)
+        runs += line.startswith("IPOPT starts")
+        if runs == 2:  # the first window's dynamics stage, the longest IPOPT run
+            time.sleep(0.05)
+            child.send_signal(signal.SIGINT)
+            break
+    text = "".join(lines) + child.communicate(timeout=600)[0]
+    assert "KeyboardInterruptException" in text, text  # CasADi caught it inside IPOPT
+    assert child.returncode == 130, text
+    assert "interrupted" in text and "Traceback" not in text
+    assert not (out / "cache" / "trajopt.npz").exists()  # nothing from the interrupted stage
+    assert (out / "cache" / "observations.npz").exists()  # the finished stages stay cached
