@@ -29,6 +29,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy.signal import savgol_filter
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_synthetic import CLIPS, FPS, SECONDS, first_seconds, model_height  # noqa: E402
@@ -42,6 +43,7 @@ from physmocap.contacts.noise import MEDIAPIPE_NOISE  # noqa: E402
 from physmocap.contacts.predict import predict_contacts  # noqa: E402
 from physmocap.dynamics.stage import run_physcap  # noqa: E402
 from physmocap.evaluation import score_against_truth, to_truth_world  # noqa: E402
+from physmocap.io.atomic import write_text  # noqa: E402
 from physmocap.kinematics.stage import fit_motion  # noqa: E402
 from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
 from physmocap.mocap.synthetic import make_observations, random_camera, resample  # noqa: E402
@@ -53,12 +55,17 @@ PIECE_SECONDS = 2.0
 TOUCHING = 0.02  # m: a heel or toe this close to the floor touches it (the labels' height limit is 5 cm)
 SCALING_CLIP = "cmu_iclone_cc3_retarget/001_01.bvh"
 SCALING_SECONDS = (2.0, 5.0, 10.0, 20.0)
+# Validation clips (CMU subjects 2, 5 and 7; the test set holds 6 and 131): walk, jump and balance, dance steps,
+# slow walk, bend and scoop; the force_rate weight is chosen on these, at 24 and 30 fps.
+VALIDATION_CLIPS = ("cmu_iclone_cc3_retarget/002_01.bvh", "cmu_iclone_cc3_retarget/002_04.bvh",
+                    "cmu_iclone_cc3_retarget/005_11.bvh", "cmu_iclone_cc3_retarget/007_04.bvh",
+                    "cmu_iclone_cc3_retarget/002_06.bvh")
 KEYS = ("global_mpjpe_mm", "first_frame_aligned_mm", "mpjpe_root_mm", "floating_percent", "penetration_percent",
         "skate_percent", "grf_mean_percent_bw", "grf_max_percent_bw", "grf_ballistic_percent_bw", "e_smooth_mm")
 
 
-def observe(name: str, seed: int, seconds: float):
-    clip = first_seconds(resample(load_mocap(MOCAP / name), FPS), seconds)
+def observe(name: str, seed: int, seconds: float, fps: float = FPS):
+    clip = first_seconds(resample(load_mocap(MOCAP / name), fps), seconds)
     rng = np.random.default_rng(seed)
     K, R, t = random_camera(clip, rng)
     obs, truth = make_observations(clip, K, R, t, rng, MEDIAPIPE_NOISE)
@@ -153,6 +160,59 @@ def evaluate_case(name: str, seed: int, settings_trajopt: TrajoptSettings) -> di
                                               stages=[dataclasses.asdict(s) for s in w.stages])
                                          for w in result.windows],
         pieces=pieces)
+
+
+def implied_vertical_force(com: np.ndarray, mass: float, fps: float) -> np.ndarray:
+    """(T,) N: the vertical force a centre-of-mass path (T, 3) implies, m (z'' + g), its acceleration from a
+    cubic Savitzky-Golay fit over about 0.3 s (at least 5 frames), as a force plate would read it after the usual
+    low-pass."""
+    window = max(5, int(round(0.3 * fps)) | 1)
+    return mass * (savgol_filter(com[:, 2], window, 3, deriv=2, delta=1.0 / fps) + metrics.GRAVITY)
+
+
+def force_check(grf: np.ndarray, converged: np.ndarray, implied: np.ndarray, mass: float) -> dict:
+    """The largest solved vertical force (over converged frames) against the largest the motion implies, both in
+    % of body weight, their ratio, and the largest frame-to-frame alternation of the solved net vertical force
+    (second difference, % BW): the chatter of issue 24."""
+    weight = mass * metrics.GRAVITY
+    fz = grf[..., 2].sum(axis=1)
+    solved = float(fz[converged].max()) if converged.any() else float("nan")
+    alternation = float(np.abs(np.diff(fz, 2)).max()) if len(fz) > 2 else 0.0
+    return dict(solved_max_percent_bw=100 * solved / weight, implied_max_percent_bw=100 * float(implied.max()) / weight,
+                ratio=solved / float(implied.max()), alternation_percent_bw=100 * alternation / weight,
+                converged_fraction=float(converged.mean()))
+
+
+def validation(weights: list[float], fps_values: list[float]) -> list[dict]:
+    """Trajopt's accuracy and forces on the validation clips (VALIDATION_CLIPS, subjects the reported test set
+    does not hold) at each frame rate, for each force_rate weight: what the weight is chosen on."""
+    rows = []
+    for name in VALIDATION_CLIPS:
+        for fps in fps_values:
+            obs, truth, settings = observe(name, 0, SECONDS, fps)
+            motion = fit_motion(obs, settings)
+            contacts, _, _ = predict_contacts(obs, "centred")
+            refined = refine_kinematics(obs, motion, contacts, settings.fit, TrajoptSettings())
+            body = refined.motion.body
+            names = [str(n) for n in truth["joint_names"]]
+            true_com = kin.center_of_mass_from_points(body, truth["joints_world"], names)
+            implied = implied_vertical_force(true_com, body.mass, fps)
+            for weight in weights:
+                settings_trajopt = TrajoptSettings(force_rate=weight)
+                start = time.perf_counter()
+                result = run_trajopt(body, refined.motion.qpos, obs.fps, refined.contacts, settings_trajopt)
+                seconds = time.perf_counter() - start
+                scores = score(refined.motion, result.qpos, truth)
+                rows.append(dict(clip=name.split("/")[-1], fps=fps, force_rate=weight, seconds=seconds,
+                                 global_mpjpe_mm=scores["global_mpjpe_mm"], skate_percent=scores["skate_percent"],
+                                 **force_check(result.grf, result.converged, implied, body.mass)))
+                r = rows[-1]
+                print(f"validation {r['clip']} {fps:.0f} fps force_rate {weight:g}: {seconds:.1f} s, global "
+                      f"{r['global_mpjpe_mm']:.1f} mm, skate {r['skate_percent']:.1f}%, solved max "
+                      f"{r['solved_max_percent_bw']:.0f}% BW / implied {r['implied_max_percent_bw']:.0f}% = "
+                      f"{r['ratio']:.2f}, alternation {r['alternation_percent_bw']:.0f}% BW, converged "
+                      f"{r['converged_fraction']:.2f}", flush=True)
+    return rows
 
 
 def scaling(settings_trajopt: TrajoptSettings, repeats: int) -> list[dict]:
@@ -287,8 +347,16 @@ def main(argv=None) -> dict:
     parser.add_argument("--scaling-only", action="store_true",
                         help="measure only the time against clip length, keeping the cases of the --json file")
     parser.add_argument("--json", default=str(RESULTS / "trajopt.json"))
+    parser.add_argument("--validation", type=float, nargs="+", metavar="WEIGHT",
+                        help="only the validation clips, trajopt with each force_rate weight given")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(message)s")
+    if args.validation:
+        rows = validation(args.validation, [24.0, 30.0])
+        RESULTS.mkdir(parents=True, exist_ok=True)
+        write_text(RESULTS / "trajopt_validation.json", json.dumps(dict(
+            machine=machine_description(), revision=git_revision(), rows=rows), indent=2, default=float))
+        return dict(rows=rows)
     global SCALING_SECONDS
     if args.quick:
         SCALING_SECONDS = SCALING_SECONDS[:3]

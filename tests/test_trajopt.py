@@ -19,7 +19,7 @@ from physmocap.body.model import CONTACT_POINTS, build_body_model, template_leng
 from physmocap.config import TrajoptSettings
 from physmocap.errors import InputError
 from physmocap.trajopt.formulation import (Window, acceleration_continuity, angular_velocity, build_window_problem,
-                                          euler_torque, phase_layout, rotate)
+                                          euler_torque, frame_sample_times, phase_layout, rotate)
 from physmocap.trajopt.phases import (clean_flags, contact_phases, flags_from_phases, segment_count,
                                      split_drifting)
 from physmocap.trajopt.problem import ConstraintSet, CostTerm, Program, VariableSet
@@ -371,6 +371,50 @@ def check_physics(body, result, settings):
         still = c[1:] & c[:-1]
         assert np.all(np.linalg.norm(np.diff(result.feet[:, i], axis=0)[still], axis=-1) < 1e-6)
         assert np.all(result.feet[~c, i, 2] > -1e-4)
+
+
+def test_frame_samples_hold_every_frame_whatever_the_rate():
+    for fps in (10.0, 23.976, 24.0, 30.0, 60.0):
+        frames = np.arange(37) / fps
+        times = frame_sample_times(frames, 1.0 / 60.0)
+        assert np.isin(frames, times).all()
+        assert np.diff(times).max() <= 1.0 / 60.0 + 1e-9 and np.diff(times).min() > 0
+    assert np.array_equal(frame_sample_times(frames, 0.0), frames)
+
+
+def test_force_rate_cost_is_the_frames_force_differences(body):
+    q = sway(body, 30)
+    red = reduced_motion(body, q, FPS)
+    flags = np.ones(30, bool)
+    flags[12:18] = False
+    phases = [contact_phases(flags, red.times)] + [contact_phases(np.ones(30, bool), red.times)] * 3
+    settings = TrajoptSettings(force_rate=0.3)
+    problem = build_window_problem(Window(red, phases), settings)
+    x = np.random.default_rng(0).normal(size=int(problem.x.shape[0]))
+    cost = float(ca.Function("c", [problem.x], [problem.costs["force_rate"].value])(x))
+    expected = 0.0
+    for force in problem.forces:
+        f = np.asarray(ca.Function("f", [problem.x], [problem.sample(force.trajectory, red.times)])(x))
+        expected += settings.force_rate * np.sum((np.diff(f, axis=1) * FPS) ** 2)
+    assert np.isclose(cost, expected, rtol=1e-9)
+
+
+def test_forces_at_24_fps_obey_newton_at_every_frame_without_chatter(body):
+    """At 24 fps a grid of 1/60 s from the first frame missed every other frame, and there the forces, free,
+    chattered up to 5-6 times body weight on slow tai-chi with flickering contact labels (issue 24)."""
+    fps, frames = 24.0, 72
+    q = sway(body, frames)
+    contacts = np.ones((frames, 4), bool)
+    contacts[:, 1] = (np.arange(frames) // 3) % 2 == 0  # the left toe flickers every 3 frames
+    s = TrajoptSettings(contact_drift=0.0)
+    result = run_trajopt(body, q, fps, contacts, s)
+    assert result.converged.all()
+    weight = body.mass * G
+    net = result.grf.sum(axis=1)
+    newton = body.mass * result.com_acceleration - (net + np.array([0, 0, -weight]))
+    assert np.abs(newton).max() < 1e-3 * weight  # at every frame
+    assert net[:, 2].max() < 1.3 * weight and net[:, 2].min() > 0.7 * weight
+    assert np.abs(np.diff(net[:, 2], 2)).max() < 0.2 * weight
 
 
 def test_standing_is_carried_by_the_feet(body):

@@ -311,7 +311,7 @@ class PhysicsSettings:
 
 TRAJOPT_CONSTRAINTS: tuple[str, ...] = ("dynamics", "acceleration_continuity", "velocity_boundaries", "foot_length",
                                          "leg_length", "force_limits", "above_floor")
-TRAJOPT_COSTS: tuple[str, ...] = ("data", "velocity", "acceleration", "duration")
+TRAJOPT_COSTS: tuple[str, ...] = ("data", "velocity", "acceleration", "duration", "force_rate")
 
 
 @dataclass(frozen=True)
@@ -434,6 +434,8 @@ class TrajoptSettings:
     # (ours; the paper: 0, free: the knees then swivel away, +16-20 mm knee error on synthetic clips, measured;
     # the contact points' 100 still decide); 0 .. 1e6
     ik_iterations: int = 20  # Levenberg-Marquardt iterations of the IK; 1 .. 200
+    force_rate: float = 1e-5  # w_f of the `force_rate` cost, (body weights per second)^-2 (ours; see
+    # docs/decisions/trajopt-force-chatter.md); 0 .. 1e4
 
     def check(self) -> None:
         for name in ("kinematic_contact_velocity", "kinematic_floor", "kinematic_velocity",
@@ -473,6 +475,7 @@ class TrajoptSettings:
         _within("trajopt.ik_feet_weight", self.ik_feet_weight, 0.01, 1e6, "")
         _within("trajopt.ik_leg_weight", self.ik_leg_weight, 0.0, 1e6, "")
         _within("trajopt.ik_iterations", self.ik_iterations, 1, 200, "")
+        _within("trajopt.force_rate", self.force_rate, 0.0, 1e4, "")
         unknown = set(self.constraints) - set(TRAJOPT_CONSTRAINTS)
         if unknown:
             raise InputError(f"trajopt.constraints: unknown {sorted(unknown)}, expected some of {TRAJOPT_CONSTRAINTS}.")
