@@ -397,6 +397,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--scaling-only", action="store_true",
                         help="measure only the time against clip length, keeping the cases of the --json file")
     parser.add_argument("--json", default=str(RESULTS / "trajopt.json"))
+    parser.add_argument("--clips", nargs="+", help="these clips of the set only (file names, e.g. 131_01.bvh)")
     parser.add_argument("--accuracy-only", action="store_true",
                         help="only the accuracy rows of the cases (no 2 s pieces, no scaling); writes --json")
     parser.add_argument("--long", type=float, nargs="+", metavar="SECONDS",
@@ -430,6 +431,8 @@ def main(argv=None) -> dict:
         Path(args.json).with_suffix(".md").write_text(markdown(out))
         return out
     clips = CLIPS[:3] if args.quick else CLIPS
+    if args.clips:
+        clips = tuple(name for name in CLIPS if name.split("/")[-1] in args.clips)
     seeds = (0,) if args.quick else tuple(args.seeds)
     cases = []
     for name in clips:
