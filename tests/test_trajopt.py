@@ -575,9 +575,12 @@ def test_a_solution_far_from_the_input_is_not_used(body, caplog):
     assert "NOT used" in result.windows[0].describe()
 
 
-# The CLI, with each IPOPT run announced on stdout so that the test can interrupt one while it runs.
+# The CLI, with each IPOPT run announced on stdout so that the test can interrupt one while it runs. Ctrl-C
+# handled as on a terminal: a test run in the background (a shell's `&`) inherits SIGINT ignored.
 ANNOUNCING_CLI = """
+import signal
 import sys
+signal.signal(signal.SIGINT, signal.default_int_handler)
 from physmocap.cli import main
 from physmocap.trajopt.problem import Program
 solve = Program.solve
