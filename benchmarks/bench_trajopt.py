@@ -10,9 +10,15 @@ the estimated floor is its table E3). Convergence is counted as the paper counts
 when IPOPT converges on it. Scaling: the 22.9 s CMU clip 001_01 (jumps and turns) fitted the same way, trajopt on
 its first 2, 5, 10 and 20 s (wall time of run_trajopt alone, median of --repeats runs).
 
-    .venv/bin/python benchmarks/bench_trajopt.py [--quick] [--seeds 0 1] [--repeats 1] [--scaling-only] [--json OUT.json]
+    .venv/bin/python benchmarks/bench_trajopt.py [--quick] [--seeds 0 1] [--repeats 1] [--scaling-only]
+        [--clips 131_01.bvh ...] [--accuracy-only] [--json OUT.json]
 
-Writes benchmarks/results/trajopt.json and trajopt.md.
+Writes benchmarks/results/trajopt.json and trajopt.md. Other modes (issues 23, 24):
+    --validation 0 1e-5 ...  the force_rate weight on validation clips (subjects 2, 5, 7) at 24 and 30 fps:
+                             accuracy, largest solved vertical force over the largest the true motion implies,
+                             frame-to-frame alternation; writes results/trajopt_validation.json
+    --long 2 5 10 30 ...     time against clip length on a looped dance, wall and CPU seconds, load, every
+                             window's frames, iterations, seconds and restarts; writes results/trajopt_long.json
 """
 
 from __future__ import annotations
