@@ -10,9 +10,15 @@ the estimated floor is its table E3). Convergence is counted as the paper counts
 when IPOPT converges on it. Scaling: the 22.9 s CMU clip 001_01 (jumps and turns) fitted the same way, trajopt on
 its first 2, 5, 10 and 20 s (wall time of run_trajopt alone, median of --repeats runs).
 
-    .venv/bin/python benchmarks/bench_trajopt.py [--quick] [--seeds 0 1] [--repeats 1] [--scaling-only] [--json OUT.json]
+    .venv/bin/python benchmarks/bench_trajopt.py [--quick] [--seeds 0 1] [--repeats 1] [--scaling-only]
+        [--clips 131_01.bvh ...] [--accuracy-only] [--json OUT.json]
 
-Writes benchmarks/results/trajopt.json and trajopt.md.
+Writes benchmarks/results/trajopt.json and trajopt.md. Other modes (issues 23, 24):
+    --validation 0 1e-5 ...  the force_rate weight on validation clips (subjects 2, 5, 7) at 24 and 30 fps:
+                             accuracy, largest solved vertical force over the largest the true motion implies,
+                             frame-to-frame alternation; writes results/trajopt_validation.json
+    --long 2 5 10 30 ...     time against clip length on a looped dance, wall and CPU seconds, load, every
+                             window's frames, iterations, seconds and restarts; writes results/trajopt_long.json
 """
 
 from __future__ import annotations
@@ -23,12 +29,14 @@ import argparse
 import dataclasses
 import json
 import logging
+import os
 import statistics
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+from scipy.signal import savgol_filter
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_synthetic import CLIPS, FPS, SECONDS, first_seconds, model_height  # noqa: E402
@@ -42,6 +50,7 @@ from physmocap.contacts.noise import MEDIAPIPE_NOISE  # noqa: E402
 from physmocap.contacts.predict import predict_contacts  # noqa: E402
 from physmocap.dynamics.stage import run_physcap  # noqa: E402
 from physmocap.evaluation import score_against_truth, to_truth_world  # noqa: E402
+from physmocap.io.atomic import write_text  # noqa: E402
 from physmocap.kinematics.stage import fit_motion  # noqa: E402
 from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
 from physmocap.mocap.synthetic import make_observations, random_camera, resample  # noqa: E402
@@ -53,12 +62,18 @@ PIECE_SECONDS = 2.0
 TOUCHING = 0.02  # m: a heel or toe this close to the floor touches it (the labels' height limit is 5 cm)
 SCALING_CLIP = "cmu_iclone_cc3_retarget/001_01.bvh"
 SCALING_SECONDS = (2.0, 5.0, 10.0, 20.0)
+LONG_CLIP = "cmu_iclone_cc3_retarget/005_07.bvh"  # dance: small jetes, attitude, pirouette, turn (subject 5)
+# Validation clips (CMU subjects 2, 5 and 7; the test set holds 6 and 131): walk, jump and balance, dance steps,
+# slow walk, bend and scoop; the force_rate weight is chosen on these, at 24 and 30 fps.
+VALIDATION_CLIPS = ("cmu_iclone_cc3_retarget/002_01.bvh", "cmu_iclone_cc3_retarget/002_04.bvh",
+                    "cmu_iclone_cc3_retarget/005_11.bvh", "cmu_iclone_cc3_retarget/007_04.bvh",
+                    "cmu_iclone_cc3_retarget/002_06.bvh")
 KEYS = ("global_mpjpe_mm", "first_frame_aligned_mm", "mpjpe_root_mm", "floating_percent", "penetration_percent",
         "skate_percent", "grf_mean_percent_bw", "grf_max_percent_bw", "grf_ballistic_percent_bw", "e_smooth_mm")
 
 
-def observe(name: str, seed: int, seconds: float):
-    clip = first_seconds(resample(load_mocap(MOCAP / name), FPS), seconds)
+def observe(name: str, seed: int, seconds: float, fps: float = FPS):
+    clip = first_seconds(resample(load_mocap(MOCAP / name), fps), seconds)
     rng = np.random.default_rng(seed)
     K, R, t = random_camera(clip, rng)
     obs, truth = make_observations(clip, K, R, t, rng, MEDIAPIPE_NOISE)
@@ -101,7 +116,7 @@ def true_flight(truth: dict, body, grf: np.ndarray) -> dict:
                 trajopt_airborne_percent_bw=median(flight & ~touching))
 
 
-def evaluate_case(name: str, seed: int, settings_trajopt: TrajoptSettings) -> dict:
+def evaluate_case(name: str, seed: int, settings_trajopt: TrajoptSettings, pieces: bool = True) -> dict:
     obs, truth, settings = observe(name, seed, SECONDS)
     motion = fit_motion(obs, settings)
     contacts, stationary, _ = predict_contacts(obs, "centred")
@@ -132,8 +147,8 @@ def evaluate_case(name: str, seed: int, settings_trajopt: TrajoptSettings) -> di
     }
     # The paper's protocol: 2 s pieces of the refined motion, each on its own.
     step = int(round(PIECE_SECONDS * obs.fps))
-    pieces = []
-    for a in range(0, len(refined.motion.qpos) - step // 2, step):
+    pieces, starts = [], range(0, len(refined.motion.qpos) - step // 2, step) if pieces else []
+    for a in starts:
         sl = slice(a, min(a + step, len(refined.motion.qpos)))
         t0 = time.perf_counter()
         piece = run_trajopt(refined.motion.body, refined.motion.qpos[sl], obs.fps, refined.contacts[sl],
@@ -153,6 +168,59 @@ def evaluate_case(name: str, seed: int, settings_trajopt: TrajoptSettings) -> di
                                               stages=[dataclasses.asdict(s) for s in w.stages])
                                          for w in result.windows],
         pieces=pieces)
+
+
+def implied_vertical_force(com: np.ndarray, mass: float, fps: float) -> np.ndarray:
+    """(T,) N: the vertical force a centre-of-mass path (T, 3) implies, m (z'' + g), its acceleration from a
+    cubic Savitzky-Golay fit over about 0.3 s (at least 5 frames), as a force plate would read it after the usual
+    low-pass."""
+    window = max(5, int(round(0.3 * fps)) | 1)
+    return mass * (savgol_filter(com[:, 2], window, 3, deriv=2, delta=1.0 / fps) + metrics.GRAVITY)
+
+
+def force_check(grf: np.ndarray, converged: np.ndarray, implied: np.ndarray, mass: float) -> dict:
+    """The largest solved vertical force (over converged frames) against the largest the motion implies, both in
+    % of body weight, their ratio, and the largest frame-to-frame alternation of the solved net vertical force
+    (second difference, % BW): the chatter of issue 24."""
+    weight = mass * metrics.GRAVITY
+    fz = grf[..., 2].sum(axis=1)
+    solved = float(fz[converged].max()) if converged.any() else float("nan")
+    alternation = float(np.abs(np.diff(fz, 2)).max()) if len(fz) > 2 else 0.0
+    return dict(solved_max_percent_bw=100 * solved / weight, implied_max_percent_bw=100 * float(implied.max()) / weight,
+                ratio=solved / float(implied.max()), alternation_percent_bw=100 * alternation / weight,
+                converged_fraction=float(converged.mean()))
+
+
+def validation(weights: list[float], fps_values: list[float]) -> list[dict]:
+    """Trajopt's accuracy and forces on the validation clips (VALIDATION_CLIPS, subjects the reported test set
+    does not hold) at each frame rate, for each force_rate weight: what the weight is chosen on."""
+    rows = []
+    for name in VALIDATION_CLIPS:
+        for fps in fps_values:
+            obs, truth, settings = observe(name, 0, SECONDS, fps)
+            motion = fit_motion(obs, settings)
+            contacts, _, _ = predict_contacts(obs, "centred")
+            refined = refine_kinematics(obs, motion, contacts, settings.fit, TrajoptSettings())
+            body = refined.motion.body
+            names = [str(n) for n in truth["joint_names"]]
+            true_com = kin.center_of_mass_from_points(body, truth["joints_world"], names)
+            implied = implied_vertical_force(true_com, body.mass, fps)
+            for weight in weights:
+                settings_trajopt = TrajoptSettings(force_rate=weight)
+                start = time.perf_counter()
+                result = run_trajopt(body, refined.motion.qpos, obs.fps, refined.contacts, settings_trajopt)
+                seconds = time.perf_counter() - start
+                scores = score(refined.motion, result.qpos, truth)
+                rows.append(dict(clip=name.split("/")[-1], fps=fps, force_rate=weight, seconds=seconds,
+                                 global_mpjpe_mm=scores["global_mpjpe_mm"], skate_percent=scores["skate_percent"],
+                                 **force_check(result.grf, result.converged, implied, body.mass)))
+                r = rows[-1]
+                print(f"validation {r['clip']} {fps:.0f} fps force_rate {weight:g}: {seconds:.1f} s, global "
+                      f"{r['global_mpjpe_mm']:.1f} mm, skate {r['skate_percent']:.1f}%, solved max "
+                      f"{r['solved_max_percent_bw']:.0f}% BW / implied {r['implied_max_percent_bw']:.0f}% = "
+                      f"{r['ratio']:.2f}, alternation {r['alternation_percent_bw']:.0f}% BW, converged "
+                      f"{r['converged_fraction']:.2f}", flush=True)
+    return rows
 
 
 def scaling(settings_trajopt: TrajoptSettings, repeats: int) -> list[dict]:
@@ -180,6 +248,49 @@ def scaling(settings_trajopt: TrajoptSettings, repeats: int) -> list[dict]:
     return out
 
 
+def loop_indices(frames: int, total: int) -> np.ndarray:
+    """(total,) frame indices that play a clip of `frames` forwards, backwards, forwards...: positions stay
+    continuous at the turns, and a motion played backwards has the same accelerations (and so forces)."""
+    period = 2 * (frames - 1)
+    k = np.arange(total) % period
+    return np.where(k < frames, k, period - k)
+
+
+def long_scaling(lengths: list[float], settings_trajopt: TrajoptSettings) -> list[dict]:
+    """Time against clip length up to minutes: the B.4-refined motion of LONG_CLIP (a dance) looped by
+    `loop_indices` to each length, run_trajopt alone; wall and CPU seconds (this process), the load average
+    before and after, and every window's frames, iterations, seconds and restarts."""
+    obs, truth, settings = observe(LONG_CLIP, 0, 10.0)
+    motion = fit_motion(obs, settings)
+    contacts, _, _ = predict_contacts(obs, "centred")
+    refined = refine_kinematics(obs, motion, contacts, settings.fit, settings_trajopt)
+    out = []
+    for seconds in lengths:
+        idx = loop_indices(len(refined.motion.qpos), int(round(seconds * obs.fps)))
+        load_before = os.getloadavg()[0]
+        wall, cpu = time.perf_counter(), time.process_time()
+        result = run_trajopt(refined.motion.body, refined.motion.qpos[idx], obs.fps, refined.contacts[idx],
+                             settings_trajopt)
+        wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+        windows = [dict(frames=w.stop - w.start + 1, kept=w.keep - w.start, seconds=w.seconds,
+                        build_seconds=w.build_seconds, restarted=w.restarted, converged=w.converged,
+                        iterations={st.name: st.iterations for st in w.stages},
+                        ipopt_seconds=sum(st.seconds for st in w.stages), variables=w.variables)
+                   for w in result.windows]
+        out.append(dict(seconds=seconds, frames=len(idx), wall_seconds=wall, cpu_seconds=cpu,
+                        load_before=load_before, load_after=os.getloadavg()[0], windows=windows,
+                        ik_seconds=result.ik_seconds, converged_fraction=float(result.converged.mean())))
+        r = out[-1]
+        print(f"long {seconds:5.0f} s: wall {wall:6.1f} s ({wall / seconds:.2f} s/s), CPU {cpu:6.1f} s "
+              f"({cpu / seconds:.2f} s/s), load {load_before:.1f}-{r['load_after']:.1f}, {len(windows)} windows, "
+              f"iterations/window {np.mean([sum(w['iterations'].values()) for w in windows]):.0f}, build "
+              f"{sum(w['build_seconds'] for w in windows):.1f} s, "
+              f"IPOPT {sum(w['ipopt_seconds'] for w in windows):.1f} s, "
+              f"IK {result.ik_seconds:.1f} s, restarts {sum(w['restarted'] for w in windows)}, converged "
+              f"{r['converged_fraction']:.2f}", flush=True)
+    return out
+
+
 def scaling_fit(rows: list[dict]) -> dict:
     """The growth of solve time with clip length from the scaling rows: the least-squares line through
     (log length, log median wall time), t = a L^b (exponent b: 1 linear, 2 quadratic), and the cost per second of
@@ -199,7 +310,7 @@ def summarise(cases: list[dict]) -> dict:
     for method in METHODS:
         summary[method] = {k: float(np.nanmean([c["rows"][method][k] for c in cases])) for k in KEYS}
     pieces = [p for c in cases for p in c["pieces"]]
-    summary["convergence"] = dict(
+    summary["convergence"] = {} if not pieces else dict(
         pieces=len(pieces), converged=int(sum(p["converged"] for p in pieces)),
         share=float(np.mean([p["converged"] for p in pieces])) if pieces else float("nan"),
         piece_seconds_median=float(np.median([p["seconds"] for p in pieces])) if pieces else float("nan"),
@@ -223,6 +334,16 @@ def flight_forces(flight: dict) -> str:
     return f"{flight['frames']}" + (": " + ", ".join(forces) if forces else "")
 
 
+def method_table(summary: dict) -> str:
+    """The accuracy rows: one per method, the means over the cases."""
+    lines = ["| method | global MPJPE mm | first-frame aligned mm | root-rel. MPJPE mm | floating % | penetration % "
+             "| skate % | GRF mean % BW | GRF max % BW | ballistic GRF % BW | e_smooth mm |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for method in METHODS:
+        lines.append(f"| {method} | " + " | ".join(f"{summary[method][k]:.1f}" for k in KEYS) + " |")
+    return "\n".join(lines)
+
+
 def markdown(out: dict) -> str:
     s = out["summary"]
     lines = ["# Trajectory optimisation (Rempe et al. 2020) on the synthetic set", "",
@@ -230,12 +351,7 @@ def markdown(out: dict) -> str:
              f"{SECONDS:.0f} s each at most, {FPS:.0f} fps; contacts from the centred network; floor metrics "
              "against the true floor and true contacts. Rows 'true floor': the true floor given to the kinematic "
              "stage and kept (the paper's table 2 protocol); the others estimate it (its table E3).", "",
-             "| method | global MPJPE mm | first-frame aligned mm | root-rel. MPJPE mm | floating % | penetration % "
-             "| skate % | GRF mean % BW | GRF max % BW | ballistic GRF % BW | e_smooth mm |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for method in METHODS:
-        r = s[method]
-        lines.append(f"| {method} | " + " | ".join(f"{r[k]:.1f}" for k in KEYS) + " |")
+             method_table(s)]
     c, flight = s["convergence"], s["true_flight"]
     lines += ["", f"Ballistic GRF: median force over the frames in flight by the true labels, averaged over the "
               f"{flight['cases']} cases that have any ({flight['frames']} frames in all). The true motion itself "
@@ -287,8 +403,28 @@ def main(argv=None) -> dict:
     parser.add_argument("--scaling-only", action="store_true",
                         help="measure only the time against clip length, keeping the cases of the --json file")
     parser.add_argument("--json", default=str(RESULTS / "trajopt.json"))
+    parser.add_argument("--clips", nargs="+", help="these clips of the set only (file names, e.g. 131_01.bvh)")
+    parser.add_argument("--accuracy-only", action="store_true",
+                        help="only the accuracy rows of the cases (no 2 s pieces, no scaling); writes --json")
+    parser.add_argument("--long", type=float, nargs="+", metavar="SECONDS",
+                        help="only the time against clip length on a looped dance, at these lengths (s)")
+    parser.add_argument("--validation", type=float, nargs="+", metavar="WEIGHT",
+                        help="only the validation clips, trajopt with each force_rate weight given")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(message)s")
+    if args.long:
+        rows = long_scaling(args.long, TrajoptSettings())
+        fit = scaling_fit([dict(seconds=r["seconds"], wall_seconds=r["cpu_seconds"]) for r in rows])
+        print(f"CPU seconds against length: t = {fit['coefficient_seconds']:.2f} L^{fit['exponent']:.2f}")
+        write_text(RESULTS / "trajopt_long.json", json.dumps(dict(
+            machine=machine_description(), revision=git_revision(), rows=rows, cpu_fit=fit), indent=2, default=float))
+        return dict(rows=rows)
+    if args.validation:
+        rows = validation(args.validation, [24.0, 30.0])
+        RESULTS.mkdir(parents=True, exist_ok=True)
+        write_text(RESULTS / "trajopt_validation.json", json.dumps(dict(
+            machine=machine_description(), revision=git_revision(), rows=rows), indent=2, default=float))
+        return dict(rows=rows)
     global SCALING_SECONDS
     if args.quick:
         SCALING_SECONDS = SCALING_SECONDS[:3]
@@ -301,11 +437,13 @@ def main(argv=None) -> dict:
         Path(args.json).with_suffix(".md").write_text(markdown(out))
         return out
     clips = CLIPS[:3] if args.quick else CLIPS
+    if args.clips:
+        clips = tuple(name for name in CLIPS if name.split("/")[-1] in args.clips)
     seeds = (0,) if args.quick else tuple(args.seeds)
     cases = []
     for name in clips:
         for seed in seeds:
-            case = evaluate_case(name, seed, settings)
+            case = evaluate_case(name, seed, settings, pieces=not args.accuracy_only)
             cases.append(case)
             r = case["rows"]
             kin, ref, traj = (r[m] for m in ("kinematic offline", "kinematic refined (B.4)", "trajopt"))
@@ -317,6 +455,10 @@ def main(argv=None) -> dict:
     out = dict(machine=machine_description(), revision=git_revision(), settings=dataclasses.asdict(settings),
                fps=FPS, seconds=SECONDS, clips=list(clips), seeds=list(seeds), cases=cases)
     out["summary"] = summarise(cases)
+    if args.accuracy_only:
+        write_text(args.json, json.dumps(out, indent=2, default=float))
+        print(method_table(out["summary"]))
+        return out
     out["scaling"] = scaling(settings, args.repeats)
     out["scaling_fit"] = scaling_fit(out["scaling"])
     RESULTS.mkdir(parents=True, exist_ok=True)

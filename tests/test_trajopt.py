@@ -3,6 +3,10 @@ the solutions against physics (Newton at every frame, forces in the pyramid, sti
 
 import dataclasses
 import logging
+import signal
+import subprocess
+import sys
+import time
 
 import casadi as ca
 import mujoco
@@ -15,7 +19,7 @@ from physmocap.body.model import CONTACT_POINTS, build_body_model, template_leng
 from physmocap.config import TrajoptSettings
 from physmocap.errors import InputError
 from physmocap.trajopt.formulation import (Window, acceleration_continuity, angular_velocity, build_window_problem,
-                                          euler_torque, phase_layout, rotate)
+                                          euler_torque, frame_sample_times, phase_layout, rotate)
 from physmocap.trajopt.phases import (clean_flags, contact_phases, flags_from_phases, segment_count,
                                      split_drifting)
 from physmocap.trajopt.problem import ConstraintSet, CostTerm, Program, VariableSet
@@ -23,6 +27,7 @@ from physmocap.trajopt.reduced import (boundary_velocity, euler_to_matrix, matri
                                        world_inertia)
 from physmocap.trajopt.splines import Node, Segment, Trajectory, hermite_weights
 from physmocap.trajopt.stage import run_trajopt, window_ranges
+from conftest import DEMO_VIDEO
 
 FPS = 30.0
 G = 9.81
@@ -368,6 +373,50 @@ def check_physics(body, result, settings):
         assert np.all(result.feet[~c, i, 2] > -1e-4)
 
 
+def test_frame_samples_hold_every_frame_whatever_the_rate():
+    for fps in (10.0, 23.976, 24.0, 30.0, 60.0):
+        frames = np.arange(37) / fps
+        times = frame_sample_times(frames, 1.0 / 60.0)
+        assert np.isin(frames, times).all()
+        assert np.diff(times).max() <= 1.0 / 60.0 + 1e-9 and np.diff(times).min() > 0
+    assert np.array_equal(frame_sample_times(frames, 0.0), frames)
+
+
+def test_force_rate_cost_is_the_frames_force_differences(body):
+    q = sway(body, 30)
+    red = reduced_motion(body, q, FPS)
+    flags = np.ones(30, bool)
+    flags[12:18] = False
+    phases = [contact_phases(flags, red.times)] + [contact_phases(np.ones(30, bool), red.times)] * 3
+    settings = TrajoptSettings(force_rate=0.3)
+    problem = build_window_problem(Window(red, phases), settings)
+    x = np.random.default_rng(0).normal(size=int(problem.x.shape[0]))
+    cost = float(ca.Function("c", [problem.x], [problem.costs["force_rate"].value])(x))
+    expected = 0.0
+    for force in problem.forces:
+        f = np.asarray(ca.Function("f", [problem.x], [problem.sample(force.trajectory, red.times)])(x))
+        expected += settings.force_rate * np.sum((np.diff(f, axis=1) * FPS) ** 2)
+    assert np.isclose(cost, expected, rtol=1e-9)
+
+
+def test_forces_at_24_fps_obey_newton_at_every_frame_without_chatter(body):
+    """At 24 fps a grid of 1/60 s from the first frame missed every other frame, and there the forces, free,
+    chattered up to 5-6 times body weight on slow tai-chi with flickering contact labels (issue 24)."""
+    fps, frames = 24.0, 72
+    q = sway(body, frames)
+    contacts = np.ones((frames, 4), bool)
+    contacts[:, 1] = (np.arange(frames) // 3) % 2 == 0  # the left toe flickers every 3 frames
+    s = TrajoptSettings(contact_drift=0.0)
+    result = run_trajopt(body, q, fps, contacts, s)
+    assert result.converged.all()
+    weight = body.mass * G
+    net = result.grf.sum(axis=1)
+    newton = body.mass * result.com_acceleration - (net + np.array([0, 0, -weight]))
+    assert np.abs(newton).max() < 1e-3 * weight  # at every frame
+    assert net[:, 2].max() < 1.3 * weight and net[:, 2].min() > 0.7 * weight
+    assert np.abs(np.diff(net[:, 2], 2)).max() < 0.2 * weight
+
+
 def test_standing_is_carried_by_the_feet(body):
     q = standing(body, 40)
     result = run_trajopt(body, q, FPS, np.ones((40, 4), bool), QUICK)
@@ -524,3 +573,44 @@ def test_a_solution_far_from_the_input_is_not_used(body, caplog):
     assert np.array_equal(result.qpos, q) and np.all(result.grf == 0) and np.all(result.qp_failures == 1)
     assert "reject_departure" in caplog.text and "departed" in result.summary()
     assert "NOT used" in result.windows[0].describe()
+
+
+# The CLI, with each IPOPT run announced on stdout so that the test can interrupt one while it runs. Ctrl-C
+# handled as on a terminal: a test run in the background (a shell's `&`) inherits SIGINT ignored.
+ANNOUNCING_CLI = """
+import signal
+import sys
+signal.signal(signal.SIGINT, signal.default_int_handler)
+from physmocap.cli import main
+from physmocap.trajopt.problem import Program
+solve = Program.solve
+def announced(self, *args, **kwargs):
+    print("IPOPT starts", flush=True)
+    return solve(self, *args, **kwargs)
+Program.solve = announced
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_ctrl_c_inside_the_solver_stops_the_run_and_caches_nothing(tmp_path):
+    out = tmp_path / "run"
+    capture = ["capture", str(DEMO_VIDEO), "-o", str(out), "--no-overlay"]
+    first = subprocess.run([sys.executable, "-m", "physmocap.cli", *capture, "--physics", "none"],
+                           capture_output=True, text=True, timeout=600)
+    assert first.returncode == 0, first.stderr
+    child = subprocess.Popen([sys.executable, "-c", ANNOUNCING_CLI, *capture, "--physics", "trajopt"],
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines, runs = [], 0
+    for line in child.stdout:
+        lines.append(line)
+        runs += line.startswith("IPOPT starts")
+        if runs == 2:  # the first window's dynamics stage, the longest IPOPT run
+            time.sleep(0.05)
+            child.send_signal(signal.SIGINT)
+            break
+    text = "".join(lines) + child.communicate(timeout=600)[0]
+    assert "KeyboardInterruptException" in text, text  # CasADi caught it inside IPOPT
+    assert child.returncode == 130, text
+    assert "interrupted" in text and "Traceback" not in text
+    assert not (out / "cache" / "trajopt.npz").exists()  # nothing from the interrupted stage
+    assert (out / "cache" / "observations.npz").exists()  # the finished stages stay cached

@@ -345,7 +345,7 @@ class PhysicsSettings:
 
 TRAJOPT_CONSTRAINTS: tuple[str, ...] = ("dynamics", "acceleration_continuity", "velocity_boundaries", "foot_length",
                                          "leg_length", "force_limits", "above_floor")
-TRAJOPT_COSTS: tuple[str, ...] = ("data", "velocity", "acceleration", "duration")
+TRAJOPT_COSTS: tuple[str, ...] = ("data", "velocity", "acceleration", "duration", "force_rate")
 
 
 @dataclass(frozen=True)
@@ -451,7 +451,8 @@ class TrajoptSettings:
     tolerance: float = 1e-6  # IPOPT tol (the authors' code: 1e-3, with another scaling: at 1e-4 here the COM wiggles by
     # a millimetre and the forces of a person standing still by 10%); 1e-10 .. 1
     max_iterations: int = 1000  # IPOPT iterations per stage (the authors' code: 7000); 1 .. 100000
-    max_seconds: float = 120.0  # wall-clock limit of one IPOPT run; 0.1 .. 1e5
+    max_seconds: float = 120.0  # CPU-time limit of one IPOPT run (CPU, not wall: under load a wall-clock limit cut
+    # windows short and the result depended on the machine's load, sports2d_demo.mp4 at load 15-18); 0.1 .. 1e5
     reject_departure: float | None = 0.3  # m: a window that converges with its COM farther than this from the
     # input on average is not used; the kinematic motion is kept there and flagged, as where IPOPT does not
     # converge (ours: IPOPT's "acceptable" point can satisfy the constraints far from the data: a 0.7 s run under
@@ -468,6 +469,8 @@ class TrajoptSettings:
     # (ours; the paper: 0, free: the knees then swivel away, +16-20 mm knee error on synthetic clips, measured;
     # the contact points' 100 still decide); 0 .. 1e6
     ik_iterations: int = 20  # Levenberg-Marquardt iterations of the IK; 1 .. 200
+    force_rate: float = 1e-5  # w_f of the `force_rate` cost, (body weights per second)^-2 (ours; see
+    # docs/decisions/trajopt-force-chatter.md); 0 .. 1e4
 
     def check(self) -> None:
         for name in ("kinematic_contact_velocity", "kinematic_floor", "kinematic_velocity",
@@ -507,6 +510,7 @@ class TrajoptSettings:
         _within("trajopt.ik_feet_weight", self.ik_feet_weight, 0.01, 1e6, "")
         _within("trajopt.ik_leg_weight", self.ik_leg_weight, 0.0, 1e6, "")
         _within("trajopt.ik_iterations", self.ik_iterations, 1, 200, "")
+        _within("trajopt.force_rate", self.force_rate, 0.0, 1e4, "")
         unknown = set(self.constraints) - set(TRAJOPT_CONSTRAINTS)
         if unknown:
             raise InputError(f"trajopt.constraints: unknown {sorted(unknown)}, expected some of {TRAJOPT_CONSTRAINTS}.")

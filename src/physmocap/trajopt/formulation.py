@@ -25,6 +25,7 @@ constraint sets
 cost terms
   data, velocity, acceleration   equations (1), (3), (4) at every frame (the feet's derivatives per 1/30 s)
   duration                       equation (2) (last stage only)
+  force_rate                     the contact forces' rates at every frame (ours)
 
 Everything is written on whole rows of samples (3, n): a trajectory sampled at fixed times is one sparse
 product with x, so building the program costs little more than its size. World frame: Z up, floor z = 0 (the
@@ -99,6 +100,19 @@ def sample_times(t0: float, t1: float, interval: float, frames: np.ndarray) -> n
         return np.asarray(frames, float)
     n = max(1, int(round((t1 - t0) / interval)))
     return np.linspace(t0, t1, n + 1)
+
+
+def frame_sample_times(frames: np.ndarray, interval: float) -> np.ndarray:
+    """Every frame time and, between two frames, evenly spaced times at most `interval` seconds apart (frames
+    only when interval is 0): samples that land on the frames whatever the frame rate, so that values read at the
+    frames are held too (a grid of `interval` from the first frame misses every other frame at 24 fps)."""
+    frames = np.asarray(frames, float)
+    if interval <= 0 or len(frames) < 2:
+        return frames
+    pieces = max(1, int(np.ceil(np.max(np.diff(frames)) / interval - 1e-9)))
+    steps = np.arange(pieces) / pieces
+    inner = frames[:-1, None] + np.diff(frames)[:, None] * steps[None]
+    return np.concatenate([inner.ravel(), frames[-1:]])
 
 
 def free_times(window: "Window", times: np.ndarray) -> np.ndarray:
@@ -551,12 +565,13 @@ def dynamics_residuals(problem: WindowProblem, times: np.ndarray):
 
 def dynamics(problem: WindowProblem) -> ConstraintSet:
     """m r'' = sum f + m g and I_w w' + w x I_w w = sum (p - r) x f at the dynamics samples (every
-    `dynamics_interval`), and Newton's equation also at every `linear_dynamics_interval` (every frame by
-    default), so that the forces read at the frames are the ones that move the COM."""
+    `dynamics_interval`), and Newton's equation also at every frame and between frames at most
+    `linear_dynamics_interval` apart (frame_sample_times), so that the forces read at the frames are the ones that
+    move the COM."""
     s, w, red = problem.settings, problem.window, problem.window.reduced
     times = sample_times(w.t0, w.t1, s.dynamics_interval, red.times)
     linear, angular = dynamics_residuals(problem, times)
-    linear_times = sample_times(w.t0, w.t1, s.linear_dynamics_interval, red.times)
+    linear_times = frame_sample_times(red.times, s.linear_dynamics_interval)
     if not np.array_equal(linear_times, times):
         linear, _ = dynamics_residuals(problem, linear_times)
     out = ConstraintSet("dynamics")
@@ -732,4 +747,22 @@ def duration(problem: WindowProblem) -> CostTerm:
     return CostTerm("duration", total)
 
 
-COSTS = dict(data=data, velocity=velocity, acceleration=acceleration, duration=duration)
+def force_rate(problem: WindowProblem) -> CostTerm:
+    """E_force_rate (ours): w_f sum |(f_i(t_k+1) - f_i(t_k)) / (t_k+1 - t_k)|^2 over consecutive frames, forces in
+    body weights: their rate as read at the frames. Without it the split of the load among the points in contact
+    is free, and the forces read at the frames chatter (docs/decisions/trajopt-force-chatter.md). Differences of
+    the frames' values, not the polynomials' derivative there, which the optimiser could keep at zero at the
+    frames and steep between them."""
+    s, times = problem.settings, problem.window.reduced.times
+    total = 0
+    if len(times) < 2:
+        return CostTerm("force_rate", total)
+    step = ca.DM(1.0 / np.diff(times)).T
+    for force in problem.forces:
+        if force.any_contact:
+            f = problem.sample(force.trajectory, times)
+            total = total + s.force_rate * ca.sumsqr((f[:, 1:] - f[:, :-1]) * ca.repmat(step, 3, 1))
+    return CostTerm("force_rate", total)
+
+
+COSTS = dict(data=data, velocity=velocity, acceleration=acceleration, duration=duration, force_rate=force_rate)

@@ -8,7 +8,10 @@ constraint sets switched off (`relaxed`), so the program is built once and solve
 
 from __future__ import annotations
 
+import signal
+import threading
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -90,6 +93,30 @@ class Solution:
 
 
 CONVERGED_STATUSES = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+
+
+@contextmanager
+def interrupts_noted():
+    """Within: Ctrl-C (SIGINT) is noted in the yielded list, then handled as before (by default: KeyboardInterrupt
+    raised). CasADi catches that KeyboardInterrupt inside IPOPT, stops the solve and returns a status
+    (NonIpopt_Exception_Thrown) that cannot be told from other failures; the list tells the caller to raise it
+    again. Only in the main thread and where SIGINT has a Python handler (not where it is ignored, as in pool
+    workers)."""
+    noted: list[int] = []
+    previous = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or not callable(previous):
+        yield noted
+        return
+
+    def note(signum, frame):
+        noted.append(signum)
+        previous(signum, frame)
+
+    signal.signal(signal.SIGINT, note)
+    try:
+        yield noted
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 class Program:
@@ -183,7 +210,10 @@ class Program:
                 lbg[sl], ubg[sl] = -INF, INF
                 active[sl] = False
         start = time.perf_counter()
-        out = self.solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+        with interrupts_noted() as interrupted:
+            out = self.solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+        if interrupted:  # Ctrl-C inside IPOPT: the run stops, this solve's result is not used
+            raise KeyboardInterrupt
         seconds = time.perf_counter() - start
         stats = self.solver.stats()
         x = np.asarray(out["x"]).ravel()

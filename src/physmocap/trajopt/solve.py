@@ -70,7 +70,7 @@ def ipopt_options(settings: TrajoptSettings) -> dict:
         "tol": settings.tolerance,
         "acceptable_tol": max(10 * settings.tolerance, 1e-3),
         "max_iter": settings.max_iterations,
-        "max_wall_time": settings.max_seconds,
+        "max_cpu_time": settings.max_seconds,  # CPU, not wall: a loaded machine must not change the result
         "linear_solver": "mumps",
         "hessian_approximation": "exact",
         "mu_strategy": "adaptive",

@@ -101,7 +101,7 @@ class TrajoptMotion:
     qp_failures: (T,) int, 1 where not converged (so `qp_failures > 0` flags fallback frames as for PhysCap);
     com, com_acceleration, euler, feet: (T, 3), (T, 3), (T, 3), (T, 4, 3) the optimised reduced motion (m,
         m/s^2, Z-Y-X Euler angles in rad, m; nan where not converged);
-    windows: one report per window; seconds: time spent.
+    windows: one report per window; seconds: time spent, ik_seconds of it in the full-body output (C.4).
     """
 
     qpos: np.ndarray
@@ -117,6 +117,7 @@ class TrajoptMotion:
     feet: np.ndarray
     windows: list[WindowReport] = field(default_factory=list)
     seconds: float = 0.0
+    ik_seconds: float = 0.0
 
     @property
     def failed_frames(self) -> list[str]:
@@ -135,7 +136,7 @@ class TrajoptMotion:
         the ranges kept kinematic and every window's report."""
         return dict(summary=self.summary(), converged_frames=int(self.converged.sum()),
                     frames=len(self.converged), not_converged_frames=self.failed_frames,
-                    windows=[w.to_dict() for w in self.windows], seconds=self.seconds)
+                    windows=[w.to_dict() for w in self.windows], seconds=self.seconds, ik_seconds=self.ik_seconds)
 
     def summary(self) -> str:
         """One line for the terminal."""
@@ -230,6 +231,7 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
             continue
         _solve_run(out, reduced, flags, first, end, fps, settings, progress)
     done = out.converged
+    ik_start = time.perf_counter()
     if done.any():
         targets = ik_targets(body, qpos_kin[done], reduced.frames(done), out.com[done], out.euler[done],
                              out.feet[done], settings)
@@ -247,6 +249,7 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
         qpos = solve_ik(body, IkTargets(markers, weights, solved), fps, settings)
         out.qpos[done] = qpos[done]
     out.qp_failures = (~out.converged).astype(int)
+    out.ik_seconds = time.perf_counter() - ik_start
     out.seconds = time.perf_counter() - start_time
     return out
 
