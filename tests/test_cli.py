@@ -64,7 +64,7 @@ def test_rerun_reuses_cached_stages(demo_run):
     proc = physmocap("capture", DEMO_VIDEO, "-o", out, "--no-overlay")
     assert proc.returncode == 0, proc.stderr
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["cached_stages"] == ["detect", "kinematics"]
+    assert summary["cached_stages"] == ["detect", "kinematics", "refine", "physics"]
     # A new fit setting re-runs the fit but not the detector.
     proc = physmocap("capture", DEMO_VIDEO, "-o", out, "--no-overlay", "--height", "1.80")
     assert json.loads((out / "summary.json").read_text())["cached_stages"] == ["detect"]

@@ -164,7 +164,7 @@ class TrajoptMotion:
 
         values = {f.name: arrays[f.name] for f in dataclasses.fields(cls)}
         values["windows"] = [WindowReport.from_dict(w) for w in json.loads(str(values["windows"]))]
-        values["seconds"] = float(values["seconds"])
+        values["seconds"], values["ik_seconds"] = float(values["seconds"]), float(values["ik_seconds"])
         return cls(**values)
 
 
