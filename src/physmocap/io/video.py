@@ -91,14 +91,16 @@ def _grid_slots(times: np.ndarray, stated_rates: list[Fraction]) -> tuple[Fracti
     """The constant rate and, per source frame, how many grid frames show it.
 
     times: (N,) sorted presentation times in seconds from the first frame. The rate is that of the median frame
-    interval, or a stated rate within RATE_SNAP of it (keeps 24000/1001 exact). Grid time k / rate shows the
+    interval, or the stated rate closest to it if within RATE_SNAP (keeps 24000/1001 exact). Grid time k / rate shows the
     source frame nearest to it (the earlier one on a tie).
     """
     if len(times) < 2:
         return next((r for r in stated_rates if r), Fraction(30)), np.ones(len(times), dtype=np.int64)
     typical = float(np.median(np.diff(times)))
-    rate = next((r for r in stated_rates if r and abs(float(r) * typical - 1.0) < RATE_SNAP),
-                Fraction(1.0 / typical).limit_denominator(1001))
+    mismatch = {r: abs(float(r) * typical - 1.0) for r in stated_rates if r}
+    closest = min(mismatch, key=mismatch.get, default=None)
+    rate = closest if closest is not None and mismatch[closest] < RATE_SNAP \
+        else Fraction(1.0 / typical).limit_denominator(1001)
     grid = np.arange(int(round(times[-1] * rate)) + 1) / float(rate)
     after = np.clip(np.searchsorted(times, grid), 0, len(times) - 1)
     before = np.maximum(after - 1, 0)
