@@ -33,6 +33,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
 from common import REPO, VIDEOS, git_revision, machine_description  # noqa: E402
+from physmocap.io.video import probe_video  # noqa: E402
 
 CLIP = VIDEOS / "sports2d_demo.mp4"  # 30 fps, one person walking across the frame
 LOOP_CRF = 20
@@ -44,6 +45,9 @@ OUTPUT_WRITERS = (
     ("physmocap.export", "export_result"), ("physmocap.viz.overlay", "render_overlay"),
     ("physmocap.viz.viewer", "write_viewer"), ("physmocap.viz.report", "write_report"),
 )
+# Stages whose own peak resident memory the child records (the kernel's high-water mark, reset before each).
+STAGES = ("detect_stage", "stream_stage", "kinematics_stage", "contacts_stage", "refine_stage", "physics_stage",
+          "trajopt_stage", "write_outputs")
 
 
 def looped_video(clip: Path, out: Path, seconds: float, height: int) -> Path:
@@ -106,18 +110,19 @@ def run_case(video: Path, run_dir: Path, extra_args: list[str]) -> dict:
         raise RuntimeError(f"capture failed ({done.returncode}):\n{done.stdout}\n{done.stderr[-3000:]}")
     peak_kb = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", done.stderr).group(1))
     summary = json.loads((run_dir / "summary.json").read_text())
-    info = av.open(str(video))
-    stream = info.streams.video[0]
-    duration = float(stream.frames / stream.average_rate)
-    outputs = json.loads(timings.read_text())
+    info = probe_video(video)
+    duration = info.frame_count / info.fps
+    child_report = json.loads(timings.read_text())
+    outputs = child_report["seconds"]
     overlay_seconds = outputs.get("render_overlay")
     return dict(
-        video=video.name, frames=summary["frames"], video_seconds=round(duration, 2), width=stream.width,
-        height=stream.height, args=" ".join(extra_args), wall_seconds=round(wall, 1),
+        video=video.name, frames=summary["frames"], video_seconds=round(duration, 2), width=info.width,
+        height=info.height, args=" ".join(extra_args), wall_seconds=round(wall, 1),
         wall_over_duration=round(wall / duration, 2), peak_rss_mb=round(peak_kb / 1024),
         stage_seconds={k: round(v, 1) for k, v in summary["stage_seconds"].items()},
         outputs_over_detection=round(summary["stage_seconds"]["outputs"] / summary["stage_seconds"]["detect"], 3),
         output_seconds={k: round(v, 2) for k, v in outputs.items()},
+        stage_peak_rss_mb={k: round(v) for k, v in child_report["peak_mb"].items()},
         overlay_fps=None if not overlay_seconds else round(summary["frames"] / overlay_seconds, 1),
         load_average_before=load_before, load_average_after=load_average(),
     )
@@ -140,11 +145,27 @@ def child(timings_path: str, cli_args: list[str]) -> int:
                 seconds[name] = seconds.get(name, 0.0) + time.perf_counter() - started
         return wrapper
 
+    peak_mb: dict[str, float] = {}
+
+    def high_water(name, function):
+        def wrapper(*args, **kwargs):
+            Path("/proc/self/clear_refs").write_text("5")  # resets VmHWM to the current resident size
+            try:
+                return function(*args, **kwargs)
+            finally:
+                status = Path("/proc/self/status").read_text()
+                peak_mb[name] = int(re.search(r"VmHWM:\s+(\d+) kB", status).group(1)) / 1024
+        return wrapper
+
     for module_name, attribute in OUTPUT_WRITERS:
         module = importlib.import_module(module_name)
         setattr(module, attribute, timed(attribute, getattr(module, attribute)))
+    pipeline = importlib.import_module("physmocap.pipeline")
+    for stage in STAGES:
+        if hasattr(pipeline, stage):
+            setattr(pipeline, stage, high_water(stage, getattr(pipeline, stage)))
     code = cli.main(cli_args)
-    Path(timings_path).write_text(json.dumps(seconds))
+    Path(timings_path).write_text(json.dumps({"seconds": seconds, "peak_mb": peak_mb}))
     return code or 0
 
 
@@ -152,7 +173,7 @@ def overlay_speed(video: Path, width: int | None, repeats: int) -> dict:
     """Frames per second of render_overlay on `video` with a full skeleton, contacts, keypoints and arrows drawn."""
     from physmocap.body.kinematics import forward_kinematics
     from physmocap.body.model import build_body_model, template_lengths
-    from physmocap.io.video import probe_video
+    from physmocap.viz import overlay
     from physmocap.viz.overlay import render_overlay, skeleton_edges
 
     info = probe_video(video)
@@ -165,18 +186,21 @@ def overlay_speed(video: Path, width: int | None, repeats: int) -> dict:
     keypoints = np.concatenate([pixels[:, np.arange(33) % pixels.shape[1]], np.full((T, 33, 1), 0.9)], axis=2)
     arrows = np.stack([pixels[:, :4], pixels[:, :4] - [0.0, 80.0]], axis=2)
     contacts = np.ones((T, 4), bool)
-    times = []
+    times, cpu = [], []
     with tempfile.TemporaryDirectory() as folder:
         for _ in range(repeats):
-            started = time.perf_counter()
+            started, cpu_started = time.perf_counter(), time.process_time()
             report = render_overlay(video, Path(folder) / "overlay.mp4", pixels, skeleton_edges(body),
                                     np.ones(T, bool), keypoints=keypoints, contacts=contacts,
                                     labels=body.point_names, force_arrows=arrows, max_width=width)
             times.append(time.perf_counter() - started)
+            cpu.append(time.process_time() - cpu_started)  # all threads: decoder, drawing, x264
+            size = (Path(folder) / "overlay.mp4").stat().st_size
     seconds = float(np.median(times))
     return dict(video=video.name, input=f"{info.width}x{info.height}", output=f"{report.width}x{report.height}",
-                frames=T, seconds=round(seconds, 2), fps=round(T / seconds, 1), repeats=repeats,
-                load_average=load_average())
+                preset=overlay.OVERLAY_PRESET, frames=T, seconds=round(seconds, 2), fps=round(T / seconds, 1),
+                cpu_ms_per_frame=round(1000 * float(np.median(cpu)) / T, 1), megabytes=round(size / 1e6, 1),
+                repeats=repeats, load_average=load_average())
 
 
 def main() -> int:
@@ -191,16 +215,21 @@ def main() -> int:
     parser.add_argument("--overlay-only", action="store_true", help="only overlay speed, 10 s at each height")
     parser.add_argument("--overlay-width", type=int, default=1280)
     parser.add_argument("--repeats", type=int, default=3, help="overlay-only: runs per case (median)")
+    parser.add_argument("--presets", nargs="+", default=None, help="overlay-only: libx264 presets to compare")
     parser.add_argument("--json", type=Path, default=None, help="also write the rows here")
     args = parser.parse_args()
 
     print(f"# {machine_description()}, commit {git_revision()}", flush=True)
     rows = []
     if args.overlay_only:
-        for height in args.heights:
-            video = looped_video(CLIP, args.videos / f"loop_{height}p_10s.mp4", 10, height)
-            rows.append(overlay_speed(video, args.overlay_width, args.repeats))
-            print(json.dumps(rows[-1]), flush=True)
+        from physmocap.viz import overlay
+
+        for preset in args.presets or [overlay.OVERLAY_PRESET]:
+            overlay.OVERLAY_PRESET = preset
+            for height in args.heights:
+                video = looped_video(CLIP, args.videos / f"loop_{height}p_10s.mp4", 10, height)
+                rows.append(overlay_speed(video, args.overlay_width, args.repeats))
+                print(json.dumps(rows[-1]), flush=True)
     else:
         runs = Path(tempfile.mkdtemp(prefix="bench_capture_")) if args.runs is None else args.runs
         for seconds in args.seconds:

@@ -66,6 +66,9 @@ def build_parser() -> argparse.ArgumentParser:
                           "Rempe et al.'s trajectory optimisation of the whole clip, or none (default offline)")
     _add_settings_arguments(cap)
     cap.add_argument("--no-overlay", action="store_true", help="skip rendering overlay.mp4")
+    cap.add_argument("--overlay-size", type=int, default=argparse.SUPPRESS, metavar="WIDTH",
+                     help="width of overlay.mp4 in pixels: wider videos are scaled down to it, which renders much "
+                          "faster than 1080p (0: the video's own width; default 1280)")
     cap.add_argument("--accept-truncated", action="store_true",
                      help="capture the frames a truncated video still holds instead of stopping")
 
@@ -165,6 +168,8 @@ def settings_from_args(args):
         s = s.replace("camera", **camera)
     if args.person_box is not None:
         s = s.replace("detect", person_box=args.person_box)
+    if getattr(args, "overlay_size", None) is not None:
+        s = s.replace(None, overlay_width=args.overlay_size)
     if getattr(args, "accept_truncated", False):
         s = s.replace("detect", accept_truncated=True)
     if args.one_euro:
