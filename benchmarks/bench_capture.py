@@ -109,6 +109,7 @@ def run_case(video: Path, run_dir: Path, extra_args: list[str]) -> dict:
     if done.returncode != 0:
         raise RuntimeError(f"capture failed ({done.returncode}):\n{done.stdout}\n{done.stderr[-3000:]}")
     peak_kb = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", done.stderr).group(1))
+    cpu = sum(float(re.search(rf"{kind} time \(seconds\): ([\d.]+)", done.stderr).group(1)) for kind in ("User", "System"))
     summary = json.loads((run_dir / "summary.json").read_text())
     info = probe_video(video)
     duration = info.frame_count / info.fps
@@ -118,7 +119,8 @@ def run_case(video: Path, run_dir: Path, extra_args: list[str]) -> dict:
     return dict(
         video=video.name, frames=summary["frames"], video_seconds=round(duration, 2), width=info.width,
         height=info.height, args=" ".join(extra_args), wall_seconds=round(wall, 1),
-        wall_over_duration=round(wall / duration, 2), peak_rss_mb=round(peak_kb / 1024),
+        wall_over_duration=round(wall / duration, 2), cpu_seconds=round(cpu, 1),
+        cpu_over_duration_per_core=round(cpu / (os.cpu_count() or 1) / duration, 2), peak_rss_mb=round(peak_kb / 1024),
         stage_seconds={k: round(v, 1) for k, v in summary["stage_seconds"].items()},
         outputs_over_detection=round(summary["stage_seconds"]["outputs"] / summary["stage_seconds"]["detect"], 3),
         output_seconds={k: round(v, 2) for k, v in outputs.items()},

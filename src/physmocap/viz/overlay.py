@@ -38,8 +38,8 @@ BANNER_TEXT = "frame not reconstructed"
 UNEXPLAINED_TEXT = "physics cannot explain this frame"
 
 DEFAULT_OVERLAY_WIDTH = 1280  # px: wider videos are drawn and encoded at this width (None: native); 160 .. 7680
-OVERLAY_PRESET = "veryfast"  # libx264 speed preset of overlay.mp4 (docs/decisions/overlay-speed.md)
-OVERLAY_CRF = 23  # libx264 constant rate factor: 23 is its default quality
+OVERLAY_PRESET = "ultrafast"  # libx264 speed preset of overlay.mp4 (docs/decisions/overlay-speed.md)
+OVERLAY_CRF = 23  # libx264 constant rate factor (its default; lower: better and larger)
 PREFETCH_FRAMES = 8  # frames decoded ahead of the drawing, in the reader's thread
 MAX_DRAWN_COORDINATE = 1e5  # px: cv2 takes coordinates * 2**SHIFT as int32; points farther out are not drawn
 
