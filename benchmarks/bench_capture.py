@@ -11,6 +11,13 @@ timestamps, so the person jumps back to the clip's start at every loop, as in an
     .venv/bin/python benchmarks/bench_capture.py --seconds 10 60 600   # the full set (the 10-minute runs take long)
     .venv/bin/python benchmarks/bench_capture.py --seconds 60 --heights 720 --args=--physics=physcap
     .venv/bin/python benchmarks/bench_capture.py --overlay-only        # overlay frames per second at 1280 px
+    .venv/bin/python benchmarks/bench_capture.py --time-orientation    # issue 24: variable rate, rotation
+
+--time-orientation judges whichever physmocap is on PYTHONPATH (point it at an older checkout for "before"):
+a 24/12/8 fps video cut from the demo clip (each frame's index stamped in binary in its corner), read back:
+the rate found, the largest error between a frame's position on the read timeline and its true time, and the
+speed of each segment as read against its true speed; and the demo clip stored sideways with a phone's display
+matrix: the image size detection reports and whether the person stands upright in the keypoints.
 """
 
 from __future__ import annotations
@@ -27,6 +34,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from fractions import Fraction
 
 import av
 import numpy as np
@@ -205,6 +214,49 @@ def overlay_speed(video: Path, width: int | None, repeats: int) -> dict:
                 repeats=repeats, load_average=load_average())
 
 
+def time_and_orientation(folder: Path) -> list[dict]:
+    """Issue 24's time and orientation cases on the demo clip (see the module docstring)."""
+    import cv2
+
+    sys.path.insert(0, str(REPO / "tests"))
+    from test_video_io import write_timed_video
+
+    from physmocap.detect.mediapipe_pose import detect_video
+    from physmocap.io.video import iter_frames
+    from physmocap.landmarks import LANDMARK_INDEX
+
+    folder.mkdir(parents=True, exist_ok=True)
+    frames = [frame for _, frame in iter_frames(REPO / "src" / "physmocap" / "data" / "demo" / "taiji_demo.mp4")]
+    step = 1001 / 24000
+    kept = list(range(0, 32)) + list(range(32, 64, 2)) + list(range(64, 96, 3))  # 24, 12, then 8 fps
+    stamped = []
+    for index in kept:
+        frame = frames[index].copy()
+        for bit in range(7):
+            frame[:16, 16 * bit:16 * bit + 16] = 255 * ((index >> bit) & 1)
+        stamped.append(frame)
+    vfr = write_timed_video(folder / "vfr.mp4", stamped, kept, Fraction(1001, 24000))
+    info = probe_video(vfr)
+    shown = np.array([sum(int(f[4:12, 16 * b + 4:16 * b + 12].mean() > 128) << b for b in range(7))
+                      for _, f in iter_frames(vfr)])
+    true_time, read_time = shown * step, np.arange(len(shown)) / info.fps
+    starts = [0, int(np.searchsorted(shown, 32)), int(np.searchsorted(shown, 64)), len(shown)]
+    speed = [(true_time[b - 1] - true_time[a]) / (read_time[b - 1] - read_time[a]) for a, b in zip(starts, starts[1:])]
+    rows = [dict(case="24/12/8 fps video", fps_read=round(info.fps, 2), frames_read=len(shown),
+                 max_time_error_ms=round(1000 * float(np.abs(read_time - true_time).max()), 1),
+                 speed_24_12_8fps_segments=[round(v, 2) for v in speed])]
+    phone = write_timed_video(folder / "phone.mp4", [cv2.rotate(f, cv2.ROTATE_90_COUNTERCLOCKWISE) for f in frames[:24]],
+                              list(range(24)), Fraction(1001, 24000), rotation_cw=90)
+    obs = detect_video(phone)
+    x, y = obs.keypoints_2d[..., 0], obs.keypoints_2d[..., 1]
+    ankle, nose = LANDMARK_INDEX["left_ankle"], LANDMARK_INDEX["nose"]
+    upright = np.median(y[:, ankle] - y[:, nose]) > np.median(np.abs(x[:, ankle] - x[:, nose]))
+    rows.append(dict(case="phone video, display matrix 90 deg clockwise, stored 360x640",
+                     image_size=list(obs.image_size), valid_frames=f"{int(obs.valid.sum())}/{obs.num_frames}",
+                     person_upright_in_keypoints=bool(upright)))
+    return rows
+
+
 def main() -> int:
     if len(sys.argv) > 2 and sys.argv[1] == "--child":
         return child(sys.argv[2], sys.argv[3:])
@@ -218,12 +270,16 @@ def main() -> int:
     parser.add_argument("--overlay-width", type=int, default=1280)
     parser.add_argument("--repeats", type=int, default=3, help="overlay-only: runs per case (median)")
     parser.add_argument("--presets", nargs="+", default=None, help="overlay-only: libx264 presets to compare")
+    parser.add_argument("--time-orientation", action="store_true", help="only issue 24's time and rotation cases")
     parser.add_argument("--json", type=Path, default=None, help="also write the rows here")
     args = parser.parse_args()
 
     print(f"# {machine_description()}, commit {git_revision()}", flush=True)
     rows = []
-    if args.overlay_only:
+    if args.time_orientation:
+        rows = time_and_orientation(Path(tempfile.mkdtemp(prefix="bench_time_")))
+        print("\n".join(json.dumps(row) for row in rows), flush=True)
+    elif args.overlay_only:
         from physmocap.viz import overlay
 
         for preset in args.presets or [overlay.OVERLAY_PRESET]:
