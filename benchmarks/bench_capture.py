@@ -1,9 +1,10 @@
 """Whole capture, as a user runs it: wall time and peak memory of `physmocap capture` (default settings unless
 --args says otherwise) on long videos made by looping a shared clip, per stage and per output.
 
-Each case runs `physmocap capture VIDEO -o RUN` in a child process under /usr/bin/time -v (peak resident memory,
-native allocations included); inside the child the output writers are wrapped with timers, so summary.json's
-stage_seconds come with each output's own seconds. The looped videos are made once in --videos (not committed):
+Each case runs `physmocap capture VIDEO -o RUN` in a child process under /usr/bin/time -v (CPU seconds, peak
+resident memory with native allocations); inside the child the output writers are wrapped with timers, so
+summary.json's stage_seconds come with each output's own seconds, and each stage's own peak resident memory is
+read from the kernel's high-water mark, reset before the stage (the run's peak is the largest of them). The looped videos are made once in --videos (not committed):
 the clip is scaled and encoded once (libx264 veryfast, CRF 20), then its packets are repeated with shifted
 timestamps, so the person jumps back to the clip's start at every loop, as in any looped clip.
 
@@ -129,7 +130,9 @@ def run_case(video: Path, run_dir: Path, extra_args: list[str]) -> dict:
         video=video.name, frames=summary["frames"], video_seconds=round(duration, 2), width=info.width,
         height=info.height, args=" ".join(extra_args), wall_seconds=round(wall, 1),
         wall_over_duration=round(wall / duration, 2), cpu_seconds=round(cpu, 1),
-        cpu_over_duration_per_core=round(cpu / (os.cpu_count() or 1) / duration, 2), peak_rss_mb=round(peak_kb / 1024),
+        cpu_over_duration_per_core=round(cpu / (os.cpu_count() or 1) / duration, 2),
+        # the child resets the kernel's high-water mark before each stage, which /usr/bin/time reads too
+        peak_rss_mb=round(max([peak_kb / 1024, *child_report["peak_mb"].values()])),
         stage_seconds={k: round(v, 1) for k, v in summary["stage_seconds"].items()},
         outputs_over_detection=round(summary["stage_seconds"]["outputs"] / summary["stage_seconds"]["detect"], 3),
         output_seconds={k: round(v, 2) for k, v in outputs.items()},
