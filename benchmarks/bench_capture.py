@@ -4,9 +4,10 @@
 Each case runs `physmocap capture VIDEO -o RUN` in a child process under /usr/bin/time -v (CPU seconds, peak
 resident memory with native allocations); inside the child the output writers are wrapped with timers, so
 summary.json's stage_seconds come with each output's own seconds, and each stage's own peak resident memory is
-read from the kernel's high-water mark, reset before the stage (the run's peak is the largest of them). The looped videos are made once in --videos (not committed):
-the clip is scaled and encoded once (libx264 veryfast, CRF 20), then its packets are repeated with shifted
-timestamps, so the person jumps back to the clip's start at every loop, as in any looped clip.
+read from the kernel's high-water mark, reset before the stage (the run's peak is the largest of them). The
+looped videos are made once in --videos (not committed): the clip is scaled and encoded once (libx264 veryfast,
+CRF 20), then its packets are repeated with shifted timestamps, so the person jumps back to the clip's start at
+every loop, as in any looped clip.
 
     .venv/bin/python benchmarks/bench_capture.py                       # 10 s and 60 s at 720p and 1080p
     .venv/bin/python benchmarks/bench_capture.py --seconds 10 60 600   # the full set (the 10-minute runs take long)
@@ -119,7 +120,8 @@ def run_case(video: Path, run_dir: Path, extra_args: list[str]) -> dict:
     if done.returncode != 0:
         raise RuntimeError(f"capture failed ({done.returncode}):\n{done.stdout}\n{done.stderr[-3000:]}")
     peak_kb = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", done.stderr).group(1))
-    cpu = sum(float(re.search(rf"{kind} time \(seconds\): ([\d.]+)", done.stderr).group(1)) for kind in ("User", "System"))
+    cpu = sum(float(re.search(rf"{kind} time \(seconds\): ([\d.]+)", done.stderr).group(1))
+              for kind in ("User", "System"))
     summary = json.loads((run_dir / "summary.json").read_text())
     info = probe_video(video)
     duration = info.frame_count / info.fps
@@ -248,8 +250,8 @@ def time_and_orientation(folder: Path) -> list[dict]:
     rows = [dict(case="24/12/8 fps video", fps_read=round(info.fps, 2), frames_read=len(shown),
                  max_time_error_ms=round(1000 * float(np.abs(read_time - true_time).max()), 1),
                  speed_24_12_8fps_segments=[round(v, 2) for v in speed])]
-    phone = write_timed_video(folder / "phone.mp4", [cv2.rotate(f, cv2.ROTATE_90_COUNTERCLOCKWISE) for f in frames[:24]],
-                              list(range(24)), Fraction(1001, 24000), rotation_cw=90)
+    sideways = [cv2.rotate(frame, cv2.ROTATE_90_COUNTERCLOCKWISE) for frame in frames[:24]]
+    phone = write_timed_video(folder / "phone.mp4", sideways, list(range(24)), Fraction(1001, 24000), rotation_cw=90)
     obs = detect_video(phone)
     x, y = obs.keypoints_2d[..., 0], obs.keypoints_2d[..., 1]
     ankle, nose = LANDMARK_INDEX["left_ankle"], LANDMARK_INDEX["nose"]

@@ -10,7 +10,7 @@ orientation").
 from __future__ import annotations
 
 import contextlib
-import logging
+import functools
 import os
 import queue
 import threading
@@ -26,8 +26,6 @@ import numpy as np
 
 from ..errors import InputError
 from .atomic import atomic_path
-
-logger = logging.getLogger(__name__)
 
 RATE_SNAP = 0.01
 """A stated frame rate within this fraction of the median frame interval's rate is taken as the exact rate."""
@@ -91,8 +89,8 @@ def _grid_slots(times: np.ndarray, stated_rates: list[Fraction]) -> tuple[Fracti
     """The constant rate and, per source frame, how many grid frames show it.
 
     times: (N,) sorted presentation times in seconds from the first frame. The rate is that of the median frame
-    interval, or the stated rate closest to it if within RATE_SNAP (keeps 24000/1001 exact). Grid time k / rate shows the
-    source frame nearest to it (the earlier one on a tie).
+    interval, or the stated rate closest to it if within RATE_SNAP (keeps 24000/1001 exact). Grid time k / rate
+    shows the source frame nearest to it (the earlier one on a tie).
     """
     if len(times) < 2:
         return next((r for r in stated_rates if r), Fraction(30)), np.ones(len(times), dtype=np.int64)
@@ -110,14 +108,22 @@ def _grid_slots(times: np.ndarray, stated_rates: list[Fraction]) -> tuple[Fracti
 
 
 def _timeline(path: str | os.PathLike) -> _Timeline:
-    """Demux every packet of `path` for its timestamps and decode the first frame; any problem raises InputError."""
+    """The timeline of `path`, read once per version of the file (a run probes its video several times)."""
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: no such video file.")
     if path.is_dir():
         raise InputError(f"{path}: is a directory, not a video file.")
-    if path.stat().st_size == 0:
+    stat = path.stat()
+    if stat.st_size == 0:
         raise InputError(f"{path}: the video file is empty (0 bytes).")
+    return _read_timeline(path, stat.st_size, stat.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=8)
+def _read_timeline(path: Path, size: int, mtime_ns: int) -> _Timeline:
+    """Demux every packet of `path` for its timestamps and decode the first frame; any problem raises InputError.
+    size and mtime_ns key the cache (a file rewritten in place is read again)."""
     container = _open_container(path)
     try:
         stream = container.streams.video[0]

@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from ..body.model import CONTACT_POINTS, BodyModel
-from ..io.video import VideoWriter, iter_frames, scaled_height
+from ..io.video import VideoWriter, iter_frames
 from ..metrics import GRAVITY
 
 Colour = tuple[int, int, int]  # BGR, 0-255
