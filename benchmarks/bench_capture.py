@@ -139,6 +139,7 @@ def run_case(video: Path, run_dir: Path, extra_args: list[str]) -> dict:
         outputs_over_detection=round(summary["stage_seconds"]["outputs"] / summary["stage_seconds"]["detect"], 3),
         output_seconds={k: round(v, 2) for k, v in outputs.items()},
         stage_peak_rss_mb={k: round(v) for k, v in child_report["peak_mb"].items()},
+        stage_cpu_seconds={k: round(v, 1) for k, v in child_report.get("cpu_seconds", {}).items()},
         overlay_fps=None if not overlay_seconds else round(summary["frames"] / overlay_seconds, 1),
         load_average_before=load_before, load_average_after=load_average(),
     )
@@ -162,13 +163,16 @@ def child(timings_path: str, cli_args: list[str]) -> int:
         return wrapper
 
     peak_mb: dict[str, float] = {}
+    cpu_seconds: dict[str, float] = {}
 
     def high_water(name, function):
         def wrapper(*args, **kwargs):
             Path("/proc/self/clear_refs").write_text("5")  # resets VmHWM to the current resident size
+            cpu_started = time.process_time()  # all threads of the process
             try:
                 return function(*args, **kwargs)
             finally:
+                cpu_seconds[name] = time.process_time() - cpu_started
                 status = Path("/proc/self/status").read_text()
                 peak_mb[name] = int(re.search(r"VmHWM:\s+(\d+) kB", status).group(1)) / 1024
         return wrapper
@@ -181,7 +185,7 @@ def child(timings_path: str, cli_args: list[str]) -> int:
         if hasattr(pipeline, stage):
             setattr(pipeline, stage, high_water(stage, getattr(pipeline, stage)))
     code = cli.main(cli_args)
-    Path(timings_path).write_text(json.dumps({"seconds": seconds, "peak_mb": peak_mb}))
+    Path(timings_path).write_text(json.dumps({"seconds": seconds, "peak_mb": peak_mb, "cpu_seconds": cpu_seconds}))
     return code or 0
 
 
