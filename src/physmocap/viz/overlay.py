@@ -327,7 +327,8 @@ def render_overlay(
 class OverlayJob:
     """render_overlay running in a worker thread (decoding, drawing and encoding release the GIL), so that the
     caller writes its other outputs meanwhile. Use as a context manager: leaving the block through an exception
-    (Ctrl-C included) cancels the rendering, waits for the worker and leaves no file behind.
+    (Ctrl-C included) cancels the rendering, waits for the worker and leaves no file behind; leaving it normally
+    waits for the rendering and raises its error, if any.
 
         with start_overlay(video, "overlay.mp4", points_2d, edges, valid, ...) as job:
             ...  # other outputs
@@ -368,6 +369,8 @@ class OverlayJob:
     def __exit__(self, exc_type, exc, traceback) -> None:
         if exc is not None:
             self.cancel()
+        else:
+            self.result()  # a block that did not wait still gets the rendering's error
 
 
 def start_overlay(*args, **kwargs) -> OverlayJob:
