@@ -159,3 +159,32 @@ def test_person_box_follows_the_walker_not_the_jumper(tmp_path: Path) -> None:
     assert np.all(np.abs(hips_x(detect_video(clip, person_box=(540, 20, 740, 420))) - 640) < 150)
     # Without a box: whomever MediaPipe picks first (here the walker), and then only them.
     assert np.all(hips_x(detect_video(clip)) > 1100)
+
+
+def test_phone_video_with_rotation_metadata_is_detected_upright(demo_observations, demo_start: Path,
+                                                                 tmp_path: Path) -> None:
+    """The demo clip stored sideways, as a phone held upright stores it, with the display matrix that turns it
+    back: keypoints come out in the upright frame, as from the upright clip."""
+    from fractions import Fraction
+
+    import cv2
+    from test_video_io import write_timed_video
+
+    sideways = [cv2.rotate(frame, cv2.ROTATE_90_COUNTERCLOCKWISE) for _, frame in iter_frames(demo_start)]
+    phone = write_timed_video(tmp_path / "phone.mp4", sideways, list(range(len(sideways))),
+                              Fraction(1001, 24000), rotation_cw=90)
+    obs = detect_video(phone)
+    assert obs.image_size == (640, 360) and obs.num_frames == 20 and obs.valid.all()
+    assert obs.fps == pytest.approx(FPS)
+    body = slice(11, 29)  # shoulders to ankles
+    difference = np.abs(obs.keypoints_2d[:, body, :2] - demo_observations.keypoints_2d[:, body, :2])
+    assert np.median(difference) < 3.0
+
+
+def test_detections_are_float32_exact_as_the_cache_stores_them(demo_observations, tmp_path: Path) -> None:
+    from physmocap.motion import Observations
+
+    demo_observations.save(tmp_path / "observations.npz")
+    reloaded = Observations.load(tmp_path / "observations.npz")
+    assert np.array_equal(reloaded.keypoints_2d, demo_observations.keypoints_2d)
+    assert np.array_equal(reloaded.landmarks_3d, demo_observations.landmarks_3d)

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import threading
+import time
+from fractions import Fraction
+
 import av
 import cv2
 import numpy as np
@@ -11,7 +15,7 @@ from physmocap.body.kinematics import forward_kinematics
 from physmocap.body.model import CONTACT_POINTS, JOINT_NAMES, build_body_model, template_lengths
 from physmocap.io.video import VideoWriter
 from physmocap.viz.figures import result_figure
-from physmocap.viz.overlay import BANNER_COLOUR, render_overlay, skeleton_edges
+from physmocap.viz.overlay import BANNER_COLOUR, render_overlay, skeleton_edges, start_overlay
 
 WIDTH, HEIGHT, FRAMES, FPS = 320, 240, 10, 25.0
 BACKGROUND = 60  # grey level of the synthetic frames
@@ -150,3 +154,100 @@ def test_result_figure_writes_a_png(body, scene, tmp_path):
     result_figure(frame, pixels, skeleton_edges(body), clip, 2, out, labels=body.point_names)
     image = cv2.imread(str(out))
     assert image is not None and image.shape[1] > image.shape[0] > 200
+
+
+def test_unexplained_frames_carry_a_bottom_banner_over_the_skeleton(body, scene, video, tmp_path):
+    _, pixels = scene
+    unexplained = np.zeros(FRAMES, bool)
+    unexplained[6] = True
+    out = tmp_path / "unexplained.mp4"
+    render_overlay(video, out, np.tile(pixels, (FRAMES, 1, 1)), skeleton_edges(body), np.ones(FRAMES, bool),
+                   labels=body.point_names, unexplained=unexplained)
+    _, frames = decode(out)
+    bottom = frames[6][-5:-2, :, :].reshape(-1, 3).mean(axis=0)
+    assert np.abs(bottom - np.array(BANNER_COLOUR)).max() < 40
+    assert np.abs(frames[5][-5:-2].astype(int) - BACKGROUND).max() < 15  # the other frames have none
+    index = {name: i for i, name in enumerate(body.point_names)}
+    spine_middle = (pixels[index["pelvis"]] + pixels[index["neck"]]) / 2
+    assert pixel(frames[6], spine_middle).min() > BACKGROUND + 100  # the skeleton is still drawn
+    with pytest.raises(ValueError, match="unexplained"):
+        render_overlay(video, tmp_path / "bad.mp4", np.tile(pixels, (FRAMES, 1, 1)), [], np.ones(FRAMES, bool),
+                       unexplained=np.zeros(FRAMES + 1, bool))
+
+
+def test_non_finite_points_and_arrows_are_skipped_and_reported(body, scene, video, tmp_path):
+    _, pixels = scene
+    points = np.tile(pixels, (FRAMES, 1, 1))
+    index = {name: i for i, name in enumerate(body.point_names)}
+    points[2, index["left_knee"]] = np.nan
+    points[4, index["neck"]] = [np.inf, 3.0]
+    points[5, index["head"]] = [1e12, -1e12]  # finite but far beyond what cv2 can take
+    valid = np.ones(FRAMES, bool)
+    valid[8] = False
+    points[8] = np.nan  # not reconstructed: banner, not a report
+    arrows = np.tile(np.array([[[100.0, 200.0], [100.0, 120.0]]]), (FRAMES, 3, 1, 1))
+    arrows[1, 0, 1] = np.nan
+    arrows[3, 1, 1] = [np.inf, 0.0]
+    arrows[7, 2, 1] = [1e15, 1e15]
+    out = tmp_path / "nonfinite.mp4"
+    report = render_overlay(video, out, points, skeleton_edges(body), valid, labels=body.point_names,
+                            force_arrows=arrows)
+    assert report.nonfinite_frames == [2, 4, 5]
+    assert (report.frames, report.width, report.height) == (FRAMES, WIDTH, HEIGHT)
+    _, frames = decode(out)
+    assert len(frames) == FRAMES
+    shin = (pixels[index["left_knee"]] + pixels[index["left_ankle"]]) / 2
+    assert np.abs(pixel(frames[2], shin) - BACKGROUND).max() < 15  # the bone to the missing knee is not drawn
+    assert pixel(frames[3], shin).max() > BACKGROUND + 60
+
+
+def test_default_width_is_at_most_1280_pixels(body, tmp_path):
+    wide = tmp_path / "wide.mp4"
+    with VideoWriter(wide, FPS, 1600, 64, preset="ultrafast") as writer:
+        for _ in range(3):
+            writer.write(np.full((64, 1600, 3), BACKGROUND, np.uint8))
+    report = render_overlay(wide, tmp_path / "out.mp4", np.zeros((3, 0, 2)), [], np.ones(3, bool))
+    assert (report.width, report.height) == (1280, 51)
+    _, frames = decode(tmp_path / "out.mp4")
+    assert frames[0].shape == (52, 1280, 3)  # padded to an even height for yuv420p
+    native = render_overlay(wide, tmp_path / "native.mp4", np.zeros((3, 0, 2)), [], np.ones(3, bool), max_width=None)
+    assert native.width == 1600
+
+
+def test_overlay_of_a_rotated_video_is_upright(tmp_path):
+    from test_video_io import write_timed_video
+
+    stored = np.full((48, 64, 3), BACKGROUND, np.uint8)
+    video = write_timed_video(tmp_path / "phone.mp4", [stored] * 4, [0, 1, 2, 3], Fraction(1, 25), rotation_cw=90)
+    point = np.array([[10.0, 50.0]])  # x, y in the upright 48 x 64 frame
+    keypoints = np.tile(np.array([[[10.0, 50.0, 0.9]]]), (4, 1, 1))
+    report = render_overlay(video, tmp_path / "overlay.mp4", np.tile(point, (4, 1, 1)), [], np.ones(4, bool),
+                            keypoints=keypoints)
+    assert (report.width, report.height) == (48, 64)
+    _, frames = decode(tmp_path / "overlay.mp4")
+    assert frames[0].shape == (64, 48, 3)
+    assert pixel(frames[0], point[0]).max() > BACKGROUND + 80  # drawn where the upright frame has it
+    assert np.abs(pixel(frames[0], np.array([38.0, 10.0])) - BACKGROUND).max() < 15
+
+
+def test_overlay_job_renders_in_a_worker_and_cancels_without_leaving_a_file(body, scene, video, tmp_path):
+    _, pixels = scene
+    points = np.tile(pixels, (FRAMES, 1, 1))
+    out = tmp_path / "job.mp4"
+    with start_overlay(video, out, points, skeleton_edges(body), np.ones(FRAMES, bool)) as job:
+        report = job.result()
+    assert report.frames == FRAMES and out.is_file()
+
+    cancelled = tmp_path / "cancelled.mp4"
+    started = threading.Event()
+    with pytest.raises(KeyboardInterrupt):
+        with start_overlay(video, cancelled, points, skeleton_edges(body), np.ones(FRAMES, bool),
+                           progress=lambda done, total: (started.set(), time.sleep(0.05))):
+            started.wait(10)
+            raise KeyboardInterrupt
+    assert not cancelled.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["job.mp4"]
+
+    failing = start_overlay(video, tmp_path / "long.mp4", np.tile(pixels, (FRAMES + 5, 1, 1)), [],
+                            np.ones(FRAMES + 5, bool))
+    with pytest.raises(ValueError, match="fewer"):
+        failing.result()

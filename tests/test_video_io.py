@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import struct
+from fractions import Fraction
 from pathlib import Path
 
 import av
+import cv2
 import numpy as np
 import pytest
 
@@ -144,3 +147,89 @@ def test_trim_video(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="no frames between"):
         trim_video(DEMO, tmp_path / "late.mp4", start_s=60.0, duration_s=1.0, width=320)
     assert not (tmp_path / "late.mp4").exists()
+
+
+def write_timed_video(path: Path, frames: list[np.ndarray], times: list[int], time_base: Fraction,
+                      rotation_cw: int = 0) -> Path:
+    """An H.264 MP4 whose frame i is shown at times[i] * time_base seconds (a variable rate when the steps
+    differ), with a display matrix that shows the stored frames turned `rotation_cw` degrees clockwise (0, 90,
+    -90 or 180; 90 as a phone held upright writes it); PyAV cannot write one, so the track header is patched."""
+    height, width = frames[0].shape[:2]
+    with av.open(str(path), "w", format="mp4") as container:
+        stream = container.add_stream("libx264", rate=Fraction(1, 1) / time_base)
+        stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
+        stream.time_base = stream.codec_context.time_base = time_base
+        stream.options = {"crf": "10", "bf": "0"}
+        for frame, time in zip(frames, times):
+            video_frame = av.VideoFrame.from_ndarray(frame, format="bgr24")
+            video_frame.pts, video_frame.time_base = time, time_base
+            container.mux(stream.encode(video_frame))
+        container.mux(stream.encode(None))
+    if rotation_cw:
+        # tkhd version 0: version/flags, times and track id, reserved, duration, reserved, layer..volume, then
+        # the 3x3 matrix a b u / c d v / x y w (a..d in 16.16 fixed point).
+        cos, sin = round(np.cos(np.radians(rotation_cw))), round(np.sin(np.radians(rotation_cw)))
+        data = bytearray(path.read_bytes())
+        start = data.index(b"tkhd") + 4
+        assert data[start] == 0, "expected a version-0 track header"
+        offset = start + 4 + 12 + 4 + 4 + 8 + 8
+        matrix = (cos << 16, sin << 16, 0, -sin << 16, cos << 16, 0, 0, 0, 1 << 30)
+        data[offset: offset + 36] = struct.pack(">9i", *matrix)
+        path.write_bytes(bytes(data))
+    return path
+
+
+def grey(level: int, width: int = 64, height: int = 48) -> np.ndarray:
+    return np.full((height, width, 3), level, np.uint8)
+
+
+def test_variable_frame_rate_is_resampled_to_the_typical_rate(tmp_path: Path) -> None:
+    # 24 fps, then 12 fps, then 8 fps (times in 1/24 s): 12 intervals, their median one 24th of a second.
+    times = [0, 1, 2, 3, 4, 5, 6, 7, 9, 11, 13, 16, 19]
+    path = write_timed_video(tmp_path / "vfr.mp4", [grey(10 + 12 * i) for i in range(13)], times, Fraction(1, 24))
+    info = probe_video(path)
+    assert info.fps == 24 and info.frame_count == 20 and info.source_frames == 13
+    assert info.variable_rate and info.dropped_frames == 0 and info.repeated_frames == 6
+    reader = iter_frames(path)
+    shown = [round((frame.mean() - 10) / 12) for _, frame in reader]
+    # Grid time k / 24 s shows the source frame nearest to it (the earlier on a tie): each frame keeps its time.
+    expected_source_times = [0, 1, 2, 3, 4, 5, 6, 7, 7, 9, 9, 11, 11, 13, 13, 16, 16, 16, 19, 19]
+    assert shown == [times.index(t) for t in expected_source_times]
+    assert reader.frames_read == 20 and reader.missing_frames == 0
+
+
+def test_variable_rate_faster_than_typical_drops_frames(tmp_path: Path) -> None:
+    # Mostly 10 fps (times in 1/30 s) with a burst at 30 fps: the burst's in-between frames are dropped.
+    times = [0, 3, 6, 9, 10, 11, 12, 15, 18, 21, 24]
+    path = write_timed_video(tmp_path / "burst.mp4", [grey(10 + 20 * i) for i in range(11)], times, Fraction(1, 30))
+    info = probe_video(path)
+    assert info.fps == 10 and info.frame_count == 9 and info.dropped_frames == 2
+    shown = [round((frame.mean() - 10) / 20) for _, frame in iter_frames(path)]
+    assert shown == [0, 1, 2, 3, 6, 7, 8, 9, 10]
+
+
+@pytest.mark.parametrize("rotation_cw, upright", [(90, cv2.ROTATE_90_CLOCKWISE), (-90, cv2.ROTATE_90_COUNTERCLOCKWISE),
+                                                  (180, cv2.ROTATE_180)])
+def test_rotation_metadata_turns_frames_upright(tmp_path: Path, rotation_cw: int, upright: int) -> None:
+    stored = grey(40)
+    stored[:12, :16] = (255, 255, 255)  # a white block in the stored frame's top-left corner
+    stored[-12:, :16] = (0, 0, 255)  # a red block in its bottom-left corner
+    path = write_timed_video(tmp_path / "rotated.mp4", [stored] * 3, [0, 1, 2], Fraction(1, 25), rotation_cw)
+    info = probe_video(path)
+    expected = cv2.rotate(stored, upright)
+    assert (info.height, info.width) == expected.shape[:2]
+    frames = [frame for _, frame in iter_frames(path)]
+    assert len(frames) == 3 and frames[0].shape == expected.shape
+    assert np.abs(frames[0].astype(int) - expected).mean() < 6
+    small = next(iter(iter_frames(path, max_width=info.width // 2)))[1]
+    assert small.shape[:2] == (expected.shape[0] // 2, expected.shape[1] // 2)
+
+
+def test_prefetching_reader_gives_the_same_frames_and_stops_early_cleanly() -> None:
+    plain = [frame for _, frame in iter_frames(DEMO, max_width=160)]
+    prefetched = iter_frames(DEMO, max_width=160, prefetch=4)
+    assert all(np.array_equal(a, b) for a, (_, b) in zip(plain, prefetched, strict=True))
+    for index, _ in prefetched:  # leaving the loop early stops the decoding thread
+        if index == 5:
+            break
+    assert prefetched.frames_read <= 6 + 4 + 1

@@ -528,10 +528,14 @@ class Settings:
     physics: PhysicsSettings = field(default_factory=PhysicsSettings)
     trajopt: TrajoptSettings = field(default_factory=TrajoptSettings)
     online: bool = False  # causal per-frame fit (live use) instead of the whole clip at once
+    overlay_width: int = 1280  # px, overlay.mp4 is drawn and encoded at most this wide (0: the video's own width);
+    # 0 or 160 .. 7680. 1280 px renders about 4 times faster than 1080p at native size (BENCHMARKS.md, issue 23)
 
     def check(self) -> "Settings":
         for section in (self.body, self.camera, self.detect, self.fit, self.physics, self.trajopt):
             section.check()
+        if self.overlay_width != 0:
+            _within("overlay_width", self.overlay_width, 160, 7680, "pixels (or 0: native)")
         if self.physics.method == "trajopt" and self.online:
             raise InputError("physics trajopt optimises the whole clip: it cannot run --online (use physcap).")
         return self
@@ -628,6 +632,8 @@ def load_settings(path: str | Path | None = None) -> Settings:
             raise SettingsError(f"{path}: setting online must be true or false, got {value!r}.")
         elif key == "online":
             settings = settings.replace(None, online=bool(value))
+        elif key == "overlay_width":
+            settings = settings.replace(None, overlay_width=value)
         else:
             raise InputError(f"{path}: unknown setting '{key}'.")
     return settings.check()

@@ -37,6 +37,8 @@ MAX_SIZE_RATIO = 1.5
 """Factor by which the torso size may grow or shrink per frame before the sighting counts as a jump."""
 MAX_SPEED = 8.0
 """Torso sizes per second a person may move while unseen (about 4 m/s): widens the gate and the search region."""
+PREFETCH_FRAMES = 4
+"""Frames decoded ahead of detection in the reader's thread (docs/decisions/decode-thread.md)."""
 _TORSO = [LANDMARK_INDEX[name] for name in ("left_shoulder", "right_shoulder", "left_hip", "right_hip")]
 
 # Informational lines that MediaPipe's C++ code writes straight to stderr; any other line is passed through.
@@ -265,19 +267,27 @@ def detect_video(
         crops), and downscaling loses accuracy on people who fill little of the frame.
         Coordinates are always returned in native pixels.
     progress: called as progress(frames_done, frames_announced) after each frame.
+    Frames stream through (decoded a few ahead in a thread, detected, dropped); the video's constant-rate,
+    upright frames are those of io.video (variable frame rates resampled, with a warning; rotation applied).
     Returns Observations with T = frames decoded (pixel coordinates: integers at pixel centres, as in OpenCV);
     frames without the followed person are invalid and all zero.
     Raises InputError for an unreadable video or when no frame shows a person.
     """
-    reader = iter_frames(path)
+    reader = iter_frames(path, prefetch=PREFETCH_FRAMES)
     info = reader.info
     image_size = (info.width, info.height)
     start_box = None if person_box is None else _check_person_box(path, person_box, image_size)
-    keypoints, world, reasons = [], [], []
+    if info.variable_rate:
+        logger.warning("%s: variable frame rate: resampled to a constant %.3f fps (%d of %d frames shown more than "
+                       "once, %d dropped).", path, info.fps, info.repeated_frames, info.source_frames,
+                       info.dropped_frames)
+    keypoints, world = _FrameArrays(), _FrameArrays()
+    reasons = []
     follower = PersonFollower(image_size, info.fps, person_box=start_box, max_width=max_width)
     try:
         for index, frame in reader:
             kp, wl, reason = follower.detect(index, frame)
+            del frame  # decode -> detect -> drop: no decoded image outlives its detection
             keypoints.append(kp)
             world.append(wl)
             reasons.append(reason)
@@ -296,8 +306,8 @@ def detect_video(
         )
     invalid_reason = np.array(reasons, dtype=object)
     return Observations(
-        keypoints_2d=np.stack(keypoints),
-        landmarks_3d=np.stack(world),
+        keypoints_2d=keypoints.array(),
+        landmarks_3d=world.array(),
         fps=info.fps,
         image_size=image_size,
         valid=invalid_reason == "",
@@ -305,6 +315,25 @@ def detect_video(
         source=str(path),
         seconds_per_frame=follower.seconds / len(reasons),
     )
+
+
+class _FrameArrays:
+    """Per-frame (33, 3) arrays gathered into one growing float32 block (doubling when full): as compact as the
+    observations cache file, which stores float32, so fresh and cached detections hold the same numbers."""
+
+    def __init__(self) -> None:
+        self._block = np.zeros((256, NUM_LANDMARKS, 3), dtype=np.float32)
+        self._count = 0
+
+    def append(self, values: np.ndarray) -> None:
+        if self._count == len(self._block):
+            self._block = np.concatenate([self._block, np.zeros_like(self._block)])
+        self._block[self._count] = values
+        self._count += 1
+
+    def array(self) -> np.ndarray:
+        """(frames, 33, 3) float32."""
+        return self._block[: self._count].copy()
 
 
 def _rejection(last: Sighting | None, sighting: Sighting, start_box: Box | None, fps: float) -> str:

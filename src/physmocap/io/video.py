@@ -1,13 +1,19 @@
-"""Reading videos (OpenCV) and writing browser-playable H.264 MP4 files (PyAV).
+"""Reading videos and writing browser-playable H.264 MP4 files, both through PyAV (FFmpeg).
 
-Frames are BGR uint8 arrays of shape (H, W, 3), as OpenCV gives them.
+Frames are BGR uint8 arrays of shape (H, W, 3), upright: a video's rotation metadata (the display matrix phones
+write) is applied to every frame. Time comes from the container's presentation timestamps (PTS): a video with a
+variable frame rate is resampled to a constant rate, its typical (median) frame interval, by giving each time
+on that grid the source frame nearest to it, so that frame i is always at time i / fps (see README, "Time and
+orientation").
 """
 
 from __future__ import annotations
 
 import contextlib
-import math
+import functools
 import os
+import queue
+import threading
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
@@ -21,13 +27,21 @@ import numpy as np
 from ..errors import InputError
 from .atomic import atomic_path
 
+RATE_SNAP = 0.01
+"""A stated frame rate within this fraction of the median frame interval's rate is taken as the exact rate."""
+
+_UPRIGHT = {90: cv2.ROTATE_90_CLOCKWISE, 180: cv2.ROTATE_180, 270: cv2.ROTATE_90_COUNTERCLOCKWISE}
+
 
 @dataclass(frozen=True)
 class VideoInfo:
-    """What a video file says about itself.
+    """What a video file says about itself, after resampling to a constant rate and turning frames upright.
 
-    fps: frames per second. frame_count: frames the container announces (a truncated file may hold fewer).
-    width, height: size of a decoded frame in pixels.
+    fps: frames per second of the constant-rate frames. frame_count: frames the container announces, on that
+    grid (a truncated file may hold fewer). width, height: size in pixels of an upright decoded frame.
+    rotation: degrees clockwise (0, 90, 180, 270) that turn the stored frames upright.
+    source_frames: frames the container holds. repeated_frames, dropped_frames: source frames shown twice or
+    more, or not at all, on the constant-rate grid (both 0 for a constant-rate video).
     """
 
     path: Path
@@ -35,38 +49,131 @@ class VideoInfo:
     frame_count: int
     width: int
     height: int
+    rotation: int = 0
+    source_frames: int = 0
+    repeated_frames: int = 0
+    dropped_frames: int = 0
+
+    @property
+    def variable_rate(self) -> bool:
+        """True when resampling to the constant rate repeats or drops source frames."""
+        return self.repeated_frames > 0 or self.dropped_frames > 0
 
 
-def _open_capture(path: Path) -> cv2.VideoCapture:
-    # CAP_FFMPEG only: the default backend list would read "x_%02d.png"-like names as image sequences.
-    return cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+@dataclass(frozen=True)
+class _Timeline:
+    """How the source frames map onto the constant-rate grid: slots[pts] grid frames show the frame at pts."""
+
+    info: VideoInfo
+    slots: dict[int, int]
 
 
-def probe_video(path: str | os.PathLike) -> VideoInfo:
-    """Open `path`, decode its first frame and return its VideoInfo; any problem raises InputError."""
+def _open_container(path: Path) -> av.container.InputContainer:
+    try:
+        container = av.open(str(path))
+    except (av.error.FFmpegError, UnicodeDecodeError, ValueError):
+        raise InputError(f"{path}: not a readable video file.") from None
+    if not container.streams.video:
+        container.close()
+        raise InputError(f"{path}: not a readable video file (it holds no video stream).")
+    return container
+
+
+def _upright_rotation(frame: av.VideoFrame) -> int:
+    """Degrees clockwise (0, 90, 180, 270) that turn `frame` upright, from its display matrix."""
+    # PyAV gives the display matrix's counter-clockwise angle; a phone held upright records -90.
+    return int(round(-frame.rotation / 90.0)) % 4 * 90
+
+
+def _grid_slots(times: np.ndarray, stated_rates: list[Fraction]) -> tuple[Fraction, np.ndarray]:
+    """The constant rate and, per source frame, how many grid frames show it.
+
+    times: (N,) sorted presentation times in seconds from the first frame. The rate is that of the median frame
+    interval, or the stated rate closest to it if within RATE_SNAP (keeps 24000/1001 exact). Grid time k / rate
+    shows the source frame nearest to it (the earlier one on a tie).
+    """
+    if len(times) < 2:
+        return next((r for r in stated_rates if r), Fraction(30)), np.ones(len(times), dtype=np.int64)
+    typical = float(np.median(np.diff(times)))
+    mismatch = {r: abs(float(r) * typical - 1.0) for r in stated_rates if r}
+    closest = min(mismatch, key=mismatch.get, default=None)
+    rate = closest if closest is not None and mismatch[closest] < RATE_SNAP \
+        else Fraction(1.0 / typical).limit_denominator(1001)
+    grid = np.arange(int(round(times[-1] * rate)) + 1) / float(rate)
+    after = np.clip(np.searchsorted(times, grid), 0, len(times) - 1)
+    before = np.maximum(after - 1, 0)
+    tie = 1e-9  # s: rounding of the timestamps, so that exact ties go to the earlier frame
+    nearest = np.where(np.abs(times[before] - grid) <= np.abs(times[after] - grid) + tie, before, after)
+    return rate, np.bincount(nearest, minlength=len(times))
+
+
+def _timeline(path: str | os.PathLike) -> _Timeline:
+    """The timeline of `path`, read once per version of the file (a run probes its video several times)."""
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: no such video file.")
     if path.is_dir():
         raise InputError(f"{path}: is a directory, not a video file.")
-    if path.stat().st_size == 0:
+    stat = path.stat()
+    if stat.st_size == 0:
         raise InputError(f"{path}: the video file is empty (0 bytes).")
-    capture = _open_capture(path)
+    return _read_timeline(path, stat.st_size, stat.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=8)
+def _read_timeline(path: Path, size: int, mtime_ns: int) -> _Timeline:
+    """Demux every packet of `path` for its timestamps and decode the first frame; any problem raises InputError.
+    size and mtime_ns key the cache (a file rewritten in place is read again)."""
+    container = _open_container(path)
     try:
-        if not capture.isOpened():
-            raise InputError(f"{path}: not a readable video file.")
-        decoded, frame = capture.read()
-        if not decoded or frame is None:
-            raise InputError(f"{path}: the video has no decodable frame.")
-        fps = float(capture.get(cv2.CAP_PROP_FPS))
-        frame_count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+        stream = container.streams.video[0]
+        pts: list[int] = []
+        first: av.VideoFrame | None = None
+        try:
+            for packet in container.demux(stream):
+                if packet.size == 0:
+                    continue
+                if packet.pts is not None:
+                    pts.append(packet.pts)
+                if first is None:
+                    with contextlib.suppress(av.error.FFmpegError):
+                        first = next(iter(packet.decode()), None)
+            if first is None:
+                with contextlib.suppress(av.error.FFmpegError):
+                    first = next(iter(stream.codec_context.decode(None)), None)
+        except av.error.FFmpegError:
+            pass  # a damaged tail: the packets before it count
+        stated = [r for r in (stream.average_rate, stream.guessed_rate) if r is not None and r > 0]
+        announced = int(stream.frames or 0)
+        duration = float(stream.duration * stream.time_base) if stream.duration and stream.time_base else 0.0
     finally:
-        capture.release()
-    if not math.isfinite(fps) or fps <= 0:
+        container.close()
+    if first is None:
+        raise InputError(f"{path}: the video has no decodable frame.")
+    if not stated and len(pts) < 2:
         raise InputError(f"{path}: the video does not state a frame rate.")
-    # The first frame's shape, not CAP_PROP_FRAME_WIDTH/HEIGHT, so that rotation metadata is accounted for.
-    height, width = frame.shape[:2]
-    return VideoInfo(path=path, fps=fps, frame_count=max(frame_count, 0), width=width, height=height)
+    unique = np.unique(np.asarray(pts, dtype=np.int64))
+    time_base = float(stream.time_base) if stream.time_base else 0.0
+    stream_has_times = len(unique) == len(pts) and len(unique) >= 2 and time_base > 0
+    if stream_has_times:
+        rate, slots = _grid_slots((unique - unique[0]) * time_base, stated)
+    else:  # no usable timestamps (raw streams): frames are taken at the stated rate
+        rate, slots, unique = stated[0], np.ones(max(len(pts), 1), dtype=np.int64), np.array([], dtype=np.int64)
+    rotation = _upright_rotation(first)
+    width, height = (first.height, first.width) if rotation in (90, 270) else (first.width, first.height)
+    source_frames = max(len(pts), 1)
+    # A truncated file announces more frames, or a longer duration, than it holds.
+    frame_count = max(int(slots.sum()), announced if not stream_has_times else 0, round(duration * float(rate)))
+    info = VideoInfo(path=path, fps=float(rate), frame_count=frame_count, width=width, height=height,
+                     rotation=rotation, source_frames=source_frames, repeated_frames=int((slots > 1).sum()),
+                     dropped_frames=int((slots == 0).sum()))
+    return _Timeline(info, {int(p): int(s) for p, s in zip(unique, slots) if s != 1})
+
+
+def probe_video(path: str | os.PathLike) -> VideoInfo:
+    """Open `path`, read its timestamps, decode its first frame and return its VideoInfo; any problem raises
+    InputError."""
+    return _timeline(path).info
 
 
 def scaled_height(width: int, height: int, new_width: int) -> int:
@@ -80,32 +187,95 @@ def resize_to_width(frame: np.ndarray, width: int) -> np.ndarray:
     return cv2.resize(frame, size, interpolation=cv2.INTER_AREA if width < frame.shape[1] else cv2.INTER_LINEAR)
 
 
+_END = object()
+
+
 class FrameReader:
-    """Iterable over (index, frame) of a video; re-iterating starts again from the first frame.
+    """Iterable over (index, frame) of a video's upright, constant-rate frames; re-iterating starts again.
 
     Decoding stops quietly where the file stops decoding. After a pass, `frames_read` says how many frames came
     out and `missing_frames` how many of those the container announced did not (> 0 for a truncated file).
+    max_width: frames wider than this are scaled down to it (in the decoder's colour conversion).
+    prefetch: frames decoded ahead in a background thread (0: decode in the caller's thread); decoding then
+    overlaps with whatever the caller does with each frame.
     """
 
-    def __init__(self, path: str | os.PathLike, max_width: int | None = None) -> None:
-        self.info = probe_video(path)
+    def __init__(self, path: str | os.PathLike, max_width: int | None = None, prefetch: int = 0) -> None:
+        timeline = _timeline(path)
+        self.info = timeline.info
+        self._slots = timeline.slots
         self.max_width = max_width
+        self.prefetch = prefetch
         self.frames_read = 0
 
+    @property
+    def output_size(self) -> tuple[int, int]:
+        """(width, height) of the frames this reader yields."""
+        width, height = self.info.width, self.info.height
+        if self.max_width is not None and width > self.max_width:
+            return self.max_width, scaled_height(width, height, self.max_width)
+        return width, height
+
     def __iter__(self) -> Iterator[tuple[int, np.ndarray]]:
-        capture = _open_capture(self.info.path)
         self.frames_read = 0
-        try:
-            while True:
-                decoded, frame = capture.read()
-                if not decoded or frame is None:
+        if self.prefetch <= 0:
+            yield from self._decode(threading.Event())
+            return
+        frames: queue.Queue = queue.Queue(maxsize=self.prefetch)
+        stop = threading.Event()
+
+        def offer(item: object) -> None:
+            while not stop.is_set():  # once the consumer has stopped, nobody takes items any more
+                with contextlib.suppress(queue.Full):
+                    frames.put(item, timeout=0.1)
                     return
-                if self.max_width is not None and frame.shape[1] > self.max_width:
-                    frame = resize_to_width(frame, self.max_width)
-                self.frames_read += 1
-                yield self.frames_read - 1, frame
+
+        def produce() -> None:
+            try:
+                for item in self._decode(stop):
+                    offer(item)
+            except BaseException as error:  # handed to the consumer, which raises it
+                offer(error)
+            finally:
+                offer(_END)
+
+        producer = threading.Thread(target=produce, name="physmocap-decode", daemon=True)
+        producer.start()
+        try:
+            while (item := frames.get()) is not _END:
+                if isinstance(item, BaseException):
+                    raise item
+                yield item
         finally:
-            capture.release()
+            stop.set()
+            with contextlib.suppress(queue.Empty):
+                while True:  # unblock a producer waiting on a full queue
+                    frames.get_nowait()
+            producer.join()
+
+    def _decode(self, stop: threading.Event) -> Iterator[tuple[int, np.ndarray]]:
+        width, height = self.output_size
+        rotation = self.info.rotation
+        stored = (height, width) if rotation in (90, 270) else (width, height)
+        container = _open_container(self.info.path)
+        try:
+            stream = container.streams.video[0]
+            stream.thread_type = "AUTO"
+            for frame in _decoded_frames(container, stream):
+                if stop.is_set():
+                    return
+                copies = 1 if frame.pts is None else self._slots.get(frame.pts, 1)
+                if copies == 0:
+                    continue
+                image = frame.to_ndarray(format="bgr24", width=stored[0], height=stored[1], interpolation="AREA")
+                if rotation:
+                    image = cv2.rotate(image, _UPRIGHT[rotation])
+                for copy in range(copies):
+                    self.frames_read += 1
+                    # Each repeat is its own array: callers may draw on the frames they get.
+                    yield self.frames_read - 1, image if copy == copies - 1 else image.copy()
+        finally:
+            container.close()
 
     @property
     def missing_frames(self) -> int:
@@ -113,12 +283,25 @@ class FrameReader:
         return max(0, self.info.frame_count - self.frames_read)
 
 
-def iter_frames(path: str | os.PathLike, max_width: int | None = None) -> FrameReader:
-    """Frames of `path` as (index, BGR frame); frames wider than `max_width` are scaled down to it.
+def _decoded_frames(container: av.container.InputContainer, stream) -> Iterator[av.VideoFrame]:
+    """The frames of `stream` in presentation order; undecodable packets are skipped, a damaged tail ends it."""
+    try:
+        for packet in container.demux(stream):
+            try:
+                yield from packet.decode()
+            except av.error.InvalidDataError:
+                continue
+    except av.error.FFmpegError:
+        return
+
+
+def iter_frames(path: str | os.PathLike, max_width: int | None = None, prefetch: int = 0) -> FrameReader:
+    """Frames of `path` as (index, upright BGR frame) at a constant rate; frames wider than `max_width` are
+    scaled down to it, `prefetch` frames are decoded ahead in a thread (see FrameReader).
 
     With max_width None the frames keep the native resolution. Raises InputError as probe_video does.
     """
-    return FrameReader(path, max_width)
+    return FrameReader(path, max_width, prefetch)
 
 
 class VideoWriter:

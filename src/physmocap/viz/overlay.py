@@ -3,19 +3,26 @@
 Colours (BGR): the body's left side blue, its right side orange, the centre line white; detector keypoints small
 yellow dots; foot contact points green, filled while in contact and hollow otherwise; ground reaction forces
 magenta arrows from the contact points (one body weight is FORCE_ARROW_BODY_HEIGHTS body heights long in the
-world). Frames that could not be reconstructed carry a red banner instead of a skeleton.
+world). Frames that could not be reconstructed carry a red banner at the top instead of a skeleton; frames that
+physics could not explain carry one at the bottom.
+
+The video is decoded (in a thread), drawn and encoded frame by frame at the output size, never held whole;
+`start_overlay` runs all of it in a worker thread beside whatever the caller writes meanwhile.
 """
 
 from __future__ import annotations
 
 import os
+import threading
+import time
+from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import cv2
 import numpy as np
 
 from ..body.model import CONTACT_POINTS, BodyModel
-from ..io.video import VideoWriter, iter_frames, scaled_height
+from ..io.video import VideoWriter, iter_frames
 from ..metrics import GRAVITY
 
 Colour = tuple[int, int, int]  # BGR, 0-255
@@ -28,6 +35,13 @@ CONTACT_COLOUR: Colour = (60, 210, 60)
 BANNER_COLOUR: Colour = (30, 30, 200)
 FORCE_COLOUR: Colour = (96, 27, 216)
 BANNER_TEXT = "frame not reconstructed"
+UNEXPLAINED_TEXT = "physics cannot explain this frame"
+
+DEFAULT_OVERLAY_WIDTH = 1280  # px: wider videos are drawn and encoded at this width (None: native); 160 .. 7680
+OVERLAY_PRESET = "ultrafast"  # libx264 speed preset of overlay.mp4 (docs/decisions/overlay-speed.md)
+OVERLAY_CRF = 23  # libx264 constant rate factor (its default; lower: better and larger)
+PREFETCH_FRAMES = 8  # frames decoded ahead of the drawing, in the reader's thread
+MAX_DRAWN_COORDINATE = 1e5  # px: cv2 takes coordinates * 2**SHIFT as int32; points farther out are not drawn
 
 FORCE_ARROW_BODY_HEIGHTS = 0.4  # an arrow of one body weight is this many body heights long
 MIN_DRAWN_FORCE = 1.0  # N: weaker forces get no arrow
@@ -100,6 +114,7 @@ def draw_overlay(
     contacts: np.ndarray | None = None,
     force_arrows: np.ndarray | None = None,
     valid: bool = True,
+    unexplained: bool = False,
 ) -> np.ndarray:
     """One annotated frame: a copy of BGR `frame` (H, W, 3) with the skeleton and markers drawn on it.
 
@@ -108,18 +123,33 @@ def draw_overlay(
     and to find the contact points. keypoints: (K, 3) detector x, y in pixels and confidence. contacts: (4,) bool
     for the points named in CONTACT_POINTS (left heel, left toe, right heel, right toe); needs `labels`.
     force_arrows: (C, 2, 2) start and tip pixels of force arrows (see `force_arrows_2d`); non-finite ones are
-    skipped. valid: False draws the banner and no skeleton, contacts or forces.
+    skipped. valid: False draws the top banner and no skeleton, contacts or forces. unexplained: True draws the
+    bottom banner (physics could not explain the frame) under the skeleton.
     """
     image = frame.copy()
+    _draw_in_place(image, points_2d, edges, labels, keypoints, contacts, force_arrows, valid, unexplained)
+    return image
+
+
+def drawable(points: np.ndarray) -> np.ndarray:
+    """(...,) True where the (..., 2) pixel positions are finite and within MAX_DRAWN_COORDINATE of the image."""
+    points = np.asarray(points, dtype=float)
+    with np.errstate(invalid="ignore"):
+        return np.all(np.isfinite(points) & (np.abs(points) < MAX_DRAWN_COORDINATE), axis=-1)
+
+
+def _draw_in_place(image: np.ndarray, points_2d: np.ndarray, edges: Sequence[tuple[int, int]],
+                   labels: Sequence[str] | None, keypoints: np.ndarray | None, contacts: np.ndarray | None,
+                   force_arrows: np.ndarray | None, valid: bool, unexplained: bool) -> None:
     width = line_width(image)
     if keypoints is not None:
-        for x, y, confidence in keypoints:
-            if confidence >= KEYPOINT_MIN_CONFIDENCE and np.isfinite(x) and np.isfinite(y):
-                _circle(image, np.array([x, y]), width, KEYPOINT_COLOUR, cv2.FILLED)
+        seen = drawable(keypoints[:, :2]) & (keypoints[:, 2] >= KEYPOINT_MIN_CONFIDENCE)
+        for x, y, _ in keypoints[seen]:
+            _circle(image, np.array([x, y]), width, KEYPOINT_COLOUR, cv2.FILLED)
     if not valid:
-        _draw_banner(image)
-        return image
-    finite = np.all(np.isfinite(points_2d), axis=1)
+        _draw_banner(image, BANNER_TEXT, at_top=True)
+        return
+    finite = drawable(points_2d)
     for i, j in edges:
         if finite[i] and finite[j]:
             cv2.line(image, _fixed(points_2d[i]), _fixed(points_2d[j]), edge_colour((i, j), labels), width,
@@ -134,12 +164,14 @@ def draw_overlay(
                 _circle(image, points_2d[index], 2.5 * width, CONTACT_COLOUR,
                         cv2.FILLED if in_contact else max(1, width // 2))
     if force_arrows is not None:
-        for start, tip in np.asarray(force_arrows, dtype=float):
+        force_arrows = np.asarray(force_arrows, dtype=float)
+        for start, tip in force_arrows[drawable(force_arrows).all(axis=-1)]:
             length = np.linalg.norm(tip - start)
-            if np.all(np.isfinite(start)) and np.all(np.isfinite(tip)) and length > 0.5:
+            if length > 0.5:
                 cv2.arrowedLine(image, _fixed(start), _fixed(tip), FORCE_COLOUR, width, cv2.LINE_AA, SHIFT,
                                 tipLength=min(0.3, 6.0 * width / length))
-    return image
+    if unexplained:
+        _draw_banner(image, UNEXPLAINED_TEXT, at_top=False)
 
 
 def force_arrow_scale(body_mass: float, body_height: float) -> float:
@@ -177,17 +209,34 @@ def contact_point_indices(labels: Sequence[str] | None) -> list[int]:
     return [list(labels).index(name) for name in CONTACT_POINTS]
 
 
-def _draw_banner(image: np.ndarray) -> None:
-    """A red band across the top of the image with BANNER_TEXT centred in it."""
+def _draw_banner(image: np.ndarray, text: str, at_top: bool) -> None:
+    """A red band across the top or bottom of the image with `text` centred in it."""
     height, width = image.shape[:2]
     font_scale = max(0.4, width / 1200)
     thickness = max(1, round(font_scale * 2))
-    (text_width, text_height), baseline = cv2.getTextSize(BANNER_TEXT, cv2.FONT_HERSHEY_SIMPLEX, font_scale, thickness)
+    (text_width, text_height), baseline = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, font_scale, thickness)
     band = min(height, text_height + baseline + 2 * thickness + 8)
-    cv2.rectangle(image, (0, 0), (width - 1, band - 1), BANNER_COLOUR, cv2.FILLED)
-    origin = (max(0, (width - text_width) // 2), (band + text_height) // 2)
-    cv2.putText(image, BANNER_TEXT, origin, cv2.FONT_HERSHEY_SIMPLEX, font_scale, CENTRE_COLOUR, thickness,
-                cv2.LINE_AA)
+    top = 0 if at_top else height - band
+    cv2.rectangle(image, (0, top), (width - 1, top + band - 1), BANNER_COLOUR, cv2.FILLED)
+    origin = (max(0, (width - text_width) // 2), top + (band + text_height) // 2)
+    cv2.putText(image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, font_scale, CENTRE_COLOUR, thickness, cv2.LINE_AA)
+
+
+@dataclass(frozen=True)
+class OverlayReport:
+    """What render_overlay wrote: frames, the video's size in pixels, the frames drawn without some of their fitted
+    points because those were non-finite or absurdly far out (sorted indices; reconstructed frames only), and
+    the seconds it took."""
+
+    frames: int
+    width: int
+    height: int
+    nonfinite_frames: list[int]
+    seconds: float
+
+
+class OverlayCancelled(Exception):
+    """The overlay's worker was asked to stop; nothing was written."""
 
 
 def render_overlay(
@@ -201,20 +250,26 @@ def render_overlay(
     contacts: np.ndarray | None = None,
     labels: Sequence[str] | None = None,
     force_arrows: np.ndarray | None = None,
-    max_width: int | None = None,
+    unexplained: np.ndarray | None = None,
+    max_width: int | None = DEFAULT_OVERLAY_WIDTH,
     progress: Callable[[int, int], None] | None = None,
-) -> None:
+    cancel: threading.Event | None = None,
+) -> OverlayReport:
     """Draw the skeleton over the first T frames of `video_path` and write them as H.264 MP4 `out_path`.
 
-    points_2d: (T, P, 2) fitted points in pixels of the video's native resolution. edges: bones as index pairs into
-    the P points (e.g. skeleton_edges(body)). valid: (T,) bool, False marks frames not reconstructed.
+    points_2d: (T, P, 2) fitted points in pixels of the video's native (upright) resolution. edges: bones as index
+    pairs into the P points (e.g. skeleton_edges(body)). valid: (T,) bool, False marks frames not reconstructed.
     keypoints: (T, K, 3) detector x, y (native pixels) and confidence. contacts: (T, 4) bool for left heel, left
     toe, right heel, right toe. labels: (P,) point names (body.point_names), for side colours and to find the
     contact points (required with `contacts`). force_arrows: (T, C, 2, 2) ground reaction force arrows in native
-    pixels (see `force_arrows_2d`). max_width: frames wider than this are scaled down to it.
-    progress: called as progress(frames_done, T) after each frame.
-    The output keeps the input's frame rate. A video with fewer than T frames raises ValueError (and writes nothing).
+    pixels (see `force_arrows_2d`). unexplained: (T,) bool, True marks frames physics could not explain.
+    max_width: frames wider than this are scaled down to it, in pixels (None: native size).
+    progress: called as progress(frames_done, T) after each frame. cancel: once set, rendering stops with
+    OverlayCancelled and writes nothing.
+    The output keeps the input's (constant, see io.video) frame rate. A video with fewer than T frames raises
+    ValueError (and writes nothing). Non-finite points and arrows are not drawn; the report lists the frames.
     """
+    started = time.perf_counter()
     points_2d = np.asarray(points_2d, dtype=float)
     valid = np.asarray(valid, dtype=bool)
     if points_2d.ndim != 3 or points_2d.shape[2] != 2:
@@ -222,6 +277,9 @@ def render_overlay(
     T, P = points_2d.shape[:2]
     if valid.shape != (T,):
         raise ValueError(f"valid must have shape ({T},), got {valid.shape}.")
+    unexplained = np.zeros(T, bool) if unexplained is None else np.asarray(unexplained, dtype=bool)
+    if unexplained.shape != (T,):
+        raise ValueError(f"unexplained must have shape ({T},), got {unexplained.shape}.")
     keypoints = None if keypoints is None else np.asarray(keypoints, dtype=float)
     if keypoints is not None and (keypoints.ndim != 3 or keypoints.shape[0] != T or keypoints.shape[2] != 3):
         raise ValueError(f"keypoints must have shape ({T}, K, 3), got {keypoints.shape}.")
@@ -237,25 +295,84 @@ def render_overlay(
         raise ValueError(f"labels must name all {P} points, got {len(labels)} names.")
     if any(not (0 <= i < P and 0 <= j < P) for i, j in edges):
         raise ValueError(f"edges must index the {P} points.")
+    drawn_points = sorted({i for edge in edges for i in edge})
+    nonfinite = np.flatnonzero(valid & ~drawable(points_2d[:, drawn_points]).all(axis=1)) if drawn_points \
+        else np.array([], dtype=int)
 
-    frames = iter_frames(video_path, max_width=max_width)
+    frames = iter_frames(video_path, max_width=max_width, prefetch=PREFETCH_FRAMES)
     info = frames.info
-    out_width = info.width if max_width is None or info.width <= max_width else max_width
-    out_height = scaled_height(info.width, info.height, out_width)
+    out_width, out_height = frames.output_size
     scale = np.array([out_width / info.width, out_height / info.height])  # native pixels -> output pixels
-    with VideoWriter(out_path, info.fps, out_width, out_height) as writer:
-        for index, frame in frames:
+    with VideoWriter(out_path, info.fps, out_width, out_height, crf=OVERLAY_CRF, preset=OVERLAY_PRESET) as writer:
+        for index, image in frames:
             if index >= T:
                 break
-            image = draw_overlay(
-                frame, points_2d[index] * scale, edges, labels=labels,
-                keypoints=None if keypoints is None else keypoints[index] * np.append(scale, 1.0),
-                contacts=None if contacts is None else contacts[index],
-                force_arrows=None if force_arrows is None else force_arrows[index] * scale,
-                valid=bool(valid[index]),
+            if cancel is not None and cancel.is_set():
+                raise OverlayCancelled(f"{out_path}: rendering was cancelled.")
+            _draw_in_place(
+                image, points_2d[index] * scale, edges, labels,
+                None if keypoints is None else keypoints[index] * np.append(scale, 1.0),
+                None if contacts is None else contacts[index],
+                None if force_arrows is None else force_arrows[index] * scale,
+                bool(valid[index]), bool(unexplained[index]),
             )
             writer.write(image)
             if progress is not None:
                 progress(index + 1, T)
         if writer.frames_written < T:
             raise ValueError(f"{video_path}: has {writer.frames_written} frames, fewer than the {T} to draw.")
+    return OverlayReport(T, out_width, out_height, nonfinite.tolist(), time.perf_counter() - started)
+
+
+class OverlayJob:
+    """render_overlay running in a worker thread (decoding, drawing and encoding release the GIL), so that the
+    caller writes its other outputs meanwhile. Use as a context manager: leaving the block through an exception
+    (Ctrl-C included) cancels the rendering, waits for the worker and leaves no file behind; leaving it normally
+    waits for the rendering and raises its error, if any.
+
+        with start_overlay(video, "overlay.mp4", points_2d, edges, valid, ...) as job:
+            ...  # other outputs
+            report = job.result()
+    """
+
+    def __init__(self, *args, **kwargs) -> None:
+        self._cancel = threading.Event()
+        self._report: OverlayReport | None = None
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, args=args, kwargs=kwargs, name="physmocap-overlay",
+                                        daemon=True)
+        self._thread.start()
+
+    def _run(self, *args, **kwargs) -> None:
+        try:
+            self._report = render_overlay(*args, cancel=self._cancel, **kwargs)
+        except BaseException as error:  # raised in the caller's thread by result()
+            self._error = error
+
+    def result(self) -> OverlayReport:
+        """Wait for the rendering; its report, or the exception it raised."""
+        while self._thread.is_alive():
+            self._thread.join(0.2)  # a timed wait keeps the caller's thread responsive to Ctrl-C
+        if self._error is not None:
+            raise self._error
+        assert self._report is not None
+        return self._report
+
+    def cancel(self) -> None:
+        """Stop the rendering at the next frame and wait for the worker; no file is left."""
+        self._cancel.set()
+        self._thread.join()
+
+    def __enter__(self) -> "OverlayJob":
+        return self
+
+    def __exit__(self, exc_type, exc, traceback) -> None:
+        if exc is not None:
+            self.cancel()
+        else:
+            self.result()  # a block that did not wait still gets the rendering's error
+
+
+def start_overlay(*args, **kwargs) -> OverlayJob:
+    """render_overlay(*args, **kwargs) started in a worker thread; see OverlayJob."""
+    return OverlayJob(*args, **kwargs)

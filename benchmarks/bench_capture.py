@@ -1,0 +1,313 @@
+"""Whole capture, as a user runs it: wall time and peak memory of `physmocap capture` (default settings unless
+--args says otherwise) on long videos made by looping a shared clip, per stage and per output.
+
+Each case runs `physmocap capture VIDEO -o RUN` in a child process under /usr/bin/time -v (CPU seconds, peak
+resident memory with native allocations); inside the child the output writers are wrapped with timers, so
+summary.json's stage_seconds come with each output's own seconds, and each stage's own peak resident memory is
+read from the kernel's high-water mark, reset before the stage (the run's peak is the largest of them). The
+looped videos are made once in --videos (not committed): the clip is scaled and encoded once (libx264 veryfast,
+CRF 20), then its packets are repeated with shifted timestamps, so the person jumps back to the clip's start at
+every loop, as in any looped clip.
+
+    .venv/bin/python benchmarks/bench_capture.py                       # 10 s and 60 s at 720p and 1080p
+    .venv/bin/python benchmarks/bench_capture.py --seconds 10 60 600   # the full set (the 10-minute runs take long)
+    .venv/bin/python benchmarks/bench_capture.py --seconds 60 --heights 720 --args=--physics=physcap
+    .venv/bin/python benchmarks/bench_capture.py --overlay-only        # overlay frames per second at 1280 px
+    .venv/bin/python benchmarks/bench_capture.py --time-orientation    # issue 24: variable rate, rotation
+
+--time-orientation judges whichever physmocap is on PYTHONPATH (point it at an older checkout for "before"):
+a 24/12/8 fps video cut from the demo clip (each frame's index stamped in binary in its corner), read back:
+the rate found, the largest error between a frame's position on the read timeline and its true time, and the
+speed of each segment as read against its true speed; and the demo clip stored sideways with a phone's display
+matrix: the image size detection reports and whether the person stands upright in the keypoints.
+"""
+
+from __future__ import annotations
+
+import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
+
+import argparse
+import json
+import os
+import re
+import shlex
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from fractions import Fraction
+
+import av
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from common import REPO, VIDEOS, git_revision, machine_description  # noqa: E402
+from physmocap.io.video import probe_video  # noqa: E402
+
+CLIP = VIDEOS / "sports2d_demo.mp4"  # 30 fps, one person walking across the frame
+LOOP_CRF = 20
+
+# Output writers timed inside the child: (module, attribute) as write_outputs looks them up when it runs.
+OUTPUT_WRITERS = (
+    ("physmocap.pipeline", "build_result"), ("physmocap.pipeline", "save_result"),
+    ("physmocap.io.bvh_export", "write_bvh"), ("physmocap.io.glb", "write_glb"),
+    ("physmocap.export", "export_result"), ("physmocap.viz.overlay", "render_overlay"),
+    ("physmocap.viz.viewer", "write_viewer"), ("physmocap.viz.report", "write_report"),
+)
+# Stages whose own peak resident memory the child records (the kernel's high-water mark, reset before each).
+STAGES = ("detect_stage", "stream_stage", "kinematics_stage", "contacts_stage", "refine_stage", "physics_stage",
+          "trajopt_stage", "write_outputs")
+
+
+def looped_video(clip: Path, out: Path, seconds: float, height: int) -> Path:
+    """`clip` scaled to `height` lines (even width, same aspect), repeated to `seconds` long, as H.264 MP4 `out`."""
+    if out.is_file():
+        return out
+    out.parent.mkdir(parents=True, exist_ok=True)
+    once = out.with_suffix(".once.mp4")
+    with av.open(str(clip)) as source, av.open(str(once), "w") as target:
+        stream_in = source.streams.video[0]
+        stream_in.thread_type = "AUTO"
+        width = 2 * round(stream_in.width * height / stream_in.height / 2)
+        rate = stream_in.average_rate
+        stream = target.add_stream("libx264", rate=rate)
+        stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
+        stream.options = {"crf": str(LOOP_CRF), "preset": "veryfast"}
+        for index, frame in enumerate(source.decode(stream_in)):
+            scaled = frame.reformat(width=width, height=height, format="yuv420p", interpolation="AREA")
+            scaled.pts, scaled.time_base = index, 1 / rate
+            target.mux(stream.encode(scaled))
+        target.mux(stream.encode(None))
+    with av.open(str(once)) as source:
+        stream_in = source.streams.video[0]
+        packets = [p for p in source.demux(stream_in) if p.size]
+        clip_ticks = int(round(len(packets) / rate / stream_in.time_base))
+        loops = int(np.ceil(seconds * rate / len(packets)))
+        frames = int(round(seconds * rate))
+        tmp = out.with_suffix(".partial.mp4")
+        with av.open(str(tmp), "w", options={"movflags": "+faststart"}) as target:
+            stream = target.add_stream_from_template(stream_in)
+            written = 0
+            for loop in range(loops):
+                for packet in sorted(packets, key=lambda p: p.dts):
+                    if written >= frames:
+                        break
+                    copy = av.Packet(bytes(packet))
+                    copy.pts, copy.dts = packet.pts + loop * clip_ticks, packet.dts + loop * clip_ticks
+                    copy.is_keyframe, copy.time_base, copy.stream = packet.is_keyframe, stream_in.time_base, stream
+                    target.mux(copy)
+                    written += 1
+    once.unlink()
+    tmp.replace(out)
+    return out
+
+
+def load_average() -> str:
+    return " ".join(Path("/proc/loadavg").read_text().split()[:3])
+
+
+def run_case(video: Path, run_dir: Path, extra_args: list[str]) -> dict:
+    """One `physmocap capture` in a child under /usr/bin/time -v: wall seconds, peak MB, stages, outputs."""
+    timings = run_dir.with_suffix(".outputs.json")
+    command = ["/usr/bin/time", "-v", sys.executable, __file__, "--child", str(timings), "capture", str(video),
+               "-o", str(run_dir), *extra_args]
+    load_before = load_average()
+    started = time.perf_counter()
+    done = subprocess.run(command, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(REPO / "src")})
+    wall = time.perf_counter() - started
+    if done.returncode != 0:
+        raise RuntimeError(f"capture failed ({done.returncode}):\n{done.stdout}\n{done.stderr[-3000:]}")
+    peak_kb = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", done.stderr).group(1))
+    cpu = sum(float(re.search(rf"{kind} time \(seconds\): ([\d.]+)", done.stderr).group(1))
+              for kind in ("User", "System"))
+    summary = json.loads((run_dir / "summary.json").read_text())
+    info = probe_video(video)
+    duration = info.frame_count / info.fps
+    child_report = json.loads(timings.read_text())
+    outputs = child_report["seconds"]
+    overlay_seconds = outputs.get("render_overlay")
+    return dict(
+        video=video.name, frames=summary["frames"], video_seconds=round(duration, 2), width=info.width,
+        height=info.height, args=" ".join(extra_args), wall_seconds=round(wall, 1),
+        wall_over_duration=round(wall / duration, 2), cpu_seconds=round(cpu, 1),
+        cpu_over_duration_per_core=round(cpu / (os.cpu_count() or 1) / duration, 2),
+        # the child resets the kernel's high-water mark before each stage, which /usr/bin/time reads too
+        peak_rss_mb=round(max([peak_kb / 1024, *child_report["peak_mb"].values()])),
+        stage_seconds={k: round(v, 1) for k, v in summary["stage_seconds"].items()},
+        outputs_over_detection=round(summary["stage_seconds"]["outputs"] / summary["stage_seconds"]["detect"], 3),
+        output_seconds={k: round(v, 2) for k, v in outputs.items()},
+        stage_peak_rss_mb={k: round(v) for k, v in child_report["peak_mb"].items()},
+        stage_cpu_seconds={k: round(v, 1) for k, v in child_report.get("cpu_seconds", {}).items()},
+        overlay_fps=None if not overlay_seconds else round(summary["frames"] / overlay_seconds, 1),
+        load_average_before=load_before, load_average_after=load_average(),
+    )
+
+
+def child(timings_path: str, cli_args: list[str]) -> int:
+    """Run the CLI with the output writers wrapped in timers; write {writer: seconds} to `timings_path`."""
+    import importlib
+
+    from physmocap import cli
+
+    seconds: dict[str, float] = {}
+
+    def timed(name, function):
+        def wrapper(*args, **kwargs):
+            started = time.perf_counter()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                seconds[name] = seconds.get(name, 0.0) + time.perf_counter() - started
+        return wrapper
+
+    peak_mb: dict[str, float] = {}
+    cpu_seconds: dict[str, float] = {}
+
+    def high_water(name, function):
+        def wrapper(*args, **kwargs):
+            Path("/proc/self/clear_refs").write_text("5")  # resets VmHWM to the current resident size
+            cpu_started = time.process_time()  # all threads of the process
+            try:
+                return function(*args, **kwargs)
+            finally:
+                cpu_seconds[name] = time.process_time() - cpu_started
+                status = Path("/proc/self/status").read_text()
+                peak_mb[name] = int(re.search(r"VmHWM:\s+(\d+) kB", status).group(1)) / 1024
+        return wrapper
+
+    for module_name, attribute in OUTPUT_WRITERS:
+        module = importlib.import_module(module_name)
+        setattr(module, attribute, timed(attribute, getattr(module, attribute)))
+    pipeline = importlib.import_module("physmocap.pipeline")
+    for stage in STAGES:
+        if hasattr(pipeline, stage):
+            setattr(pipeline, stage, high_water(stage, getattr(pipeline, stage)))
+    code = cli.main(cli_args)
+    Path(timings_path).write_text(json.dumps({"seconds": seconds, "peak_mb": peak_mb, "cpu_seconds": cpu_seconds}))
+    return code or 0
+
+
+def overlay_speed(video: Path, width: int | None, repeats: int) -> dict:
+    """Frames per second of render_overlay on `video` with a full skeleton, contacts, keypoints and arrows drawn."""
+    from physmocap.body.kinematics import forward_kinematics
+    from physmocap.body.model import build_body_model, template_lengths
+    from physmocap.viz import overlay
+    from physmocap.viz.overlay import render_overlay, skeleton_edges
+
+    info = probe_video(video)
+    body = build_body_model(template_lengths(1.7), 70)
+    world = forward_kinematics(body, body.rest_qpos).points[0]
+    T = info.frame_count
+    sway = np.sin(np.arange(T) / 10.0)[:, None, None]
+    pixels = np.stack([info.width / 2 - info.height / 2.2 * world[:, 1],
+                       info.height * 0.95 - info.height / 2.2 * world[:, 2]], axis=1)[None] + 20 * sway
+    keypoints = np.concatenate([pixels[:, np.arange(33) % pixels.shape[1]], np.full((T, 33, 1), 0.9)], axis=2)
+    arrows = np.stack([pixels[:, :4], pixels[:, :4] - [0.0, 80.0]], axis=2)
+    contacts = np.ones((T, 4), bool)
+    times, cpu = [], []
+    with tempfile.TemporaryDirectory() as folder:
+        for _ in range(repeats):
+            started, cpu_started = time.perf_counter(), time.process_time()
+            report = render_overlay(video, Path(folder) / "overlay.mp4", pixels, skeleton_edges(body),
+                                    np.ones(T, bool), keypoints=keypoints, contacts=contacts,
+                                    labels=body.point_names, force_arrows=arrows, max_width=width)
+            times.append(time.perf_counter() - started)
+            cpu.append(time.process_time() - cpu_started)  # all threads: decoder, drawing, x264
+            size = (Path(folder) / "overlay.mp4").stat().st_size
+    seconds = float(np.median(times))
+    return dict(video=video.name, input=f"{info.width}x{info.height}", output=f"{report.width}x{report.height}",
+                preset=overlay.OVERLAY_PRESET, frames=T, seconds=round(seconds, 2), fps=round(T / seconds, 1),
+                cpu_ms_per_frame=round(1000 * float(np.median(cpu)) / T, 1), megabytes=round(size / 1e6, 1),
+                repeats=repeats, load_average=load_average())
+
+
+def time_and_orientation(folder: Path) -> list[dict]:
+    """Issue 24's time and orientation cases on the demo clip (see the module docstring)."""
+    import cv2
+
+    sys.path.insert(0, str(REPO / "tests"))
+    from test_video_io import write_timed_video
+
+    from physmocap.detect.mediapipe_pose import detect_video
+    from physmocap.io.video import iter_frames
+    from physmocap.landmarks import LANDMARK_INDEX
+
+    folder.mkdir(parents=True, exist_ok=True)
+    frames = [frame for _, frame in iter_frames(REPO / "src" / "physmocap" / "data" / "demo" / "taiji_demo.mp4")]
+    step = 1001 / 24000
+    kept = list(range(0, 32)) + list(range(32, 64, 2)) + list(range(64, 96, 3))  # 24, 12, then 8 fps
+    stamped = []
+    for index in kept:
+        frame = frames[index].copy()
+        for bit in range(7):
+            frame[:16, 16 * bit:16 * bit + 16] = 255 * ((index >> bit) & 1)
+        stamped.append(frame)
+    vfr = write_timed_video(folder / "vfr.mp4", stamped, kept, Fraction(1001, 24000))
+    info = probe_video(vfr)
+    shown = np.array([sum(int(f[4:12, 16 * b + 4:16 * b + 12].mean() > 128) << b for b in range(7))
+                      for _, f in iter_frames(vfr)])
+    true_time, read_time = shown * step, np.arange(len(shown)) / info.fps
+    starts = [0, int(np.searchsorted(shown, 32)), int(np.searchsorted(shown, 64)), len(shown)]
+    speed = [(true_time[b - 1] - true_time[a]) / (read_time[b - 1] - read_time[a]) for a, b in zip(starts, starts[1:])]
+    rows = [dict(case="24/12/8 fps video", fps_read=round(info.fps, 2), frames_read=len(shown),
+                 max_time_error_ms=round(1000 * float(np.abs(read_time - true_time).max()), 1),
+                 speed_24_12_8fps_segments=[round(v, 2) for v in speed])]
+    sideways = [cv2.rotate(frame, cv2.ROTATE_90_COUNTERCLOCKWISE) for frame in frames[:24]]
+    phone = write_timed_video(folder / "phone.mp4", sideways, list(range(24)), Fraction(1001, 24000), rotation_cw=90)
+    obs = detect_video(phone)
+    x, y = obs.keypoints_2d[..., 0], obs.keypoints_2d[..., 1]
+    ankle, nose = LANDMARK_INDEX["left_ankle"], LANDMARK_INDEX["nose"]
+    upright = np.median(y[:, ankle] - y[:, nose]) > np.median(np.abs(x[:, ankle] - x[:, nose]))
+    rows.append(dict(case="phone video, display matrix 90 deg clockwise, stored 360x640",
+                     image_size=list(obs.image_size), valid_frames=f"{int(obs.valid.sum())}/{obs.num_frames}",
+                     person_upright_in_keypoints=bool(upright)))
+    return rows
+
+
+def main() -> int:
+    if len(sys.argv) > 2 and sys.argv[1] == "--child":
+        return child(sys.argv[2], sys.argv[3:])
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--seconds", type=float, nargs="+", default=[10, 60])
+    parser.add_argument("--heights", type=int, nargs="+", default=[720, 1080])
+    parser.add_argument("--args", default="", help="extra capture arguments, e.g. --args=--physics=physcap")
+    parser.add_argument("--videos", type=Path, default=Path(tempfile.gettempdir()) / "physmocap_bench_videos")
+    parser.add_argument("--runs", type=Path, default=None, help="run folders (default: a temporary folder)")
+    parser.add_argument("--overlay-only", action="store_true", help="only overlay speed, 10 s at each height")
+    parser.add_argument("--overlay-width", type=int, default=1280)
+    parser.add_argument("--repeats", type=int, default=3, help="overlay-only: runs per case (median)")
+    parser.add_argument("--presets", nargs="+", default=None, help="overlay-only: libx264 presets to compare")
+    parser.add_argument("--time-orientation", action="store_true", help="only issue 24's time and rotation cases")
+    parser.add_argument("--json", type=Path, default=None, help="also write the rows here")
+    args = parser.parse_args()
+
+    print(f"# {machine_description()}, commit {git_revision()}", flush=True)
+    rows = []
+    if args.time_orientation:
+        rows = time_and_orientation(Path(tempfile.mkdtemp(prefix="bench_time_")))
+        print("\n".join(json.dumps(row) for row in rows), flush=True)
+    elif args.overlay_only:
+        from physmocap.viz import overlay
+
+        for preset in args.presets or [overlay.OVERLAY_PRESET]:
+            overlay.OVERLAY_PRESET = preset
+            for height in args.heights:
+                video = looped_video(CLIP, args.videos / f"loop_{height}p_10s.mp4", 10, height)
+                rows.append(overlay_speed(video, args.overlay_width, args.repeats))
+                print(json.dumps(rows[-1]), flush=True)
+    else:
+        runs = Path(tempfile.mkdtemp(prefix="bench_capture_")) if args.runs is None else args.runs
+        for seconds in args.seconds:
+            for height in args.heights:
+                video = looped_video(CLIP, args.videos / f"loop_{height}p_{seconds:g}s.mp4", seconds, height)
+                rows.append(run_case(video, runs / f"{height}p_{seconds:g}s", shlex.split(args.args)))
+                print(json.dumps(rows[-1]), flush=True)
+    if args.json is not None:
+        args.json.write_text(json.dumps(rows, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
