@@ -248,7 +248,7 @@ def write_outputs(out_dir: Path, source: str, obs: Observations, motion: Kinemat
         started = time.perf_counter()
         result = build_result(obs, motion, seconds, settings.as_dict(), contacts, stationary, physics, predicted,
                               settings.physics.method)
-        files = _write_files(out_dir, obs, motion, result, overlay_video, progress)
+        files = _write_files(out_dir, obs, motion, result, overlay_video, progress, settings.overlay_width)
         seconds["outputs"] = time.perf_counter() - started
         summary = _summary(out_dir, source, obs, motion, result, settings, seconds, cached, physics_report or {},
                            files)
@@ -260,8 +260,10 @@ def write_outputs(out_dir: Path, source: str, obs: Observations, motion: Kinemat
 
 
 def _write_files(out_dir: Path, obs: Observations, motion: KinematicMotion, result: dict[str, np.ndarray],
-                 overlay_video: Path | None, progress: ProgressFactory | None) -> dict[str, str]:
-    """Every output file but summary.json and the report; returns {kind: path}."""
+                 overlay_video: Path | None, progress: ProgressFactory | None,
+                 overlay_width: int = 1280) -> dict[str, str]:
+    """Every output file but summary.json and the report; returns {kind: path}. The overlay renders in a worker
+    thread while the other files are written (an error or Ctrl-C cancels it and leaves no overlay.mp4)."""
     from .export import export_result
     from .io.bvh_export import write_bvh
     from .io.glb import write_glb
@@ -269,32 +271,44 @@ def _write_files(out_dir: Path, obs: Observations, motion: KinematicMotion, resu
 
     files = {"result": str(out_dir / "result.npz"), "bvh": str(out_dir / "motion.bvh"),
              "glb": str(out_dir / "motion.glb")}
-    save_result(files["result"], result)
-    write_bvh(files["bvh"], motion.body, result["qpos"], obs.fps)
-    write_glb(files["glb"], motion.body, result["qpos"], obs.fps)
-    files.update(export_result(files["result"], "opensim", out_dir))
     if overlay_video is not None:
         files["overlay"] = str(out_dir / "overlay.mp4")
-        _write_overlay(files["overlay"], overlay_video, obs, motion, result, progress)
-    files["viewer"] = str(out_dir / "viewer.html")
-    write_viewer(result, files["viewer"], video="overlay.mp4" if overlay_video is not None else None)
+    with _start_overlay(files.get("overlay"), overlay_video, obs, motion, result, progress, overlay_width) as job:
+        save_result(files["result"], result)
+        write_bvh(files["bvh"], motion.body, result["qpos"], obs.fps)
+        write_glb(files["glb"], motion.body, result["qpos"], obs.fps)
+        files.update(export_result(files["result"], "opensim", out_dir))
+        files["viewer"] = str(out_dir / "viewer.html")
+        write_viewer(result, files["viewer"], video="overlay.mp4" if overlay_video is not None else None)
+        report = None if job is None else job.result()
+    if report is not None and report.nonfinite_frames:
+        log.warning("overlay.mp4: frames %s drawn without some fitted points (non-finite or far outside the image)",
+                    ", ".join(_frame_ranges(np.asarray(report.nonfinite_frames))[:6]))
     files["report"] = str(out_dir / "report.html")
     return files
 
 
-def _write_overlay(path: str, video: Path, obs: Observations, motion: KinematicMotion, result: dict[str, np.ndarray],
-                   progress: ProgressFactory | None) -> None:
-    """The final motion, keypoints, contacts and forces drawn on the input video."""
-    from .body.model import CONTACT_POINTS
-    from .viz.overlay import force_arrow_scale, force_arrows_2d, render_overlay, skeleton_edges
+def _start_overlay(path: str | None, video: Path | None, obs: Observations, motion: KinematicMotion,
+                   result: dict[str, np.ndarray], progress: ProgressFactory | None, overlay_width: int):
+    """The overlay rendering started in a worker (viz.overlay.start_overlay), or a context of None without one:
+    the final motion, keypoints, contacts, forces and the frames physics could not explain, drawn on the input
+    video at most `overlay_width` pixels wide (0: its own width)."""
+    import contextlib
 
+    from .body.model import CONTACT_POINTS
+    from .viz.overlay import force_arrow_scale, force_arrows_2d, skeleton_edges, start_overlay
+
+    if path is None or video is None:
+        return contextlib.nullcontext()
     points_2d = motion.camera.project(result["joints_world"])  # result points are the body's points
     soles = result["joints_world"][:, [RESULT_POINTS.index(n) for n in CONTACT_POINTS]]
     arrows = force_arrows_2d(soles, result["grf"], motion.camera.project,
                              force_arrow_scale(motion.body.mass, motion.body.height))
     bar = progress("overlay", obs.num_frames) if progress else None
-    render_overlay(video, path, points_2d, skeleton_edges(motion.body), motion.valid, keypoints=obs.keypoints_2d,
-                   contacts=result["contacts"], labels=RESULT_POINTS, progress=bar, force_arrows=arrows)
+    return start_overlay(video, path, points_2d, skeleton_edges(motion.body), motion.valid,
+                         keypoints=obs.keypoints_2d, contacts=result["contacts"], labels=RESULT_POINTS, progress=bar,
+                         force_arrows=arrows, unexplained=result["physics_unexplained"],
+                         max_width=overlay_width or None)
 
 
 def _summary(out_dir: Path, source: str, obs: Observations, motion: KinematicMotion, result: dict[str, np.ndarray],
