@@ -352,6 +352,11 @@ def trajopt_targets() -> list[tuple]:
     ]
 
 
+SECTIONS = REPO / "benchmarks" / "sections"
+HAND_SECTIONS = ("physics_footage", "floor_height", "trajopt_long", "capture", "caches", "bad_inputs", "batch",
+                 "retarget")
+
+
 def compose(seconds: dict[str, float]) -> str:
     today = datetime.date.today().isoformat()
     parts = [
@@ -435,6 +440,9 @@ def compose(seconds: dict[str, float]) -> str:
         *include("contacts_data_gap"),
         "",
     ]
+    # Sections whose scripts do not write a results/<name>.md (each names its own command)
+    for name in HAND_SECTIONS:
+        parts += [(SECTIONS / f"{name}.md").read_text().rstrip(), ""]
     if seconds:
         parts += ["## Benchmark run time", "", ", ".join(f"{k} {v / 60:.1f} min" for k, v in seconds.items()), ""]
     return "\n".join(parts)
