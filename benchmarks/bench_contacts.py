@@ -173,6 +173,17 @@ def motion_kind(clip_name: str) -> str:
     return next((kind for kind, words in MOTION_KINDS if any(w in description for w in words)), "other")
 
 
+def seconds_to_label_change(contacts: np.ndarray, fps: float) -> np.ndarray:
+    """(T, 4) seconds from each entry to the nearest change of its site's label (inf where it never changes)."""
+    frames = np.arange(len(contacts))
+    distance = np.full(contacts.shape, np.inf)
+    for site in range(contacts.shape[1]):
+        changes = np.flatnonzero(np.diff(contacts[:, site].astype(np.int8))) + 0.5
+        if len(changes):
+            distance[:, site] = np.abs(frames[:, None] - changes[None]).min(axis=1) / fps
+    return distance
+
+
 def error_locations(sequences: list[SyntheticSequence], weights: Path) -> dict[str, dict[str, dict[str, float]]]:
     """Where the networks' held-out synthetic errors are: accuracy and share of the errors per CMU subject and per
     distance to the nearest label change."""
