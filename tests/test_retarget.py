@@ -39,6 +39,8 @@ CARTOON = dict(hip_width=0.16, thigh=0.22, shank=0.20, ankle_height=0.05, heel_b
                eye_forward=0.11, eye_up=0.06, eye_width=0.04)
 
 
+DEMO_CLIP = Path(__file__).resolve().parents[1] / "src" / "physmocap" / "data" / "demo" / "taiji_demo.mp4"
+
 def stepping_result(frames: int = 60, fps: float = 30.0) -> dict[str, np.ndarray]:
     """The synthetic result of test_export with another motion: swaying side to side, crouching, lifting one foot
     and then the other (their heel and toe out of contact meanwhile), arms swinging; its feet planted by our own
@@ -351,7 +353,7 @@ def test_retarget_command_line(tmp_path, source):
     bad.write_text("HIERARCHY\nROOT A\n{\nOFFSET 0 0 0\nCHANNELS 3 Zrotation Xrotation Yrotation\n}\nMOTION\n"
                    "Frames: 1\nFrame Time: 0.1\n0 0 0\n")
     for args in (["retarget", str(source), "--character", str(bad)],
-                 ["capture", "--observations", str(tmp_path / "none.npz"), "--character", str(bad)]):
+                 ["capture", str(DEMO_CLIP), "-o", str(tmp_path / "cap"), "--character", str(bad)]):
         run = subprocess.run([sys.executable, "-m", "physmocap.cli", *args], capture_output=True, text=True,
                              timeout=300)
         assert run.returncode == 2 and "Traceback" not in run.stderr

@@ -122,19 +122,10 @@ class PhysCapTracker:
     # ---- the pieces of one step -------------------------------------------------------------------------
     def _dynamics(self):
         """Mass matrix, bias forces, contact Jacobians, contact heights and floor collisions at the state."""
-        m, d = self.model, self.data
+        d = self.data
         d.qpos[:] = self.qpos
         d.qvel[:] = self.qvel
-        # Only the pieces used (no constraint solver): kinematics, inertia, collisions, bias forces.
-        mujoco.mj_kinematics(m, d)
-        mujoco.mj_comPos(m, d)
-        mujoco.mj_crb(m, d)
-        mujoco.mj_collision(m, d)
-        mujoco.mj_comVel(m, d)
-        mujoco.mj_rne(m, d, 0, self.bias)
-        mujoco.mj_fullM(m, d, self.mass_matrix)
-        for j, site in enumerate(self.sites):
-            mujoco.mj_jacSite(m, d, self.contact_jacobian[j], None, site)
+        self._rigid_body_terms(d, collide=True)
         touching = np.zeros(4, bool)
         hit = self.contact_of_geom[d.contact.geom[:d.ncon].ravel()]
         touching[hit[hit >= 0]] = True
@@ -263,6 +254,22 @@ class PhysCapTracker:
         unexplained = self.kinematic_misfit(q_kin, qd_kin, qdd_kin)
         return FrameOutput(forces_sum / n, residual_sum / n, active, failures, records, unexplained, diverged)
 
+    def _rigid_body_terms(self, d: mujoco.MjData, collide: bool) -> None:
+        """Into d and the step buffers: kinematics, composite inertia, (collisions,) the bias forces
+        (self.bias), the mass matrix (self.mass_matrix) and the contact sites' Jacobians; only the pieces used,
+        no constraint solver."""
+        m = self.model
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_crb(m, d)
+        if collide:
+            mujoco.mj_collision(m, d)
+        mujoco.mj_comVel(m, d)
+        mujoco.mj_rne(m, d, 0, self.bias)
+        mujoco.mj_fullM(m, d, self.mass_matrix)
+        for j, site in enumerate(self.sites):
+            mujoco.mj_jacSite(m, d, self.contact_jacobian[j], None, site)
+
     def kinematic_misfit(self, q_kin: np.ndarray, qd_kin: np.ndarray, qdd_kin: np.ndarray) -> np.ndarray:
         """(6,) the root force (world, N) and torque (pelvis frame, N m) that the kinematic motion itself needs
         (inverse dynamics at its pose, velocity and acceleration) and that no admissible force at its sole points
@@ -271,15 +278,8 @@ class PhysCapTracker:
         body's weight where hands or a raised floor carry it. A missed contact label is the tracker's problem, not
         the contact model's (the stray check catches what it costs). Overwrites the step buffers (recomputed at
         the next step)."""
-        m, d = self.model, self.target_data
+        d = self.target_data
         d.qpos[:], d.qvel[:] = q_kin, qd_kin
-        mujoco.mj_kinematics(m, d)
-        mujoco.mj_comPos(m, d)
-        mujoco.mj_crb(m, d)
-        mujoco.mj_comVel(m, d)
-        mujoco.mj_rne(m, d, 0, self.bias)
-        mujoco.mj_fullM(m, d, self.mass_matrix)
-        for j, site in enumerate(self.sites):
-            mujoco.mj_jacSite(m, d, self.contact_jacobian[j], None, site)
+        self._rigid_body_terms(d, collide=False)
         active = d.site_xpos[self.sites, 2] < self.settings.contact_height
         return self.ground_reaction_forces(qdd_kin, self.bias, active)[2]
