@@ -18,7 +18,8 @@ from physmocap.config import Settings
 from physmocap.errors import InputError
 from physmocap.export import EXPORT_FORMATS, body_from_result, export_result
 from physmocap.landmarks import LANDMARK_NAMES
-from physmocap.presets import PRESETS, FOOT_LOCK_MODES, apply_preset, apply_smoothing, foot_lock
+from physmocap.contacts.footlock import FOOT_LOCK_MODES, foot_lock
+from physmocap.presets import PRESETS, apply_preset, apply_smoothing
 from physmocap.result import RESULT_POINTS, save_result
 
 GRAVITY = 9.81

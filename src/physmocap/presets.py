@@ -15,7 +15,6 @@ from typing import Any
 import numpy as np
 
 from .config import Settings
-from .contacts.footlock import FOOT_LOCK_MODES, foot_lock  # noqa: F401 - their old home, still imported by tests
 from .errors import InputError
 
 
