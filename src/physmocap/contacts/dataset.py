@@ -83,7 +83,7 @@ class SyntheticSettings:
     labels: the automatic label thresholds.
     """
 
-    variants_per_clip: int = 128
+    variants_per_clip: int = 256
     fps_range: tuple[float, float] = (12.0, 60.0)
     max_seconds: float = 8.0
     reverse_probability: float = 0.5
