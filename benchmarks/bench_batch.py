@@ -27,6 +27,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).parent))
 from common import REPO, RESULTS, VIDEOS, git_revision, machine_description  # noqa: E402
 
+from physmocap.config import Settings  # noqa: E402
 from physmocap.io.atomic import write_text  # noqa: E402
 from physmocap.io.video import VideoWriter, iter_frames, probe_video  # noqa: E402
 
@@ -199,7 +200,7 @@ def main() -> None:
 
 def markdown(r: dict) -> str:
     lines = [f"`.venv/bin/python {r['command']}` — {r['clips']} clips of {r['frames_per_clip']} frames "
-             f"({r['frames']} frames), default capture settings (offline fit, no physics, overlay), "
+             f"({r['frames']} frames), default capture settings (offline fit, physics: {Settings().physics.method}, overlay), "
              f"{r['repeats']} alternating rounds; {r['machine']}, revision {r['revision']}.",
              "", "Load while measuring (`uptime`, before, after each round, at the end):", ""]
     lines += [f"    {line}" for line in r["load"]]
