@@ -372,6 +372,8 @@ def compose(seconds: dict[str, float]) -> str:
         "",
         *targets_section(),
         "",
+        (SECTIONS / "targets_17_24.md").read_text().rstrip(),
+        "",
         "## Kinematic capture on real videos",
         "",
         "`.venv/bin/python benchmarks/bench_kinematics.py` — shared videos `hybrik_taiji.mp4` (1280x720, 24 fps) "
