@@ -236,6 +236,17 @@ def train_network(
     # floats, on which MKL's matrix products run many times slower: the centred network's second epoch took over
     # 30 minutes instead of 5. Flushed to zero they cost nothing (a process-wide CPU flag; inference is numpy).
     torch.set_flush_denormal(True)
+    try:
+        return _train_steps(model, table, window, settings, seed, log)
+    finally:
+        torch.set_flush_denormal(False)  # the flag is process-wide: leave the process as it was
+
+
+def _train_steps(
+    model: nn.Module, table: FrameTable, window: WindowSpec, settings: TrainSettings, seed: int,
+    log: Callable[[str], None] = print,
+) -> dict[str, float]:
+    """`train_network`'s loop, with subnormal floats flushed."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     steps_per_epoch = int(np.ceil(len(table) / settings.batch_size))
