@@ -373,3 +373,8 @@ def test_a_write_failure_during_the_run_is_exit_4(tmp_path, monkeypatch):
     code, _, err = run_cli("capture", "--observations", obs, "-o", tmp_path / "out", "--physics", "none",
                            "--no-overlay")
     assert code == 4 and "result.npz" in err and "disk is full" in err, err
+
+
+def test_live_without_an_output_folder_says_nothing_is_saved(tmp_path):
+    code, _, err = run_cli("live", _one_frame_video(tmp_path, 3), "--as-fast-as-possible")
+    assert code == 0 and "nothing will be saved" in err and "Traceback" not in err

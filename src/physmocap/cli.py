@@ -485,6 +485,9 @@ def cmd_live(args) -> int:
     if args.output is not None:
         check_output_folder(args.output)
         stream = open(args.output / "live.jsonl", "w")  # a log written as frames arrive, not a result file
+    else:
+        print("note: no -o folder given: nothing will be saved (give -o DIR to keep the result, exports and "
+              "live.jsonl)", file=sys.stderr)
     started = time.perf_counter()
 
     def on_pose(index, qpos, details):
