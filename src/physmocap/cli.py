@@ -149,8 +149,10 @@ def build_parser() -> argparse.ArgumentParser:
     train = sub.add_parser("train-contacts", help="rebuild the contact networks' weights from motion capture",
                            formatter_class=argparse.ArgumentDefaultsHelpFormatter,
                            description="Deterministic training of the causal and centred contact networks on "
-                                       "synthetic observations of CMU motion capture (needs torch; about 10 "
-                                       "minutes on one core). The same data and seed give the same weights; "
+                                       "synthetic observations of CMU motion capture (needs torch; the shipped "
+                                       "weights' four subjects took about 10 minutes on one core, all of "
+                                       "../shared/data takes hours: docs/decisions/contact-training-data.md). "
+                                       "The same data and seed give the same weights; "
                                        "training.json beside them records the recipe and the held-out scores.")
     train.add_argument("--data", type=Path, required=True,
                        help="the data folder holding mocap/ (the project's is ../shared/data)")
