@@ -16,6 +16,18 @@ from .io.atomic import read_npz, save_npz
 from .landmarks import NUM_LANDMARKS
 
 
+
+def frame_ranges(frames) -> list[str]:
+    """Sorted frame indices as ranges: [3, 4, 5, 9] -> ['3-5', '9']."""
+    frames = [int(f) for f in frames]
+    out, start = [], None
+    for i, f in enumerate(frames):
+        start = f if start is None else start
+        if i + 1 == len(frames) or frames[i + 1] != f + 1:
+            out.append(str(start) if start == f else f"{start}-{f}")
+            start = None
+    return out
+
 @dataclass
 class Observations:
     """What a detector saw, independent of the detector.

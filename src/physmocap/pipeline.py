@@ -34,7 +34,7 @@ from .errors import InputError
 from .io.atomic import write_text
 from .kinematics.calibration import height_line
 from .kinematics.stage import KinematicMotion
-from .motion import Observations
+from .motion import Observations, frame_ranges
 from .result import RESULT_POINTS, build_result, save_result
 from .run_folder import locked_run_folder, previous_outputs, remove_stale_outputs
 from .stages import (
@@ -220,18 +220,6 @@ def contacts_stage(obs: Observations, settings: Settings) -> tuple[np.ndarray, n
     return contacts, velocity_2d(obs.keypoints_2d, obs.valid, obs.fps, causal=settings.online)[1]
 
 
-def _frame_ranges(frames: np.ndarray) -> list[str]:
-    """[3, 4, 5, 9] -> ['3-5', '9']"""
-    out, start = [], None
-    for i, f in enumerate(frames):
-        if start is None:
-            start = f
-        if i + 1 == len(frames) or frames[i + 1] != f + 1:
-            out.append(str(start) if start == f else f"{start}-{f}")
-            start = None
-    return out
-
-
 def write_outputs(out_dir: Path, source: str, obs: Observations, motion: KinematicMotion, contacts: np.ndarray,
                   stationary: np.ndarray, physics, settings: Settings, seconds: dict[str, float], cached: list[str],
                   overlay_video: Path | None = None, progress: ProgressFactory | None = None,
@@ -283,7 +271,7 @@ def _write_files(out_dir: Path, obs: Observations, motion: KinematicMotion, resu
         report = None if job is None else job.result()
     if report is not None and report.nonfinite_frames:
         log.warning("overlay.mp4: frames %s drawn without some fitted points (non-finite or far outside the image)",
-                    ", ".join(_frame_ranges(np.asarray(report.nonfinite_frames))[:6]))
+                    ", ".join(frame_ranges(np.asarray(report.nonfinite_frames))[:6]))
     files["report"] = str(out_dir / "report.html")
     return files
 
@@ -319,7 +307,7 @@ def _summary(out_dir: Path, source: str, obs: Observations, motion: KinematicMot
     why = np.asarray(obs.invalid_reason, dtype=object)
     reasons: dict[str, list[str]] = {}
     for reason in sorted(set(why[invalid].tolist())):
-        reasons[reason or "invalid"] = _frame_ranges(invalid[why[invalid] == reason])
+        reasons[reason or "invalid"] = frame_ranges(invalid[why[invalid] == reason])
     swaps = np.zeros(obs.num_frames, bool) if motion.foot_swaps is None else np.asarray(motion.foot_swaps, bool)
     strayed = motion.valid & (result["physics_deviation"] > settings.physics.stray_distance)
     return RunSummary(
@@ -328,12 +316,12 @@ def _summary(out_dir: Path, source: str, obs: Observations, motion: KinematicMot
         median_reprojection_error_px=_nanmedian(error),
         median_reprojection_error_percent_of_height=_nanmedian(100 * error / result["person_height_px"]),
         skeleton_scale_replaced=list(motion.calibration.replaced), physics=settings.physics.method,
-        physics_fallback_frames=_frame_ranges(np.flatnonzero(result["physics_fallback"])),
-        foot_swap_frames=_frame_ranges(np.flatnonzero(swaps)), foot_swap_frame_count=int(swaps.sum()),
+        physics_fallback_frames=frame_ranges(np.flatnonzero(result["physics_fallback"])),
+        foot_swap_frames=frame_ranges(np.flatnonzero(swaps)), foot_swap_frame_count=int(swaps.sum()),
         physics_report=physics_report, files=files,
         median_reprojection_error_final_px=_nanmedian(result["reprojection_error_final"]),
-        physics_strayed_frames=_frame_ranges(np.flatnonzero(strayed)),
-        physics_unexplained_frames=_frame_ranges(np.flatnonzero(result["physics_unexplained"])),
+        physics_strayed_frames=frame_ranges(np.flatnonzero(strayed)),
+        physics_unexplained_frames=frame_ranges(np.flatnonzero(result["physics_unexplained"])),
         physics_unexplained_frame_count=int(np.count_nonzero(result["physics_unexplained"])),
         body_height_m=float(motion.calibration.lengths.standing_height),
         body_height_source=motion.calibration.height_source,

@@ -8,23 +8,13 @@ import logging
 
 import numpy as np
 
+from ..motion import frame_ranges
+
 log = logging.getLogger("physmocap")
 
 # Per-frame float arrays of result.npz (first axis: frames); the rest are flags, text or per-run constants.
 RESULT_FRAME_ARRAYS = ("joints_world", "joints_world_kinematic", "qpos", "qpos_kinematic", "grf",
                        "residual_root_force", "physics_deviation", "person_height_px")
-
-
-def frame_ranges(frames) -> str:
-    """[3, 4, 5, 9] -> '3-5, 9'."""
-    frames = [int(f) for f in frames]
-    parts, start = [], None
-    for i, f in enumerate(frames):
-        start = f if start is None else start
-        if i + 1 == len(frames) or frames[i + 1] != f + 1:
-            parts.append(str(start) if start == f else f"{start}-{f}")
-            start = None
-    return ", ".join(parts)
 
 
 def finite_frames(values, what: str, fallback=None) -> np.ndarray:
@@ -45,7 +35,7 @@ def finite_frames(values, what: str, fallback=None) -> np.ndarray:
         return values
     source = np.maximum.accumulate(np.where(bad, -1, np.arange(len(values))))
     source[source < 0] = good[0]
-    log.warning(f"{what}: frames {frame_ranges(np.flatnonzero(bad))} hold non-finite values; written as the "
+    log.warning(f"{what}: frames {', '.join(frame_ranges(np.flatnonzero(bad)))} hold non-finite values; written as the "
                 "nearest earlier finite frame.")
     return values[source]
 

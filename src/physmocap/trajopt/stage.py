@@ -25,6 +25,7 @@ import numpy as np
 
 from ..body.model import BodyModel
 from ..config import TrajoptSettings
+from ..motion import frame_ranges
 from .formulation import Window
 from .ik import IkTargets, ik_targets, solve_ik
 from .phases import clean_flags, contact_phases, split_drifting
@@ -122,14 +123,7 @@ class TrajoptMotion:
     @property
     def failed_frames(self) -> list[str]:
         """Frame ranges where the optimisation did not converge, e.g. ['0-59', '120-179']."""
-        idx = np.flatnonzero(~self.converged)
-        out, start = [], None
-        for i, f in enumerate(idx):
-            start = f if start is None else start
-            if i + 1 == len(idx) or idx[i + 1] != f + 1:
-                out.append(str(start) if start == f else f"{start}-{f}")
-                start = None
-        return out
+        return frame_ranges(np.flatnonzero(~self.converged))
 
     def report(self) -> dict:
         """What the run summary (summary.json) says about the optimisation: the summary line, converged frames,
