@@ -600,18 +600,24 @@ def _within(name: str, value, low, high, unit: str) -> None:
         raise InputError(f"{name} = {value} is out of range: expected {low} to {high} {unit}".rstrip() + ".")
 
 
+def read_toml(path: Path, what: str) -> dict:
+    """A user's TOML file (`what`: "settings", "character map") as a dict; InputError naming the file if it is
+    missing or not TOML."""
+    try:
+        return tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such {what} file.") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not a valid TOML {what} file ({exc}).") from None
+
+
 def load_settings(path: str | Path | None = None) -> Settings:
     """Defaults, overridden by a TOML file if given."""
     settings = Settings()
     if path is None:
         return settings
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such settings file.") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: not a valid TOML settings file ({exc}).") from None
+    data = read_toml(path, "settings")
     for key, value in data.items():
         if isinstance(value, dict):
             if key not in {f.name for f in dataclasses.fields(Settings)} or not dataclasses.is_dataclass(

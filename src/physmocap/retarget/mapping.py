@@ -26,10 +26,10 @@ from __future__ import annotations
 
 import os
 import re
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..config import read_toml
 from ..errors import InputError
 from .rig import Rig
 
@@ -89,12 +89,7 @@ def load_character_config(path: str | os.PathLike | None) -> CharacterConfig:
     if path is None:
         return CharacterConfig()
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such character map file.") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: not a valid TOML file ({exc}).") from None
+    data = read_toml(path, "character map")
     unknown = set(data) - {"bones", "units_to_metres", "mass"}
     if unknown:
         raise InputError(f"{path}: unknown key {sorted(unknown)[0]} (expected bones, units_to_metres, mass).")
