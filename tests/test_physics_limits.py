@@ -64,13 +64,20 @@ def test_the_same_motion_at_10_24_30_and_60_fps_gives_the_same_physics(body):
         assert np.linalg.norm(p[common] - reference[match], axis=-1).max() < 0.01, fps
 
 
+def ballistic_jump(body, fps: float, frames: int, takeoff: int, flight: float):
+    """Standing, then a flight of `flight` seconds from frame `takeoff` along the parabola that leaves and meets
+    standing height (take-off speed g flight / 2), the feet called in contact outside the flight. Returns the
+    poses (frames, nq), contacts (frames, 4) and the flight frames (frames,)."""
+    q = np.repeat(body.rest_qpos[None], frames, axis=0)
+    t = (np.arange(frames) - takeoff) / fps
+    air = (t > 0) & (t < flight)
+    q[air, 2] += 0.5 * G * flight * t[air] - 0.5 * G * t[air] ** 2
+    return q, np.repeat(~air[:, None], 4, axis=1), air
+
+
 def test_at_10_fps_a_jump_stays_finite_and_bounded(body):
     fps, frames = 10.0, 30
-    q = np.repeat(body.rest_qpos[None], frames, axis=0)
-    t = (np.arange(frames) - 10) / fps
-    air = (t > 0) & (t < 0.5)
-    q[air, 2] += G * 0.25 * t[air] - 0.5 * G * t[air] ** 2
-    contacts = np.repeat(~air[:, None], 4, axis=1)
+    q, contacts, _ = ballistic_jump(body, fps, frames, takeoff=10, flight=0.5)
     physics = run_physcap(body, q, fps, contacts, np.zeros(frames, bool), PhysicsSettings())
     bound = PhysicsSettings().max_force * body.mass * G
     assert np.isfinite(physics.qpos).all() and np.isfinite(physics.grf).all() and np.isfinite(physics.residual).all()
@@ -109,13 +116,9 @@ def test_a_body_carried_off_the_floor_is_flagged_and_handed_back_as_the_kinemati
 
 def test_ordinary_standing_and_a_ballistic_jump_are_not_flagged(body):
     fps, frames = 30.0, 60
-    q = np.repeat(body.rest_qpos[None], frames, axis=0)
-    t = (np.arange(frames) - 20) / fps
-    air = (t > 0) & (t < 0.4)
     # A jump whose take-off and landing are pushed by the feet: the root rises and falls along a smooth
     # parabola joined to standing by the flight's own ends, contacts called down to the frame of take-off.
-    q[air, 2] += G * 0.2 * t[air] - 0.5 * G * t[air] ** 2
-    contacts = np.repeat(~air[:, None], 4, axis=1)
+    q, contacts, air = ballistic_jump(body, fps, frames, takeoff=20, flight=0.4)
     physics = run_physcap(body, q, fps, contacts, np.zeros(frames, bool), PhysicsSettings())
     assert not physics.unexplained[:18].any() and not physics.unexplained[40:].any()
     assert not physics.unexplained[air][2:-2].any()  # mid-flight follows gravity
