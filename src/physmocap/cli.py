@@ -327,19 +327,13 @@ def cmd_capture(args) -> int:
         frames = probe_video(args.video).frame_count  # fail fast, before any folder is made
     else:
         from .motion import Observations
-        from .plausibility import check_observations
 
-        obs = Observations.load(args.observations)
-        frames = obs.num_frames
-        for warning in check_observations(obs, settings, str(args.observations)):
-            print(f"warning: {warning}")
+        frames = Observations.load(args.observations).num_frames
     _check_physics_frames(args.video or args.observations, frames, settings)
     name = (args.video or args.observations).stem
     if args.character is not None:
         _check_character(args.character, args.character_map)  # fail fast, before the capture
     out = check_output_folder(args.output or Path("runs") / name)
-    if args.video is not None and settings.camera.floor is not None and not settings.online:
-        _check_floor_on_detections(args.video, out, settings)
     summary = run_capture(out, settings, video=args.video, observations=args.observations,
                           overlay=not args.no_overlay, progress=_progress_factory())
     invalid = summary.frames - summary.valid_frames
@@ -377,17 +371,6 @@ def cmd_capture(args) -> int:
         _retarget(Path(summary.files["result"]), args.character, args.character_map, out / "character",
                   settings.physics.method, settings)
     return 0
-
-
-def _check_floor_on_detections(video: Path, out: Path, settings) -> None:
-    """A given floor checked against the person before the fit: the detector runs first (its result is the
-    run's cached detection stage, which the capture then reuses)."""
-    from .pipeline import detect_stage
-    from .plausibility import check_observations
-
-    obs, _ = detect_stage(video, out, settings, _progress_factory())
-    for warning in check_observations(obs, settings, str(video)):
-        print(f"warning: {warning}")
 
 
 def _check_physics_frames(source: Path | str, frames: int, settings) -> None:

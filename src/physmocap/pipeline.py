@@ -124,7 +124,12 @@ def run_capture(out_dir: str | os.PathLike, settings: Settings, *, video: str | 
 def _observe_and_fit(runner: Runner, video: Path | None,
                      observations: str | os.PathLike | None) -> tuple[Observations, KinematicMotion]:
     """The observations (detected, cached or read from `observations`) and the kinematic motion. Online and
-    without cached detections, detection and the causal fit run together in live order (`_stream`)."""
+    without cached detections, detection and the causal fit run together in live order (`_stream`). The
+    observations and settings are checked for sense (`plausibility`) before the fit, or in live order right
+    after it."""
+    from .plausibility import check_observations
+
+    source = str(observations if video is None else video)
     if video is None:
         assert observations is not None, "run_capture needs a video or an observations file"
         obs = Observations.load(observations)
@@ -134,10 +139,14 @@ def _observe_and_fit(runner: Runner, video: Path | None,
         if cached is None and runner.settings.online:
             obs, motion = _stream(runner, video, video_key)
             runner.seconds["detect"] = obs.seconds_per_frame * obs.num_frames
+            for warning in check_observations(obs, runner.settings, source):
+                log.warning(warning)
             return obs, motion
         obs = runner.run(DETECT, video_key, video) if cached is None else cached
         check_truncation(video, obs, runner.settings)
         runner.seconds["detect"] = obs.seconds_per_frame * obs.num_frames
+    for warning in check_observations(obs, runner.settings, source):
+        log.warning(warning)
     return obs, runner.run(KINEMATICS, (observations_digest(obs),), obs)
 
 
