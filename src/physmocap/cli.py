@@ -324,12 +324,7 @@ def cmd_capture(args) -> int:
         raise InputError("capture needs a video file or --observations FILE.")
     settings = settings_from_args(args)
     if args.video is not None:
-        frames = probe_video(args.video).frame_count  # fail fast, before any folder is made
-    else:
-        from .motion import Observations
-
-        frames = Observations.load(args.observations).num_frames
-    _check_physics_frames(args.video or args.observations, frames, settings)
+        probe_video(args.video)  # fail fast, before any folder is made
     name = (args.video or args.observations).stem
     if args.character is not None:
         _check_character(args.character, args.character_map)  # fail fast, before the capture
@@ -371,19 +366,6 @@ def cmd_capture(args) -> int:
         _retarget(Path(summary.files["result"]), args.character, args.character_map, out / "character",
                   settings.physics.method, settings)
     return 0
-
-
-def _check_physics_frames(source: Path | str, frames: int, settings) -> None:
-    """Offline physics starts from the whole-clip refinement, which differentiates the motion: one frame has none
-    (online physics tracks it frame by frame and takes a single frame)."""
-    physics = settings.physics
-    refines = physics.method == "trajopt" or (physics.method == "physcap" and physics.refine_offline
-                                              and not settings.online)
-    if refines and frames == 1:
-        from .errors import ReconstructionError
-
-        raise ReconstructionError(f"{source}: a single frame has no motion for physics to follow "
-                                  "(capture it with --physics none).")
 
 
 def _check_character(path: Path, character_map: Path | None) -> None:

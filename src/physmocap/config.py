@@ -540,6 +540,13 @@ class Settings:
             raise InputError("physics trajopt optimises the whole clip: it cannot run --online (use physcap).")
         return self
 
+    @property
+    def refines_before_physics(self) -> bool:
+        """Whether the physics starts from Rempe et al.'s B.4 refinement of the whole clip: trajopt always, PhysCap
+        offline unless physics.refine_offline is off."""
+        method = self.physics.method
+        return method == "trajopt" or (method == "physcap" and self.physics.refine_offline and not self.online)
+
     def replace(self, section: str | None = None, **values) -> "Settings":
         """A copy with fields changed; `section` names the sub-settings, None the top level."""
         if section is None:

@@ -171,7 +171,7 @@ def _physics(runner: Runner, obs: Observations, motion: KinematicMotion, contact
 
     settings, report = runner.settings, dict[str, Any]()
     method = settings.physics.method
-    if method == "trajopt" or (method == "physcap" and settings.physics.refine_offline and not settings.online):
+    if settings.refines_before_physics:
         refined = runner.run(REFINE, (observations_digest(obs), motion_digest(motion), _flags_digest(contacts)),
                              obs, motion, contacts)
         motion, contacts, report["refinement"] = refined.motion, refined.contacts, refined.report

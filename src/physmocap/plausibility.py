@@ -1,6 +1,6 @@
 """Checks that settings and observations make sense together, before any fitting: a floor whose normal points
 away from the person's up direction or lies far from their feet, keypoints far outside the image, a camera
-matrix that cannot be one. A problem that would give garbage is refused (SettingsError, InputError: one
+matrix that cannot be one, offline physics asked of a single frame. A problem that would give garbage is refused (SettingsError, InputError: one
 sentence); one the fit survives is returned as a warning sentence."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 
 from .camera import Camera
 from .config import Settings
-from .errors import InputError, SettingsError
+from .errors import InputError, ReconstructionError, SettingsError
 from .landmarks import LANDMARK_INDEX
 from .motion import Observations
 
@@ -24,6 +24,10 @@ _ANKLES = [LANDMARK_INDEX["left_ankle"], LANDMARK_INDEX["right_ankle"]]
 
 def check_observations(obs: Observations, settings: Settings, source: str) -> list[str]:
     """Refuse observations and settings that cannot give a sensible result; return warnings (sentences)."""
+    if settings.refines_before_physics and obs.num_frames == 1:
+        # the whole-clip refinement differentiates the motion; online physics tracks a single frame
+        raise ReconstructionError(f"{source}: a single frame has no motion for physics to follow "
+                                  "(capture it with --physics none).")
     camera = _camera(obs, settings, source)
     warnings = _check_keypoints(obs, source)
     if settings.camera.floor is not None:

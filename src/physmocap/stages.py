@@ -336,7 +336,7 @@ def physcap(settings: Settings, progress: ProgressFactory | None, obs: Observati
     from .dynamics.stage import run_physcap
 
     refine_floor = settings.online and settings.camera.floor is None
-    refined_input = settings.physics.refine_offline and not settings.online  # the pipeline tracks REFINE's motion
+    refined_input = settings.refines_before_physics  # the pipeline then tracks REFINE's motion
     return run_physcap(motion.body, motion.qpos, obs.fps, contacts, stationary, settings.physics,
                        _bar(progress, "physics", obs.num_frames), refine_floor, motion.valid, refined_input)
 
