@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
 
+# isort: split
+
 import argparse
 import dataclasses
 import json
@@ -45,8 +47,8 @@ from physmocap.dynamics.stage import run_physcap  # noqa: E402
 from physmocap.io.atomic import write_text  # noqa: E402
 from physmocap.kinematics.stage import fit_motion  # noqa: E402
 from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
-from physmocap.motion import Observations  # noqa: E402
 from physmocap.mocap.synthetic import landmarks_from_clip, make_observations, random_camera, resample  # noqa: E402
+from physmocap.motion import Observations  # noqa: E402
 from physmocap.trajopt import refine_kinematics  # noqa: E402
 
 VALIDATION_CLIPS = (
@@ -183,9 +185,9 @@ def real_height_scale() -> dict:
     (Qualisys metres), and the height the view's estimate gives."""
     from bench_multiview import CALIBRATION, VIEWS, detect_views, triangulate_reference
     from physmocap.evaluation import EVAL_JOINTS
-    from physmocap.io.qualisys import read_qualisys_calibration
     from physmocap.kinematics.calibration import CORE_LENGTHS, estimate_height, measure_lengths, seen_landmarks
     from physmocap.landmarks import LANDMARK_INDEX, NUM_LANDMARKS
+    from qualisys import read_qualisys_calibration
 
     cameras = read_qualisys_calibration(CALIBRATION)
     observations = detect_views(Settings())

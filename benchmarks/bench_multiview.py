@@ -29,6 +29,8 @@ from __future__ import annotations
 
 import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
 
+# isort: split
+
 import argparse
 import dataclasses
 import json
@@ -41,18 +43,17 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import REPO, RESULTS, VIDEOS, git_revision, machine_description  # noqa: E402
-from physmocap.evaluation import EVAL_JOINTS  # noqa: E402
-
+from multiview import MEDIAPIPE_SWAP_GROUPS, correct_left_right_swaps, triangulate  # noqa: E402
 from physmocap import metrics  # noqa: E402
 from physmocap.camera import project_camera_points  # noqa: E402
 from physmocap.config import Settings  # noqa: E402
 from physmocap.errors import InputError  # noqa: E402
-from physmocap.io.qualisys import QualisysCamera, read_qualisys_calibration  # noqa: E402
+from physmocap.evaluation import EVAL_JOINTS  # noqa: E402
 from physmocap.landmarks import LANDMARK_INDEX  # noqa: E402
 from physmocap.motion import Observations  # noqa: E402
-from physmocap.multiview import MEDIAPIPE_SWAP_GROUPS, correct_left_right_swaps, triangulate  # noqa: E402
 from physmocap.pipeline import detect_stage, run_capture  # noqa: E402
 from physmocap.result import load_result  # noqa: E402
+from qualisys import QualisysCamera, read_qualisys_calibration  # noqa: E402
 
 DATA = VIDEOS / "pose2sim_demo_singleperson"
 CALIBRATION = DATA / "calibration" / "Calib.qca.txt"

@@ -6,10 +6,10 @@ import cv2
 import numpy as np
 import pytest
 
+from benchmarks.multiview import MEDIAPIPE_SWAP_GROUPS, correct_left_right_swaps, triangulate
+from benchmarks.qualisys import parse_qualisys_calibration, read_qualisys_calibration
 from physmocap.camera import project_camera_points
-from physmocap.io.qualisys import parse_qualisys_calibration, read_qualisys_calibration
 from physmocap.landmarks import LANDMARK_INDEX, MIRRORED, NUM_LANDMARKS
-from physmocap.multiview import MEDIAPIPE_SWAP_GROUPS, correct_left_right_swaps, triangulate
 
 QUALISYS_FILE = (Path(__file__).resolve().parents[1].parent / "shared" / "data" / "videos"
                  / "pose2sim_demo_singleperson" / "calibration" / "Calib.qca.txt")

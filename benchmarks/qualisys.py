@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Camera
+from physmocap.camera import Camera
 
 SUBPIXELS_PER_PIXEL = 64.0
 """QTM states intrinsics in sensor sub-pixels, 64 to a pixel."""

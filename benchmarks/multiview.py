@@ -18,8 +18,8 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
-from .camera import project_camera_points
-from .landmarks import LANDMARK_INDEX, MIRRORED
+from physmocap.camera import project_camera_points
+from physmocap.landmarks import LANDMARK_INDEX, MIRRORED
 
 
 def _both_sides(*parts: str) -> tuple[int, ...]:
