@@ -1,9 +1,9 @@
 import mujoco
 import numpy as np
 
+from conftest import random_poses
 from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, JOINT_NAMES, build_body_model, template_lengths
-from conftest import random_poses
 
 
 def test_total_mass_equals_given_mass():

@@ -11,13 +11,31 @@ import physmocap  # noqa: F401 - single-threaded BLAS
 from physmocap.contacts.baselines import always_contact, velocity_2d, velocity_3d
 from physmocap.contacts.dataset import MIRRORED_CONTACT_COLUMNS, split_by_subject
 from physmocap.contacts.features import (
-    CAUSAL_WINDOW, CENTRED_WINDOW, FEATURE_INDICES, mirror_keypoints, normalise_windows, select_keypoints,
-    window_indices, window_inputs,
+    CAUSAL_WINDOW,
+    CENTRED_WINDOW,
+    FEATURE_INDICES,
+    mirror_keypoints,
+    normalise_windows,
+    select_keypoints,
+    window_indices,
+    window_inputs,
 )
 from physmocap.contacts.labels import (
-    LabelSettings, contact_labels, hard_frames, point_speed, stationary_labels, without_short_phases,
+    LabelSettings,
+    contact_labels,
+    hard_frames,
+    point_speed,
+    stationary_labels,
+    without_short_phases,
 )
-from physmocap.contacts.networks import FRAME_CHANNELS, NUM_OUTPUTS, CausalNetSpec, CentredNetSpec, causal_forward, centred_forward
+from physmocap.contacts.networks import (
+    FRAME_CHANNELS,
+    NUM_OUTPUTS,
+    CausalNetSpec,
+    CentredNetSpec,
+    causal_forward,
+    centred_forward,
+)
 from physmocap.contacts.predict import load_weights, network_probabilities, predict_contacts
 from physmocap.landmarks import LANDMARK_INDEX, MIRRORED
 from physmocap.motion import Observations
@@ -221,7 +239,8 @@ def test_numpy_forward_shapes():
     causal = random_params(CausalNetSpec(channels=(8, 8, 8)), rng)
     centred = random_params(CentredNetSpec(hidden=(16, 8)), rng)
     assert causal_forward(causal, rng.normal(size=(5, CAUSAL_WINDOW.input_size)).astype(np.float32)).shape == (5, 5)
-    assert centred_forward(centred, rng.normal(size=(5, CENTRED_WINDOW.input_size)).astype(np.float32)).shape == (5, 5, 5)
+    centred_inputs = rng.normal(size=(5, CENTRED_WINDOW.input_size)).astype(np.float32)
+    assert centred_forward(centred, centred_inputs).shape == (5, 5, 5)
 
 
 def test_numpy_inference_matches_torch():
@@ -332,10 +351,11 @@ def test_synthetic_sequences_are_deterministic_and_labelled():
     settings = SyntheticSettings(variants_per_clip=3)
     first, again = make_sequences(clips, 5, settings), make_sequences(clips, 5, settings)
     assert all(np.array_equal(a.keypoints_2d, b.keypoints_2d) and np.array_equal(a.contacts, b.contacts)
-               for a, b in zip(first, again))
+               for a, b in zip(first, again, strict=True))
     for sequence in first:
         assert 12 <= sequence.fps <= 60
-        assert sequence.contacts.shape == (sequence.num_frames, 4) and sequence.stationary.shape == (sequence.num_frames,)
+        assert sequence.contacts.shape == (sequence.num_frames, 4)
+        assert sequence.stationary.shape == (sequence.num_frames,)
         assert 0.3 < sequence.contacts.mean() < 0.8  # a walk: each site down about half the time
         assert not sequence.stationary.any()
 
@@ -398,7 +418,8 @@ def test_hard_frame_weight_oversamples_hard_targets(weight):
 def test_shipped_weights_beat_the_heuristics_on_held_out_subjects():
     from physmocap.contacts.dataset import held_out_settings, load_clips, make_sequences
 
-    clips = load_clips([SHARED_DATA / "mocap" / "cmu_iclone_cc3_retarget" / name for name in ("006_01.bvh", "006_15.bvh")])
+    mocap = SHARED_DATA / "mocap" / "cmu_iclone_cc3_retarget"
+    clips = load_clips([mocap / name for name in ("006_01.bvh", "006_15.bvh")])
     sequences = make_sequences(clips, 11, held_out_settings(), variants=2)
     truth = np.concatenate([s.contacts for s in sequences])
     accuracy = {}
@@ -409,6 +430,7 @@ def test_shipped_weights_beat_the_heuristics_on_held_out_subjects():
         accuracy[mode] = np.mean(predicted == truth)
     always = truth.mean()
     velocity = np.mean(np.concatenate([velocity_2d(s.keypoints_2d, s.valid, s.fps)[0] for s in sequences]) == truth)
-    velocity_3d_accuracy = np.mean(np.concatenate([velocity_3d(s.landmarks_3d, s.valid, s.fps) for s in sequences]) == truth)
+    velocity_3d_flags = np.concatenate([velocity_3d(s.landmarks_3d, s.valid, s.fps) for s in sequences])
+    velocity_3d_accuracy = np.mean(velocity_3d_flags == truth)
     for mode, value in accuracy.items():
         assert value > max(always, velocity, velocity_3d_accuracy) + 0.03, (mode, accuracy, always, velocity)

@@ -168,6 +168,7 @@ def test_phone_video_with_rotation_metadata_is_detected_upright(demo_observation
     from fractions import Fraction
 
     import cv2
+
     from test_video_io import write_timed_video
 
     sideways = [cv2.rotate(frame, cv2.ROTATE_90_COUNTERCLOCKWISE) for _, frame in iter_frames(demo_start)]

@@ -15,10 +15,10 @@ from bvh import Bvh
 from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
 from physmocap.config import Settings
+from physmocap.contacts.footlock import FOOT_LOCK_MODES, foot_lock
 from physmocap.errors import InputError
 from physmocap.export import EXPORT_FORMATS, body_from_result, export_result
 from physmocap.landmarks import LANDMARK_NAMES
-from physmocap.contacts.footlock import FOOT_LOCK_MODES, foot_lock
 from physmocap.presets import PRESETS, apply_preset, apply_smoothing
 from physmocap.result import RESULT_POINTS, save_result
 

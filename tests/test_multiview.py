@@ -40,7 +40,7 @@ def ring_of_cameras(views: int, radius: float = 4.0, focal: float = 1000.0):
 def observe(Ks, Rs, ts, points: np.ndarray, rng: np.random.Generator, noise_px: float = 0.0) -> np.ndarray:
     """(V, T, K, 3) pixel keypoints of (T, K, 3) points with confidences in 0.5..1 and Gaussian pixel noise."""
     views = []
-    for K, R, t in zip(Ks, Rs, ts):
+    for K, R, t in zip(Ks, Rs, ts, strict=True):
         pixels = project_camera_points(K, points @ R.T + t) + rng.normal(scale=noise_px, size=points.shape[:-1] + (2,))
         confidence = rng.uniform(0.5, 1.0, size=points.shape[:-1] + (1,))
         views.append(np.concatenate([pixels, confidence], axis=-1))
@@ -111,7 +111,7 @@ def test_distorted_keypoints_are_undistorted_before_triangulation():
     points = random_points(rng, frames=2)
     distortion = np.array([-0.2, 0.1, 0.001, -0.002, 0.0])
     views = []
-    for K, R, t in zip(Ks, Rs, ts):
+    for K, R, t in zip(Ks, Rs, ts, strict=True):
         pixels, _ = cv2.projectPoints(points.reshape(-1, 3), cv2.Rodrigues(R)[0], t, K, distortion)
         views.append(np.concatenate([pixels.reshape(points.shape[:-1] + (2,)), np.ones(points.shape[:-1] + (1,))], -1))
     keypoints = np.stack(views)
@@ -205,8 +205,8 @@ def test_real_qualisys_calibration_cameras_surround_a_common_point():
     assert spacing[~np.eye(4, dtype=bool)].min() > 2.0
     # The point nearest to all four optical axes (least squares) lies in front of every camera, near each axis.
     projectors = [np.eye(3) - np.outer(c.optical_axis, c.optical_axis) for c in cameras]
-    common = np.linalg.solve(sum(projectors), sum(P @ c.centre for P, c in zip(projectors, cameras)))
-    for camera, projector in zip(cameras, projectors):
+    common = np.linalg.solve(sum(projectors), sum(P @ c.centre for P, c in zip(projectors, cameras, strict=True)))
+    for camera, projector in zip(cameras, projectors, strict=True):
         assert 2.0 < camera.R[2] @ common + camera.t[2] < 6.0
         assert np.linalg.norm(projector @ (common - camera.centre)) < 0.5
     assert 0.0 < common[2] < 1.5

@@ -46,8 +46,9 @@ else:
     loads = opensim.ExternalLoads(path, True)
     forces = [loads.get(i) for i in range(loads.getSize())]
     out = dict(file=loads.getDataFileName(), size=loads.getSize(), forces=[dict(
-        body=f.get_applied_to_body(), force_in=f.get_force_expressed_in_body(), point_in=f.get_point_expressed_in_body(),
-        force=f.get_force_identifier(), point=f.get_point_identifier(), torque=f.get_torque_identifier()) for f in forces])
+        body=f.get_applied_to_body(), force_in=f.get_force_expressed_in_body(),
+        point_in=f.get_point_expressed_in_body(), force=f.get_force_identifier(), point=f.get_point_identifier(),
+        torque=f.get_torque_identifier()) for f in forces])
 print(json.dumps(out))
 """
 

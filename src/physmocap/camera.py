@@ -28,7 +28,7 @@ class Camera:
 
     @staticmethod
     def from_settings(image_size: tuple[int, int], focal: float | None = None, fov: float | None = None,
-                      K: np.ndarray | None = None) -> "Camera":
+                      K: np.ndarray | None = None) -> Camera:
         """Intrinsics from an explicit K, a focal length (pixels) or a field of view (degrees across the
         longer image side); the principal point is the image centre. Default: DEFAULT_FOV_DEGREES."""
         w, h = image_size
@@ -61,7 +61,7 @@ class Camera:
         pc = self.to_camera(points)
         return projection_jacobian_camera(self.K, pc) @ self.R
 
-    def with_extrinsics(self, R: np.ndarray, t: np.ndarray) -> "Camera":
+    def with_extrinsics(self, R: np.ndarray, t: np.ndarray) -> Camera:
         return Camera(self.K, np.asarray(R, float), np.asarray(t, float), self.image_size)
 
 
@@ -115,7 +115,7 @@ class Floor:
                     prior_disagreement_degrees=finite(self.prior_disagreement))
 
     @staticmethod
-    def from_plane(plane) -> "Floor":
+    def from_plane(plane) -> Floor:
         plane = np.asarray(plane, float)
         norm = np.linalg.norm(plane[:3])
         return Floor(plane[:3] / norm, float(plane[3] / norm))
@@ -214,10 +214,11 @@ def robust_offset(points: np.ndarray, normal: np.ndarray, huber_scale: float = 0
     return d
 
 
-def world_from_floor(floor: Floor, anchor_camera: np.ndarray, camera_x=np.array([1.0, 0.0, 0.0])):
+def world_from_floor(floor: Floor, anchor_camera: np.ndarray, camera_x=(1.0, 0.0, 0.0)):
     """Extrinsics (R, t), world -> camera, of the world whose z = 0 plane is the floor, z up, origin on the
     floor below `anchor_camera` (camera-frame point, e.g. the first pelvis), x along the camera's x axis."""
     z = floor.normal
+    camera_x = np.asarray(camera_x, float)
     x = camera_x - np.dot(camera_x, z) * z
     x /= np.linalg.norm(x)
     y = np.cross(z, x)

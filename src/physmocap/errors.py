@@ -82,6 +82,7 @@ def output_error(exc: OSError, folder: str | os.PathLike, name_file: bool = True
                errno.EDQUOT: "the disk quota is exceeded", errno.EEXIST: "a file is in the way",
                errno.ENOTDIR: "a file is in the way of a folder on that path",
                errno.ENOENT: "it cannot be created there"}
-    reason = reasons.get(exc.errno, exc.strerror or type(exc).__name__)
+    fallback = exc.strerror or type(exc).__name__
+    reason = fallback if exc.errno is None else reasons.get(exc.errno, fallback)
     where = exc.filename if name_file and exc.filename is not None else folder
     return OutputLocationError(f"{where}: cannot write the output there ({reason}).")

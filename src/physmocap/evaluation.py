@@ -81,7 +81,7 @@ def true_contact_labels(truth: dict) -> np.ndarray:
 
 
 def truth_grf_statistics(com: np.ndarray, truth: dict, body_mass: float, grf: np.ndarray | None = None,
-                         true_contacts: np.ndarray | None = None) -> dict:
+                         true_contacts: np.ndarray | None = None) -> metrics.GrfStatistics:
     """metrics.grf_statistics of the solved forces grf (T, 4, 3), or without them of the forces the centre of
     mass com (T, 3, in the true world) implies, against the true contacts (`true_contact_labels`, computed here
     unless given); its flight_percent_bw holds the per-frame forces in true flight, which a benchmark pools over

@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -51,7 +52,8 @@ def _export_opensim(result: dict, out_dir: Path, units: str = "m") -> dict[str, 
     _choice("units", units, TRC_UNITS)
     names = [str(n) for n in result["joint_names"]]
     fps = float(result["fps"])
-    files = {"trc": out_dir / "markers.trc", "mot": out_dir / "grf.mot", "external_loads": out_dir / "external_loads.xml"}
+    files = {"trc": out_dir / "markers.trc", "mot": out_dir / "grf.mot",
+             "external_loads": out_dir / "external_loads.xml"}
     write_trc(files["trc"], result["joints_world"], names, fps, units=units)
     contact_points = result["joints_world"][:, [names.index(n) for n in CONTACT_POINTS]]
     write_grf_mot(files["mot"], result["grf"], contact_points, fps)

@@ -10,7 +10,7 @@ Standard deviations are population standard deviations (ddof = 0).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Literal
+from typing import Literal, TypedDict
 
 import numpy as np
 
@@ -18,6 +18,26 @@ from .camera import project_camera_points
 
 Alignment = Literal["root", "procrustes", "none", "first_frame", "first_frame_root"]
 GrfMeasure = Literal["magnitude", "vertical"]
+
+
+class GrfStatistics(TypedDict):
+    """What `grf_statistics` returns; the fields are described there."""
+
+    mean_percent_bw: float
+    max_percent_bw: float
+    ballistic_percent_bw: float
+    flight_percent_bw: np.ndarray
+
+
+class ContactScores(TypedDict):
+    """What `contact_scores` returns; the fields are described there."""
+
+    accuracy: float
+    precision: float
+    recall: float
+    f1: float
+    per_column: dict[str, np.ndarray]
+
 
 PCK_THRESHOLD = 0.150  # metres; PhysCap Table 2 "PCK at 150 mm"
 AUC_THRESHOLDS = np.linspace(0.0, 0.150, 31)  # metres; 0..150 mm in 5 mm steps (VNect / MPI-INF-3DHP)
@@ -418,7 +438,7 @@ def implied_grf(com: np.ndarray, body_mass: float, fps: float, gravity: float = 
 
 def grf_statistics(grf: np.ndarray, body_mass: float, contacts_truth: np.ndarray | None = None,
                    gravity: float = GRAVITY, measure: GrfMeasure = "magnitude",
-                   floor_plane: np.ndarray | None = None) -> dict[str, float | np.ndarray]:
+                   floor_plane: np.ndarray | None = None) -> GrfStatistics:
     """Rempe et al. 2020's GRF plausibility metrics (Sec. 4.3, Table 2 left), percent of body weight m g.
 
     The net GRF f(t) = sum_i f_i(t) (Rempe: "net ground reaction forces (GRF), defined as f_GRF(t) = sum_i
@@ -483,7 +503,7 @@ def _binary_scores(pred: np.ndarray, truth: np.ndarray, axis: int | None) -> dic
     return {"accuracy": np.mean(pred == truth, axis=axis), "precision": precision, "recall": recall, "f1": f1}
 
 
-def contact_scores(pred: np.ndarray, truth: np.ndarray) -> dict[str, object]:
+def contact_scores(pred: np.ndarray, truth: np.ndarray) -> ContactScores:
     """Contact classification scores, fractions 0..1: accuracy (Rempe Table 1) and precision, recall and F1 of
     the contact class (Rempe App. E.1, Table E1).
 
@@ -500,7 +520,8 @@ def contact_scores(pred: np.ndarray, truth: np.ndarray) -> dict[str, object]:
     predicted = predicted.astype(bool).reshape(predicted.shape[0], -1)
     actual = actual.astype(bool).reshape(actual.shape[0], -1)
     overall = {name: float(value) for name, value in _binary_scores(predicted, actual, None).items()}
-    return {**overall, "per_column": _binary_scores(predicted, actual, 0)}
+    return ContactScores(accuracy=overall["accuracy"], precision=overall["precision"], recall=overall["recall"],
+                         f1=overall["f1"], per_column=_binary_scores(predicted, actual, 0))
 
 
 # ---------------------------------------------------------------------------------------------------------

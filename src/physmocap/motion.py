@@ -16,7 +16,6 @@ from .io.atomic import read_npz, save_npz
 from .landmarks import NUM_LANDMARKS
 
 
-
 def frame_ranges(frames) -> list[str]:
     """Sorted frame indices as ranges: [3, 4, 5, 9] -> ['3-5', '9']."""
     frames = [int(f) for f in frames]
@@ -38,8 +37,9 @@ class Observations:
     fps: frames per second of the source.
     image_size: (width, height) in pixels.
     camera_K: (3, 3) intrinsics if the source knows them, else None.
-    valid: (T,) False where no person was found or the track seems to have jumped to someone else.
-    invalid_reason: (T,) short text per frame, "" where valid.
+    valid: (T,) False where no person was found or the track seems to have jumped to someone else; left out
+        (empty): every frame is valid.
+    invalid_reason: (T,) short text per frame, "" where valid; left out (empty): "invalid" where not valid.
     source: where the observations came from (a path or a detector name).
     """
 
@@ -48,8 +48,8 @@ class Observations:
     fps: float
     image_size: tuple[int, int]
     camera_K: np.ndarray | None = None
-    valid: np.ndarray | None = None
-    invalid_reason: np.ndarray | None = None
+    valid: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    invalid_reason: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=object))
     source: str = ""
     seconds_per_frame: float = field(default=0.0, compare=False)
 
@@ -57,12 +57,12 @@ class Observations:
         self.keypoints_2d = np.asarray(self.keypoints_2d, dtype=np.float64)
         self.landmarks_3d = np.asarray(self.landmarks_3d, dtype=np.float64)
         T = len(self.keypoints_2d)
-        if self.valid is None:
-            self.valid = np.ones(T, dtype=bool)
         self.valid = np.asarray(self.valid, dtype=bool)
-        if self.invalid_reason is None:
-            self.invalid_reason = np.where(self.valid, "", "invalid").astype(object)
+        if len(self.valid) == 0:
+            self.valid = np.ones(T, dtype=bool)
         self.invalid_reason = np.asarray(self.invalid_reason, dtype=object)
+        if len(self.invalid_reason) == 0:
+            self.invalid_reason = np.where(self.valid, "", "invalid").astype(object)
         self.image_size = (int(self.image_size[0]), int(self.image_size[1]))
         self.fps = float(self.fps)
 
@@ -86,7 +86,7 @@ class Observations:
         save_npz(path, **arrays)
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "Observations":
+    def load(cls, path: str | os.PathLike) -> Observations:
         """Read and check an observations file; any problem raises InputError naming the file."""
         path = Path(path)
         contents = read_npz(path, "observations")
@@ -128,7 +128,7 @@ class Observations:
             image_size=(int(size[0]), int(size[1])),
             camera_K=None if K is None else np.asarray(K, dtype=np.float64),
             valid=np.asarray(valid, dtype=bool),
-            invalid_reason=None if reason is None else reason.astype(object),
+            invalid_reason=np.zeros(0, dtype=object) if reason is None else reason.astype(object),
             source=str(contents.get("source", path)),
             seconds_per_frame=float(contents.get("seconds_per_frame", 0.0)),
         )

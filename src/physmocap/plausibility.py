@@ -1,7 +1,7 @@
 """Checks that settings and observations make sense together, before any fitting: a floor whose normal points
 away from the person's up direction or lies far from their feet, keypoints far outside the image, a camera
-matrix that cannot be one, offline physics asked of a single frame. A problem that would give garbage is refused (SettingsError, InputError: one
-sentence); one the fit survives is returned as a warning sentence."""
+matrix that cannot be one, offline physics asked of a single frame. A problem that would give garbage is refused
+(SettingsError, InputError: one sentence); one the fit survives is returned as a warning sentence."""
 
 from __future__ import annotations
 

@@ -12,7 +12,7 @@ from functools import lru_cache
 import numpy as np
 
 from .model import BodyModel
-from .rotations import axis_angle_matrix, quat_exp, quat_log, quat_multiply, quat_conjugate, quat_to_matrix
+from .rotations import axis_angle_matrix, quat_conjugate, quat_exp, quat_log, quat_multiply, quat_to_matrix
 
 
 @dataclass

@@ -50,7 +50,7 @@ class SkeletonLengths:
         return (self.ankle_height + self.shank + self.thigh + self.spine_low + self.spine_up + self.head_height
                 + self.head_top)
 
-    def scaled(self, factor: float) -> "SkeletonLengths":
+    def scaled(self, factor: float) -> SkeletonLengths:
         return SkeletonLengths(**{k: v * factor for k, v in self.__dict__.items()})
 
 
@@ -221,8 +221,8 @@ def _combine(parts: list[tuple[float, np.ndarray, np.ndarray]]) -> tuple[float, 
     """Mass, com and principal moments of rigid parts (mass, com, diagonal inertia) joined into one body.
 
     The parts lie on one vertical line, so the combined inertia stays diagonal (parallel axis theorem)."""
-    mass = sum(m for m, _, _ in parts)
-    com = sum(m * c for m, c, _ in parts) / mass
+    mass = float(sum(m for m, _, _ in parts))
+    com = np.asarray(sum(m * c for m, c, _ in parts) / mass)
     inertia = np.zeros(3)
     for m, c, inertia_part in parts:
         d = c - com
@@ -243,10 +243,11 @@ def build_body_model(lengths: SkeletonLengths, mass: float = 70.0) -> BodyModel:
                            None if axis is None else np.asarray(axis, float), limit, m, com, inertia))
         return len(bodies) - 1
 
-    def segment(kind: str, length: float, direction: np.ndarray, long_axis: int, start=np.zeros(3)):
+    def segment(kind: str, length: float, direction: np.ndarray, long_axis: int, start=(0.0, 0.0, 0.0)):
         p = seg[kind]
         m = p.mass_fraction * mass
-        return m, start + direction * p.com_fraction * length, _inertia_along(long_axis, m, length, p)
+        com = np.asarray(start, float) + direction * p.com_fraction * length
+        return m, com, _inertia_along(long_axis, m, length, p)
 
     down = z(-1.0)
     # Pelvis: de Leva's lower trunk (omphalion to hip midpoint), its com measured from the top.
@@ -296,7 +297,7 @@ def build_body_model(lengths: SkeletonLengths, mass: float = 70.0) -> BodyModel:
     point("spine", "torso")
     point("neck", "head")
     point("head", "head", z(L.head_height))
-    for side, sign in (("left", 1.0), ("right", -1.0)):
+    for side in ("left", "right"):
         point(f"{side}_shoulder", f"{side}_upper_arm")
         point(f"{side}_elbow", f"{side}_forearm")
         point(f"{side}_wrist", f"{side}_hand")

@@ -53,8 +53,12 @@ def mjcf_xml(model: BodyModel, timestep: float = 0.01) -> str:
   <compiler angle="radian" inertiafromgeom="false" balanceinertia="true"/>
   <option timestep="{timestep:.17g}" gravity="0 0 -9.81"/>
   <default>
-    <default class="bone"><geom size="0.03" contype="0" conaffinity="0" group="1" mass="0" rgba="0.7 0.7 0.9 1"/></default>
-    <default class="foot"><geom contype="1" conaffinity="0" condim="3" friction="0.8" mass="0" rgba="0.9 0.4 0.3 1"/></default>
+    <default class="bone">
+      <geom size="0.03" contype="0" conaffinity="0" group="1" mass="0" rgba="0.7 0.7 0.9 1"/>
+    </default>
+    <default class="foot">
+      <geom contype="1" conaffinity="0" condim="3" friction="0.8" mass="0" rgba="0.9 0.4 0.3 1"/>
+    </default>
   </default>
   <worldbody>
     <geom name="floor" type="plane" size="0 0 0.05" contype="0" conaffinity="1" rgba="0.8 0.8 0.8 1"/>

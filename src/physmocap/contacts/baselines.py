@@ -78,5 +78,6 @@ def velocity_3d(
 ) -> np.ndarray:
     """3D velocity heuristic on hip-relative landmarks (T, 33, 3) metres. Returns contacts (T, 4) bool."""
     valid = np.asarray(valid, bool)
-    contacts = point_speed(landmarks_3d[:, FOOT_INDICES], fps, SPEED_INTERVAL, centred=False) < settings.contact_speed_3d
+    speed = point_speed(landmarks_3d[:, FOOT_INDICES], fps, SPEED_INTERVAL, centred=False)
+    contacts = speed < settings.contact_speed_3d
     return contacts & valid[:, None]

@@ -2,11 +2,11 @@
 labelled automatically, split by CMU subject.
 
 Every sequence is one clip of `../shared/data/mocap` (or a segment of a long one), played forwards or backwards
-at its own speed, with its own body proportions (`vary_proportions`), frame rate (resampled, 12-60 fps), static camera (Rempe A.1 via `random_camera`, random
-focal length, landscape or portrait image), left/right mirroring, and MediaPipe-like errors
-(`noise.MEDIAPIPE_NOISE`). The labels come from the played motion at its own frame rate, before the body and the camera change
-(`labels.motion_labels`), and are carried to each resampled frame from the nearest original frame, so they do
-not depend on the rendering.
+at its own speed, with its own body proportions (`vary_proportions`), frame rate (resampled, 12-60 fps), static
+camera (Rempe A.1 via `random_camera`, random focal length, landscape or portrait image), left/right mirroring,
+and MediaPipe-like errors (`noise.MEDIAPIPE_NOISE`). The labels come from the played motion at its own frame
+rate, before the body and the camera change (`labels.motion_labels`), and are carried to each resampled frame
+from the nearest original frame, so they do not depend on the rendering.
 
 Everything is deterministic given the seed: each sequence draws from its own generator seeded by (seed, clip
 name, variant), so adding clips or variants does not change the others.
@@ -160,13 +160,15 @@ def usable_clip(clip: MocapClip, settings: LabelSettings = LabelSettings()) -> b
     contacts, _ = motion_labels(clip.positions, clip.fps, settings)
     sites = clip.positions[:, CONTACT_SITE_INDICES]
     speed = point_speed(sites, clip.fps, settings.contact_speed_interval, centred=False)
-    hovering = ((speed < HOVER_SPEED) & (sites[..., 2] > settings.contact_max_height) & (sites[..., 2] < 0.25)).any(axis=1)
+    height = sites[..., 2]
+    hovering = ((speed < HOVER_SPEED) & (height > settings.contact_max_height) & (height < 0.25)).any(axis=1)
     unsupported = hovering & ~contacts.any(axis=1)
     sunk = sites[..., 2].min(axis=1) < -MAX_SINK
     return unsupported.mean() <= MAX_IMPLAUSIBLE_FRACTION and sunk.mean() <= MAX_IMPLAUSIBLE_FRACTION
 
 
-def split_by_subject(files: list[Path], test_subjects: tuple[str, ...] = TEST_SUBJECTS) -> tuple[list[Path], list[Path]]:
+def split_by_subject(files: list[Path],
+                     test_subjects: tuple[str, ...] = TEST_SUBJECTS) -> tuple[list[Path], list[Path]]:
     """(train, test) files: a file is in test when its CMU subject (`cmu_subject`) is in test_subjects."""
     test = [f for f in files if cmu_subject(f) in test_subjects]
     train = [f for f in files if cmu_subject(f) not in test_subjects]
@@ -182,7 +184,8 @@ def vary_proportions(clip: MocapClip, rng: np.random.Generator, settings: Synthe
     """
     positions = clip.positions.copy()
     pelvis = positions[:, JOINT_INDEX["pelvis"]][:, None]
-    positions[:, _UPPER_BODY] = pelvis + rng.uniform(*settings.upper_body_scale_range) * (positions[:, _UPPER_BODY] - pelvis)
+    upper_body_scale = rng.uniform(*settings.upper_body_scale_range)
+    positions[:, _UPPER_BODY] = pelvis + upper_body_scale * (positions[:, _UPPER_BODY] - pelvis)
     arm_scale = rng.uniform(*settings.arm_scale_range)
     for side, arm in _ARMS.items():
         shoulder = positions[:, JOINT_INDEX[f"{side}_shoulder"]][:, None]
@@ -207,7 +210,8 @@ def _sequence_rng(seed: int, clip_name: str, variant: int) -> np.random.Generato
     return np.random.default_rng([seed, zlib.crc32(clip_name.encode()), variant])
 
 
-def synthesise(clip: MocapClip, variant: int, seed: int, settings: SyntheticSettings = SyntheticSettings()) -> SyntheticSequence:
+def synthesise(clip: MocapClip, variant: int, seed: int,
+               settings: SyntheticSettings = SyntheticSettings()) -> SyntheticSequence:
     """One synthetic sequence of `clip` (see the module docstring); deterministic in (seed, clip.name, variant)."""
     rng = _sequence_rng(seed, f"{clip.skeleton}:{clip.name}", variant)
     clip = _segment(clip, rng, settings.max_seconds)

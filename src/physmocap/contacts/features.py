@@ -73,7 +73,8 @@ class WindowSpec:
         if self.length < 1 or not 0 <= self.reference < self.length:
             raise InputError(f"WindowSpec: reference {self.reference} outside a window of {self.length} frames.")
         half = self.outputs // 2
-        if self.outputs < 1 or self.outputs % 2 == 0 or self.reference - half < 0 or self.reference + half >= self.length:
+        odd_count = self.outputs >= 1 and self.outputs % 2 == 1
+        if not (odd_count and 0 <= self.reference - half and self.reference + half < self.length):
             raise InputError(f"WindowSpec: {self.outputs} output frames do not fit around frame {self.reference}.")
 
     @property
@@ -125,8 +126,8 @@ def select_keypoints(keypoints_2d: np.ndarray, valid: np.ndarray) -> np.ndarray:
     for j in np.flatnonzero(never):
         stand_in = _STAND_IN[j]
         if never[stand_in]:  # neither side seen: the middle of whatever is seen
-            stand_in = [k for k in range(NUM_FEATURE_POINTS) if not never[k]]
-            filled[:, j, :2] = filled[:, stand_in, :2].mean(axis=1)
+            seen_points = [k for k in range(NUM_FEATURE_POINTS) if not never[k]]
+            filled[:, j, :2] = filled[:, seen_points, :2].mean(axis=1)
         else:
             filled[:, j, :2] = filled[:, stand_in, :2]
     filled[..., 2] = np.where(seen, points[..., 2], 0.0)
@@ -147,8 +148,10 @@ def person_size(windows: np.ndarray) -> np.ndarray:
     hips = 0.5 * (xy[..., _HIPS[0], :] + xy[..., _HIPS[1], :])
     shoulders = 0.5 * (xy[..., _SHOULDERS[0], :] + xy[..., _SHOULDERS[1], :])
     torso = np.linalg.norm(shoulders - hips, axis=-1)
-    thigh = 0.5 * sum(np.linalg.norm(xy[..., k, :] - xy[..., h, :], axis=-1) for h, k in zip(_HIPS, _KNEES))
-    shank = 0.5 * sum(np.linalg.norm(xy[..., a, :] - xy[..., k, :], axis=-1) for k, a in zip(_KNEES, _ANKLES))
+    thigh = 0.5 * sum(np.linalg.norm(xy[..., k, :] - xy[..., h, :], axis=-1)
+                      for h, k in zip(_HIPS, _KNEES, strict=True))
+    shank = 0.5 * sum(np.linalg.norm(xy[..., a, :] - xy[..., k, :], axis=-1)
+                      for k, a in zip(_KNEES, _ANKLES, strict=True))
     return np.maximum(np.median(torso + thigh + shank, axis=1), MIN_SCALE_PIXELS)
 
 

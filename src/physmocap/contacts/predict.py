@@ -15,7 +15,7 @@ from .features import CAUSAL_WINDOW, CENTRED_WINDOW, select_keypoints, window_in
 from .networks import NUM_OUTPUTS, causal_forward, centred_forward, sigmoid
 
 Mode = Literal["causal", "centred"]
-MODES: tuple[str, ...] = ("causal", "centred")
+MODES: tuple[Mode, ...] = ("causal", "centred")
 WEIGHTS_DIR = Path(__file__).resolve().parents[1] / "data" / "contacts"
 THRESHOLD = 0.5  # probability above which a flag is set (both papers' sigmoid outputs)
 BATCH_FRAMES = 4096  # frames per network call: bounds memory on long videos
@@ -135,5 +135,6 @@ def predict_contacts(
     """
     if obs.num_frames == 0:
         return np.zeros((0, 4), bool), np.zeros(0, bool), np.zeros((0, NUM_OUTPUTS))
-    probabilities, flags = network_probabilities(obs.keypoints_2d, obs.valid, obs.fps, load_weights(mode, weights_dir), mode)
+    weights = load_weights(mode, weights_dir)
+    probabilities, flags = network_probabilities(obs.keypoints_2d, obs.valid, obs.fps, weights, mode)
     return flags[:, :4], flags[:, 4], probabilities

@@ -22,10 +22,9 @@ import json
 import os
 import subprocess
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import torch
@@ -35,8 +34,15 @@ from .. import metrics
 from ..errors import InputError
 from ..io.atomic import atomic_path, write_text
 from .dataset import (
-    TEST_SUBJECTS, SyntheticSequence, SyntheticSettings, held_out_settings, iter_sequences, load_clips, make_sequences,
-    mocap_files, split_by_subject,
+    TEST_SUBJECTS,
+    SyntheticSequence,
+    SyntheticSettings,
+    held_out_settings,
+    iter_sequences,
+    load_clips,
+    make_sequences,
+    mocap_files,
+    split_by_subject,
 )
 from .features import REFERENCE_FPS, VALUES_PER_POINT, WindowSpec, inputs_from_windows, select_keypoints
 from .networks import FRAME_CHANNELS, NUM_OUTPUTS, OUTPUT_NAMES, CausalNetSpec, CentredNetSpec
@@ -120,7 +126,7 @@ class TorchCausalNet(nn.Module):
         params = {}
         convolutions = [m for m in self.convolutions if isinstance(m, nn.Conv1d)]
         norms = [m for m in self.convolutions if isinstance(m, nn.BatchNorm1d)]
-        for i, (conv, norm) in enumerate(zip(convolutions, norms)):
+        for i, (conv, norm) in enumerate(zip(convolutions, norms, strict=True)):
             weight, bias = _fold(conv.weight, conv.bias, norm)
             params[f"conv{i}.weight"] = weight.permute(2, 1, 0).numpy()  # (out, in, k) -> (k, in, out)
             params[f"conv{i}.bias"] = bias.numpy()
@@ -160,12 +166,16 @@ class TorchCentredNet(nn.Module):
         return {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in params.items()}
 
 
-def _fold(weight: torch.Tensor, bias: torch.Tensor, norm: nn.BatchNorm1d) -> tuple[torch.Tensor, torch.Tensor]:
-    """Weight and bias of a layer followed by batch normalisation (evaluation mode), as one layer."""
+def _fold(weight: torch.Tensor, bias: torch.Tensor | None,
+          norm: nn.BatchNorm1d) -> tuple[torch.Tensor, torch.Tensor]:
+    """Weight and bias (None: zero) of a layer followed by batch normalisation (evaluation mode), as one layer."""
+    if norm.running_mean is None or norm.running_var is None:
+        raise ValueError("batch normalisation without running statistics cannot be folded into its layer")
     with torch.no_grad():
         factor = norm.weight / torch.sqrt(norm.running_var + norm.eps)
         shape = (-1,) + (1,) * (weight.dim() - 1)
-        return weight * factor.reshape(shape), (bias - norm.running_mean) * factor + norm.bias
+        offset = -norm.running_mean if bias is None else bias - norm.running_mean
+        return weight * factor.reshape(shape), offset * factor + norm.bias
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -189,7 +199,7 @@ class FrameTable:
     hard: np.ndarray
 
     @classmethod
-    def from_sequences(cls, sequences: Iterable[SyntheticSequence]) -> "FrameTable":
+    def from_sequences(cls, sequences: Iterable[SyntheticSequence]) -> FrameTable:
         """The table of `sequences`, consumed one at a time (only its rows of each are kept)."""
         points, interval, labels, hard, lengths = [], [], [], [], []
         for s in sequences:
@@ -212,10 +222,12 @@ class FrameTable:
         """Inputs (B, input_size) and labels (B, outputs x 5) of the windows whose targets are `frames` (B,)."""
         start = self.sequence_start[frames][:, None]
         offsets = np.arange(-1, window.length) - window.reference  # one frame early, for the first velocity
-        local = np.clip((frames - self.sequence_start[frames])[:, None] + offsets, 0, self.sequence_length[frames][:, None] - 1)
+        last = self.sequence_length[frames][:, None] - 1
+        local = np.clip((frames - self.sequence_start[frames])[:, None] + offsets, 0, last)
         indices = start + local
         noise = input_noise * rng.standard_normal((len(frames), window.length + 1, self.points.shape[1], 2))
-        inputs = inputs_from_windows(self.points[indices], window.reference, self.interval[frames], noise.astype(np.float32))
+        inputs = inputs_from_windows(self.points[indices], window.reference, self.interval[frames],
+                                     noise.astype(np.float32))
         if position_dropout > 0:
             dropped = rng.random(len(frames)) < position_dropout
             is_position = np.zeros(inputs.shape[1], dtype=bool)
@@ -254,7 +266,11 @@ def _train_steps(
     if settings.max_steps is not None:
         total_steps = min(total_steps, settings.max_steps)
     optimiser = torch.optim.Adam(model.parameters(), lr=settings.learning_rate, weight_decay=settings.weight_decay)
-    schedule = torch.optim.lr_scheduler.LambdaLR(optimiser, lambda step: 0.5 * (1.0 + np.cos(np.pi * step / total_steps)))
+
+    def cosine_decay(step: int) -> float:
+        return 0.5 * (1.0 + np.cos(np.pi * step / total_steps))
+
+    schedule = torch.optim.lr_scheduler.LambdaLR(optimiser, cosine_decay)
     loss_function = nn.BCEWithLogitsLoss(pos_weight=torch.tensor(settings.positive_weight))
     chance = np.where(table.hard, settings.hard_frame_weight, 1.0)
     chance /= chance.sum()

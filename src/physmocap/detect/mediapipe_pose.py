@@ -16,8 +16,9 @@ import os
 import sys
 import tempfile
 import time
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any, BinaryIO, Callable, ContextManager, Iterator, Sequence
+from typing import Any, BinaryIO
 
 import cv2
 import numpy as np
@@ -74,7 +75,7 @@ class Sighting:
     size: float
 
     @classmethod
-    def from_landmarks(cls, frame: int, xy: np.ndarray) -> "Sighting":
+    def from_landmarks(cls, frame: int, xy: np.ndarray) -> Sighting:
         """From (33, 2) landmark positions in pixels."""
         centre, size = torso_centre_and_size(xy)
         return cls(frame, np.concatenate([xy.min(axis=0), xy.max(axis=0)]), centre, size)
@@ -90,7 +91,8 @@ def is_track_jump(last: Sighting, new: Sighting, fps: float) -> bool:
     return bool(step > allowed_step or size_ratio > allowed_ratio or size_ratio < 1 / allowed_ratio)
 
 
-def grow_box(box: Sequence[float], margin: float, image_size: tuple[int, int]) -> tuple[int, int, int, int]:
+def grow_box(box: Sequence[float] | np.ndarray, margin: float,
+             image_size: tuple[int, int]) -> tuple[int, int, int, int]:
     """`box` (x0, y0, x1, y1) grown by `margin` pixels on every side, as whole pixels clamped to the image."""
     width, height = image_size
     x0, y0, x1, y1 = box
@@ -171,7 +173,7 @@ class _PoseModel:
         self._pose.close()
         self._native_log.close()
 
-    def _filtered_native_stderr(self) -> ContextManager[None]:
+    def _filtered_native_stderr(self) -> contextlib.AbstractContextManager[None]:
         return _native_stderr_filtered(self._native_log)
 
 
@@ -202,7 +204,7 @@ def _check_person_box(path: object, person_box: Sequence[float], image_size: tup
     width, height = image_size
     if box[2] <= 0 or box[3] <= 0 or box[0] >= width or box[1] >= height:
         raise InputError(f"{path}: person_box {box} lies outside the {width}x{height} frame.")
-    return box  # type: ignore[return-value]
+    return box
 
 
 class PersonFollower:
@@ -243,7 +245,7 @@ class PersonFollower:
             else:
                 self.last = sighting
         self.seconds += time.perf_counter() - started
-        if reason:
+        if found is None or reason:
             return np.zeros((NUM_LANDMARKS, 3)), np.zeros((NUM_LANDMARKS, 3)), reason
         return found[0], found[1], ""
 

@@ -16,8 +16,8 @@ the foot on the floor and the torque carries the whole remaining moment.
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 from xml.sax.saxutils import escape
 
 import numpy as np

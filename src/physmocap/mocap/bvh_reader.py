@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -628,20 +629,13 @@ def load_mocap(path: str | os.PathLike) -> MocapClip:
     Steps:
     1. Parse and run forward kinematics; scale to metres (raw CMU: x 0.056444; CC3: centimetres, x 0.01) and
        turn Y up into Z up (`BVH_TO_WORLD`).
-    2. Drop frame 0 if it is a pose prepended to the capture (`_is_prepended_pose`): the rest pose, or a pose
-       far from frame 1. The CC3 files 007_03 to 007_12 start with a T-pose 2.5-3 m away. The five raw CMU files
-       here start with captured data (frame 0 -> 1 moves like any other step), so they keep their frame 0.
+    2. Drop the frames prepended to the capture (`_first_captured_frame`).
     3. Take joint centres from the skeleton (`_cmu_layout`, `_cc3_layout`); pelvis = midpoint of the hips.
-    4. Level the floor: rotate the clip so that the slope fitted under the planted feet (`floor_tilt`) becomes
-       horizontal, if it is at most MAX_FLOOR_TILT (3 degrees); the raw walk 02_01 climbs about 5 cm in 3.5 m.
+    4. Level the floor (`_levelling_rotation`).
     5. Heel and toe sites (`sole_sites`): neither skeleton has a heel joint or a sole, so both are placed on a
-       sole plane rigid with the foot, from the ankle, the MTP joint and the foot's left axis, with each foot's
-       flat-foot pitch measured on the clip (`flat_foot_pitch`). A foot that is never still takes the other
-       foot's pitch, or the skeleton's default; if the feet differ by more than MAX_FOOT_PITCH_DIFFERENCE, one of
-       them stood mostly on its toes (a dancer's releve) and both take the smaller pitch.
-    6. Floor height: the median height of the lowest of the four sole sites, over the frames where that site is
-       still (planted; a foot held still in the air is never the lowest); if there are none, the FLOOR_PERCENTILE
-       (10th) percentile over frames of the lowest site. z is shifted so that the floor is z = 0.
+       sole plane rigid with the foot, from the ankle, the MTP joint and the foot's left axis, at each foot's
+       flat-foot pitch (`_flat_foot_pitches`).
+    6. Shift z so that the floor (`_floor_height`) is z = 0.
     """
     path = Path(path)
     bvh = read_bvh(path)
@@ -653,16 +647,7 @@ def load_mocap(path: str | os.PathLike) -> MocapClip:
 
     direct_names = [name for name in JOINT_NAMES if name in layout.points]
     direct_columns = [bvh.index(layout.points[name]) for name in direct_names]
-    first = 0
-    if _is_prepended_pose(bvh, world[:, direct_columns]):
-        jump = np.linalg.norm(world[1, direct_columns] - world[0, direct_columns], axis=-1).max()
-        notes.append(f"dropped frame 0: a pose prepended to the capture (a point moves {jump:.2f} m to frame 1)")
-        first = 1
-    # A converter's T-pose that is not the exact rest pose (the Daz files' values are rounded) still jumps.
-    while first < 2 and len(world) - first > 2 and (np.linalg.norm(
-            world[first + 1, direct_columns] - world[first, direct_columns], axis=-1).max() * fps > IMPLAUSIBLE_SPEED):
-        notes.append(f"dropped frame {first}: an implausible jump to the next frame")
-        first += 1
+    first = _first_captured_frame(bvh, world[:, direct_columns], fps, notes)
     if len(world) - first < 2:
         raise InputError(f"{path}: the clip has fewer than 2 frames.")
     world = world[first:]
@@ -675,18 +660,8 @@ def load_mocap(path: str | os.PathLike) -> MocapClip:
         return BVH_TO_WORLD @ bvh_rotations[first:, bvh.index(name)]
 
     sides = ("left", "right")
-    ankle_names = [layout.points[f"{side}_ankle"] for side in sides]
     toe_base_columns = [bvh.index(name) for name in layout.toe_bases]
-    level = np.eye(3)
-    up = floor_tilt(world[:, toe_base_columns], fps)
-    if up is not None:
-        tilt = np.degrees(np.arccos(up[2]))
-        if tilt <= np.degrees(MAX_FLOOR_TILT):
-            level = rotation_between(up, np.array([0.0, 0.0, 1.0]))
-            if tilt > 0.1:
-                notes.append(f"levelled a floor tilt of {tilt:.1f} degrees")
-        else:
-            notes.append(f"floor under the feet tilts {tilt:.0f} degrees (uneven ground?): not levelled")
+    level = _levelling_rotation(world[:, toe_base_columns], fps, notes)
     world = world @ level.T
 
     positions = np.zeros((len(world), len(JOINT_NAMES), 3))
@@ -695,31 +670,92 @@ def load_mocap(path: str | os.PathLike) -> MocapClip:
                                                  + positions[:, JOINT_INDEX["right_hip"]])
     ankles = [positions[:, JOINT_INDEX[f"{side}_ankle"]] for side in sides]
     toe_bases = [world[:, column] for column in toe_base_columns]
+    pitches = _flat_foot_pitches(ankles, toe_bases, fps, layout.default_foot_pitch, notes)
+    for f, side in enumerate(sides):
+        foot_left = level @ world_rotations(layout.points[f"{side}_ankle"]) @ layout.foot_left_local
+        heel, toe = sole_sites(ankles[f], toe_bases[f], foot_left, pitches[f], layout.toe_base_above_sole)
+        positions[:, JOINT_INDEX[f"{side}_heel"]] = heel
+        positions[:, JOINT_INDEX[f"{side}_toe"]] = toe
+    positions[..., 2] -= _floor_height(positions, fps, notes)
+
+    head_rotation, hand_rotations = _head_and_hand_rotations(world_rotations, layout, level)
+    _note_implausible_jumps(positions, fps, notes)
+    return MocapClip(name=path.stem, subject=cmu_subject(path), fps=fps, joint_names=JOINT_NAMES, positions=positions,
+                     head_rotation=head_rotation, hand_rotations=hand_rotations, skeleton=layout.kind,
+                     notes=tuple(notes))
+
+
+def _first_captured_frame(bvh: BvhData, points: np.ndarray, fps: float, notes: list[str]) -> int:
+    """Step 2 of `load_mocap`: the first frame that was captured rather than prepended (0, 1 or 2), with a note
+    for each frame dropped. points: (T, P, 3) world positions of the named points.
+
+    Frame 0 goes if it is a pose prepended to the capture (`_is_prepended_pose`): the rest pose, or a pose far
+    from frame 1. The CC3 files 007_03 to 007_12 start with a T-pose 2.5-3 m away. The five raw CMU files here
+    start with captured data (frame 0 -> 1 moves like any other step), so they keep their frame 0."""
+    first = 0
+    if _is_prepended_pose(bvh, points):
+        jump = np.linalg.norm(points[1] - points[0], axis=-1).max()
+        notes.append(f"dropped frame 0: a pose prepended to the capture (a point moves {jump:.2f} m to frame 1)")
+        first = 1
+    # A converter's T-pose that is not the exact rest pose (the Daz files' values are rounded) still jumps.
+    while first < 2 and len(points) - first > 2 and (np.linalg.norm(
+            points[first + 1] - points[first], axis=-1).max() * fps > IMPLAUSIBLE_SPEED):
+        notes.append(f"dropped frame {first}: an implausible jump to the next frame")
+        first += 1
+    return first
+
+
+def _levelling_rotation(toe_bases: np.ndarray, fps: float, notes: list[str]) -> np.ndarray:
+    """Step 4 of `load_mocap`: (3, 3) the rotation that makes the slope fitted under the planted toe bases
+    (T, 2, 3) (`floor_tilt`) horizontal, the identity when it tilts more than MAX_FLOOR_TILT (3 degrees) or
+    cannot be fitted. The raw walk 02_01 climbs about 5 cm in 3.5 m."""
+    up = floor_tilt(toe_bases, fps)
+    if up is None:
+        return np.eye(3)
+    tilt = np.degrees(np.arccos(up[2]))
+    if tilt > np.degrees(MAX_FLOOR_TILT):
+        notes.append(f"floor under the feet tilts {tilt:.0f} degrees (uneven ground?): not levelled")
+        return np.eye(3)
+    if tilt > 0.1:
+        notes.append(f"levelled a floor tilt of {tilt:.1f} degrees")
+    return rotation_between(up, np.array([0.0, 0.0, 1.0]))
+
+
+def _flat_foot_pitches(ankles: list[np.ndarray], toe_bases: list[np.ndarray], fps: float, default_pitch: float,
+                       notes: list[str]) -> list[float]:
+    """Step 5 of `load_mocap`: each foot's flat-foot pitch, radians (left, right), measured on the clip
+    (`flat_foot_pitch`). A foot that is never still takes the other foot's pitch, or the skeleton's default; if
+    the feet differ by more than MAX_FOOT_PITCH_DIFFERENCE, one of them stood mostly on its toes (a dancer's
+    releve) and both take the smaller pitch."""
     measured = [flat_foot_pitch(ankles[f], toe_bases[f], fps) for f in range(2)]
-    pitches = [next((p for p in (measured[f], measured[1 - f]) if p is not None), layout.default_foot_pitch)
+    pitches = [next((p for p in (measured[f], measured[1 - f]) if p is not None), default_pitch)
                for f in range(2)]
     if measured[0] is None or measured[1] is None:
         notes.append(f"a foot is never still: flat-foot pitches taken as {np.degrees(pitches).round(0)} degrees")
     elif abs(pitches[0] - pitches[1]) > MAX_FOOT_PITCH_DIFFERENCE:
         notes.append(f"flat-foot pitches {np.degrees(pitches).round(0)} degrees differ: both set to the smaller")
         pitches = [min(pitches)] * 2
-    for f, side in enumerate(sides):
-        foot_left = level @ world_rotations(ankle_names[f]) @ layout.foot_left_local
-        heel, toe = sole_sites(ankles[f], toe_bases[f], foot_left, pitches[f], layout.toe_base_above_sole)
-        positions[:, JOINT_INDEX[f"{side}_heel"]] = heel
-        positions[:, JOINT_INDEX[f"{side}_toe"]] = toe
+    return pitches
 
+
+def _floor_height(positions: np.ndarray, fps: float, notes: list[str]) -> float:
+    """Step 6 of `load_mocap`: the floor's height, metres, under the sole sites of positions (T, J, 3): the
+    median height of the lowest of the four sole sites, over the frames where that site is still (planted; a
+    foot held still in the air is never the lowest); if there are none, the FLOOR_PERCENTILE (10th) percentile
+    over frames of the lowest site."""
     sites = positions[:, [JOINT_INDEX[n] for n in ("left_heel", "left_toe", "right_heel", "right_toe")]]
     lowest = np.argmin(sites[..., 2], axis=1)
     lowest_site = sites[np.arange(len(sites)), lowest]
     planted = _still(sites, fps)[np.arange(len(sites)), lowest]
     if planted.sum() >= MIN_STILL_SECONDS * fps:
-        floor = np.median(lowest_site[planted, 2])
-    else:
-        floor = np.percentile(sites[..., 2].min(axis=1), FLOOR_PERCENTILE)
-        notes.append("feet never still: floor from the lowest sole sites")
-    positions[..., 2] -= floor
+        return float(np.median(lowest_site[planted, 2]))
+    notes.append("feet never still: floor from the lowest sole sites")
+    return float(np.percentile(sites[..., 2].min(axis=1), FLOOR_PERCENTILE))
 
+
+def _head_and_hand_rotations(world_rotations: Callable[[str], np.ndarray], layout: _SkeletonLayout,
+                             level: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(T, 3, 3) head and (T, 2, 3, 3) hand frames in the levelled world, from the BVH joints' rotations."""
     head_rotation = level @ _frame_from_axes(
         world_rotations(layout.points["head"]), layout.head_forward_local, layout.head_left_local
     )
@@ -730,7 +766,10 @@ def load_mocap(path: str | os.PathLike) -> MocapClip:
         ],
         axis=1,
     )
+    return head_rotation, hand_rotations
 
+
+def _note_implausible_jumps(positions: np.ndarray, fps: float, notes: list[str]) -> None:
     speeds = np.linalg.norm(np.diff(positions, axis=0), axis=-1).max(axis=1) * fps
     glitches = np.flatnonzero(speeds > IMPLAUSIBLE_SPEED)
     if glitches.size:
@@ -738,17 +777,6 @@ def load_mocap(path: str | os.PathLike) -> MocapClip:
             f"{glitches.size} implausible jumps (> {IMPLAUSIBLE_SPEED:.0f} m/s) between frames, first after frame "
             f"{glitches[0]}"
         )
-    return MocapClip(
-        name=path.stem,
-        subject=cmu_subject(path),
-        fps=fps,
-        joint_names=JOINT_NAMES,
-        positions=positions,
-        head_rotation=head_rotation,
-        hand_rotations=hand_rotations,
-        skeleton=layout.kind,
-        notes=tuple(notes),
-    )
 
 
 def body_scale(clip: MocapClip) -> float:

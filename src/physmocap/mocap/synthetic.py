@@ -92,8 +92,8 @@ def landmarks_from_clip(clip: MocapClip) -> np.ndarray:
         palm_sign = 1.0 if side == "left" else -1.0
         wrist = clip.joint(f"{side}_wrist")
         for name, (distal, thumb_side, palmar) in HAND_OFFSETS.items():
-            offset = np.array([distal, thumb_side, palm_sign * palmar])
-            landmarks[:, LANDMARK_INDEX[f"{side}_{name}"]] = wrist + scale * clip.hand_rotations[:, h] @ offset
+            hand_offset = np.array([distal, thumb_side, palm_sign * palmar])
+            landmarks[:, LANDMARK_INDEX[f"{side}_{name}"]] = wrist + scale * clip.hand_rotations[:, h] @ hand_offset
     return landmarks
 
 
@@ -266,7 +266,6 @@ def make_observations(
     scale = np.ones(NUM_LANDMARKS) if noise.landmark_scale is None else np.asarray(noise.landmark_scale, float)
     if scale.shape != (NUM_LANDMARKS,):
         raise InputError(f"NoiseModel.landmark_scale has {scale.size} values, expected {NUM_LANDMARKS}.")
-    shape_2d, shape_3d = (num_frames, NUM_LANDMARKS, 2), (num_frames, NUM_LANDMARKS, 3)
 
     dropout = _episodes(rng, (num_frames, NUM_LANDMARKS), noise.dropout_per_second, noise.dropout_seconds, fps)
     foot_swapped = _episodes(rng, (num_frames,), noise.foot_swaps_per_second, noise.foot_swap_seconds, fps)
@@ -275,36 +274,11 @@ def make_observations(
         seen[foot_swapped, left] = landmarks[foot_swapped, right]
         seen[foot_swapped, right] = landmarks[foot_swapped, left]
 
-    pixels, _ = project(seen, K, R, t)
-    _, pelvis_depth = project(clip.joint("pelvis"), K, R, t)
-    person_pixels = (K[1, 1] * standing_height(clip) / pelvis_depth)[:, None, None]
-    error_2d = (
-        noise.keypoint_sd * rng.standard_normal(shape_2d)
-        + _drift(rng, shape_2d, noise.keypoint_drift_sd, noise.keypoint_drift_seconds, fps)
-        + dropout[..., None] * noise.dropout_keypoint_sd * rng.standard_normal(shape_2d)
-    )
-    pixels = pixels + person_pixels * scale[:, None] * error_2d
-    confidence = np.clip(rng.normal(noise.confidence_mean, noise.confidence_sd, dropout.shape), 0.0, 1.0)
-    confidence = np.where(dropout, rng.uniform(0.0, noise.dropout_confidence, dropout.shape), confidence)
-
-    hips = 0.5 * (seen[:, LANDMARK_INDEX["left_hip"]] + seen[:, LANDMARK_INDEX["right_hip"]])
-    relative = (seen - hips[:, None]) @ R.T
-    relative[..., 2] *= 1.0 + _drift(rng, (num_frames, 1), noise.depth_scale_sd, noise.depth_scale_seconds, fps)
-    error_3d = (
-        noise.landmark_sd * rng.standard_normal(shape_3d)
-        + _drift(rng, shape_3d, noise.landmark_drift_sd, noise.landmark_drift_seconds, fps)
-        + dropout[..., None] * noise.dropout_landmark_sd * rng.standard_normal(shape_3d)
-    )
-    relative = relative + scale[:, None] * error_3d
-
-    observations = Observations(
-        keypoints_2d=np.concatenate([pixels, confidence[..., None]], axis=2),
-        landmarks_3d=relative,
-        fps=fps,
-        image_size=image_size,
-        camera_K=K,
-        source=f"synthetic:{clip.name}",
-    )
+    # The 2D errors are drawn before the 3D ones: the order of the draws makes a seed's data.
+    keypoints = _noisy_keypoints(clip, seen, K, R, t, rng, noise, scale, dropout)
+    relative = _noisy_landmarks(seen, R, rng, noise, scale, dropout, fps)
+    observations = Observations(keypoints_2d=keypoints, landmarks_3d=relative, fps=fps, image_size=image_size,
+                                camera_K=K, source=f"synthetic:{clip.name}")
     truth = {
         "joint_names": np.array(JOINT_NAMES),
         "joints_world": clip.positions,
@@ -313,13 +287,48 @@ def make_observations(
         "camera_K": K,
         "camera_R": R,
         "camera_t": t,
-        "fps": np.float64(fps),
+        "fps": np.asarray(fps, dtype=np.float64),
         "image_size": np.array(image_size),
         "floor": floor_in_camera(R, t),
         "dropout": dropout,
         "foot_swapped": foot_swapped,
     }
     return observations, truth
+
+
+def _noisy_keypoints(clip: MocapClip, seen: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
+                     rng: np.random.Generator, noise: NoiseModel, scale: np.ndarray, dropout: np.ndarray) -> np.ndarray:
+    """(T, 33, 3) the landmarks `seen` (T, 33, 3, world) projected, with `noise`'s 2D errors (in units of the
+    person's height in pixels, times the landmark's `scale`), and a confidence per keypoint."""
+    shape_2d = seen.shape[:2] + (2,)
+    pixels, _ = project(seen, K, R, t)
+    _, pelvis_depth = project(clip.joint("pelvis"), K, R, t)
+    person_pixels = (K[1, 1] * standing_height(clip) / pelvis_depth)[:, None, None]
+    error_2d = (
+        noise.keypoint_sd * rng.standard_normal(shape_2d)
+        + _drift(rng, shape_2d, noise.keypoint_drift_sd, noise.keypoint_drift_seconds, clip.fps)
+        + dropout[..., None] * noise.dropout_keypoint_sd * rng.standard_normal(shape_2d)
+    )
+    pixels = pixels + person_pixels * scale[:, None] * error_2d
+    confidence = np.clip(rng.normal(noise.confidence_mean, noise.confidence_sd, dropout.shape), 0.0, 1.0)
+    confidence = np.where(dropout, rng.uniform(0.0, noise.dropout_confidence, dropout.shape), confidence)
+    return np.concatenate([pixels, confidence[..., None]], axis=2)
+
+
+def _noisy_landmarks(seen: np.ndarray, R: np.ndarray, rng: np.random.Generator, noise: NoiseModel,
+                     scale: np.ndarray, dropout: np.ndarray, fps: float) -> np.ndarray:
+    """(T, 33, 3) the landmarks `seen` (T, 33, 3, world) minus the hips' midpoint in camera axes, with `noise`'s
+    depth scale drift and 3D errors (metres, times the landmark's `scale`)."""
+    num_frames, shape_3d = len(seen), seen.shape
+    hips = 0.5 * (seen[:, LANDMARK_INDEX["left_hip"]] + seen[:, LANDMARK_INDEX["right_hip"]])
+    relative = (seen - hips[:, None]) @ R.T
+    relative[..., 2] *= 1.0 + _drift(rng, (num_frames, 1), noise.depth_scale_sd, noise.depth_scale_seconds, fps)
+    error_3d = (
+        noise.landmark_sd * rng.standard_normal(shape_3d)
+        + _drift(rng, shape_3d, noise.landmark_drift_sd, noise.landmark_drift_seconds, fps)
+        + dropout[..., None] * noise.dropout_landmark_sd * rng.standard_normal(shape_3d)
+    )
+    return relative + scale[:, None] * error_3d
 
 
 def resample(clip: MocapClip, fps: float) -> MocapClip:

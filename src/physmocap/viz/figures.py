@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -29,7 +29,7 @@ def _floor_grid_step(extent: float) -> float:
     """A round grid spacing (0.1, 0.2, 0.5, 1, 2, ... m) giving about 8 cells across `extent` metres."""
     raw = max(extent, 1e-3) / 8
     decade = 10 ** np.floor(np.log10(raw))
-    return float(decade * min((m for m in (1, 2, 5, 10) if m * decade >= raw)))
+    return float(decade * min(m for m in (1, 2, 5, 10) if m * decade >= raw))
 
 
 def result_figure(

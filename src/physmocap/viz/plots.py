@@ -87,7 +87,7 @@ def plot_contacts(result: dict[str, np.ndarray], out_png: str | os.PathLike) -> 
         for flags, bottom, height, alpha in bars:
             starts = np.flatnonzero(flags & ~np.r_[False, flags[:-1]])
             ends = np.flatnonzero(flags & ~np.r_[flags[1:], False])
-            axes.broken_barh([(t[s], t[e] - t[s] + dt) for s, e in zip(starts, ends)], (bottom, height),
+            axes.broken_barh([(t[s], t[e] - t[s] + dt) for s, e in zip(starts, ends, strict=True)], (bottom, height),
                              facecolors=colour, alpha=alpha)
     axes.set_yticks(range(len(CONTACT_POINTS)), [n.replace("_", " ") for n in reversed(CONTACT_POINTS)])
     axes.set_ylim(-0.6, len(CONTACT_POINTS) - 0.4)

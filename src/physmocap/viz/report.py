@@ -18,13 +18,13 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import metrics
 from ..body.kinematics import center_of_mass, forward_kinematics
 from ..body.model import CONTACT_POINTS, JOINT_NAMES
 from ..export import body_from_result
 from ..io.atomic import write_text
 from ..io.finite import finite_result
 from ..landmarks import LANDMARK_INDEX
-from .. import metrics
 from .plots import write_plots
 from .viewer import com_over_support, support_polygons
 

@@ -87,7 +87,8 @@ def com_over_support(com: np.ndarray, vertices: np.ndarray, counts: np.ndarray,
                      margin: float = SUPPORT_MARGIN) -> np.ndarray:
     """(T,) bool: the centre of mass (T, 3) projects onto the floor within `margin` metres of the support polygon
     (see `support_polygons`); False without contact."""
-    return np.array([distance_to_polygon(c[:2], v[:n]) <= margin for c, v, n in zip(com, vertices, counts)])
+    return np.array([distance_to_polygon(c[:2], v[:n]) <= margin
+                     for c, v, n in zip(com, vertices, counts, strict=True)])
 
 
 def _base64(array: np.ndarray, dtype: str) -> str:
