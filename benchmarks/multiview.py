@@ -119,8 +119,8 @@ def _check_keypoints(keypoints_list, views: int) -> np.ndarray:
     return keypoints
 
 
-def triangulate(K_list: Sequence[np.ndarray], R_list: Sequence[np.ndarray], t_list: Sequence[np.ndarray],
-                keypoints_list: np.ndarray, min_confidence: float = 0.3,
+def triangulate(K_list: Sequence[np.ndarray] | np.ndarray, R_list: Sequence[np.ndarray] | np.ndarray,
+                t_list: Sequence[np.ndarray] | np.ndarray, keypoints_list: np.ndarray, min_confidence: float = 0.3,
                 distortion_list: Sequence[np.ndarray | None] | None = None,
                 outlier_threshold_px: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """3D points from keypoints seen by V >= 2 calibrated views, by confidence-weighted DLT.
@@ -192,17 +192,17 @@ def correct_left_right_swaps(K_list: Sequence[np.ndarray], R_list: Sequence[np.n
     K, extrinsics = _stack_cameras(K_list, R_list, t_list)
     keypoints = _check_keypoints(keypoints_list, len(K))
     views, frames = keypoints.shape[:2]
-    mirror = np.asarray(mirror)
+    mirror_index = np.asarray(mirror)
     corrected = keypoints.copy()
     swapped = np.zeros((views, frames, len(groups)), dtype=bool)
     # Choices of views to swap, as (C, V) bool; one of each complementary pair is enough to score.
     choices = np.array([c for c in itertools.product((False, True), repeat=views) if not c[0]])
-    for g, group in enumerate(groups):
-        group = np.asarray(group)
+    for g, group_keypoints in enumerate(groups):
+        group = np.asarray(group_keypoints)
         scores, choice_points = [], []
         for choice in choices:
             candidate = keypoints[:, :, group].copy()
-            candidate[choice] = keypoints[choice][:, :, mirror[group]]
+            candidate[choice] = keypoints[choice][:, :, mirror_index[group]]
             points, _ = triangulate(K, extrinsics[:, :, :3], extrinsics[:, :, 3], candidate, min_confidence)
             errors = np.minimum(_pixel_errors(K, extrinsics, points, candidate), SWAP_SCORE_CLIP_PX)
             weights = np.where(candidate[..., 2] >= min_confidence, candidate[..., 2], 0.0)
@@ -218,9 +218,9 @@ def correct_left_right_swaps(K_list: Sequence[np.ndarray], R_list: Sequence[np.n
             choice = choices[best]
             points = choice_points[best][frame]
             if 2 * choice.sum() > views:  # the complement swaps fewer views
-                choice, points = ~choice, _mirror_points(points, group, mirror)
+                choice, points = ~choice, _mirror_points(points, group, mirror_index)
             elif 2 * choice.sum() == views and previous is not None:
-                mirrored = _mirror_points(points, group, mirror)
+                mirrored = _mirror_points(points, group, mirror_index)
                 mirrored_step = np.nanmean(np.linalg.norm(mirrored - previous, axis=-1))
                 if mirrored_step < np.nanmean(np.linalg.norm(points - previous, axis=-1)):
                     choice, points = ~choice, mirrored
@@ -228,7 +228,7 @@ def correct_left_right_swaps(K_list: Sequence[np.ndarray], R_list: Sequence[np.n
                 previous = points
             swapped[choice, frame, g] = True
             for view in np.flatnonzero(choice):
-                corrected[view, frame, group] = keypoints[view, frame, mirror[group]]
+                corrected[view, frame, group] = keypoints[view, frame, mirror_index[group]]
     return corrected, swapped
 
 

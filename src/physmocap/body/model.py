@@ -232,6 +232,18 @@ def _combine(parts: list[tuple[float, np.ndarray, np.ndarray]]) -> tuple[float, 
 
 def build_body_model(lengths: SkeletonLengths, mass: float = 70.0) -> BodyModel:
     """Assemble the body from skeleton lengths (metres) and total mass (kg), inertias after de Leva (1996)."""
+    bodies = _bodies(lengths, mass)
+    points = _named_points(lengths, {b.name: i for i, b in enumerate(bodies)})
+    assert tuple(p.name for p in points) == JOINT_NAMES + LANDMARK_POINTS
+    total = sum(b.mass for b in bodies)
+    scale = mass / total  # de Leva's fractions add up to 1 to rounding; make the total exact
+    bodies = [Body(b.name, b.joint, b.joint_type, b.parent, b.offset, b.axis, b.limit, b.mass * scale, b.com,
+                   b.inertia * scale) for b in bodies]
+    return BodyModel(tuple(bodies), tuple(points), lengths, float(mass), float(lengths.standing_height))
+
+
+def _bodies(lengths: SkeletonLengths, mass: float) -> list[Body]:
+    """The rigid bodies, parents first, with de Leva's mass fractions of `mass` (kg) (their sum is not exactly 1)."""
     L = lengths
     seg = DE_LEVA_MALE
     z = lambda v: np.array([0.0, 0.0, v])  # noqa: E731 - tiny local shorthand for vertical offsets
@@ -285,8 +297,14 @@ def build_body_model(lengths: SkeletonLengths, mass: float = 70.0) -> BodyModel:
         add(f"{side}_foot", f"{side}_ankle", "ball", shin, z(-L.shank),
             segment("foot", foot_length, np.array([1.0, 0.0, 0.0]), 0, start=foot_start),
             limit=(0.0, np.radians(60)))
+    return bodies
 
-    index = {b.name: i for i, b in enumerate(bodies)}
+
+def _named_points(lengths: SkeletonLengths, index: dict[str, int]) -> list[Point]:
+    """Joint centres, contact sites and landmarks on the bodies (`index`: body name -> index), in the order of
+    JOINT_NAMES + LANDMARK_POINTS."""
+    L = lengths
+    z = lambda v: np.array([0.0, 0.0, v])  # noqa: E731 - tiny local shorthand for vertical offsets
     points: list[Point] = []
 
     def point(name: str, body: str, offset=(0.0, 0.0, 0.0)):
@@ -316,10 +334,4 @@ def build_body_model(lengths: SkeletonLengths, mass: float = 70.0) -> BodyModel:
     for side, sign in (("left", 1.0), ("right", -1.0)):
         point(f"{side}_index", f"{side}_hand", (L.hand_width / 2, sign * L.hand_length, 0.0))
         point(f"{side}_pinky", f"{side}_hand", (-L.hand_width / 2, sign * L.hand_length, 0.0))
-
-    assert tuple(p.name for p in points) == JOINT_NAMES + LANDMARK_POINTS
-    total = sum(b.mass for b in bodies)
-    scale = mass / total  # de Leva's fractions add up to 1 to rounding; make the total exact
-    bodies = [Body(b.name, b.joint, b.joint_type, b.parent, b.offset, b.axis, b.limit, b.mass * scale, b.com,
-                   b.inertia * scale) for b in bodies]
-    return BodyModel(tuple(bodies), tuple(points), lengths, float(mass), float(lengths.standing_height))
+    return points

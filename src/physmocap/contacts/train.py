@@ -33,6 +33,7 @@ from torch import nn
 from .. import metrics
 from ..errors import InputError
 from ..io.atomic import atomic_path, write_text
+from ..mocap.bvh_reader import MocapClip
 from .dataset import (
     TEST_SUBJECTS,
     SyntheticSequence,
@@ -368,53 +369,80 @@ def train_contacts(
     torch.set_num_threads(settings.optimisation.threads)
     torch.use_deterministic_algorithms(True)
     data_root = Path(data_root)
-    train_files, test_files = split_by_subject(mocap_files(data_root), settings.test_subjects)
-    if max_clips is not None:
-        train_files, test_files = train_files[:max_clips], test_files[:max_clips]
-    train_clips, test_clips = load_clips(train_files), load_clips(test_files)
-    table = FrameTable.from_sequences(iter_sequences(train_clips, seed, settings.synthetic))
-    test_sequences = make_sequences(test_clips, seed + 1, held_out_settings(settings.synthetic),
-                                    variants=settings.test_variants_per_clip)
+    data = _TrainingData.make(data_root, seed, settings, max_clips)
     data_seconds = time.perf_counter() - started
-    log(f"synthetic data: {len(train_clips) * settings.synthetic.variants_per_clip} training sequences "
-        f"({len(table)} frames) from {len(train_clips)} "
-        f"clips, {len(test_sequences)} test sequences, {data_seconds:.1f} s")
+    log(f"synthetic data: {len(data.train_clips) * settings.synthetic.variants_per_clip} training sequences "
+        f"({len(data.table)} frames) from {len(data.train_clips)} "
+        f"clips, {len(data.test_sequences)} test sequences, {data_seconds:.1f} s")
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    results: dict[str, object] = {}
-    for index, mode in enumerate(MODES):
-        if mode not in modes:
-            continue
-        torch.manual_seed(seed + index)  # the initial weights
-        model, window = ((TorchCausalNet(settings.causal), settings.causal.window) if mode == "causal"
-                         else (TorchCentredNet(settings.centred), settings.centred.window))
-        mode_started = time.perf_counter()
-        log(f"training the {mode} network ({sum(p.numel() for p in model.parameters())} parameters)")
-        training = train_network(model, table, window, settings.optimisation, seed + 10 * (index + 1), log)
-        params = {key: value.astype(np.float16) for key, value in model.export().items()}
-        with atomic_path(out_dir / f"{mode}.npz") as partial, open(partial, "wb") as file:
-            np.savez(file, **params)  # uncompressed: the same weights give the same bytes
-        params = {key: value.astype(np.float32) for key, value in params.items()}  # as predict_contacts loads them
-        held_out = evaluate(params, mode, test_sequences) if test_sequences else {}
-        results[mode] = {**training, "seconds": time.perf_counter() - mode_started, "held_out_synthetic": held_out}
-        log(f"  {mode}: {results[mode]}")
+    results = {mode: _train_one(mode, index, data, seed, settings, out_dir, log)
+               for index, mode in enumerate(MODES) if mode in modes}
     metadata = {
         "seed": seed,
         "outputs": list(OUTPUT_NAMES),
-        "train_subjects": sorted({c.subject for c in train_clips}, key=int),
-        "test_subjects": sorted({c.subject for c in test_clips}, key=int),
-        "train_clips": [c.name for c in train_clips],
-        "test_clips": [c.name for c in test_clips],
-        "train_frames": len(table),
-        "test_frames": int(sum(s.num_frames for s in test_sequences)),
+        **data.description(),
         "data_seconds": data_seconds,
         "total_seconds": time.perf_counter() - started,
         "torch": torch.__version__,
-        "data_sha256": data_digest(train_files + test_files, data_root),
+        "data_sha256": data_digest(data.files, data_root),
         "git_revision": git_revision(),
         "settings": asdict(settings),
         **results,
     }
     write_text(out_dir / METADATA_FILE, json.dumps(metadata, indent=1, default=str))
     return metadata
+
+
+@dataclass
+class _TrainingData:
+    """The synthetic training frames and held-out sequences of `train_contacts`, and what they came from."""
+
+    files: list[Path]
+    train_clips: list[MocapClip]
+    test_clips: list[MocapClip]
+    table: FrameTable
+    test_sequences: list[SyntheticSequence]
+
+    @classmethod
+    def make(cls, data_root: Path, seed: int, settings: ContactTrainingSettings,
+             max_clips: int | None) -> _TrainingData:
+        train_files, test_files = split_by_subject(mocap_files(data_root), settings.test_subjects)
+        if max_clips is not None:
+            train_files, test_files = train_files[:max_clips], test_files[:max_clips]
+        train_clips, test_clips = load_clips(train_files), load_clips(test_files)
+        table = FrameTable.from_sequences(iter_sequences(train_clips, seed, settings.synthetic))
+        test_sequences = make_sequences(test_clips, seed + 1, held_out_settings(settings.synthetic),
+                                        variants=settings.test_variants_per_clip)
+        return cls(train_files + test_files, train_clips, test_clips, table, test_sequences)
+
+    def description(self) -> dict[str, object]:
+        """The subjects, clips and frame counts, for training.json."""
+        return {
+            "train_subjects": sorted({c.subject for c in self.train_clips}, key=int),
+            "test_subjects": sorted({c.subject for c in self.test_clips}, key=int),
+            "train_clips": [c.name for c in self.train_clips],
+            "test_clips": [c.name for c in self.test_clips],
+            "train_frames": len(self.table),
+            "test_frames": int(sum(s.num_frames for s in self.test_sequences)),
+        }
+
+
+def _train_one(mode: Mode, index: int, data: _TrainingData, seed: int, settings: ContactTrainingSettings,
+               out_dir: Path, log: Callable[[str], None]) -> dict[str, object]:
+    """Train the `mode` network (the index-th of MODES), write its weights; its training record."""
+    torch.manual_seed(seed + index)  # the initial weights
+    model, window = ((TorchCausalNet(settings.causal), settings.causal.window) if mode == "causal"
+                     else (TorchCentredNet(settings.centred), settings.centred.window))
+    mode_started = time.perf_counter()
+    log(f"training the {mode} network ({sum(p.numel() for p in model.parameters())} parameters)")
+    training = train_network(model, data.table, window, settings.optimisation, seed + 10 * (index + 1), log)
+    params = {key: value.astype(np.float16) for key, value in model.export().items()}
+    with atomic_path(out_dir / f"{mode}.npz") as partial, open(partial, "wb") as file:
+        np.savez(file, **params)  # uncompressed: the same weights give the same bytes
+    params = {key: value.astype(np.float32) for key, value in params.items()}  # as predict_contacts loads them
+    held_out = evaluate(params, mode, data.test_sequences) if data.test_sequences else {}
+    record = {**training, "seconds": time.perf_counter() - mode_started, "held_out_synthetic": held_out}
+    log(f"  {mode}: {record}")
+    return record

@@ -307,16 +307,9 @@ def detect_video(
             path, reader.frames_read, info.frame_count,
         )
     invalid_reason = np.array(reasons, dtype=object)
-    return Observations(
-        keypoints_2d=keypoints.array(),
-        landmarks_3d=world.array(),
-        fps=info.fps,
-        image_size=image_size,
-        valid=invalid_reason == "",
-        invalid_reason=invalid_reason,
-        source=str(path),
-        seconds_per_frame=follower.seconds / len(reasons),
-    )
+    return Observations(keypoints_2d=keypoints.array(), landmarks_3d=world.array(), fps=info.fps, image_size=image_size,
+                        valid=invalid_reason == "", invalid_reason=invalid_reason, source=str(path),
+                        seconds_per_frame=follower.seconds / len(reasons))
 
 
 class _FrameArrays:

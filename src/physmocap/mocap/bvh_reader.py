@@ -92,47 +92,8 @@ def parse_bvh(text: str, source: str = "<string>") -> BvhData:
     tokens = header.split()
     if not tokens or tokens[0] != "HIERARCHY":
         raise InputError(f"{source}: not a BVH file (it does not start with HIERARCHY).")
-    joints: list[BvhJoint] = []
-    stack: list[int] = []  # indices of the joints whose braces are open
-    num_channels = 0
-    position = 1
     try:
-        while position < len(tokens):
-            token = tokens[position]
-            if token in ("ROOT", "JOINT") or token == "End":
-                if token == "End":
-                    name = f"{joints[stack[-1]].name}_End"
-                    position += 2  # "End Site"
-                else:
-                    name = tokens[position + 1]
-                    position += 2
-                if tokens[position] != "{":
-                    raise ValueError(f"expected '{{' after {name}")
-                if tokens[position + 1] != "OFFSET":
-                    raise ValueError(f"expected OFFSET in {name}")
-                offset = np.array([float(v) for v in tokens[position + 2 : position + 5]])
-                position += 5
-                channels: tuple[str, ...] = ()
-                if token != "End" and tokens[position] == "CHANNELS":
-                    count = int(tokens[position + 1])
-                    channels = tuple(tokens[position + 2 : position + 2 + count])
-                    position += 2 + count
-                    unknown = [c for c in channels if not re.fullmatch(r"[XYZ](position|rotation)", c)]
-                    if unknown:
-                        raise ValueError(f"unknown channel {unknown[0]} in {name}")
-                parent = stack[-1] if stack else -1
-                if parent == -1 and joints:
-                    raise ValueError("more than one ROOT")
-                joints.append(BvhJoint(name, parent, offset, channels, num_channels))
-                num_channels += len(channels)
-                stack.append(len(joints) - 1)
-            elif token == "}":
-                stack.pop()
-                position += 1
-            else:
-                raise ValueError(f"unexpected '{token}'")
-        if stack or not joints:
-            raise ValueError("unbalanced braces")
+        joints, num_channels = _parse_hierarchy(tokens)
         frames_match = re.search(r"Frames:\s*(\d+)", motion_text)
         time_match = re.search(r"Frame Time:\s*([-+0-9.eE]+)", motion_text)
         if frames_match is None or time_match is None:
@@ -150,6 +111,52 @@ def parse_bvh(text: str, source: str = "<string>") -> BvhData:
             f"{num_channels} channels."
         )
     return BvhData(tuple(joints), frame_time, values.reshape(num_frames, num_channels))
+
+
+def _parse_hierarchy(tokens: list[str]) -> tuple[list[BvhJoint], int]:
+    """The joints of a BVH HIERARCHY section (its whitespace-separated tokens, "HIERARCHY" first) and the
+    number of motion channels. Raises ValueError or IndexError where the text is malformed."""
+    joints: list[BvhJoint] = []
+    stack: list[int] = []  # indices of the joints whose braces are open
+    num_channels = 0
+    position = 1
+    while position < len(tokens):
+        token = tokens[position]
+        if token in ("ROOT", "JOINT") or token == "End":
+            if token == "End":
+                name = f"{joints[stack[-1]].name}_End"
+                position += 2  # "End Site"
+            else:
+                name = tokens[position + 1]
+                position += 2
+            if tokens[position] != "{":
+                raise ValueError(f"expected '{{' after {name}")
+            if tokens[position + 1] != "OFFSET":
+                raise ValueError(f"expected OFFSET in {name}")
+            offset = np.array([float(v) for v in tokens[position + 2 : position + 5]])
+            position += 5
+            channels: tuple[str, ...] = ()
+            if token != "End" and tokens[position] == "CHANNELS":
+                count = int(tokens[position + 1])
+                channels = tuple(tokens[position + 2 : position + 2 + count])
+                position += 2 + count
+                unknown = [c for c in channels if not re.fullmatch(r"[XYZ](position|rotation)", c)]
+                if unknown:
+                    raise ValueError(f"unknown channel {unknown[0]} in {name}")
+            parent = stack[-1] if stack else -1
+            if parent == -1 and joints:
+                raise ValueError("more than one ROOT")
+            joints.append(BvhJoint(name, parent, offset, channels, num_channels))
+            num_channels += len(channels)
+            stack.append(len(joints) - 1)
+        elif token == "}":
+            stack.pop()
+            position += 1
+        else:
+            raise ValueError(f"unexpected '{token}'")
+    if stack or not joints:
+        raise ValueError("unbalanced braces")
+    return joints, num_channels
 
 
 def read_bvh(path: str | os.PathLike) -> BvhData:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -11,6 +12,9 @@ from matplotlib.figure import Figure
 
 from ..io.atomic import atomic_path
 from .overlay import CENTRE_COLOUR, Colour, draw_overlay, edge_colour
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
 
 FLOOR_COLOUR = "0.6"
 TRAJECTORY_COLOUR = "tab:green"
@@ -67,18 +71,7 @@ def result_figure(
     image_axes.set_title(f"frame {frame_index}")
 
     view = figure.add_subplot(1, 2, 2, projection="3d")
-    finite = joints_world_clip[np.all(np.isfinite(joints_world_clip), axis=2)]
-    low, high = finite.min(axis=0), finite.max(axis=0)
-    centre = (low + high) / 2
-    half = max(high[0] - low[0], high[1] - low[1], high[2], 1.0) / 2 + 0.2  # a cube that holds the clip
-    step = _floor_grid_step(2 * half)
-    ticks = np.arange(np.floor((centre[0] - half) / step), np.ceil((centre[0] + half) / step) + 1) * step
-    y_ticks = np.arange(np.floor((centre[1] - half) / step), np.ceil((centre[1] + half) / step) + 1) * step
-    for x in ticks:
-        view.plot([x, x], [y_ticks[0], y_ticks[-1]], [0.0, 0.0], color=FLOOR_COLOUR, linewidth=0.6)
-    for y in y_ticks:
-        view.plot([ticks[0], ticks[-1]], [y, y], [0.0, 0.0], color=FLOOR_COLOUR, linewidth=0.6)
-
+    centre, half = _floor_and_bounds(view, joints_world_clip)
     root = joints_world_clip[:, root_index]
     view.plot(*root.T, color=TRAJECTORY_COLOUR, linewidth=1.2, label="root path")
     view.plot(root[:, 0], root[:, 1], np.zeros(len(root)), color=TRAJECTORY_COLOUR, linewidth=0.8, alpha=0.4)
@@ -98,3 +91,20 @@ def result_figure(
     view.legend(loc="upper left")
     with atomic_path(out_png) as tmp:
         figure.savefig(tmp, format="png")
+
+
+def _floor_and_bounds(view: Axes, joints_world_clip: np.ndarray) -> tuple[np.ndarray, float]:
+    """Draw the floor grid under the clip's points (T, P, 3) on `view`; the centre (3,) and half side, metres,
+    of the cube that holds the clip."""
+    finite = joints_world_clip[np.all(np.isfinite(joints_world_clip), axis=2)]
+    low, high = finite.min(axis=0), finite.max(axis=0)
+    centre = (low + high) / 2
+    half = max(high[0] - low[0], high[1] - low[1], high[2], 1.0) / 2 + 0.2
+    step = _floor_grid_step(2 * half)
+    ticks = np.arange(np.floor((centre[0] - half) / step), np.ceil((centre[0] + half) / step) + 1) * step
+    y_ticks = np.arange(np.floor((centre[1] - half) / step), np.ceil((centre[1] + half) / step) + 1) * step
+    for x in ticks:
+        view.plot([x, x], [y_ticks[0], y_ticks[-1]], [0.0, 0.0], color=FLOOR_COLOUR, linewidth=0.6)
+    for y in y_ticks:
+        view.plot([ticks[0], ticks[-1]], [y, y], [0.0, 0.0], color=FLOOR_COLOUR, linewidth=0.6)
+    return centre, half

@@ -20,7 +20,7 @@ import numpy as np
 
 from .. import metrics
 from ..body.kinematics import center_of_mass, forward_kinematics
-from ..body.model import CONTACT_POINTS, JOINT_NAMES
+from ..body.model import CONTACT_POINTS, JOINT_NAMES, BodyModel
 from ..export import body_from_result
 from ..io.atomic import write_text
 from ..io.finite import finite_result
@@ -74,89 +74,93 @@ def _keypoint_pairs(result: dict[str, np.ndarray]) -> tuple[list[int], list[int]
     return points, landmarks
 
 
+METRIC_ROWS: tuple[tuple[str, str, str, str, str], ...] = (  # key, section, label, unit, meaning; in report order
+    ("mean_acceleration", "Smoothness", "mean joint acceleration", "m/s²",
+     "jitter without ground truth: mean |second difference| × fps² over the 20 joints; lower is smoother"),
+    ("floating_percent", "Feet and floor", "floating", "% foot-frames",
+     "in contact yet more than 3 cm above the floor (Rempe et al. 2020)"),
+    ("penetration_percent", "Feet and floor", "penetration", "% foot-frames",
+     "more than 3 cm below the floor at any time (Rempe et al. 2020)"),
+    ("skate_percent", "Feet and floor", "skate", "% foot-frames",
+     "in contact in two frames and sliding more than 2 cm per 1/30 s (Rempe et al. 2020)"),
+    ("mpe", "Feet and floor", "mean penetration error", "mm",
+     "mean distance of the contact points from the floor while in contact (PhysCap MPE)"),
+    ("pnp_percent", "Feet and floor", "non-penetration", "% frames",
+     "frames with no foot point below the floor (PhysCap PNP)"),
+    ("grf_mean_percent_bw", "Forces", "solved GRF, mean", "% body weight",
+     "net ground reaction force from physics, mean over frames (about 100 over a whole clip)"),
+    ("grf_max_percent_bw", "Forces", "solved GRF, maximum", "% body weight", "its largest value"),
+    ("grf_ballistic_percent_bw", "Forces", "solved GRF in flight", "% body weight",
+     "median over frames without contact (ideal 0)"),
+    ("implied_grf_mean_percent_bw", "Forces", "implied GRF, mean", "% body weight",
+     "net external force m (a_com − g) the motion's centre of mass implies (Rempe et al. 2020)"),
+    ("implied_grf_max_percent_bw", "Forces", "implied GRF, maximum", "% body weight",
+     "its largest value: spikes mean jitter"),
+    ("implied_grf_ballistic_percent_bw", "Forces", "implied GRF in flight", "% body weight",
+     "median over frames without contact (ideal 0)"),
+    ("residual_force_percent_bw", "Forces", "residual root force", "% body weight",
+     "mean force physics had to apply directly to the pelvis (unexplained by contacts)"),
+    ("com_over_support_percent", "Balance", "centre of mass over support", "% supported frames",
+     "the centre of mass projects within 5 cm of the support polygon of the contact points"),
+    ("reprojection_error", "Image agreement", "reprojection error", "px",
+     "mean distance of the projected points to the detected keypoints (confidence ≥ 0.5)"),
+)
+
+
 def run_metrics(result: dict[str, np.ndarray]) -> list[Metric]:
     """The report's metrics for a result (see the module docstring)."""
-    fps, mass = float(result["fps"]), float(result["body_mass"])
-    weight = mass * metrics.GRAVITY
-    body = body_from_result(result)
+    mass = float(result["body_mass"])
     contacts = np.asarray(result["contacts"], bool)
-    joints, feet = _point_ids(result, JOINT_NAMES), _point_ids(result, CONTACT_POINTS)
     motions = {"final": (result["joints_world"], result["qpos"]),
                "kinematic": (result["joints_world_kinematic"], result.get("qpos_kinematic", result["qpos"]))}
     values: dict[str, dict[str, float]] = {}
+    body = body_from_result(result)
+    for motion, (points, qpos) in motions.items():
+        for key, value in _motion_metrics(result, body, points, qpos, contacts).items():
+            values.setdefault(key, {})[motion] = value
+    if np.any(np.asarray(result["grf"]) != 0):  # physics ran
+        solved = metrics.grf_statistics(result["grf"], mass, contacts)
+        residual = np.linalg.norm(np.asarray(result["residual_root_force"])[:, :3], axis=1)
+        for key, value in (("grf_mean_percent_bw", solved["mean_percent_bw"]),
+                           ("grf_max_percent_bw", solved["max_percent_bw"]),
+                           ("grf_ballistic_percent_bw", solved["ballistic_percent_bw"]),
+                           ("residual_force_percent_bw", 100 * residual.mean() / (mass * metrics.GRAVITY))):
+            values[key] = {"final": float(value)}
+    return [Metric(key, section, label, unit, values[key].get("final"), values[key].get("kinematic"), meaning)
+            for key, section, label, unit, meaning in METRIC_ROWS if key in values]
 
-    def put(key: str, motion: str, value: float) -> None:
-        values.setdefault(key, {})[motion] = float(value)
 
+def _motion_metrics(result: dict[str, np.ndarray], body: BodyModel, points: np.ndarray, qpos: np.ndarray,
+                    contacts: np.ndarray) -> dict[str, float]:
+    """The metrics of one motion of the result: its named points (T, P, 3) and qpos (T, nq)."""
+    fps, mass = float(result["fps"]), float(result["body_mass"])
+    joints, feet = _point_ids(result, JOINT_NAMES), _point_ids(result, CONTACT_POINTS)
     kp_points, kp_landmarks = _keypoint_pairs(result)
     keypoints = np.asarray(result["keypoints_2d"], dtype=float)[:, kp_landmarks]
     keypoints = np.where(np.asarray(result["valid"], bool)[:, None, None], keypoints, 0.0)
     accelerations = len(contacts) >= 3  # second differences need three frames; shorter runs leave those out
-    for motion, (points, qpos) in motions.items():
-        if accelerations:
-            put("mean_acceleration", motion, metrics.mean_acceleration(points[:, joints], fps))
-        foot = metrics.foot_contact_errors(points[:, feet], contacts, fps=fps)
-        for name in ("floating_percent", "penetration_percent", "skate_percent"):
-            put(name, motion, foot[name])
-        mpe, _, pnp = metrics.mpe_pnp(points[:, feet], contacts)
-        put("mpe", motion, 1000 * mpe)
-        put("pnp_percent", motion, pnp)
-        com = center_of_mass(body, forward_kinematics(body, qpos))
-        if accelerations:
-            implied = metrics.grf_statistics(metrics.implied_grf(com, mass, fps), mass, contacts)
-            put("implied_grf_mean_percent_bw", motion, implied["mean_percent_bw"])
-            put("implied_grf_max_percent_bw", motion, implied["max_percent_bw"])
-            put("implied_grf_ballistic_percent_bw", motion, implied["ballistic_percent_bw"])
-        vertices, counts = support_polygons(points[:, feet], contacts)
-        supported = counts > 0
-        over = com_over_support(com, vertices, counts)
-        put("com_over_support_percent", motion, 100 * over[supported].mean() if supported.any() else math.nan)
-        error, _ = metrics.reprojection_error(points[:, kp_points], result["camera_K"], result["camera_R"],
-                                              result["camera_t"], keypoints, KEYPOINT_MIN_CONFIDENCE)
-        put("reprojection_error", motion, error)
-
-    physics = bool(np.any(np.asarray(result["grf"]) != 0))
-    if physics:
-        solved = metrics.grf_statistics(result["grf"], mass, contacts)
-        put("grf_mean_percent_bw", "final", solved["mean_percent_bw"])
-        put("grf_max_percent_bw", "final", solved["max_percent_bw"])
-        put("grf_ballistic_percent_bw", "final", solved["ballistic_percent_bw"])
-        residual = np.linalg.norm(np.asarray(result["residual_root_force"])[:, :3], axis=1)
-        put("residual_force_percent_bw", "final", 100 * residual.mean() / weight)
-
-    rows = [
-        ("mean_acceleration", "Smoothness", "mean joint acceleration", "m/s²",
-         "jitter without ground truth: mean |second difference| × fps² over the 20 joints; lower is smoother"),
-        ("floating_percent", "Feet and floor", "floating", "% foot-frames",
-         "in contact yet more than 3 cm above the floor (Rempe et al. 2020)"),
-        ("penetration_percent", "Feet and floor", "penetration", "% foot-frames",
-         "more than 3 cm below the floor at any time (Rempe et al. 2020)"),
-        ("skate_percent", "Feet and floor", "skate", "% foot-frames",
-         "in contact in two frames and sliding more than 2 cm per 1/30 s (Rempe et al. 2020)"),
-        ("mpe", "Feet and floor", "mean penetration error", "mm",
-         "mean distance of the contact points from the floor while in contact (PhysCap MPE)"),
-        ("pnp_percent", "Feet and floor", "non-penetration", "% frames",
-         "frames with no foot point below the floor (PhysCap PNP)"),
-        ("grf_mean_percent_bw", "Forces", "solved GRF, mean", "% body weight",
-         "net ground reaction force from physics, mean over frames (about 100 over a whole clip)"),
-        ("grf_max_percent_bw", "Forces", "solved GRF, maximum", "% body weight", "its largest value"),
-        ("grf_ballistic_percent_bw", "Forces", "solved GRF in flight", "% body weight",
-         "median over frames without contact (ideal 0)"),
-        ("implied_grf_mean_percent_bw", "Forces", "implied GRF, mean", "% body weight",
-         "net external force m (a_com − g) the motion's centre of mass implies (Rempe et al. 2020)"),
-        ("implied_grf_max_percent_bw", "Forces", "implied GRF, maximum", "% body weight",
-         "its largest value: spikes mean jitter"),
-        ("implied_grf_ballistic_percent_bw", "Forces", "implied GRF in flight", "% body weight",
-         "median over frames without contact (ideal 0)"),
-        ("residual_force_percent_bw", "Forces", "residual root force", "% body weight",
-         "mean force physics had to apply directly to the pelvis (unexplained by contacts)"),
-        ("com_over_support_percent", "Balance", "centre of mass over support", "% supported frames",
-         "the centre of mass projects within 5 cm of the support polygon of the contact points"),
-        ("reprojection_error", "Image agreement", "reprojection error", "px",
-         "mean distance of the projected points to the detected keypoints (confidence ≥ 0.5)"),
-    ]
-    return [Metric(key, section, label, unit, values[key].get("final"), values[key].get("kinematic"), meaning)
-            for key, section, label, unit, meaning in rows if key in values]
+    out: dict[str, float] = {}
+    if accelerations:
+        out["mean_acceleration"] = metrics.mean_acceleration(points[:, joints], fps)
+    foot = metrics.foot_contact_errors(points[:, feet], contacts, fps=fps)
+    for name in ("floating_percent", "penetration_percent", "skate_percent"):
+        out[name] = foot[name]
+    mpe, _, pnp = metrics.mpe_pnp(points[:, feet], contacts)
+    out["mpe"], out["pnp_percent"] = 1000 * mpe, pnp
+    com = center_of_mass(body, forward_kinematics(body, qpos))
+    if accelerations:
+        implied = metrics.grf_statistics(metrics.implied_grf(com, mass, fps), mass, contacts)
+        out["implied_grf_mean_percent_bw"] = implied["mean_percent_bw"]
+        out["implied_grf_max_percent_bw"] = implied["max_percent_bw"]
+        out["implied_grf_ballistic_percent_bw"] = implied["ballistic_percent_bw"]
+    vertices, counts = support_polygons(points[:, feet], contacts)
+    supported = counts > 0
+    over = com_over_support(com, vertices, counts)
+    out["com_over_support_percent"] = 100 * over[supported].mean() if supported.any() else math.nan
+    out["reprojection_error"], _ = metrics.reprojection_error(
+        points[:, kp_points], result["camera_K"], result["camera_R"], result["camera_t"], keypoints,
+        KEYPOINT_MIN_CONFIDENCE)
+    return {key: float(value) for key, value in out.items()}
 
 
 def _number(value: float | None) -> str:
