@@ -198,7 +198,7 @@ def real_height_scale() -> dict:
         as_landmarks[:, LANDMARK_INDEX[joint.replace("_toe", "_foot_index")]] = reference.points[:, 1 + k]
     truth = measure_lengths(as_landmarks)
     rows = {}
-    for view, obs in zip(VIEWS, observations):
+    for view, obs in zip(VIEWS, observations, strict=True):
         measured = measure_lengths(seen_landmarks(obs)[obs.valid])
         ratios = {k: measured[k] / truth[k] for k in CORE_LENGTHS if np.isfinite(truth[k]) and np.isfinite(measured[k])}
         estimate = estimate_height(obs)
@@ -212,7 +212,8 @@ def real_height_scale() -> dict:
 
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--part", choices=("floor", "height", "real-height", "real-floor", "detectors", "both"), default="both")
+    parser.add_argument("--part", choices=("floor", "height", "real-height", "real-floor", "detectors", "both"),
+                        default="both")
     parser.add_argument("--set", choices=("validation", "test"), default="test")
     parser.add_argument("--quick", action="store_true", help="three clips, one seed")
     parser.add_argument("--observations", nargs="*", default=[], help="real-floor part: observations files")

@@ -324,7 +324,7 @@ def main(argv: list[str] | None = None) -> dict:
     print(f"reference: {time.perf_counter() - started:.1f} s", flush=True)
 
     rows = {}
-    for view, camera in enumerate(cameras):
+    for view in range(len(cameras)):
         result, stage_seconds = run_monocular(VIEWS[view], settings[view])
         rows[VIEWS[view]] = row = evaluate_view(view, cameras, reference, result, stage_seconds)
         print(f"{VIEWS[view]}: root-relative {row['mpjpe_root_relative_mm']:.1f} mm, Procrustes "
