@@ -377,9 +377,9 @@ def train_contacts(
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    results = {mode: _train_one(mode, index, data, seed, settings, out_dir, log)
+    results: dict[str, dict[str, object]] = {mode: _train_one(mode, index, data, seed, settings, out_dir, log)
                for index, mode in enumerate(MODES) if mode in modes}
-    metadata = {
+    metadata: dict[str, object] = {
         "seed": seed,
         "outputs": list(OUTPUT_NAMES),
         **data.description(),
