@@ -19,7 +19,7 @@ from .settings_fields import read_toml as read_toml  # retarget.mapping reads ch
 class BodySettings(Section):
     height: float = setting(1.70, "m", (1.0, 2.3), "the person's standing height")
     mass: float = setting(70.0, "kg", (20.0, 250.0), "the person's mass")
-    calibration_frames: int = setting(0, "frames", (0, 100000), "first frames that set the bone lengths; 0: all (online 3 s)")
+    calibration_frames: int = setting(0, "frames", (0, 100000), "bone lengths from the first ones; 0: all (online 3 s)")
     estimate_height: bool = setting(False, help="height from the detector's 3D landmarks as metres (height: fallback)")
 
 
@@ -27,8 +27,8 @@ class BodySettings(Section):
 class CameraSettings(Section):
     focal: float | None = setting(None, "px", (1.0, 1e6), "focal length; overrides fov")
     fov: float | None = setting(None, "deg", (10.0, 160.0), "field of view across the longer image side (None: 60)")
-    floor: tuple[float, float, float, float] | None = setting(None, "m", help="plane nx,ny,nz,d (n.x + d = 0), "
-                                                              "camera frame; None: estimated", check=floor_plane)
+    floor: tuple[float, float, float, float] | None = setting(None, "m", check=floor_plane, help="plane n.x + d = 0 "
+                                                              "in the camera frame (None: estimated from the feet)")
 
 
 @dataclass(frozen=True)
@@ -76,8 +76,8 @@ class PhysicsSettings(Section):
     """Physics after the kinematic fit: PhysCap stage III (Shimada et al. 2020, 4.3 and 5.1) for "physcap".
     Tuning: docs/decisions/physcap-tracking.md, physcap-contacts.md and physcap-online-floor.md."""
 
-    method: str = setting("physcap", choices=("physcap", "trajopt", "none"), help="PhysCap per frame, Rempe's "
-                          "trajopt of the whole clip, or none (docs/decisions/physics-default.md)")
+    method: str = setting("physcap", choices=("physcap", "trajopt", "none"), help="PhysCap's tracker per frame, "
+                          "Rempe's trajectory optimisation of the whole clip (offline only), or none")
     refine_offline: bool = setting(True, help="offline, PhysCap tracks the B.4 refinement, not the plain fit")
     stray_distance: float = setting(0.15, "m", (0.01, 10.0), "frames straying farther from the kinematics are reported")
     kp_joint: float = setting(1200.0, "1/s^2", (0.0, 1e4), "joint stiffness; the paper's 300 lagged the motion")

@@ -66,8 +66,12 @@ def allowed(metadata) -> str:
 def describe(root: type, key: str) -> str:
     """A setting's meaning, allowed values and default in one line, for the command line's help."""
     declared = declaration(root, key)
-    values = allowed(declared.metadata)
-    return f"{declared.metadata['help']} ({values + '; ' if values else ''}default {declared.default})"
+    values = "" if declared.metadata["choices"] else allowed(declared.metadata)  # argparse lists the choices
+    default = declared.default
+    unset = default is None or default is False  # the help says what None means
+    shown = number(default) if isinstance(default, float) else default
+    notes = [note for note in (values, "" if unset else f"default {shown}") if note]
+    return declared.metadata["help"] + (f" ({'; '.join(notes)})" if notes else "")
 
 
 def number(x) -> str:
