@@ -4,6 +4,7 @@ declarations themselves are in `physmocap.config`."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import tomllib
 import types
@@ -33,7 +34,7 @@ class Section:
         return f"{section}.{name}" if section else name
 
     def check(self):
-        hints = typing.get_type_hints(type(self))
+        hints = _hints(type(self))
         for f in dataclasses.fields(self):  # type: ignore[arg-type]
             value = getattr(self, f.name)
             if isinstance(value, Section):
@@ -77,6 +78,12 @@ def describe(root: type, key: str) -> str:
 def number(x) -> str:
     """A bound as people write it: 0.1, 1000, 1e6, 1e-10."""
     return f"{x:g}".replace("e+0", "e").replace("e-0", "e-").replace("e+", "e")
+
+
+@functools.cache
+def _hints(owner: type) -> dict:
+    """The fields' types, evaluated once per class (typing.get_type_hints takes milliseconds)."""
+    return typing.get_type_hints(owner)
 
 
 def _allows_none(hint) -> bool:
@@ -163,7 +170,7 @@ def read_toml(path: Path, what: str) -> dict:
 def _typed(path: Path, owner: type, values: dict) -> dict:
     """`values` for fields of the dataclass `owner` (lists as tuples); SettingsError naming the file and the first
     value of the wrong type."""
-    hints = typing.get_type_hints(owner)
+    hints = _hints(owner)
     values = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
     for name, item in values.items():
         if not _has_type(item, hints[name]):
