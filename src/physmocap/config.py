@@ -95,9 +95,9 @@ class PhysicsSettings(Section):
     contact_height: float = setting(0.1, "m", (0.0, 1.0), "psi of eq. (5): predicted contacts count only below it")
     target_lift_time: float | None = setting(0.1, "s", (0.001, 10.0), "time constant lifting a target whose "
                                              "contacts sink under the floor, which held the body (None: off)")
-    flatten_feet: bool = setting(True, help="with the lift, a target foot in contact heel and toe is turned flat")
+    flatten_feet: bool = setting(True, help="with the lift, a target foot in contact at heel and toe turns flat")
     friction: float = setting(0.8, "", (0.05, 2.0), "mu; the pyramid uses mu / sqrt(2) (eq. 7)")
-    slide_speed: float = setting(0.3, "m/s", (0.0, 1.0), "sigma (9): slip a contact keeps; lower: locked feet drag")
+    slide_speed: float = setting(0.3, "m/s", (0.0, 1.0), "sigma of eq. (9): slip a contact keeps (lower locks feet)")
     step: float | None = setting(None, "s", (1e-4, 0.1), "phi of eq. (1) (None: one frame / iterations)")
     iterations: int = setting(4, "", (1, 50), "n, steps ii-v per frame")
     torque_weight: float = setting(4.5e-4, "", (0.0, 1.0), "of |tau|^2 against |qdd - qdd_des|^2 (authors' code)")
@@ -105,7 +105,7 @@ class PhysicsSettings(Section):
     residual_weight_vertical: float = setting(1e-2, "", (0.0, 1e3), "its vertical force: weight belongs on the feet")
     foot_lock: str = setting("auto", choices=("auto", "always", "never"), help="contacts: predicted; any sole point "
                              "within contact_height; none and no floor (airborne)")
-    penetration_recovery: float = setting(0.1, "s", (1e-3, 1.0), "a sunk point rises at depth / this (at once: leaps)")
+    penetration_recovery: float = setting(0.1, "s", (1e-3, 1.0), "a point under the floor rises back at depth / this")
     release_distance: float | None = setting(0.05, "m", (0.0, 1.0), "a contact whose target moved farther along "
                                              "the floor is released, not dragging the body (None: never)")
     touch_margin: float = setting(0.003, "m", (0.0, 0.1), "sole points this close collide with the floor (eq. 5)")
@@ -121,7 +121,7 @@ class PhysicsSettings(Section):
                                                  "while the root is slower (None: always)")
     stationary_speed_interval: float = setting(0.2, "s", (0.01, 2.0), "over which that speed is measured")
     max_step: float | None = setting(0.011, "s", (0.001, 0.02), "longest step (docs/decisions/physics-frame-rate.md)")
-    max_force: float = setting(10.0, "body weights", (1.0, 100.0), "beyond: scaled down and flagged (physics-limits)")
+    max_force: float = setting(10.0, "body weights", (1.0, 100.0), "larger contact/residual forces are cut and flagged")
     unexplained_force: float | None = setting(0.5, "body weights", (0.05, 10.0), "upward root force no floor "
                                               "contact gives that flags a frame (None: not checked)")
     unexplained_time: float = setting(0.2, "s", (0.01, 2.0), "time constant of that force's average")
