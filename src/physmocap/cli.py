@@ -12,8 +12,11 @@ import time
 from pathlib import Path
 
 import physmocap  # noqa: F401 - sets single-threaded BLAS before numpy loads
+from .config import Settings
 from .errors import (EXIT_BUG, EXIT_INTERRUPTED, InputError, OutputLocationError, PhysmocapError,
                      check_output_folder, output_error)
+from .presets import PRESETS, SMOOTHING_LIMITS
+from .settings_fields import declaration, describe
 
 EXAMPLES = """\
 examples:
@@ -78,7 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     cap = sub.add_parser("capture", help="video (or observations file) -> 3D motion, BVH, overlay",
-                         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                         formatter_class=_DefaultsUnlessUnsetFormatter,
                          description="Capture the 3D motion of one person in a video.")
     cap.add_argument("video", nargs="?", type=Path, help="input video file (mp4, mov, webm, ...)")
     cap.add_argument("-o", "--output", type=Path, default=None,
@@ -188,20 +191,25 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class _DefaultsUnlessUnsetFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows an option's default unless it is None or False: a setting's own default is in its help text."""
+
+    def _get_help_string(self, action):
+        unset = action.default is None or action.default is False
+        return action.help if unset else super()._get_help_string(action)
+
+
 def _add_capture_options(p: argparse.ArgumentParser) -> None:
-    """The options of one capture, shared by `capture` and `batch`."""
-    p.add_argument("--online", action="store_true", help="causal frame-by-frame fit (live use)")
-    p.add_argument("--physics", choices=("none", "physcap", "trajopt"), default=None,
-                   help="physics after the kinematic fit: PhysCap's tracker (default; offline it tracks Rempe "
-                        "et al.'s refined kinematics), Rempe et al.'s trajectory optimisation of the whole clip "
-                        "(offline only), or none (kinematics only)")
+    """The options of one capture, shared by `capture` and `batch`; help and choices of those that set a setting
+    come from its declaration in config.py."""
+    p.add_argument("--online", action="store_true", help=describe(Settings, "online"))
+    p.add_argument("--physics", choices=declaration(Settings, "physics.method").metadata["choices"], default=None,
+                   help=describe(Settings, "physics.method"))
     _add_settings_arguments(p)
     p.add_argument("--no-overlay", action="store_true", help="skip rendering overlay.mp4")
     p.add_argument("--overlay-size", type=int, default=argparse.SUPPRESS, metavar="WIDTH",
-                   help="width of overlay.mp4 in pixels: wider videos are scaled down to it, which renders much "
-                        "faster than 1080p (0: the video's own width; default 1280)")
-    p.add_argument("--accept-truncated", action="store_true",
-                   help="capture the frames a truncated video still holds instead of stopping")
+                   help=describe(Settings, "overlay_width"))
+    p.add_argument("--accept-truncated", action="store_true", help=describe(Settings, "detect.accept_truncated"))
 
 
 def _add_character_arguments(p: argparse.ArgumentParser, required: bool) -> None:
@@ -214,29 +222,26 @@ def _add_character_arguments(p: argparse.ArgumentParser, required: bool) -> None
 
 
 def _add_settings_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--height", type=float, default=None, help="person's height in metres (default 1.70)")
-    p.add_argument("--mass", type=float, default=None, help="person's mass in kg (default 70)")
-    p.add_argument("--focal", type=float, default=None, help="focal length in pixels")
-    p.add_argument("--fov", type=float, default=None,
-                   help="field of view in degrees across the longer image side (default 60)")
-    p.add_argument("--floor", type=_floats(4, "--floor"), metavar="NX,NY,NZ,D",
-                   help="floor plane n.x + d = 0 in camera coordinates, metres (default: estimated from the feet)")
+    p.add_argument("--height", type=float, default=None, help=describe(Settings, "body.height"))
+    p.add_argument("--mass", type=float, default=None, help=describe(Settings, "body.mass"))
+    p.add_argument("--focal", type=float, default=None, help=describe(Settings, "camera.focal"))
+    p.add_argument("--fov", type=float, default=None, help=describe(Settings, "camera.fov"))
+    p.add_argument("--floor", type=_floats(4, "--floor"), metavar="NX,NY,NZ,D", help=describe(Settings, "camera.floor"))
     p.add_argument("--person-box", type=_floats(4, "--person-box"), metavar="X0,Y0,X1,Y1",
-                   help="follow the person inside this box (pixels)")
-    p.add_argument("--one-euro", action="store_true", help="One-Euro filter the fitted pose")
-    p.add_argument("--preset", choices=("walking", "running", "jumping", "dancing", "standing"),
-                   help="settings suited to the activity (see physmocap/presets.py)")
+                   help=describe(Settings, "detect.person_box"))
+    p.add_argument("--one-euro", action="store_true", help=describe(Settings, "fit.one_euro"))
+    p.add_argument("--preset", choices=sorted(PRESETS), help="settings suited to the activity (see "
+                                                             "physmocap/presets.py)")
     p.add_argument("--smoothing", type=float, default=None,
-                   help="smoothing strength, 1 = default, 0 = none, up to 100")
-    p.add_argument("--foot-lock", choices=("auto", "always", "never"), default=None,
-                   help="contacts for physics: predicted (auto), whenever a sole is near the floor (always), "
-                        "or none, e.g. airborne or swimming motion (never)")
+                   help="smoothing strength: factor on the fit's temporal weights, 1 the settings', 0 none "
+                        f"({SMOOTHING_LIMITS[0]:g} .. {SMOOTHING_LIMITS[1]:g})")
+    p.add_argument("--foot-lock", choices=declaration(Settings, "physics.foot_lock").metadata["choices"],
+                   default=None, help=describe(Settings, "physics.foot_lock"))
     p.add_argument("--config", type=Path, help="TOML settings file (see README)")
 
 
 def settings_from_args(args):
     from .config import load_settings
-
     from .presets import apply_preset, apply_smoothing
 
     s = load_settings(args.config)

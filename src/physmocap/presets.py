@@ -9,10 +9,9 @@ strength scales the fit's temporal weights.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Any
-
-import numpy as np
 
 from .config import Settings
 from .errors import InputError
@@ -25,6 +24,8 @@ class Preset:
     overrides: dict[str, dict[str, Any]]
     rationale: str
 
+
+SMOOTHING_LIMITS = (0.0, 100.0)  # the smoothing strength's range, a dimensionless factor
 
 PRESETS: dict[str, Preset] = {
     "walking": Preset(
@@ -75,10 +76,11 @@ def apply_preset(settings: Settings, name: str) -> Settings:
 
 def apply_smoothing(settings: Settings, strength: float) -> Settings:
     """`settings` with the fit's temporal weights (joint acceleration `fit.weight_smooth` and depth change
-    `fit.weight_depth`) multiplied by `strength`: 0 turns smoothing off, 1 keeps the settings, 3 smooths three
-    times as strongly. Dimensionless, 0 .. 100."""
-    if not np.isfinite(strength) or not 0.0 <= strength <= 100.0:
-        raise InputError(f"smoothing strength = {strength} is out of range: expected 0 to 100.")
+    `fit.weight_depth`) multiplied by `strength` (within SMOOTHING_LIMITS): 0 turns smoothing off, 1 keeps the
+    settings, 3 smooths three times as strongly."""
+    low, high = SMOOTHING_LIMITS
+    if not math.isfinite(strength) or not low <= strength <= high:
+        raise InputError(f"smoothing strength = {strength} is out of range: expected {low:g} to {high:g}.")
     if strength == 1.0:
         return settings
     fit = dataclasses.replace(settings.fit, weight_smooth=settings.fit.weight_smooth * strength,
