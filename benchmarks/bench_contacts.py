@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
 
+# isort: split
+
 import argparse
 import csv
 import functools
@@ -38,7 +40,13 @@ from common import MOCAP, REPO, RESULTS, VIDEOS, git_revision, machine_descripti
 from physmocap import metrics
 from physmocap.contacts.baselines import HeuristicSettings, always_contact, velocity_2d, velocity_3d
 from physmocap.contacts.dataset import (
-    TEST_SUBJECTS, SyntheticSequence, held_out_settings, load_clips, make_sequences, mocap_files, split_by_subject,
+    TEST_SUBJECTS,
+    SyntheticSequence,
+    held_out_settings,
+    load_clips,
+    make_sequences,
+    mocap_files,
+    split_by_subject,
 )
 from physmocap.contacts.labels import CONTACT_SITES
 from physmocap.contacts.predict import MODES, WEIGHTS_DIR, predict_contacts
@@ -115,7 +123,7 @@ def scores(predicted: np.ndarray, truth: np.ndarray) -> dict[str, object]:
     return {"accuracy": overall["accuracy"], "precision": overall["precision"], "recall": overall["recall"],
             "f1": overall["f1"], "entries": int(judged.sum()),
             "per_site": {site: {key: s[key] for key in ("accuracy", "precision", "recall", "f1")}
-                         for site, s in zip(CONTACT_SITES, per_column)}}
+                         for site, s in zip(CONTACT_SITES, per_column, strict=True)}}
 
 
 def evaluate(method: str, cases: list[tuple[Observations, np.ndarray, np.ndarray]], weights: Path,
@@ -144,7 +152,7 @@ def inference_ms(weights: Path) -> dict[str, float]:
     timings = {}
     for mode in MODES:
         predict_contacts(obs, mode, weights)  # load the weights once
-        seconds, _ = median_time(lambda: predict_contacts(obs, mode, weights), repeats=5)
+        seconds, _ = median_time(functools.partial(predict_contacts, obs, mode, weights), repeats=5)
         timings[mode] = 1000.0 * seconds / TIMING_FRAMES
     return timings
 
@@ -200,7 +208,7 @@ def error_locations(sequences: list[SyntheticSequence], weights: Path) -> dict[s
         groups = {f"subject {name}": subject == name for name in TEST_SUBJECTS}
         groups.update({f"motion: {name}": kind == name for name in sorted(set(kind.ravel()))})
         groups.update({f"{low}-{high} s from a label change": (distance >= low) & (distance < high)
-                       for low, high in zip(TRANSITION_BINS[:-1], TRANSITION_BINS[1:])})
+                       for low, high in zip(TRANSITION_BINS[:-1], TRANSITION_BINS[1:], strict=True)})
         result[mode] = {name: {"entries": float(inside.mean()), "accuracy": float(1.0 - wrong[inside].mean()),
                                "errors": float(wrong[inside].sum() / max(wrong.sum(), 1))}
                         for name, inside in groups.items()}
@@ -243,7 +251,7 @@ def main() -> None:
     seen_motions = {m: evaluate(m, seen_cases, args.weights, heuristics) for m in METHODS}
     real = {m: evaluate(m, real_cases, args.weights, heuristics) for m in METHODS}
     per_video = {name: {m: evaluate(m, [case], args.weights, heuristics) for m in METHODS}
-                 for name, case in zip(labels, real_cases)}
+                 for name, case in zip(labels, real_cases, strict=True)}
     locations = error_locations(test, args.weights)
     timings = inference_ms(args.weights)
     training = json.loads((args.weights / "training.json").read_text()) if (args.weights / "training.json").exists() else {}

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
 
+# isort: split
+
 import argparse
 import json
 import os
@@ -29,7 +31,13 @@ from concurrent.futures import ProcessPoolExecutor
 from common import MOCAP, RESULTS, git_revision, machine_description
 from physmocap.contacts import train
 from physmocap.contacts.dataset import (
-    TEST_SUBJECTS, SyntheticSettings, held_out_settings, load_clips, make_sequences, mocap_files, split_by_subject,
+    TEST_SUBJECTS,
+    SyntheticSettings,
+    held_out_settings,
+    load_clips,
+    make_sequences,
+    mocap_files,
+    split_by_subject,
 )
 from physmocap.contacts.predict import MODES, load_weights
 from physmocap.contacts.train import ContactTrainingSettings, train_contacts
@@ -108,7 +116,7 @@ def main() -> None:
               f"{args.jobs} trainings at once.")
     tasks = [(mode, with_test, args.variants, args.seed) for mode in args.modes for with_test in (False, True)]
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        rows = list(pool.map(trained_and_scored, *zip(*tasks)))
+        rows = list(pool.map(trained_and_scored, *zip(*tasks, strict=True)))
     for row in rows:
         print(json.dumps(row))
     write(rows, vars(args), header)

@@ -16,7 +16,10 @@ from __future__ import annotations
 
 import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
 
+# isort: split
+
 import argparse
+import functools
 import json
 import statistics
 import sys
@@ -129,7 +132,8 @@ def main(argv=None) -> dict:
         obs = detections(video)
         row = dict(detect_ms_per_frame=obs.seconds_per_frame * 1000)
         for mode in ("offline", "online"):
-            seconds, motion = median_time(lambda: fit_motion(obs, Settings(online=mode == "online")), args.repeats)
+            seconds, motion = median_time(functools.partial(fit_motion, obs, Settings(online=mode == "online")),
+                                          args.repeats)
             row[f"fit_ms_per_frame_{mode}"] = seconds / obs.num_frames * 1000
             row[mode] = quality(obs, motion)
             row[mode]["report"] = no_truth_metrics(obs, motion)

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
 
+# isort: split
+
 import argparse
 import dataclasses
 import json
@@ -33,7 +35,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 from common import MOCAP, RESULTS  # noqa: E402
 from physmocap.body import kinematics as kin  # noqa: E402
-from physmocap.body.model import SkeletonLengths, TEMPLATE_RATIOS  # noqa: E402
+from physmocap.body.model import TEMPLATE_RATIOS, SkeletonLengths  # noqa: E402
 from physmocap.config import Settings  # noqa: E402
 from physmocap.contacts.noise import MEDIAPIPE_NOISE  # noqa: E402
 from physmocap.contacts.predict import predict_contacts  # noqa: E402

@@ -1,6 +1,7 @@
+from pathlib import Path
+
 import numpy as np
 import pytest
-from pathlib import Path
 
 import physmocap  # noqa: F401 - single-threaded BLAS before numpy work
 from physmocap.body import kinematics as kin

@@ -1,11 +1,11 @@
 import numpy as np
 
+from conftest import random_poses
 from physmocap.body import kinematics as kin
 from physmocap.body.model import build_body_model, template_lengths
 from physmocap.kinematics.calibration import calibrate, measure_lengths
 from physmocap.landmarks import LANDMARK_INDEX
 from physmocap.motion import Observations
-from conftest import random_poses
 
 POINT_OF_LANDMARK = {
     "nose": "nose", "left_eye": "left_eye", "right_eye": "right_eye", "left_ear": "left_ear",

@@ -5,12 +5,12 @@ gradient against the cost, and the effect on a motion."""
 import numpy as np
 import pytest
 
+from conftest import assert_frame_terms_jacobian, random_poses
 from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS
 from physmocap.camera import Camera
 from physmocap.config import FitSettings
 from physmocap.kinematics.fit import MARKERS, FitTargets, KinematicFitter
-from conftest import assert_frame_terms_jacobian, random_poses
 
 ALL_TERMS = FitSettings(weight_contact_velocity=10.0, weight_floor=10.0, weight_velocity=0.1,
                         weight_angle_velocity=0.1, robust_2d=0, robust_3d=0)
@@ -81,7 +81,7 @@ def test_velocity_and_angle_signal_jacobians_match_finite_differences(body, came
         qp, qm = fitter.integrate(q, step), fitter.integrate(q, -step)
         plus = fitter.temporal_signals(*fitter.evaluate(qp), qp)
         minus = fitter.temporal_signals(*fitter.evaluate(qm), qm)
-        for (v, J, _), (vp, _, _), (vm, _, _) in zip(signals, plus, minus):
+        for (_, J, _), (vp, _, _), (vm, _, _) in zip(signals, plus, minus, strict=True):
             assert np.allclose((vp - vm) / (2 * eps), J[..., k], atol=1e-6), k
 
 
