@@ -207,9 +207,9 @@ def test_default_width_is_at_most_1280_pixels(body, tmp_path):
         for _ in range(3):
             writer.write(np.full((64, 1600, 3), BACKGROUND, np.uint8))
     report = render_overlay(wide, tmp_path / "out.mp4", np.zeros((3, 0, 2)), [], np.ones(3, bool))
-    assert (report.width, report.height) == (1280, 51)
+    assert (report.width, report.height) == (1280, 52)  # 51 lines stretched to an even height for yuv420p
     _, frames = decode(tmp_path / "out.mp4")
-    assert frames[0].shape == (52, 1280, 3)  # padded to an even height for yuv420p
+    assert frames[0].shape == (52, 1280, 3)
     native = render_overlay(wide, tmp_path / "native.mp4", np.zeros((3, 0, 2)), [], np.ones(3, bool), max_width=None)
     assert native.width == 1600
 
