@@ -118,12 +118,14 @@ def yuv_colour(colour: Colour) -> Colour:
     return round(y), round(u), round(v)
 
 
-def _fixed(point: np.ndarray) -> tuple[int, int]:
-    return int(round(point[0] * (1 << SHIFT))), int(round(point[1] * (1 << SHIFT)))
+def _fixed(points: np.ndarray) -> list[tuple[int, int]]:
+    """(..., 2) pixel positions (drawable ones) as cv2's fixed-point (x, y) tuples, flattened."""
+    scaled = np.round(np.asarray(points, dtype=float).reshape(-1, 2) * (1 << SHIFT)).astype(np.int64)
+    return [tuple(point) for point in scaled.tolist()]
 
 
-def _circle(image: np.ndarray, centre: np.ndarray, radius: float, colour: Colour, thickness: int) -> None:
-    cv2.circle(image, _fixed(centre), int(round(radius * (1 << SHIFT))), colour, thickness, cv2.LINE_AA, SHIFT)
+def _circle(image: np.ndarray, centre: tuple[int, int], radius: float, colour: Colour, thickness: int) -> None:
+    cv2.circle(image, centre, int(round(radius * (1 << SHIFT))), colour, thickness, cv2.LINE_AA, SHIFT)
 
 
 def draw_overlay(
@@ -168,47 +170,51 @@ def _seen_keypoints(keypoints: np.ndarray) -> np.ndarray:
 def _draw_in_place(image: np.ndarray, points_2d: np.ndarray, edges: Sequence[tuple[int, int]],
                    labels: Sequence[str] | None, keypoints: np.ndarray | None, contacts: np.ndarray | None,
                    force_arrows: np.ndarray | None, valid: bool, unexplained: bool,
-                   ink: Callable[[Colour], Colour] = _as_is) -> None:
-    """Draw on `image` in place; `ink` turns each BGR colour into the image's colour space (e.g. yuv_colour)."""
-    width = line_width(image)
+                   ink: Callable[[Colour], Colour] = _as_is, width: int | None = None) -> None:
+    """Draw on `image` in place; `ink` turns each BGR colour into the image's colour space (e.g. yuv_colour);
+    width: the line width in pixels (default: line_width(image); a part of a frame takes the whole frame's)."""
+    width = line_width(image) if width is None else width
     if keypoints is not None:
-        for x, y, _ in _seen_keypoints(keypoints):
-            _circle(image, np.array([x, y]), width, ink(KEYPOINT_COLOUR), cv2.FILLED)
+        for centre in _fixed(_seen_keypoints(keypoints)[:, :2]):
+            _circle(image, centre, width, ink(KEYPOINT_COLOUR), cv2.FILLED)
     if not valid:
         _draw_banner(image, BANNER_TEXT, at_top=True, ink=ink)
         return
     finite = drawable(points_2d)
+    fixed = _fixed(np.where(finite[:, None], points_2d, 0.0))
     for i, j in edges:
         if finite[i] and finite[j]:
-            cv2.line(image, _fixed(points_2d[i]), _fixed(points_2d[j]), ink(edge_colour((i, j), labels)), width,
-                     cv2.LINE_AA, SHIFT)
+            cv2.line(image, fixed[i], fixed[j], ink(edge_colour((i, j), labels)), width, cv2.LINE_AA, SHIFT)
     for i in sorted({i for edge in edges for i in edge}):
         if finite[i]:
             colour = CENTRE_COLOUR if labels is None else side_colour(labels[i])
-            _circle(image, points_2d[i], width, ink(colour), cv2.FILLED)
+            _circle(image, fixed[i], width, ink(colour), cv2.FILLED)
     if contacts is not None:
         for index, in_contact in zip(contact_point_indices(labels), contacts):
             if finite[index]:
-                _circle(image, points_2d[index], 2.5 * width, ink(CONTACT_COLOUR),
+                _circle(image, fixed[index], 2.5 * width, ink(CONTACT_COLOUR),
                         cv2.FILLED if in_contact else max(1, width // 2))
     if force_arrows is not None:
         force_arrows = np.asarray(force_arrows, dtype=float)
-        for start, tip in force_arrows[drawable(force_arrows).all(axis=-1)]:
+        arrows = force_arrows[drawable(force_arrows).all(axis=-1)]
+        ends = _fixed(arrows)
+        for (start, tip), start_fixed, tip_fixed in zip(arrows, ends[0::2], ends[1::2]):
             length = np.linalg.norm(tip - start)
             if length > 0.5:
                 # The head is at most 6 line widths long: DRAWN_MARGIN_LINE_WIDTHS counts on it.
-                cv2.arrowedLine(image, _fixed(start), _fixed(tip), ink(FORCE_COLOUR), width, cv2.LINE_AA, SHIFT,
+                cv2.arrowedLine(image, start_fixed, tip_fixed, ink(FORCE_COLOUR), width, cv2.LINE_AA, SHIFT,
                                 tipLength=min(0.3, 6.0 * width / length))
     if unexplained:
         _draw_banner(image, UNEXPLAINED_TEXT, at_top=False, ink=ink)
 
 
-def _drawn_box(size: tuple[int, int], points_2d: np.ndarray, keypoints: np.ndarray | None,
+def _drawn_box(size: tuple[int, int], line: int, points_2d: np.ndarray, keypoints: np.ndarray | None,
                force_arrows: np.ndarray | None, valid: bool, unexplained: bool) -> tuple[int, int, int, int] | None:
     """(x0, y0, x1, y1), even pixel bounds within the (width, height) image, of all that _draw_in_place draws
-    with these inputs; None when it draws nothing."""
+    with these inputs and lines `line` pixels wide; None when it draws nothing. Banners span the whole width and
+    reach the image's edge, so that _draw_banner places them alike in the box and in the image."""
     width, height = size
-    margin = DRAWN_MARGIN_LINE_WIDTHS * max(2, round(min(width, height) / 240)) + DRAWN_MARGIN_PX  # line_width
+    margin = DRAWN_MARGIN_LINE_WIDTHS * line + DRAWN_MARGIN_PX
     drawn = [] if keypoints is None else [_seen_keypoints(keypoints)[:, :2]]
     if valid:
         drawn.append(points_2d[drawable(points_2d)])
@@ -231,33 +237,49 @@ def _drawn_box(size: tuple[int, int], points_2d: np.ndarray, keypoints: np.ndarr
     return int(x0) // 2 * 2, int(y0) // 2 * 2, min(width, -(-int(x1) // 2) * 2), min(height, -(-int(y1) // 2) * 2)
 
 
-def _draw_yuv420(planes: tuple[np.ndarray, np.ndarray, np.ndarray], work: np.ndarray, points_2d: np.ndarray,
+class YuvScratch:
+    """Full-size work images for _draw_yuv420, reused frame after frame (fresh megabyte arrays cost page faults
+    every frame): the drawn box as Y, U, V per pixel, and its chroma at full resolution."""
+
+    def __init__(self, width: int, height: int) -> None:
+        self.yuv = np.empty((height, width, 3), np.uint8)
+        self.chroma = [np.empty((height, width), np.uint8) for _ in range(2)]
+
+
+def _draw_yuv420(planes: tuple[np.ndarray, np.ndarray, np.ndarray], scratch: YuvScratch, points_2d: np.ndarray,
                  edges: Sequence[tuple[int, int]], labels: Sequence[str] | None, keypoints: np.ndarray | None,
                  contacts: np.ndarray | None, force_arrows: np.ndarray | None, valid: bool,
                  unexplained: bool) -> None:
     """_draw_in_place on a yuv420p picture's planes (Y (H, W), U and V (H/2, W/2), modified in place).
 
-    Only the region the markers cover is touched: there the planes are gathered into `work` (H, W, 3), a scratch
-    image of the full size, as Y, U, V per pixel (chroma repeated 2 x 2), drawn on with the colours in Y, U, V
-    (blending is linear, so this equals drawing in BGR and converting), and scattered back, chroma averaged 2 x 2.
+    Only the box the markers cover is touched: there the planes are merged into one Y, U, V image (chroma
+    repeated 2 x 2), drawn on with the colours in Y, U, V (blending is linear, so this equals drawing in BGR and
+    converting) and split back, chroma averaged 2 x 2 (unchanged where nothing was drawn).
     """
     y_plane, u_plane, v_plane = planes
-    box = _drawn_box((y_plane.shape[1], y_plane.shape[0]), points_2d, keypoints, force_arrows, valid, unexplained)
+    height, width = y_plane.shape
+    line = max(2, round(min(width, height) / 240))  # line_width of the whole frame
+    box = _drawn_box((width, height), line, points_2d, keypoints, force_arrows, valid, unexplained)
     if box is None:
         return
     x0, y0, x1, y1 = box
-    region = work[y0:y1, x0:x1]
-    region[..., 0] = y_plane[y0:y1, x0:x1]
-    for channel, plane in ((1, u_plane), (2, v_plane)):
-        region[..., channel] = cv2.resize(plane[y0 // 2:y1 // 2, x0 // 2:x1 // 2], (x1 - x0, y1 - y0),
-                                          interpolation=cv2.INTER_NEAREST)
-    _draw_in_place(work, points_2d, edges, labels, keypoints, contacts, force_arrows, valid, unexplained,
-                   ink=yuv_colour)
-    y_plane[y0:y1, x0:x1] = region[..., 0]
-    for channel, plane in ((1, u_plane), (2, v_plane)):
-        plane[y0 // 2:y1 // 2, x0 // 2:x1 // 2] = cv2.resize(np.ascontiguousarray(region[..., channel]),
-                                                             ((x1 - x0) // 2, (y1 - y0) // 2),
-                                                             interpolation=cv2.INTER_AREA)
+    size = (x1 - x0, y1 - y0)
+    luma = y_plane[y0:y1, x0:x1]
+    halves = [plane[y0 // 2:y1 // 2, x0 // 2:x1 // 2] for plane in (u_plane, v_plane)]
+    full = [chroma[:size[1], :size[0]] for chroma in scratch.chroma]
+    region = scratch.yuv[:size[1], :size[0]]
+    for half, chroma in zip(halves, full):
+        cv2.resize(half, size, dst=chroma, interpolation=cv2.INTER_NEAREST)
+    cv2.merge([luma, *full], dst=region)
+    origin = np.array([x0, y0], dtype=float)
+    _draw_in_place(region, points_2d - origin, edges, labels,
+                   None if keypoints is None else keypoints - np.append(origin, 0.0), contacts,
+                   None if force_arrows is None else force_arrows - origin, valid, unexplained,
+                   ink=yuv_colour, width=line)
+    cv2.extractChannel(region, 0, dst=luma)
+    for channel, (half, chroma) in enumerate(zip(halves, full), start=1):
+        cv2.extractChannel(region, channel, dst=chroma)
+        cv2.resize(chroma, (size[0] // 2, size[1] // 2), dst=half, interpolation=cv2.INTER_AREA)
 
 
 def force_arrow_scale(body_mass: float, body_height: float) -> float:
@@ -395,8 +417,8 @@ def render_overlay(
     info = frames.info
     out_width, out_height = frames.output_size
     scale = np.array([out_width / info.width, out_height / info.height])  # native pixels -> output pixels
-    work = np.empty((out_height, out_width, 3), np.uint8)  # scratch for _draw_yuv420
     canvas = None  # the picture drawn on and encoded, reused frame after frame
+    scratch = YuvScratch(out_width, out_height)
     with VideoWriter(out_path, info.fps, out_width, out_height, crf=OVERLAY_CRF, preset=OVERLAY_PRESET) as writer:
         for index, picture in frames:
             if index >= T:
@@ -405,7 +427,7 @@ def render_overlay(
                 raise OverlayCancelled(f"{out_path}: rendering was cancelled.")
             canvas = copy_yuv420(picture, canvas)
             _draw_yuv420(
-                yuv420_planes(canvas), work, points_2d[index] * scale, edges, labels,
+                yuv420_planes(canvas), scratch, points_2d[index] * scale, edges, labels,
                 None if keypoints is None else keypoints[index] * np.append(scale, 1.0),
                 None if contacts is None else contacts[index],
                 None if force_arrows is None else force_arrows[index] * scale,
