@@ -117,14 +117,15 @@ def load_average() -> str:
     return " ".join(Path("/proc/loadavg").read_text().split()[:3])
 
 
-def run_case(video: Path, run_dir: Path, extra_args: list[str]) -> dict:
-    """One `physmocap capture` in a child under /usr/bin/time -v: wall seconds, peak MB, stages, outputs."""
+def run_case(video: Path, run_dir: Path, extra_args: list[str], source: Path = REPO / "src") -> dict:
+    """One `physmocap capture` in a child under /usr/bin/time -v, with the physmocap in `source`: wall seconds,
+    peak MB, stages, outputs."""
     timings = run_dir.with_suffix(".outputs.json")
     command = ["/usr/bin/time", "-v", sys.executable, __file__, "--child", str(timings), "capture", str(video),
                "-o", str(run_dir), *extra_args]
     load_before = load_average()
     started = time.perf_counter()
-    done = subprocess.run(command, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(REPO / "src")})
+    done = subprocess.run(command, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(source)})
     wall = time.perf_counter() - started
     if done.returncode != 0:
         raise RuntimeError(f"capture failed ({done.returncode}):\n{done.stdout}\n{done.stderr[-3000:]}")
@@ -141,7 +142,7 @@ def run_case(video: Path, run_dir: Path, extra_args: list[str]) -> dict:
     outputs_cpu = child_report["cpu_seconds"]["write_outputs"] - writer_cpu.get("write_report", 0.0)
     detect_cpu = child_report["cpu_seconds"].get("detect_video")
     return dict(
-        video=video.name, frames=summary["frames"], video_seconds=round(duration, 2), width=info.width,
+        video=video.name, code=str(source), frames=summary["frames"], video_seconds=round(duration, 2), width=info.width,
         height=info.height, args=" ".join(extra_args), wall_seconds=round(wall, 1),
         wall_over_duration=round(wall / duration, 2), cpu_seconds=round(cpu, 1),
         cpu_over_duration_per_core=round(cpu / (os.cpu_count() or 1) / duration, 2),
@@ -393,7 +394,7 @@ def main() -> int:
     parser.add_argument("--repeats", type=int, default=3, help="overlay-only: runs per case (median)")
     parser.add_argument("--presets", nargs="+", default=None, help="overlay-only: libx264 presets to compare")
     parser.add_argument("--before", type=Path, default=None,
-                        help="overlay-only: also render with the physmocap in this src folder, side by side")
+                        help="also run with the physmocap in this src folder, side by side (captures: that one first)")
     parser.add_argument("--overlay-pieces", action="store_true", help="CPU ms per frame of each overlay step")
     parser.add_argument("--time-orientation", action="store_true", help="only issue 24's time and rotation cases")
     parser.add_argument("--json", type=Path, default=None, help="also write the rows here")
@@ -429,8 +430,11 @@ def main() -> int:
         for seconds in args.seconds:
             for height in args.heights:
                 video = looped_video(CLIP, args.videos / f"loop_{height}p_{seconds:g}s.mp4", seconds, height)
-                rows.append(run_case(video, runs / f"{height}p_{seconds:g}s", shlex.split(args.args)))
-                print(json.dumps(rows[-1]), flush=True)
+                sources = [REPO / "src"] if args.before is None else [args.before.resolve(), REPO / "src"]
+                for source in sources:
+                    suffix = "_before" if source != REPO / "src" else ""
+                    rows.append(run_case(video, runs / f"{height}p_{seconds:g}s{suffix}", shlex.split(args.args), source))
+                    print(json.dumps(rows[-1]), flush=True)
     if args.json is not None:
         args.json.write_text(json.dumps(rows, indent=2))
     return 0
