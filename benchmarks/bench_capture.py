@@ -269,14 +269,13 @@ def overlay_side_by_side(video: Path, width: int | None, repeats: int, before: P
 def overlay_pieces(video: Path, width: int, frames: int = 300) -> dict:
     """CPU ms per frame of each step of the overlay, old way and new, each over the first `frames` frames on its
     own (all threads of the process; decoding uses PyAV's frame threads as the reader does)."""
-    import io
     import itertools
 
     import cv2
 
     from physmocap.body.kinematics import forward_kinematics
     from physmocap.body.model import build_body_model, template_lengths
-    from physmocap.io.video import copy_yuv420, yuv420_planes
+    from physmocap.io.video import VideoWriter, copy_yuv420, yuv420_planes
     from physmocap.viz import overlay
 
     def cpu_ms(step, items):
@@ -300,15 +299,12 @@ def overlay_pieces(video: Path, width: int, frames: int = 300) -> dict:
     drawing = (pixels, edges, body.point_names, keypoints, contacts, arrows, True, False)
 
     def encode(pictures) -> int:
-        buffer = io.BytesIO()
-        with av.open(buffer, "w", format="mp4") as target:
-            out = target.add_stream("libx264", rate=30)
-            out.width, out.height, out.pix_fmt = width, height, "yuv420p"
-            out.options = {"crf": str(overlay.OVERLAY_CRF), "preset": overlay.OVERLAY_PRESET}
-            for picture in pictures:  # through a picture of our own, as render_overlay does
-                target.mux(out.encode(copy_yuv420(picture, canvas)))
-            target.mux(out.encode(None))
-        return buffer.getbuffer().nbytes
+        with tempfile.TemporaryDirectory() as folder:
+            path = Path(folder) / "overlay.mp4"
+            with VideoWriter(path, 30.0, width, height, crf=overlay.OVERLAY_CRF, preset=overlay.OVERLAY_PRESET) as out:
+                for picture in pictures:  # through a picture of our own, as render_overlay does
+                    out.write_yuv420(copy_yuv420(picture, canvas))
+            return path.stat().st_size
 
     row = dict(video=video.name, input=f"{decoded[0].width}x{decoded[0].height}", output=f"{width}x{height}",
                frames=len(decoded), decode_ms=decode_ms)
