@@ -162,6 +162,15 @@ def drawable(points: np.ndarray) -> np.ndarray:
         return np.all(np.isfinite(points) & (np.abs(points) < MAX_DRAWN_COORDINATE), axis=-1)
 
 
+@functools.lru_cache(maxsize=8)
+def _palette(edges: tuple[tuple[int, int], ...], labels: tuple[str, ...] | None, ink: Callable[[Colour], Colour]
+             ) -> tuple[list[Colour], list[tuple[int, Colour]]]:
+    """The colours of the bones, and the points drawn with their colours, in `ink`; the same every frame."""
+    points = sorted({i for edge in edges for i in edge})
+    return ([ink(edge_colour(edge, labels)) for edge in edges],
+            [(i, ink(CENTRE_COLOUR if labels is None else side_colour(labels[i]))) for i in points])
+
+
 def _seen_keypoints(keypoints: np.ndarray) -> np.ndarray:
     """(K, 3) the detector keypoints that are drawn: finite, near the image, confident enough."""
     return keypoints[drawable(keypoints[:, :2]) & (keypoints[:, 2] >= KEYPOINT_MIN_CONFIDENCE)]
@@ -182,13 +191,14 @@ def _draw_in_place(image: np.ndarray, points_2d: np.ndarray, edges: Sequence[tup
         return
     finite = drawable(points_2d)
     fixed = _fixed(np.where(finite[:, None], points_2d, 0.0))
-    for i, j in edges:
+    edge_colours, point_colours = _palette(tuple((int(i), int(j)) for i, j in edges),
+                                           None if labels is None else tuple(labels), ink)
+    for (i, j), colour in zip(edges, edge_colours):
         if finite[i] and finite[j]:
-            cv2.line(image, fixed[i], fixed[j], ink(edge_colour((i, j), labels)), width, cv2.LINE_AA, SHIFT)
-    for i in sorted({i for edge in edges for i in edge}):
+            cv2.line(image, fixed[i], fixed[j], colour, width, cv2.LINE_AA, SHIFT)
+    for i, colour in point_colours:
         if finite[i]:
-            colour = CENTRE_COLOUR if labels is None else side_colour(labels[i])
-            _circle(image, fixed[i], width, ink(colour), cv2.FILLED)
+            _circle(image, fixed[i], width, colour, cv2.FILLED)
     if contacts is not None:
         for index, in_contact in zip(contact_point_indices(labels), contacts):
             if finite[index]:
