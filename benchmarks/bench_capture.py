@@ -240,11 +240,33 @@ def overlay_speed(video: Path, width: int | None, repeats: int) -> dict:
             times.append(time.perf_counter() - started)
             cpu.append(time.process_time() - cpu_started)  # all threads: decoder, drawing, x264
             size = (Path(folder) / "overlay.mp4").stat().st_size
+        background_error = background_difference(video, Path(folder) / "overlay.mp4", report.width)
     seconds = float(np.median(times))
     return dict(video=video.name, input=f"{info.width}x{info.height}", output=f"{report.width}x{report.height}",
                 preset=overlay.OVERLAY_PRESET, frames=T, seconds=round(seconds, 2), fps=round(T / seconds, 1),
                 cpu_ms_per_frame=round(1000 * float(np.median(cpu)) / T, 1), megabytes=round(size / 1e6, 1),
+                background_error=background_error,
                 repeats=repeats, load_average=load_average())
+
+
+def background_difference(video: Path, overlay_video: Path, width: int, every: int = 50) -> float:
+    """Mean absolute difference (0-255, BGR) between the overlay and its source video, scaled to the overlay's
+    width, in the left quarter of every `every`-th frame, where overlay_speed draws nothing."""
+    import itertools
+
+    import cv2
+
+    def frames(path: Path) -> list[np.ndarray]:
+        with av.open(str(path)) as container:
+            decoded = itertools.islice(container.decode(container.streams.video[0]), 0, None, every)
+            return [frame.to_ndarray(format="bgr24") for frame in decoded]
+
+    differences = []
+    for source, drawn in zip(frames(video), frames(overlay_video)):
+        source = cv2.resize(source, drawn.shape[1::-1], interpolation=cv2.INTER_AREA)
+        quarter = drawn.shape[1] // 4
+        differences.append(np.abs(source[:, :quarter].astype(int) - drawn[:, :quarter]).mean())
+    return round(float(np.mean(differences)), 2)
 
 
 def overlay_side_by_side(video: Path, width: int | None, repeats: int, before: Path) -> list[dict]:
