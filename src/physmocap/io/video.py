@@ -1,11 +1,11 @@
 """Reading videos and writing browser-playable H.264 MP4 files, both through PyAV (FFmpeg).
 
 Frames are BGR uint8 arrays of shape (H, W, 3), upright: a video's rotation metadata (the display matrix phones
-write) is applied to every frame. A reader can also hand out the decoder's yuv420p pictures (`pixel_format=
-"yuv420p"`), which a writer encodes as they are (`VideoWriter.write_yuv420`): no colour conversion either way. Time comes from the container's presentation timestamps (PTS): a video with a
+write) is applied to every frame. Time comes from the container's presentation timestamps (PTS): a video with a
 variable frame rate is resampled to a constant rate, its typical (median) frame interval, by giving each time
 on that grid the source frame nearest to it, so that frame i is always at time i / fps (see README, "Time and
-orientation").
+orientation"). A reader can also hand out the decoder's yuv420p pictures (`pixel_format="yuv420p"`), which a
+writer encodes as they are (`VideoWriter.write_yuv420`): no colour conversion either way.
 """
 
 from __future__ import annotations
@@ -229,7 +229,7 @@ class FrameReader:
             width, height = width + width % 2, height + height % 2
         return width, height
 
-    def __iter__(self) -> Iterator[tuple[int, np.ndarray]]:
+    def __iter__(self) -> Iterator[tuple[int, np.ndarray | av.VideoFrame]]:
         self.frames_read = 0
         if self.prefetch <= 0:
             yield from self._decode(threading.Event())
@@ -266,7 +266,7 @@ class FrameReader:
                     frames.get_nowait()
             producer.join()
 
-    def _decode(self, stop: threading.Event) -> Iterator[tuple[int, np.ndarray]]:
+    def _decode(self, stop: threading.Event) -> Iterator[tuple[int, np.ndarray | av.VideoFrame]]:
         width, height = self.output_size
         rotation = self.info.rotation
         stored = (height, width) if rotation in (90, 270) else (width, height)
@@ -284,9 +284,11 @@ class FrameReader:
                     # The same size and format come back as the decoder's picture itself, without a copy.
                     picture = frame.reformat(width=stored[0], height=stored[1], format="yuv420p",
                                              interpolation="AREA")
-                    for _ in range(copies):
+                    if rotation:
+                        picture = _rotated_yuv420(picture, rotation)
+                    for _ in range(copies):  # repeats share the picture: callers copy before drawing
                         self.frames_read += 1
-                        yield self.frames_read - 1, _rotated_yuv420(picture, rotation) if rotation else picture
+                        yield self.frames_read - 1, picture
                     continue
                 image = frame.to_ndarray(format="bgr24", width=stored[0], height=stored[1], interpolation="AREA")
                 if rotation:

@@ -268,7 +268,7 @@ def _draw_yuv420(planes: tuple[np.ndarray, np.ndarray, np.ndarray], scratch: Yuv
     """
     y_plane, u_plane, v_plane = planes
     height, width = y_plane.shape
-    line = max(2, round(min(width, height) / 240))  # line_width of the whole frame
+    line = line_width(y_plane)  # the whole frame's, not the box's
     box = _drawn_box((width, height), line, points_2d, keypoints, force_arrows, valid, unexplained)
     if box is None:
         return
