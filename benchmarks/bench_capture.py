@@ -142,8 +142,8 @@ def run_case(video: Path, run_dir: Path, extra_args: list[str], source: Path = R
     outputs_cpu = child_report["cpu_seconds"]["write_outputs"] - writer_cpu.get("write_report", 0.0)
     detect_cpu = child_report["cpu_seconds"].get("detect_video")
     return dict(
-        video=video.name, code=str(source), frames=summary["frames"], video_seconds=round(duration, 2), width=info.width,
-        height=info.height, args=" ".join(extra_args), wall_seconds=round(wall, 1),
+        video=video.name, code=str(source), frames=summary["frames"], video_seconds=round(duration, 2),
+        width=info.width, height=info.height, args=" ".join(extra_args), wall_seconds=round(wall, 1),
         wall_over_duration=round(wall / duration, 2), cpu_seconds=round(cpu, 1),
         cpu_over_duration_per_core=round(cpu / (os.cpu_count() or 1) / duration, 2),
         # the child resets the kernel's high-water mark before each stage, which /usr/bin/time reads too
@@ -451,7 +451,8 @@ def main() -> int:
                 sources = [REPO / "src"] if args.before is None else [args.before.resolve(), REPO / "src"]
                 for source in sources:
                     suffix = "_before" if source != REPO / "src" else ""
-                    rows.append(run_case(video, runs / f"{height}p_{seconds:g}s{suffix}", shlex.split(args.args), source))
+                    run_dir = runs / f"{height}p_{seconds:g}s{suffix}"
+                    rows.append(run_case(video, run_dir, shlex.split(args.args), source))
                     print(json.dumps(rows[-1]), flush=True)
     if args.json is not None:
         args.json.write_text(json.dumps(rows, indent=2))
