@@ -12,11 +12,13 @@ every loop, as in any looped clip.
     .venv/bin/python benchmarks/bench_capture.py                       # 10 s and 60 s at 720p and 1080p
     .venv/bin/python benchmarks/bench_capture.py --seconds 10 60 600   # the full set (the 10-minute runs take long)
     .venv/bin/python benchmarks/bench_capture.py --seconds 60 --heights 720 --args=--physics=physcap
+    .venv/bin/python benchmarks/bench_capture.py --seconds 60 --heights 720 --before ../old/src  # old, then this
     .venv/bin/python benchmarks/bench_capture.py --overlay-only        # overlay frames per second at 1280 px
     .venv/bin/python benchmarks/bench_capture.py --overlay-only --before ../main/src   # and an older checkout's
     .venv/bin/python benchmarks/bench_capture.py --overlay-pieces      # CPU ms per frame of each overlay step
     .venv/bin/python benchmarks/bench_capture.py --time-orientation    # issue 24: variable rate, rotation
 
+A capture with --before SRC runs first with the physmocap in SRC, then with this checkout's, on the same video.
 --overlay-only --before SRC renders each case with this checkout's physmocap and with the one in SRC, in child
 processes, alternating run by run so that both see the same load. Detection's CPU seconds in a capture come from
 its own timer around detect_video; an output writer's CPU seconds are those of the thread that ran it (the overlay
