@@ -12,8 +12,17 @@ every loop, as in any looped clip.
     .venv/bin/python benchmarks/bench_capture.py                       # 10 s and 60 s at 720p and 1080p
     .venv/bin/python benchmarks/bench_capture.py --seconds 10 60 600   # the full set (the 10-minute runs take long)
     .venv/bin/python benchmarks/bench_capture.py --seconds 60 --heights 720 --args=--physics=physcap
+    .venv/bin/python benchmarks/bench_capture.py --seconds 60 --heights 720 --before ../old/src  # old, then this
     .venv/bin/python benchmarks/bench_capture.py --overlay-only        # overlay frames per second at 1280 px
+    .venv/bin/python benchmarks/bench_capture.py --overlay-only --before ../main/src   # and an older checkout's
+    .venv/bin/python benchmarks/bench_capture.py --overlay-pieces      # CPU ms per frame of each overlay step
     .venv/bin/python benchmarks/bench_capture.py --time-orientation    # issue 24: variable rate, rotation
+
+A capture with --before SRC runs first with the physmocap in SRC, then with this checkout's, on the same video.
+--overlay-only --before SRC renders each case with this checkout's physmocap and with the one in SRC, in child
+processes, alternating run by run so that both see the same load. Detection's CPU seconds in a capture come from
+its own timer around detect_video; an output writer's CPU seconds are those of the thread that ran it (the overlay
+runs in a worker beside the others, so its CPU is the outputs stage's less theirs).
 
 --time-orientation judges whichever physmocap is on PYTHONPATH (point it at an older checkout for "before"):
 a 24/12/8 fps video cut from the demo clip (each frame's index stamped in binary in its corner), read back:
@@ -56,6 +65,8 @@ OUTPUT_WRITERS = (
     ("physmocap.export", "export_result"), ("physmocap.viz.overlay", "render_overlay"),
     ("physmocap.viz.viewer", "write_viewer"), ("physmocap.viz.report", "write_report"),
 )
+# Writers that run in the outputs stage's own thread, beside the overlay's worker.
+MAIN_THREAD_WRITERS = ("build_result", "save_result", "write_bvh", "write_glb", "export_result", "write_viewer")
 # Stages whose own peak resident memory the child records (the kernel's high-water mark, reset before each).
 STAGES = ("detect_stage", "stream_stage", "kinematics_stage", "contacts_stage", "refine_stage", "physics_stage",
           "trajopt_stage", "write_outputs")
@@ -108,14 +119,15 @@ def load_average() -> str:
     return " ".join(Path("/proc/loadavg").read_text().split()[:3])
 
 
-def run_case(video: Path, run_dir: Path, extra_args: list[str]) -> dict:
-    """One `physmocap capture` in a child under /usr/bin/time -v: wall seconds, peak MB, stages, outputs."""
+def run_case(video: Path, run_dir: Path, extra_args: list[str], source: Path = REPO / "src") -> dict:
+    """One `physmocap capture` in a child under /usr/bin/time -v, with the physmocap in `source`: wall seconds,
+    peak MB, stages, outputs."""
     timings = run_dir.with_suffix(".outputs.json")
     command = ["/usr/bin/time", "-v", sys.executable, __file__, "--child", str(timings), "capture", str(video),
                "-o", str(run_dir), *extra_args]
     load_before = load_average()
     started = time.perf_counter()
-    done = subprocess.run(command, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(REPO / "src")})
+    done = subprocess.run(command, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(source)})
     wall = time.perf_counter() - started
     if done.returncode != 0:
         raise RuntimeError(f"capture failed ({done.returncode}):\n{done.stdout}\n{done.stderr[-3000:]}")
@@ -128,9 +140,12 @@ def run_case(video: Path, run_dir: Path, extra_args: list[str]) -> dict:
     child_report = json.loads(timings.read_text())
     outputs = child_report["seconds"]
     overlay_seconds = outputs.get("render_overlay")
+    writer_cpu = child_report["writer_cpu_seconds"]
+    outputs_cpu = child_report["cpu_seconds"]["write_outputs"] - writer_cpu.get("write_report", 0.0)
+    detect_cpu = child_report["cpu_seconds"].get("detect_video")
     return dict(
-        video=video.name, frames=summary["frames"], video_seconds=round(duration, 2), width=info.width,
-        height=info.height, args=" ".join(extra_args), wall_seconds=round(wall, 1),
+        video=video.name, code=str(source), frames=summary["frames"], video_seconds=round(duration, 2),
+        width=info.width, height=info.height, args=" ".join(extra_args), wall_seconds=round(wall, 1),
         wall_over_duration=round(wall / duration, 2), cpu_seconds=round(cpu, 1),
         cpu_over_duration_per_core=round(cpu / (os.cpu_count() or 1) / duration, 2),
         # the child resets the kernel's high-water mark before each stage, which /usr/bin/time reads too
@@ -140,6 +155,12 @@ def run_case(video: Path, run_dir: Path, extra_args: list[str]) -> dict:
         output_seconds={k: round(v, 2) for k, v in outputs.items()},
         stage_peak_rss_mb={k: round(v) for k, v in child_report["peak_mb"].items()},
         stage_cpu_seconds={k: round(v, 1) for k, v in child_report.get("cpu_seconds", {}).items()},
+        writer_cpu_seconds={k: round(v, 2) for k, v in writer_cpu.items()},
+        # the stage's CPU without the report, as its wall clock stops before the report
+        outputs_cpu_seconds=round(outputs_cpu, 1),
+        overlay_cpu_seconds=round(outputs_cpu - sum(writer_cpu.get(k, 0.0) for k in MAIN_THREAD_WRITERS), 1)
+        if overlay_seconds else None,
+        outputs_over_detection_cpu=None if not detect_cpu else round(outputs_cpu / detect_cpu, 3),
         overlay_fps=None if not overlay_seconds else round(summary["frames"] / overlay_seconds, 1),
         load_average_before=load_before, load_average_after=load_average(),
     )
@@ -152,14 +173,16 @@ def child(timings_path: str, cli_args: list[str]) -> int:
     from physmocap import cli
 
     seconds: dict[str, float] = {}
+    writer_cpu: dict[str, float] = {}
 
     def timed(name, function):
         def wrapper(*args, **kwargs):
-            started = time.perf_counter()
+            started, cpu_started = time.perf_counter(), time.thread_time()
             try:
                 return function(*args, **kwargs)
             finally:
                 seconds[name] = seconds.get(name, 0.0) + time.perf_counter() - started
+                writer_cpu[name] = writer_cpu.get(name, 0.0) + time.thread_time() - cpu_started
         return wrapper
 
     peak_mb: dict[str, float] = {}
@@ -180,12 +203,15 @@ def child(timings_path: str, cli_args: list[str]) -> int:
     for module_name, attribute in OUTPUT_WRITERS:
         module = importlib.import_module(module_name)
         setattr(module, attribute, timed(attribute, getattr(module, attribute)))
+    detection = importlib.import_module("physmocap.detect.mediapipe_pose")  # the detect stage looks it up there
+    detection.detect_video = high_water("detect_video", detection.detect_video)
     pipeline = importlib.import_module("physmocap.pipeline")
     for stage in STAGES:
         if hasattr(pipeline, stage):
             setattr(pipeline, stage, high_water(stage, getattr(pipeline, stage)))
     code = cli.main(cli_args)
-    Path(timings_path).write_text(json.dumps({"seconds": seconds, "peak_mb": peak_mb, "cpu_seconds": cpu_seconds}))
+    Path(timings_path).write_text(json.dumps({"seconds": seconds, "peak_mb": peak_mb, "cpu_seconds": cpu_seconds,
+                                              "writer_cpu_seconds": writer_cpu}))
     return code or 0
 
 
@@ -216,11 +242,116 @@ def overlay_speed(video: Path, width: int | None, repeats: int) -> dict:
             times.append(time.perf_counter() - started)
             cpu.append(time.process_time() - cpu_started)  # all threads: decoder, drawing, x264
             size = (Path(folder) / "overlay.mp4").stat().st_size
+        background_error = background_difference(video, Path(folder) / "overlay.mp4", report.width)
     seconds = float(np.median(times))
     return dict(video=video.name, input=f"{info.width}x{info.height}", output=f"{report.width}x{report.height}",
                 preset=overlay.OVERLAY_PRESET, frames=T, seconds=round(seconds, 2), fps=round(T / seconds, 1),
                 cpu_ms_per_frame=round(1000 * float(np.median(cpu)) / T, 1), megabytes=round(size / 1e6, 1),
+                background_error=background_error,
                 repeats=repeats, load_average=load_average())
+
+
+def background_difference(video: Path, overlay_video: Path, width: int, every: int = 50) -> float:
+    """Mean absolute difference (0-255, BGR) between the overlay and its source video, scaled to the overlay's
+    width, in the left quarter of every `every`-th frame, where overlay_speed draws nothing."""
+    import itertools
+
+    import cv2
+
+    def frames(path: Path) -> list[np.ndarray]:
+        with av.open(str(path)) as container:
+            decoded = itertools.islice(container.decode(container.streams.video[0]), 0, None, every)
+            return [frame.to_ndarray(format="bgr24") for frame in decoded]
+
+    differences = []
+    for source, drawn in zip(frames(video), frames(overlay_video)):
+        source = cv2.resize(source, drawn.shape[1::-1], interpolation=cv2.INTER_AREA)
+        quarter = drawn.shape[1] // 4
+        differences.append(np.abs(source[:, :quarter].astype(int) - drawn[:, :quarter]).mean())
+    return round(float(np.mean(differences)), 2)
+
+
+def overlay_side_by_side(video: Path, width: int | None, repeats: int, before: Path) -> list[dict]:
+    """overlay_speed of this checkout and of the physmocap in `before`, one render per child process, the two
+    alternating; each side's median over its `repeats` runs."""
+    runs: dict[str, list[dict]] = {"after": [], "before": []}
+    for _ in range(repeats):
+        for side, source in (("before", before), ("after", REPO / "src")):
+            command = [sys.executable, __file__, "--overlay-child", str(video), str(width or 0)]
+            done = subprocess.run(command, capture_output=True, text=True, check=True,
+                                  env={**os.environ, "PYTHONPATH": str(source)})
+            runs[side].append(json.loads(done.stdout.splitlines()[-1]))
+    rows = []
+    for side, source in (("before", before), ("after", REPO / "src")):
+        row = dict(runs[side][0], code=f"{side} ({source})", repeats=repeats, load_average=load_average())
+        for key in ("seconds", "fps", "cpu_ms_per_frame"):
+            row[key] = round(float(np.median([run[key] for run in runs[side]])), 2)
+        rows.append(row)
+    return rows
+
+
+def overlay_pieces(video: Path, width: int, frames: int = 300) -> dict:
+    """CPU ms per frame of each step of the overlay, old way and new, each over the first `frames` frames on its
+    own (all threads of the process; decoding uses PyAV's frame threads as the reader does)."""
+    import itertools
+
+    import cv2
+
+    from physmocap.body.kinematics import forward_kinematics
+    from physmocap.body.model import build_body_model, template_lengths
+    from physmocap.io.video import VideoWriter, copy_yuv420, yuv420_planes
+    from physmocap.viz import overlay
+
+    def cpu_ms(step, items):
+        started = time.process_time()
+        result = [step(item) for item in items]
+        return result, round(1000 * (time.process_time() - started) / len(items), 2)
+
+    with av.open(str(video)) as container:
+        stream = container.streams.video[0]
+        stream.thread_type = "AUTO"
+        started = time.process_time()
+        decoded = list(itertools.islice(container.decode(stream), frames))
+        decode_ms = round(1000 * (time.process_time() - started) / len(decoded), 2)
+    height = 2 * round(decoded[0].height * width / decoded[0].width / 2)
+    body = build_body_model(template_lengths(1.7), 70)
+    world = forward_kinematics(body, body.rest_qpos).points[0]
+    pixels = np.stack([width / 2 - height / 2.2 * world[:, 1], height * 0.95 - height / 2.2 * world[:, 2]], axis=1)
+    keypoints = np.concatenate([pixels[np.arange(33) % len(pixels)], np.full((33, 1), 0.9)], axis=1)
+    arrows = np.stack([pixels[:4], pixels[:4] - [0.0, 80.0]], axis=1)
+    contacts, edges = np.ones(4, bool), overlay.skeleton_edges(body)
+    drawing = (pixels, edges, body.point_names, keypoints, contacts, arrows, True, False)
+
+    def encode(pictures) -> int:
+        with tempfile.TemporaryDirectory() as folder:
+            path = Path(folder) / "overlay.mp4"
+            with VideoWriter(path, 30.0, width, height, crf=overlay.OVERLAY_CRF, preset=overlay.OVERLAY_PRESET) as out:
+                for picture in pictures:  # through a picture of our own, as render_overlay does
+                    out.write_yuv420(copy_yuv420(picture, canvas))
+            return path.stat().st_size
+
+    row = dict(video=video.name, input=f"{decoded[0].width}x{decoded[0].height}", output=f"{width}x{height}",
+               frames=len(decoded), decode_ms=decode_ms)
+    bgr, row["old_to_bgr_scaled_ms"] = cpu_ms(
+        lambda f: f.to_ndarray(format="bgr24", width=width, height=height, interpolation="AREA"), decoded)
+    _, row["old_draw_bgr_ms"] = cpu_ms(lambda image: overlay._draw_in_place(image, *drawing), bgr)
+    _, row["old_bgr_to_yuv420p_ms"] = cpu_ms(
+        lambda image: av.VideoFrame.from_ndarray(image, format="bgr24").reformat(format="yuv420p"), bgr)
+    scaled, row["new_scale_yuv420p_ms"] = cpu_ms(
+        lambda f: f.reformat(width=width, height=height, format="yuv420p", interpolation="AREA"), decoded)
+    canvas = copy_yuv420(scaled[0])
+    _, row["new_copy_ms"] = cpu_ms(lambda picture: copy_yuv420(picture, canvas), scaled)
+    scratch = overlay.YuvScratch(width, height)
+    _, row["new_draw_yuv420p_ms"] = cpu_ms(
+        lambda picture: overlay._draw_yuv420(yuv420_planes(copy_yuv420(picture, canvas)), scratch, *drawing), scaled)
+    row["new_draw_yuv420p_ms"] = round(row["new_draw_yuv420p_ms"] - row["new_copy_ms"], 2)
+    started = time.process_time()
+    size = encode(scaled)
+    row["encode_ms"] = round(1000 * (time.process_time() - started) / len(scaled) - row["new_copy_ms"], 2)
+    row["megabytes_per_10_s"] = round(size / 1e6 * 10 * 30 / len(scaled), 1)
+    row["cv2_threads"] = cv2.getNumThreads()
+    row["load_average"] = load_average()
+    return row
 
 
 def time_and_orientation(folder: Path) -> list[dict]:
@@ -269,6 +400,9 @@ def time_and_orientation(folder: Path) -> list[dict]:
 def main() -> int:
     if len(sys.argv) > 2 and sys.argv[1] == "--child":
         return child(sys.argv[2], sys.argv[3:])
+    if len(sys.argv) == 4 and sys.argv[1] == "--overlay-child":
+        print(json.dumps(overlay_speed(Path(sys.argv[2]), int(sys.argv[3]) or None, 1)))
+        return 0
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seconds", type=float, nargs="+", default=[10, 60])
     parser.add_argument("--heights", type=int, nargs="+", default=[720, 1080])
@@ -279,6 +413,9 @@ def main() -> int:
     parser.add_argument("--overlay-width", type=int, default=1280)
     parser.add_argument("--repeats", type=int, default=3, help="overlay-only: runs per case (median)")
     parser.add_argument("--presets", nargs="+", default=None, help="overlay-only: libx264 presets to compare")
+    parser.add_argument("--before", type=Path, default=None,
+                        help="also run with the physmocap in this src folder, side by side (captures: that one first)")
+    parser.add_argument("--overlay-pieces", action="store_true", help="CPU ms per frame of each overlay step")
     parser.add_argument("--time-orientation", action="store_true", help="only issue 24's time and rotation cases")
     parser.add_argument("--json", type=Path, default=None, help="also write the rows here")
     args = parser.parse_args()
@@ -288,6 +425,17 @@ def main() -> int:
     if args.time_orientation:
         rows = time_and_orientation(Path(tempfile.mkdtemp(prefix="bench_time_")))
         print("\n".join(json.dumps(row) for row in rows), flush=True)
+    elif args.overlay_pieces:
+        for height in args.heights:
+            video = looped_video(CLIP, args.videos / f"loop_{height}p_10s.mp4", 10, height)
+            rows.append(overlay_pieces(video, args.overlay_width))
+            print(json.dumps(rows[-1]), flush=True)
+    elif args.overlay_only and args.before is not None:
+        for height in args.heights:
+            video = looped_video(CLIP, args.videos / f"loop_{height}p_10s.mp4", 10, height)
+            for row in overlay_side_by_side(video, args.overlay_width, args.repeats, args.before.resolve()):
+                rows.append(row)
+                print(json.dumps(row), flush=True)
     elif args.overlay_only:
         from physmocap.viz import overlay
 
@@ -302,8 +450,12 @@ def main() -> int:
         for seconds in args.seconds:
             for height in args.heights:
                 video = looped_video(CLIP, args.videos / f"loop_{height}p_{seconds:g}s.mp4", seconds, height)
-                rows.append(run_case(video, runs / f"{height}p_{seconds:g}s", shlex.split(args.args)))
-                print(json.dumps(rows[-1]), flush=True)
+                sources = [REPO / "src"] if args.before is None else [args.before.resolve(), REPO / "src"]
+                for source in sources:
+                    suffix = "_before" if source != REPO / "src" else ""
+                    run_dir = runs / f"{height}p_{seconds:g}s{suffix}"
+                    rows.append(run_case(video, run_dir, shlex.split(args.args), source))
+                    print(json.dumps(rows[-1]), flush=True)
     if args.json is not None:
         args.json.write_text(json.dumps(rows, indent=2))
     return 0

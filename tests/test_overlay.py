@@ -15,7 +15,9 @@ from physmocap.body.kinematics import forward_kinematics
 from physmocap.body.model import CONTACT_POINTS, JOINT_NAMES, build_body_model, template_lengths
 from physmocap.io.video import VideoWriter
 from physmocap.viz.figures import result_figure
-from physmocap.viz.overlay import BANNER_COLOUR, render_overlay, skeleton_edges, start_overlay
+from physmocap.io.video import yuv420_planes
+from physmocap.viz.overlay import (BANNER_COLOUR, YuvScratch, _draw_in_place, _draw_yuv420, render_overlay,
+                                   skeleton_edges, start_overlay)
 
 WIDTH, HEIGHT, FRAMES, FPS = 320, 240, 10, 25.0
 BACKGROUND = 60  # grey level of the synthetic frames
@@ -108,6 +110,35 @@ def test_overlay_video_is_h264_with_the_skeleton_drawn(body, scene, video, tmp_p
     banner = frames[3][2:6, :, :].reshape(-1, 3).mean(axis=0)
     assert np.abs(banner - np.array(BANNER_COLOUR)).max() < 40
     assert np.abs(pixel(frames[3], spine_middle) - BACKGROUND).max() < 15
+
+
+@pytest.mark.parametrize("valid, unexplained", [(True, False), (True, True), (False, False)])
+def test_drawing_in_yuv420_equals_drawing_in_bgr_and_converting(body, scene, valid, unexplained):
+    """The overlay draws on the decoder's yuv420p pictures; the result must be the BGR drawing's, converted."""
+    _, pixels = scene
+    x, y = np.meshgrid(np.linspace(0, 1, WIDTH), np.linspace(0, 1, HEIGHT))
+    frame = np.stack([60 + 120 * x, 40 + 150 * y, 200 - 120 * x * y], axis=2).astype(np.uint8)  # textured
+    points = pixels + [25.0, -10.0]  # off centre, so that the drawn box is not the whole frame
+    keypoints = np.concatenate([points, np.full((len(points), 1), 0.9)], axis=1)
+    arrows = np.stack([points[:4], points[:4] - [30.0, 70.0]], axis=1)  # long arrows: heads near the box edge
+    contacts = np.array([True, False, True, False])  # filled and hollow markers
+    drawing = (points, skeleton_edges(body), body.point_names, keypoints, contacts, arrows, valid, unexplained)
+
+    expected_bgr = frame.copy()
+    _draw_in_place(expected_bgr, *drawing)
+    expected = av.VideoFrame.from_ndarray(expected_bgr, format="bgr24").reformat(format="yuv420p")
+    picture = av.VideoFrame.from_ndarray(frame, format="bgr24").reformat(format="yuv420p")
+    untouched = [plane.copy() for plane in yuv420_planes(picture)]
+    _draw_yuv420(yuv420_planes(picture), YuvScratch(WIDTH, HEIGHT), *drawing)
+
+    drawn_y, expected_y = yuv420_planes(picture)[0].astype(int), yuv420_planes(expected)[0].astype(int)
+    # luma: the same strokes everywhere, to the rounding of anti-aliased edges (a stroke cut off differs by ~100)
+    assert np.abs(drawn_y - expected_y).max() <= 6 and np.mean(np.abs(drawn_y - expected_y) > 2) < 0.001
+    assert np.abs(drawn_y - untouched[0]).max() > 100  # and something was drawn
+    for drawn, wanted in zip(yuv420_planes(picture)[1:], yuv420_planes(expected)[1:]):
+        difference = np.abs(drawn.astype(int) - wanted)
+        # chroma: averaged 2 x 2 here, filtered by swscale there: alike but at the strokes' edges
+        assert difference.mean() < 1.0 and np.percentile(difference, 99) <= 12
 
 
 def test_contacts_are_filled_only_while_in_contact(body, scene, video, tmp_path):
@@ -207,9 +238,9 @@ def test_default_width_is_at_most_1280_pixels(body, tmp_path):
         for _ in range(3):
             writer.write(np.full((64, 1600, 3), BACKGROUND, np.uint8))
     report = render_overlay(wide, tmp_path / "out.mp4", np.zeros((3, 0, 2)), [], np.ones(3, bool))
-    assert (report.width, report.height) == (1280, 51)
+    assert (report.width, report.height) == (1280, 52)  # 51 lines stretched to an even height for yuv420p
     _, frames = decode(tmp_path / "out.mp4")
-    assert frames[0].shape == (52, 1280, 3)  # padded to an even height for yuv420p
+    assert frames[0].shape == (52, 1280, 3)
     native = render_overlay(wide, tmp_path / "native.mp4", np.zeros((3, 0, 2)), [], np.ones(3, bool), max_width=None)
     assert native.width == 1600
 

@@ -13,7 +13,7 @@ import pytest
 
 import physmocap
 from physmocap.errors import InputError
-from physmocap.io.video import VideoWriter, iter_frames, probe_video, trim_video
+from physmocap.io.video import VideoWriter, copy_yuv420, iter_frames, probe_video, trim_video, yuv420_planes
 
 DEMO = Path(physmocap.__file__).parent / "data" / "demo" / "taiji_demo.mp4"
 
@@ -233,3 +233,41 @@ def test_prefetching_reader_gives_the_same_frames_and_stops_early_cleanly() -> N
         if index == 5:
             break
     assert prefetched.frames_read <= 6 + 4 + 1
+
+
+@pytest.mark.parametrize("rotation_cw", [0, 90])
+def test_yuv420_pictures_are_the_bgr_frames_without_conversion(tmp_path: Path, rotation_cw: int) -> None:
+    # A variable rate (one frame shown twice) and odd scaled sizes: the pictures follow the BGR frames.
+    stored = gradient_frames(4, 64, 48)
+    path = write_timed_video(tmp_path / "video.mp4", stored, [0, 1, 3, 4], Fraction(1, 25), rotation_cw)
+    for max_width in (None, 47):
+        bgr = iter_frames(path, max_width=max_width)
+        yuv = iter_frames(path, max_width=max_width, prefetch=2, pixel_format="yuv420p")
+        width, height = bgr.output_size
+        assert yuv.output_size == (width + width % 2, height + height % 2)
+        pairs = list(zip(bgr, yuv, strict=True))
+        assert len(pairs) == 5
+        for (_, frame), (_, picture) in pairs:
+            assert picture.format.name == "yuv420p" and (picture.width, picture.height) == yuv.output_size
+            as_bgr = cv2.resize(picture.to_ndarray(format="bgr24"), (width, height), interpolation=cv2.INTER_AREA)
+            assert np.abs(as_bgr.astype(int) - frame).mean() < 4.0
+    with pytest.raises(ValueError, match="pixel_format"):
+        iter_frames(path, pixel_format="rgb24")
+
+
+def test_writer_encodes_one_reused_yuv420_picture_frame_after_frame(tmp_path: Path) -> None:
+    path = tmp_path / "yuv.mp4"
+    levels = [30, 200, 90, 160]
+    picture = None
+    with VideoWriter(path, 25.0, 64, 48, preset="ultrafast") as writer:
+        for level in levels:
+            source = av.VideoFrame.from_ndarray(grey(level), format="bgr24").reformat(format="yuv420p")
+            picture = copy_yuv420(source, picture)  # the same picture, rewritten for every frame
+            luma = yuv420_planes(picture)[0]
+            luma[:8] = 255  # drawn on after the copy
+            writer.write_yuv420(picture)
+        with pytest.raises(ValueError, match="64x48 yuv420p"):
+            writer.write_yuv420(av.VideoFrame(32, 48, "yuv420p"))
+    frames = [frame for _, frame in iter_frames(path)]
+    assert [round(float(frame[8:].mean())) for frame in frames] == pytest.approx(levels, abs=3)
+    assert all(frame[:6].min() > 240 for frame in frames)

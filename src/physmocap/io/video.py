@@ -4,7 +4,8 @@ Frames are BGR uint8 arrays of shape (H, W, 3), upright: a video's rotation meta
 write) is applied to every frame. Time comes from the container's presentation timestamps (PTS): a video with a
 variable frame rate is resampled to a constant rate, its typical (median) frame interval, by giving each time
 on that grid the source frame nearest to it, so that frame i is always at time i / fps (see README, "Time and
-orientation").
+orientation"). A reader can also hand out the decoder's yuv420p pictures (`pixel_format="yuv420p"`), which a
+writer encodes as they are (`VideoWriter.write_yuv420`): no colour conversion either way.
 """
 
 from __future__ import annotations
@@ -190,6 +191,9 @@ def resize_to_width(frame: np.ndarray, width: int) -> np.ndarray:
 _END = object()
 
 
+PIXEL_FORMATS = ("bgr24", "yuv420p")
+
+
 class FrameReader:
     """Iterable over (index, frame) of a video's upright, constant-rate frames; re-iterating starts again.
 
@@ -198,14 +202,21 @@ class FrameReader:
     max_width: frames wider than this are scaled down to it (in the decoder's colour conversion).
     prefetch: frames decoded ahead in a background thread (0: decode in the caller's thread); decoding then
     overlaps with whatever the caller does with each frame.
+    pixel_format: "bgr24" yields BGR arrays (H, W, 3) of the caller's own; "yuv420p" yields av.VideoFrame
+    pictures in yuv420p at an even size (odd sizes are stretched by one pixel), often the decoder's own, shared
+    with later frames: read them, or copy them (`copy_yuv420`) to draw on.
     """
 
-    def __init__(self, path: str | os.PathLike, max_width: int | None = None, prefetch: int = 0) -> None:
+    def __init__(self, path: str | os.PathLike, max_width: int | None = None, prefetch: int = 0,
+                 pixel_format: str = "bgr24") -> None:
+        if pixel_format not in PIXEL_FORMATS:
+            raise ValueError(f"pixel_format must be one of {PIXEL_FORMATS}, got {pixel_format!r}.")
         timeline = _timeline(path)
         self.info = timeline.info
         self._slots = timeline.slots
         self.max_width = max_width
         self.prefetch = prefetch
+        self.pixel_format = pixel_format
         self.frames_read = 0
 
     @property
@@ -213,10 +224,12 @@ class FrameReader:
         """(width, height) of the frames this reader yields."""
         width, height = self.info.width, self.info.height
         if self.max_width is not None and width > self.max_width:
-            return self.max_width, scaled_height(width, height, self.max_width)
+            width, height = self.max_width, scaled_height(width, height, self.max_width)
+        if self.pixel_format == "yuv420p":  # chroma is stored per 2 x 2 pixels
+            width, height = width + width % 2, height + height % 2
         return width, height
 
-    def __iter__(self) -> Iterator[tuple[int, np.ndarray]]:
+    def __iter__(self) -> Iterator[tuple[int, np.ndarray | av.VideoFrame]]:
         self.frames_read = 0
         if self.prefetch <= 0:
             yield from self._decode(threading.Event())
@@ -253,7 +266,7 @@ class FrameReader:
                     frames.get_nowait()
             producer.join()
 
-    def _decode(self, stop: threading.Event) -> Iterator[tuple[int, np.ndarray]]:
+    def _decode(self, stop: threading.Event) -> Iterator[tuple[int, np.ndarray | av.VideoFrame]]:
         width, height = self.output_size
         rotation = self.info.rotation
         stored = (height, width) if rotation in (90, 270) else (width, height)
@@ -266,6 +279,16 @@ class FrameReader:
                     return
                 copies = 1 if frame.pts is None else self._slots.get(frame.pts, 1)
                 if copies == 0:
+                    continue
+                if self.pixel_format == "yuv420p":
+                    # The same size and format come back as the decoder's picture itself, without a copy.
+                    picture = frame.reformat(width=stored[0], height=stored[1], format="yuv420p",
+                                             interpolation="AREA")
+                    if rotation:
+                        picture = _rotated_yuv420(picture, rotation)
+                    for _ in range(copies):  # repeats share the picture: callers copy before drawing
+                        self.frames_read += 1
+                        yield self.frames_read - 1, picture
                     continue
                 image = frame.to_ndarray(format="bgr24", width=stored[0], height=stored[1], interpolation="AREA")
                 if rotation:
@@ -283,6 +306,37 @@ class FrameReader:
         return max(0, self.info.frame_count - self.frames_read)
 
 
+def yuv420_planes(picture: av.VideoFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Views, without a copy, of a yuv420p picture's planes: Y (H, W) and U, V (H/2, W/2); writing to them writes
+    the picture."""
+    if picture.format.name != "yuv420p":
+        raise ValueError(f"expected a yuv420p picture, got {picture.format.name}.")
+    views = []
+    for plane in picture.planes:
+        rows = np.frombuffer(plane, np.uint8).reshape(plane.height, plane.line_size)
+        views.append(rows[:, :plane.width])
+    return views[0], views[1], views[2]
+
+
+def copy_yuv420(source: av.VideoFrame, target: av.VideoFrame | None = None) -> av.VideoFrame:
+    """`source` (yuv420p) copied into `target`, a picture of the caller's own of the same size (a new one if None),
+    so that drawing on it leaves the decoder's pictures untouched."""
+    if target is None or (target.width, target.height) != (source.width, source.height):
+        target = av.VideoFrame(source.width, source.height, "yuv420p")
+    for source_plane, target_plane in zip(yuv420_planes(source), yuv420_planes(target)):
+        target_plane[...] = source_plane
+    return target
+
+
+def _rotated_yuv420(picture: av.VideoFrame, rotation: int) -> av.VideoFrame:
+    """A new yuv420p picture: `picture` turned `rotation` degrees clockwise, plane by plane."""
+    planes = [cv2.rotate(plane, _UPRIGHT[rotation]) for plane in yuv420_planes(picture)]
+    upright = av.VideoFrame(planes[0].shape[1], planes[0].shape[0], "yuv420p")
+    for target, plane in zip(yuv420_planes(upright), planes):
+        target[...] = plane
+    return upright
+
+
 def _decoded_frames(container: av.container.InputContainer, stream) -> Iterator[av.VideoFrame]:
     """The frames of `stream` in presentation order; undecodable packets are skipped, a damaged tail ends it."""
     try:
@@ -295,13 +349,15 @@ def _decoded_frames(container: av.container.InputContainer, stream) -> Iterator[
         return
 
 
-def iter_frames(path: str | os.PathLike, max_width: int | None = None, prefetch: int = 0) -> FrameReader:
+def iter_frames(path: str | os.PathLike, max_width: int | None = None, prefetch: int = 0,
+                pixel_format: str = "bgr24") -> FrameReader:
     """Frames of `path` as (index, upright BGR frame) at a constant rate; frames wider than `max_width` are
-    scaled down to it, `prefetch` frames are decoded ahead in a thread (see FrameReader).
+    scaled down to it, `prefetch` frames are decoded ahead in a thread (see FrameReader; pixel_format "yuv420p"
+    yields the decoder's pictures instead of BGR arrays).
 
     With max_width None the frames keep the native resolution. Raises InputError as probe_video does.
     """
-    return FrameReader(path, max_width, prefetch)
+    return FrameReader(path, max_width, prefetch, pixel_format)
 
 
 class VideoWriter:
@@ -357,6 +413,19 @@ class VideoWriter:
             frame = cv2.copyMakeBorder(frame, 0, pad_bottom, 0, pad_right, cv2.BORDER_REPLICATE)
         video_frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="bgr24")
         self._container.mux(self._stream.encode(video_frame.reformat(format="yuv420p")))
+        self.frames_written += 1
+
+    def write_yuv420(self, picture: av.VideoFrame) -> None:
+        """Append one yuv420p picture of the stream's (even) size as it is, without a colour conversion. x264
+        copies the picture while encoding it, so the caller may reuse it for the next frame."""
+        if self._closed:
+            raise ValueError(f"{self.path}: writer is already closed.")
+        expected = (self._stream.width, self._stream.height)
+        if picture.format.name != "yuv420p" or (picture.width, picture.height) != expected:
+            raise ValueError(f"expected a {expected[0]}x{expected[1]} yuv420p picture, got "
+                             f"{picture.width}x{picture.height} {picture.format.name}.")
+        picture.pts = None  # the encoder numbers the frames at the stream's constant rate
+        self._container.mux(self._stream.encode(picture))
         self.frames_written += 1
 
     def close(self) -> None:

@@ -7,11 +7,14 @@ world). Frames that could not be reconstructed carry a red banner at the top ins
 physics could not explain carry one at the bottom.
 
 The video is decoded (in a thread), drawn and encoded frame by frame at the output size, never held whole;
-`start_overlay` runs all of it in a worker thread beside whatever the caller writes meanwhile.
+`start_overlay` runs all of it in a worker thread beside whatever the caller writes meanwhile. The frames stay in
+the decoder's yuv420p from decoding to encoding: the markers are drawn in Y, U, V colours on the region they
+cover (docs/decisions/overlay-speed.md).
 """
 
 from __future__ import annotations
 
+import functools
 import os
 import threading
 import time
@@ -22,7 +25,7 @@ import cv2
 import numpy as np
 
 from ..body.model import CONTACT_POINTS, BodyModel
-from ..io.video import VideoWriter, iter_frames
+from ..io.video import VideoWriter, copy_yuv420, iter_frames, yuv420_planes
 from ..metrics import GRAVITY
 
 Colour = tuple[int, int, int]  # BGR, 0-255
@@ -68,6 +71,11 @@ SKELETON_EDGE_NAMES: tuple[tuple[str, str], ...] = (
 # cv2 draws at sub-pixel precision with coordinates in fixed point: pixel * 2**SHIFT.
 SHIFT = 4
 
+# Pixels around the drawn points that the markers may cover, in line widths: force arrow heads (at most 6 line
+# widths long, see _draw_in_place) plus half a line; 2 px more for the anti-aliased edge.
+DRAWN_MARGIN_LINE_WIDTHS = 7
+DRAWN_MARGIN_PX = 2
+
 
 def skeleton_edges(body: BodyModel) -> list[tuple[int, int]]:
     """Bones as (i, j) index pairs into `body.point_names` (see SKELETON_EDGE_NAMES)."""
@@ -96,12 +104,28 @@ def line_width(image: np.ndarray) -> int:
     return max(2, round(min(image.shape[:2]) / 240))
 
 
-def _fixed(point: np.ndarray) -> tuple[int, int]:
-    return int(round(point[0] * (1 << SHIFT))), int(round(point[1] * (1 << SHIFT)))
+def _as_is(colour: Colour) -> Colour:
+    return colour
 
 
-def _circle(image: np.ndarray, centre: np.ndarray, radius: float, colour: Colour, thickness: int) -> None:
-    cv2.circle(image, _fixed(centre), int(round(radius * (1 << SHIFT))), colour, thickness, cv2.LINE_AA, SHIFT)
+@functools.lru_cache(maxsize=None)
+def yuv_colour(colour: Colour) -> Colour:
+    """(Y, U, V) of a BGR colour as swscale writes yuv420p from BGR: ITU-R BT.601, limited range (Y 16-235)."""
+    blue, green, red = colour
+    y = 16 + (65.481 * red + 128.553 * green + 24.966 * blue) / 255
+    u = 128 + (-37.797 * red - 74.203 * green + 112.0 * blue) / 255
+    v = 128 + (112.0 * red - 93.786 * green - 18.214 * blue) / 255
+    return round(y), round(u), round(v)
+
+
+def _fixed(points: np.ndarray) -> list[tuple[int, int]]:
+    """(..., 2) pixel positions (drawable ones) as cv2's fixed-point (x, y) tuples, flattened."""
+    scaled = np.round(np.asarray(points, dtype=float).reshape(-1, 2) * (1 << SHIFT)).astype(np.int64)
+    return [tuple(point) for point in scaled.tolist()]
+
+
+def _circle(image: np.ndarray, centre: tuple[int, int], radius: float, colour: Colour, thickness: int) -> None:
+    cv2.circle(image, centre, int(round(radius * (1 << SHIFT))), colour, thickness, cv2.LINE_AA, SHIFT)
 
 
 def draw_overlay(
@@ -138,40 +162,134 @@ def drawable(points: np.ndarray) -> np.ndarray:
         return np.all(np.isfinite(points) & (np.abs(points) < MAX_DRAWN_COORDINATE), axis=-1)
 
 
+@functools.lru_cache(maxsize=8)
+def _palette(edges: tuple[tuple[int, int], ...], labels: tuple[str, ...] | None, ink: Callable[[Colour], Colour]
+             ) -> tuple[list[Colour], list[tuple[int, Colour]]]:
+    """The colours of the bones, and the points drawn with their colours, in `ink`; the same every frame."""
+    points = sorted({i for edge in edges for i in edge})
+    return ([ink(edge_colour(edge, labels)) for edge in edges],
+            [(i, ink(CENTRE_COLOUR if labels is None else side_colour(labels[i]))) for i in points])
+
+
+def _seen_keypoints(keypoints: np.ndarray) -> np.ndarray:
+    """(K, 3) the detector keypoints that are drawn: finite, near the image, confident enough."""
+    return keypoints[drawable(keypoints[:, :2]) & (keypoints[:, 2] >= KEYPOINT_MIN_CONFIDENCE)]
+
+
 def _draw_in_place(image: np.ndarray, points_2d: np.ndarray, edges: Sequence[tuple[int, int]],
                    labels: Sequence[str] | None, keypoints: np.ndarray | None, contacts: np.ndarray | None,
-                   force_arrows: np.ndarray | None, valid: bool, unexplained: bool) -> None:
-    width = line_width(image)
+                   force_arrows: np.ndarray | None, valid: bool, unexplained: bool,
+                   ink: Callable[[Colour], Colour] = _as_is, width: int | None = None) -> None:
+    """Draw on `image` in place; `ink` turns each BGR colour into the image's colour space (e.g. yuv_colour);
+    width: the line width in pixels (default: line_width(image); a part of a frame takes the whole frame's)."""
+    width = line_width(image) if width is None else width
     if keypoints is not None:
-        seen = drawable(keypoints[:, :2]) & (keypoints[:, 2] >= KEYPOINT_MIN_CONFIDENCE)
-        for x, y, _ in keypoints[seen]:
-            _circle(image, np.array([x, y]), width, KEYPOINT_COLOUR, cv2.FILLED)
+        for centre in _fixed(_seen_keypoints(keypoints)[:, :2]):
+            _circle(image, centre, width, ink(KEYPOINT_COLOUR), cv2.FILLED)
     if not valid:
-        _draw_banner(image, BANNER_TEXT, at_top=True)
+        _draw_banner(image, BANNER_TEXT, at_top=True, ink=ink)
         return
     finite = drawable(points_2d)
-    for i, j in edges:
+    fixed = _fixed(np.where(finite[:, None], points_2d, 0.0))
+    edge_colours, point_colours = _palette(tuple((int(i), int(j)) for i, j in edges),
+                                           None if labels is None else tuple(labels), ink)
+    for (i, j), colour in zip(edges, edge_colours):
         if finite[i] and finite[j]:
-            cv2.line(image, _fixed(points_2d[i]), _fixed(points_2d[j]), edge_colour((i, j), labels), width,
-                     cv2.LINE_AA, SHIFT)
-    for i in sorted({i for edge in edges for i in edge}):
+            cv2.line(image, fixed[i], fixed[j], colour, width, cv2.LINE_AA, SHIFT)
+    for i, colour in point_colours:
         if finite[i]:
-            colour = CENTRE_COLOUR if labels is None else side_colour(labels[i])
-            _circle(image, points_2d[i], width, colour, cv2.FILLED)
+            _circle(image, fixed[i], width, colour, cv2.FILLED)
     if contacts is not None:
         for index, in_contact in zip(contact_point_indices(labels), contacts):
             if finite[index]:
-                _circle(image, points_2d[index], 2.5 * width, CONTACT_COLOUR,
+                _circle(image, fixed[index], 2.5 * width, ink(CONTACT_COLOUR),
                         cv2.FILLED if in_contact else max(1, width // 2))
     if force_arrows is not None:
         force_arrows = np.asarray(force_arrows, dtype=float)
-        for start, tip in force_arrows[drawable(force_arrows).all(axis=-1)]:
+        arrows = force_arrows[drawable(force_arrows).all(axis=-1)]
+        ends = _fixed(arrows)
+        for (start, tip), start_fixed, tip_fixed in zip(arrows, ends[0::2], ends[1::2]):
             length = np.linalg.norm(tip - start)
             if length > 0.5:
-                cv2.arrowedLine(image, _fixed(start), _fixed(tip), FORCE_COLOUR, width, cv2.LINE_AA, SHIFT,
+                # The head is at most 6 line widths long: DRAWN_MARGIN_LINE_WIDTHS counts on it.
+                cv2.arrowedLine(image, start_fixed, tip_fixed, ink(FORCE_COLOUR), width, cv2.LINE_AA, SHIFT,
                                 tipLength=min(0.3, 6.0 * width / length))
     if unexplained:
-        _draw_banner(image, UNEXPLAINED_TEXT, at_top=False)
+        _draw_banner(image, UNEXPLAINED_TEXT, at_top=False, ink=ink)
+
+
+def _drawn_box(size: tuple[int, int], line: int, points_2d: np.ndarray, keypoints: np.ndarray | None,
+               force_arrows: np.ndarray | None, valid: bool, unexplained: bool) -> tuple[int, int, int, int] | None:
+    """(x0, y0, x1, y1), even pixel bounds within the (width, height) image, of all that _draw_in_place draws
+    with these inputs and lines `line` pixels wide; None when it draws nothing. Banners span the whole width and
+    reach the image's edge, so that _draw_banner places them alike in the box and in the image."""
+    width, height = size
+    margin = DRAWN_MARGIN_LINE_WIDTHS * line + DRAWN_MARGIN_PX
+    drawn = [] if keypoints is None else [_seen_keypoints(keypoints)[:, :2]]
+    if valid:
+        drawn.append(points_2d[drawable(points_2d)])
+        if force_arrows is not None:
+            drawn.append(force_arrows[drawable(force_arrows).all(axis=-1)].reshape(-1, 2))
+    drawn = np.concatenate(drawn) if drawn else np.zeros((0, 2))
+    if len(drawn):
+        low, high = drawn.min(axis=0) - margin, drawn.max(axis=0) + margin
+        x0, y0, x1, y1 = np.clip(np.floor(low[0]), 0, width), np.clip(np.floor(low[1]), 0, height), \
+            np.clip(np.ceil(high[0]), 0, width), np.clip(np.ceil(high[1]), 0, height)
+    else:
+        x0, y0, x1, y1 = width, height, 0, 0
+    for text, at_top, shown in ((BANNER_TEXT, True, not valid), (UNEXPLAINED_TEXT, False, valid and unexplained)):
+        if shown:  # banners span the whole width
+            band = _banner_layout(text, width, height)[-1]
+            x0, x1 = 0, width
+            y0, y1 = (0, max(y1, band)) if at_top else (min(y0, height - band), height)
+    if x1 <= x0 or y1 <= y0:
+        return None
+    return int(x0) // 2 * 2, int(y0) // 2 * 2, min(width, -(-int(x1) // 2) * 2), min(height, -(-int(y1) // 2) * 2)
+
+
+class YuvScratch:
+    """Full-size work images for _draw_yuv420, reused frame after frame (fresh megabyte arrays cost page faults
+    every frame): the drawn box as Y, U, V per pixel, and its chroma at full resolution."""
+
+    def __init__(self, width: int, height: int) -> None:
+        self.yuv = np.empty((height, width, 3), np.uint8)
+        self.chroma = [np.empty((height, width), np.uint8) for _ in range(2)]
+
+
+def _draw_yuv420(planes: tuple[np.ndarray, np.ndarray, np.ndarray], scratch: YuvScratch, points_2d: np.ndarray,
+                 edges: Sequence[tuple[int, int]], labels: Sequence[str] | None, keypoints: np.ndarray | None,
+                 contacts: np.ndarray | None, force_arrows: np.ndarray | None, valid: bool,
+                 unexplained: bool) -> None:
+    """_draw_in_place on a yuv420p picture's planes (Y (H, W), U and V (H/2, W/2), modified in place).
+
+    Only the box the markers cover is touched: there the planes are merged into one Y, U, V image (chroma
+    repeated 2 x 2), drawn on with the colours in Y, U, V (blending is linear, so this equals drawing in BGR and
+    converting) and split back, chroma averaged 2 x 2 (unchanged where nothing was drawn).
+    """
+    y_plane, u_plane, v_plane = planes
+    height, width = y_plane.shape
+    line = line_width(y_plane)  # the whole frame's, not the box's
+    box = _drawn_box((width, height), line, points_2d, keypoints, force_arrows, valid, unexplained)
+    if box is None:
+        return
+    x0, y0, x1, y1 = box
+    size = (x1 - x0, y1 - y0)
+    luma = y_plane[y0:y1, x0:x1]
+    halves = [plane[y0 // 2:y1 // 2, x0 // 2:x1 // 2] for plane in (u_plane, v_plane)]
+    full = [chroma[:size[1], :size[0]] for chroma in scratch.chroma]
+    region = scratch.yuv[:size[1], :size[0]]
+    for half, chroma in zip(halves, full):
+        cv2.resize(half, size, dst=chroma, interpolation=cv2.INTER_NEAREST)
+    cv2.merge([luma, *full], dst=region)
+    origin = np.array([x0, y0], dtype=float)
+    _draw_in_place(region, points_2d - origin, edges, labels,
+                   None if keypoints is None else keypoints - np.append(origin, 0.0), contacts,
+                   None if force_arrows is None else force_arrows - origin, valid, unexplained,
+                   ink=yuv_colour, width=line)
+    cv2.extractChannel(region, 0, dst=luma)
+    for channel, (half, chroma) in enumerate(zip(halves, full), start=1):
+        cv2.extractChannel(region, channel, dst=chroma)
+        cv2.resize(chroma, (size[0] // 2, size[1] // 2), dst=half, interpolation=cv2.INTER_AREA)
 
 
 def force_arrow_scale(body_mass: float, body_height: float) -> float:
@@ -209,17 +327,23 @@ def contact_point_indices(labels: Sequence[str] | None) -> list[int]:
     return [list(labels).index(name) for name in CONTACT_POINTS]
 
 
-def _draw_banner(image: np.ndarray, text: str, at_top: bool) -> None:
-    """A red band across the top or bottom of the image with `text` centred in it."""
-    height, width = image.shape[:2]
+def _banner_layout(text: str, width: int, height: int) -> tuple[float, int, int, int, int]:
+    """Font scale, stroke thickness, text width and height, and the band's height in pixels of a banner."""
     font_scale = max(0.4, width / 1200)
     thickness = max(1, round(font_scale * 2))
     (text_width, text_height), baseline = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, font_scale, thickness)
-    band = min(height, text_height + baseline + 2 * thickness + 8)
+    return font_scale, thickness, text_width, text_height, min(height, text_height + baseline + 2 * thickness + 8)
+
+
+def _draw_banner(image: np.ndarray, text: str, at_top: bool, ink: Callable[[Colour], Colour] = _as_is) -> None:
+    """A red band across the top or bottom of the image with `text` centred in it."""
+    height, width = image.shape[:2]
+    font_scale, thickness, text_width, text_height, band = _banner_layout(text, width, height)
     top = 0 if at_top else height - band
-    cv2.rectangle(image, (0, top), (width - 1, top + band - 1), BANNER_COLOUR, cv2.FILLED)
+    cv2.rectangle(image, (0, top), (width - 1, top + band - 1), ink(BANNER_COLOUR), cv2.FILLED)
     origin = (max(0, (width - text_width) // 2), top + (band + text_height) // 2)
-    cv2.putText(image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, font_scale, CENTRE_COLOUR, thickness, cv2.LINE_AA)
+    cv2.putText(image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, font_scale, ink(CENTRE_COLOUR), thickness,
+                cv2.LINE_AA)
 
 
 @dataclass(frozen=True)
@@ -299,24 +423,27 @@ def render_overlay(
     nonfinite = np.flatnonzero(valid & ~drawable(points_2d[:, drawn_points]).all(axis=1)) if drawn_points \
         else np.array([], dtype=int)
 
-    frames = iter_frames(video_path, max_width=max_width, prefetch=PREFETCH_FRAMES)
+    frames = iter_frames(video_path, max_width=max_width, prefetch=PREFETCH_FRAMES, pixel_format="yuv420p")
     info = frames.info
     out_width, out_height = frames.output_size
     scale = np.array([out_width / info.width, out_height / info.height])  # native pixels -> output pixels
+    canvas = None  # the picture drawn on and encoded, reused frame after frame
+    scratch = YuvScratch(out_width, out_height)
     with VideoWriter(out_path, info.fps, out_width, out_height, crf=OVERLAY_CRF, preset=OVERLAY_PRESET) as writer:
-        for index, image in frames:
+        for index, picture in frames:
             if index >= T:
                 break
             if cancel is not None and cancel.is_set():
                 raise OverlayCancelled(f"{out_path}: rendering was cancelled.")
-            _draw_in_place(
-                image, points_2d[index] * scale, edges, labels,
+            canvas = copy_yuv420(picture, canvas)
+            _draw_yuv420(
+                yuv420_planes(canvas), scratch, points_2d[index] * scale, edges, labels,
                 None if keypoints is None else keypoints[index] * np.append(scale, 1.0),
                 None if contacts is None else contacts[index],
                 None if force_arrows is None else force_arrows[index] * scale,
                 bool(valid[index]), bool(unexplained[index]),
             )
-            writer.write(image)
+            writer.write_yuv420(canvas)
             if progress is not None:
                 progress(index + 1, T)
         if writer.frames_written < T:
