@@ -299,7 +299,8 @@ def main() -> None:
     result = dict(machine=machine_description(), revision=git_revision(), clips=args.clips,
                   frames_per_clip=args.frames, frames=frames, repeats=args.repeats, load=load, table=table,
                   ratios=ratios, resume=dict(wall_s=resumed["wall_s"], redone=redone, inputs=len(resumed["rows"])),
-                  ray_overhead=overhead, ray_own_cpu=own_cpu, stage_seconds_per_frame_one_worker=per_frame, capacity=estimate,
+                  ray_overhead=overhead, ray_own_cpu=own_cpu, stage_seconds_per_frame_one_worker=per_frame,
+                  capacity=estimate,
                   command=" ".join(["benchmarks/bench_batch.py", *sys.argv[1:]]))
     RESULTS.mkdir(exist_ok=True)
     write_text(RESULTS / "batch.json", json.dumps(result, indent=1))
@@ -339,11 +340,14 @@ def markdown(r: dict) -> str:
                   "tasks per second submitted together."]
     lines += ["", "Ray's own CPU (a local 2-CPU Ray running two tasks that sleep; CPU seconds of its process tree "
                   "from before `import ray` until the tasks return; idle: the extra CPU per second of the longer "
-                  "hold, in cores):", "", "| start | wall s | CPU s | by process | idle cores |", "|---|---|---|---|---|"]
+                  "hold, in cores):", "", "| start | wall s | CPU s | by process | idle cores |",
+              "|---|---|---|---|---|"]
     for name, (short, long) in r["ray_own_cpu"].items():
-        idle = (sum(long["cpu_by_kind"].values()) - sum(short["cpu_by_kind"].values())) / (long["wall_s"] - short["wall_s"])
-        kinds = ", ".join(f"{kind} {cpu:.2f}" for kind, cpu in sorted(short["cpu_by_kind"].items(), key=lambda kv: -kv[1]))
-        lines.append(f"| {name} | {short['wall_s']:.1f} | {sum(short['cpu_by_kind'].values()):.2f} | {kinds} | {idle:.3f} |")
+        short_cpu, long_cpu = sum(short["cpu_by_kind"].values()), sum(long["cpu_by_kind"].values())
+        idle = (long_cpu - short_cpu) / (long["wall_s"] - short["wall_s"])
+        kinds = ", ".join(f"{kind} {cpu:.2f}" for kind, cpu in sorted(short["cpu_by_kind"].items(),
+                                                                       key=lambda kv: -kv[1]))
+        lines.append(f"| {name} | {short['wall_s']:.1f} | {short_cpu:.2f} | {kinds} | {idle:.3f} |")
     res = r["resume"]
     lines += ["", f"Resume: the same command over the finished batch redid {res['redone']} of {res['inputs']} runs "
                   f"and took {res['wall_s']:.1f} s."]

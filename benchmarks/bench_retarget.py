@@ -120,7 +120,8 @@ def run(work: Path, quick: bool, trajopt: bool, source_physics: str) -> dict:
             for method in methods:
                 if method == "trajopt" and (rig_name not in TRAJOPT_RIGS or source_name not in TRAJOPT_SOURCES):
                     continue
-                out = work / f"out_{source_physics}" / source_name.replace(" ", "_") / rig_name.replace(" ", "_") / method
+                out = (work / f"out_{source_physics}" / source_name.replace(" ", "_") / rig_name.replace(" ", "_")
+                       / method)
                 started = time.perf_counter()
                 report = retarget_result(source, rig, out, character_map=toml, physics=method)
                 wall = time.perf_counter() - started
@@ -137,7 +138,8 @@ def run(work: Path, quick: bool, trajopt: bool, source_physics: str) -> dict:
     for source_name in sources:
         paths = {}
         for rig_name in ("mixamo", "cartoon de Leva", "cartoon 40% head"):
-            out = work / f"out_{source_physics}" / source_name.replace(" ", "_") / rig_name.replace(" ", "_") / "physcap"
+            out = (work / f"out_{source_physics}" / source_name.replace(" ", "_") / rig_name.replace(" ", "_")
+                   / "physcap")
             result = load_result(out / "result.npz")
             paths[rig_name] = result["center_of_mass"] / float(result["retarget_scale"])  # at the source's size
         com.append(dict(source=source_name, **{

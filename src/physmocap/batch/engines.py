@@ -177,14 +177,14 @@ class RayEngine:
 
 def _start_local_ray(cpus: int):
     """A local Ray head of `cpus` CPUs without the log monitor (only streams worker output, which the batch does
-    not show) and the autoscaler monitor (nothing to scale on one machine): together they cost as much CPU as a
-    third of Ray's own start-up, taken from the captures when every core runs one (docs/decisions/
-    batch-ray-overhead.md). ray.init cannot leave them out; Ray's own test clusters (ray.cluster_utils) start a
-    node this way. The reaper process it spawns stops the node should this process die without close()."""
+    not show) and the autoscaler monitor (nothing to scale on one machine): together about a fifth of Ray's own
+    start-up CPU, taken from the captures when every core runs one (docs/decisions/batch-ray-overhead.md).
+    ray.init cannot leave them out; Ray's own test clusters (ray.cluster_utils) start a node this way. The reaper
+    process it spawns stops the node should this process die without close()."""
     from ray._private.node import Node
     from ray._private.parameter import RayParams
 
-    # Its daemons and workers inherit this environment: no runtime_env, which would start a second set of workers.
+    # Its daemons and workers inherit this environment: no runtime_env, which would start more workers.
     os.environ.update(THREAD_ENV)
     params = RayParams(num_cpus=cpus, include_dashboard=False, include_log_monitor=False, no_monitor=True)
     return Node(params, head=True, shutdown_at_exit=True, spawn_reaper=True, ray_init_cluster=True)

@@ -26,7 +26,8 @@ from ..config import Settings
 from ..errors import InputError
 from ..export import body_from_result
 from ..io.atomic import write_text
-from ..metrics import FLOATING_THRESHOLD, GRAVITY, SKATE_REFERENCE_FPS, SKATE_THRESHOLD, foot_contact_errors, grf_statistics
+from ..metrics import (FLOATING_THRESHOLD, GRAVITY, SKATE_REFERENCE_FPS, SKATE_THRESHOLD, foot_contact_errors,
+                       grf_statistics)
 from ..result import RESULT_POINTS, load_result, save_result
 from .character import Character, build_character
 from .mapping import load_character_config
