@@ -21,6 +21,9 @@ from .task import THREAD_ENV, BatchTask, capture_one, failed_record, limit_threa
 
 MAX_RETRIES = 2  # a run whose worker died is tried this many more times
 STOP_GRACE_SECONDS = 10.0  # after Ctrl-C, how long a worker may take to unwind its run before it is killed
+# A Ray worker runs some twenty threads of Ray's own; glibc's malloc gives threads arenas of their own, and the
+# worker's peak memory grew from run to run with them (docs/decisions/batch-ray-overhead.md, "Memory").
+RAY_WORKER_ENV = THREAD_ENV | {"MALLOC_ARENA_MAX": "2"}
 
 
 def _pool_worker_init() -> None:
@@ -124,7 +127,7 @@ class RayEngine:
             self._local_node = _start_local_ray(workers)
             ray.init(address=self._local_node.address, **options)
         else:  # a cluster's other nodes start their workers from their own environment
-            ray.init(address=address, runtime_env={"env_vars": THREAD_ENV}, include_dashboard=False, **options)
+            ray.init(address=address, runtime_env={"env_vars": RAY_WORKER_ENV}, include_dashboard=False, **options)
         self._remote = ray.remote(capture_one).options(num_cpus=1, max_retries=max_retries, retry_exceptions=False)
         self._running: dict = {}
 
@@ -185,7 +188,7 @@ def _start_local_ray(cpus: int):
     from ray._private.parameter import RayParams
 
     # Its daemons and workers inherit this environment: no runtime_env, which would start more workers.
-    os.environ.update(THREAD_ENV)
+    os.environ.update(RAY_WORKER_ENV)
     params = RayParams(num_cpus=cpus, include_dashboard=False, include_log_monitor=False, no_monitor=True)
     return Node(params, head=True, shutdown_at_exit=True, spawn_reaper=True, ray_init_cluster=True)
 
