@@ -16,11 +16,11 @@ import csv
 import json
 import os
 import re
-import resource
 import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -61,22 +61,93 @@ def uptime() -> str:
     return subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
 
 
+# Process kinds of a batch's tree, by a fragment of their command line (first match wins).
+PROCESS_KINDS = (("gcs_server", "Ray GCS"), ("raylet", "Ray raylet"), ("RuntimeEnvAgent", "Ray runtime-env agent"),
+                 ("DashboardAgent", "Ray dashboard agent"), ("log_monitor.py", "Ray log monitor"),
+                 ("autoscaler/_private/monitor.py", "Ray autoscaler monitor"), ("dashboard", "Ray dashboard"),
+                 ("ray::", "worker"), ("default_worker.py", "worker"), ("multiprocessing", "worker"),
+                 ("physmocap.cli", "driver"))
+CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
+
+
+def _process_tree(root: int) -> dict[int, tuple[str, float]]:
+    """{pid: (command line, CPU seconds so far)} of `root` and every process below it, read from /proc."""
+    children: dict[int, list[int]] = {}
+    stats: dict[int, list[str]] = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        stats[int(entry.name)] = fields
+        children.setdefault(int(fields[1]), []).append(int(entry.name))
+    tree, todo = {}, [root]
+    while todo:
+        pid = todo.pop()
+        if pid not in stats:
+            continue
+        try:
+            cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        tree[pid] = (cmdline, (int(stats[pid][11]) + int(stats[pid][12])) / CLOCK_TICKS)  # utime + stime
+        todo += children.get(pid, [])
+    return tree
+
+
+def process_kind(cmdline: str) -> str:
+    return next((kind for fragment, kind in PROCESS_KINDS if fragment in cmdline), "other")
+
+
+class TreeSampler:
+    """CPU seconds of every process in a command's tree, by kind, sampled every `interval` s (the last sample of
+    a process that exits is what it is credited with: up to `interval` of its CPU can be missed). CPU seconds
+    are what the kernel accounts to each process, so much less affected by the machine's load than wall time."""
+
+    def __init__(self, root: int, interval: float = 0.25):
+        self.root, self.interval = root, interval
+        self.latest: dict[int, tuple[str, float]] = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            for pid, (cmdline, cpu) in _process_tree(self.root).items():
+                if cmdline.strip():  # a process that exited between the reads keeps its last sample
+                    self.latest[pid] = (cmdline, cpu)
+            self._stop.wait(self.interval)
+
+    def stop(self) -> dict[str, float]:
+        """CPU seconds by process kind."""
+        self._stop.set()
+        self._thread.join()
+        by_kind: dict[str, float] = {}
+        for cmdline, cpu in self.latest.values():
+            kind = process_kind(cmdline)
+            by_kind[kind] = by_kind.get(kind, 0.0) + cpu
+        return by_kind
+
+
 def timed_batch(inputs: list[Path], out: Path, options: list[str]) -> dict:
-    """One whole `physmocap batch` command: wall and CPU seconds of its process tree (pool workers are its
-    children; Ray's workers are the raylet's and not counted), its rows."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    """One whole `physmocap batch` command: wall seconds, CPU seconds of its process tree by process kind (Ray's
+    daemons and workers are in the tree too), its rows."""
     started = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "physmocap.cli", "batch", *map(str, inputs), "-o", str(out),
-                           *options], capture_output=True, text=True)
+    proc = subprocess.Popen([sys.executable, "-m", "physmocap.cli", "batch", *map(str, inputs), "-o", str(out),
+                             *options], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    sampler = TreeSampler(proc.pid)
+    stdout, stderr = proc.communicate()
     wall = time.perf_counter() - started
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu_by_kind = sampler.stop()
     if proc.returncode != 0:
-        raise RuntimeError(f"batch {options} failed:\n{proc.stdout}\n{proc.stderr}")
+        raise RuntimeError(f"batch {options} failed:\n{stdout}\n{stderr}")
     with open(out / "batch.csv", newline="") as f:
         rows = list(csv.DictReader(f))
-    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    ready = re.search(r"Ray with \d+ CPUs ready after ([0-9.]+) s", proc.stderr)
-    return dict(wall_s=wall, cpu_s=cpu, frames=sum(int(r["frames"]) for r in rows), videos=len(rows),
+    ready = re.search(r"Ray with \d+ CPUs ready after ([0-9.]+) s", stderr)
+    return dict(wall_s=wall, cpu_s=sum(cpu_by_kind.values()), cpu_by_kind=cpu_by_kind,
+                frames=sum(int(r["frames"]) for r in rows), videos=len(rows),
                 ray_start_s=float(ready.group(1)) if ready else 0.0,
                 peak_worker_mb=max(int(r["worker_peak_memory_mb"] or 0) for r in rows), rows=rows)
 
@@ -107,6 +178,38 @@ print(json.dumps(dict(import_and_init_s=t1 - t0, first_task_s=first, task_round_
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
+RAY_STARTS = {
+    "the batch's local Ray (RayEngine)": "from physmocap.batch.engines import RayEngine\nengine = RayEngine(None, 2)",
+    "ray.init defaults, runtime_env with the thread settings (the batch until this change)":
+        "from physmocap.batch.task import THREAD_ENV\nray.init(num_cpus=2, include_dashboard=False, "
+        "log_to_driver=False, logging_level=logging.WARNING, runtime_env={'env_vars': THREAD_ENV})",
+}
+
+
+def ray_own_cpu(start: str, hold_s: float) -> dict:
+    """CPU seconds of a local 2-CPU Ray's process tree, by process kind, from before `import ray` until two tasks
+    that sleep `hold_s` s return: what Ray itself costs (the tasks do no work), start-up and idle running."""
+    code = f"""
+import json, logging, os, sys, time
+sys.path.insert(0, {str(Path(__file__).parent)!r})
+from bench_batch import _process_tree, process_kind
+started = time.perf_counter()
+import ray
+{start}
+@ray.remote(num_cpus=1)
+def hold(seconds):
+    time.sleep(seconds)
+ray.get([hold.remote({hold_s}) for _ in range(2)])
+by_kind = {{}}
+for pid, (cmdline, cpu) in _process_tree(os.getpid()).items():
+    kind = "driver" if pid == os.getpid() else process_kind(cmdline)
+    by_kind[kind] = by_kind.get(kind, 0.0) + cpu
+print(json.dumps(dict(wall_s=time.perf_counter() - started, cpu_by_kind=by_kind)))
+"""
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
 def stage_costs(out: Path) -> dict[str, float]:
     """Seconds per frame of each stage over the runs of a batch folder (their summary.json)."""
     totals: dict[str, float] = {}
@@ -124,6 +227,8 @@ def main() -> None:
     parser.add_argument("--clips", type=int, default=10)
     parser.add_argument("--frames", type=int, default=48, help="frames per clip")
     parser.add_argument("--repeats", type=int, default=2, help="rounds of the four configurations")
+    parser.add_argument("--hold", type=float, default=20.0,
+                        help="seconds the idle tasks of Ray's own CPU measurement run (then three times as long)")
     parser.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
     args = parser.parse_args()
 
@@ -149,6 +254,8 @@ def main() -> None:
         resumed = timed_batch(clips, finished, CONFIGS[args.configs[0]])
         redone = sum(r["resumed"] != "1" for r in resumed["rows"])
         overhead = ray_overhead()
+        own_cpu = {name: [ray_own_cpu(start, hold) for hold in (args.hold, 3 * args.hold)]
+                   for name, start in RAY_STARTS.items()}
     load.append(uptime())
 
     frames = runs[args.configs[0]][0]["frames"]
@@ -160,9 +267,11 @@ def main() -> None:
         table[name] = dict(wall_s=walls, median_wall_s=wall, frames_per_second=frames / wall,
                            videos_per_hour=3600 * args.clips / wall,
                            ray_start_s=[r["ray_start_s"] for r in rounds], frames_per_second_after_start=frames
-                           / after_start, cores_used=statistics.median(r["cpu_s"] / r["wall_s"] for r in rounds)
-                           if not name.startswith("Ray") else None,
+                           / after_start, cores_used=statistics.median(r["cpu_s"] / r["wall_s"] for r in rounds),
                            cpu_seconds_per_frame=statistics.median(r["cpu_s"] / frames for r in rounds),
+                           cores_by_kind={kind: statistics.median(r["cpu_by_kind"].get(kind, 0.0) / r["wall_s"]
+                                                                  for r in rounds)
+                                          for kind in sorted({k for r in rounds for k in r["cpu_by_kind"]})},
                            peak_worker_mb=max(r["peak_worker_mb"] for r in rounds))
     ratios = {}
     for a, b in (("Ray local, 1 CPU", "pool, 1 worker"), ("Ray local, 2 CPUs", "pool, 2 workers")):
@@ -190,7 +299,8 @@ def main() -> None:
     result = dict(machine=machine_description(), revision=git_revision(), clips=args.clips,
                   frames_per_clip=args.frames, frames=frames, repeats=args.repeats, load=load, table=table,
                   ratios=ratios, resume=dict(wall_s=resumed["wall_s"], redone=redone, inputs=len(resumed["rows"])),
-                  ray_overhead=overhead, stage_seconds_per_frame_one_worker=per_frame, capacity=estimate,
+                  ray_overhead=overhead, ray_own_cpu=own_cpu, stage_seconds_per_frame_one_worker=per_frame,
+                  capacity=estimate,
                   command=" ".join(["benchmarks/bench_batch.py", *sys.argv[1:]]))
     RESULTS.mkdir(exist_ok=True)
     write_text(RESULTS / "batch.json", json.dumps(result, indent=1))
@@ -208,12 +318,19 @@ def markdown(r: dict) -> str:
                   "start | cores used | CPU s/frame | peak worker MB |", "|---|---|---|---|---|---|---|---|---|"]
     for name, row in r["table"].items():
         ray = name.startswith("Ray")
-        cores = "–" if ray else f"{row['cores_used']:.2f}"
-        cpu = "–" if ray else f"{row['cpu_seconds_per_frame']:.3f}"
+        cores = f"{row['cores_used']:.2f}"
+        cpu = f"{row['cpu_seconds_per_frame']:.3f}"
         start = ", ".join(f"{s:.1f}" for s in row["ray_start_s"]) if ray else "–"
         lines.append(f"| {name} | {', '.join(f'{w:.1f}' for w in row['wall_s'])} | {row['frames_per_second']:.2f} "
                      f"| {row['videos_per_hour']:.0f} | {start} | {row['frames_per_second_after_start']:.2f} | {cores} "
                      f"| {cpu} | {row['peak_worker_mb']} |")
+    kinds = sorted({kind for row in r["table"].values() for kind in row["cores_by_kind"]})
+    lines += ["", "Cores used by each kind of process in the command's tree (its CPU seconds over the command's wall "
+                  "time, median over rounds; sampled from /proc every 0.25 s):", "",
+              "| configuration | " + " | ".join(kinds) + " |", "|---" * (len(kinds) + 1) + "|"]
+    for name, row in r["table"].items():
+        lines.append(f"| {name} | " + " | ".join(f"{row['cores_by_kind'].get(kind, 0.0):.3f}" for kind in kinds)
+                     + " |")
     lines += ["", "Throughput ratios, median over rounds of the runs side by side:", ""]
     lines += [f"- {name}: {value:.2f}" for name, value in r["ratios"].items()]
     o = r["ray_overhead"]
@@ -221,6 +338,16 @@ def markdown(r: dict) -> str:
                   f"{o['shutdown_s']:.1f} s; first no-op task {o['first_task_s']:.2f} s (starts a worker); then "
                   f"{o['task_round_trip_ms']:.1f} ms per task round trip, {o['tasks_per_second_burst']:.0f} no-op "
                   "tasks per second submitted together."]
+    lines += ["", "Ray's own CPU (a local 2-CPU Ray running two tasks that sleep; CPU seconds of its process tree "
+                  "from before `import ray` until the tasks return; idle: the extra CPU per second of the longer "
+                  "hold, in cores):", "", "| start | wall s | CPU s | by process | idle cores |",
+              "|---|---|---|---|---|"]
+    for name, (short, long) in r["ray_own_cpu"].items():
+        short_cpu, long_cpu = sum(short["cpu_by_kind"].values()), sum(long["cpu_by_kind"].values())
+        idle = (long_cpu - short_cpu) / (long["wall_s"] - short["wall_s"])
+        kinds = ", ".join(f"{kind} {cpu:.2f}" for kind, cpu in sorted(short["cpu_by_kind"].items(),
+                                                                       key=lambda kv: -kv[1]))
+        lines.append(f"| {name} | {short['wall_s']:.1f} | {short_cpu:.2f} | {kinds} | {idle:.3f} |")
     res = r["resume"]
     lines += ["", f"Resume: the same command over the finished batch redid {res['redone']} of {res['inputs']} runs "
                   f"and took {res['wall_s']:.1f} s."]

@@ -1,7 +1,8 @@
 """Retargeting onto characters (issue 19): every test rig on synthetic clips and real videos, with and without
 physics on the character.
 
-Sources (result.npz of `capture --physics none`, run here through the pipeline and cached in the work folder):
+Sources (result.npz of the default capture, PhysCap on the B.4-refined motion, which is what a user retargets;
+`--source-physics none` for the kinematic fit alone; run here through the pipeline and cached in the work folder):
 synthetic clips (CMU motion capture seen by a random camera with detector-like noise, as bench_synthetic) and real
 videos. Rigs: a Mixamo-named rig (our own motion.bvh export, "mixamorig:" names, centimetres), the Daz skeleton of
 cmu_daz_cgspeed and the Character Creator skeleton of cmu_iclone_cc3_retarget (tests/data), a cartoon (short legs,
@@ -11,7 +12,7 @@ metrics against the source's contacts), contact point-frames kept, mean bone-dir
 joints), largest bone-length change, mean GRF in the character's body weights, centre-of-mass height over hip
 height, time per frame of the retargeting (IK) and of the physics.
 
-    .venv/bin/python benchmarks/bench_retarget.py [--quick] [--trajopt] [--work DIR]
+    .venv/bin/python benchmarks/bench_retarget.py [--quick] [--trajopt] [--source-physics physcap|none] [--work DIR]
 
 Writes benchmarks/results/retarget.json and retarget.md.
 """
@@ -74,9 +75,14 @@ def make_rigs(work: Path) -> dict[str, tuple[Path, Path | None]]:
             "glb mannequin": (rigs / "mannequin.glb", None)}
 
 
-def synthetic_source(name: str, work: Path, seed: int = 0) -> Path:
-    """result.npz of the pipeline (offline fit, no physics) on synthetic observations of a mocap clip."""
-    out = work / "sources" / Path(name).stem
+def source_settings(physics: str) -> Settings:
+    """The capture settings of a source: the defaults, with the physics method `physics`."""
+    return Settings().replace("physics", method=physics)
+
+
+def synthetic_source(name: str, work: Path, physics: str, seed: int = 0) -> Path:
+    """result.npz of the pipeline (offline fit, then `physics`) on synthetic observations of a mocap clip."""
+    out = work / f"sources_{physics}" / Path(name).stem
     if (out / "result.npz").is_file():
         return out / "result.npz"
     clip = resample(load_mocap(MOCAP / name), FPS)
@@ -90,23 +96,23 @@ def synthetic_source(name: str, work: Path, seed: int = 0) -> Path:
     obs, _ = make_observations(clip, K, R, t, rng)
     out.mkdir(parents=True, exist_ok=True)
     obs.save(out / "observations.npz")
-    run_capture(out, Settings().replace("physics", method="none"), observations=out / "observations.npz",
-                overlay=False)
+    run_capture(out, source_settings(physics), observations=out / "observations.npz", overlay=False)
     return out / "result.npz"
 
 
-def real_source(video: str, work: Path) -> Path:
-    """result.npz of `capture VIDEO --physics none --no-overlay`."""
-    out = work / "sources" / Path(video).stem
+def real_source(video: str, work: Path, physics: str) -> Path:
+    """result.npz of `capture VIDEO --physics PHYSICS --no-overlay`."""
+    out = work / f"sources_{physics}" / Path(video).stem
     if not (out / "result.npz").is_file():
-        run_capture(out, Settings().replace("physics", method="none"), video=VIDEOS / video, overlay=False)
+        run_capture(out, source_settings(physics), video=VIDEOS / video, overlay=False)
     return out / "result.npz"
 
 
-def run(work: Path, quick: bool, trajopt: bool) -> dict:
+def run(work: Path, quick: bool, trajopt: bool, source_physics: str) -> dict:
     rigs = make_rigs(work)
-    sources = {f"synthetic {Path(n).stem}": synthetic_source(n, work) for n in SYNTHETIC[: 1 if quick else None]}
-    sources.update({f"real {Path(v).stem}": real_source(v, work) for v in REAL[: 1 if quick else None]})
+    sources = {f"synthetic {Path(n).stem}": synthetic_source(n, work, source_physics)
+               for n in SYNTHETIC[: 1 if quick else None]}
+    sources.update({f"real {Path(v).stem}": real_source(v, work, source_physics) for v in REAL[: 1 if quick else None]})
     methods = ["none", "physcap"] + (["trajopt"] if trajopt else [])
     rows = []
     for source_name, source in sources.items():
@@ -114,7 +120,8 @@ def run(work: Path, quick: bool, trajopt: bool) -> dict:
             for method in methods:
                 if method == "trajopt" and (rig_name not in TRAJOPT_RIGS or source_name not in TRAJOPT_SOURCES):
                     continue
-                out = work / "out" / source_name.replace(" ", "_") / rig_name.replace(" ", "_") / method
+                out = (work / f"out_{source_physics}" / source_name.replace(" ", "_") / rig_name.replace(" ", "_")
+                       / method)
                 started = time.perf_counter()
                 report = retarget_result(source, rig, out, character_map=toml, physics=method)
                 wall = time.perf_counter() - started
@@ -131,7 +138,8 @@ def run(work: Path, quick: bool, trajopt: bool) -> dict:
     for source_name in sources:
         paths = {}
         for rig_name in ("mixamo", "cartoon de Leva", "cartoon 40% head"):
-            out = work / "out" / source_name.replace(" ", "_") / rig_name.replace(" ", "_") / "physcap"
+            out = (work / f"out_{source_physics}" / source_name.replace(" ", "_") / rig_name.replace(" ", "_")
+                   / "physcap")
             result = load_result(out / "result.npz")
             paths[rig_name] = result["center_of_mass"] / float(result["retarget_scale"])  # at the source's size
         com.append(dict(source=source_name, **{
@@ -139,15 +147,20 @@ def run(work: Path, quick: bool, trajopt: bool) -> dict:
                 paths[a] - paths[b], axis=1).mean())
             for a, b in (("cartoon 40% head", "mixamo"), ("cartoon de Leva", "mixamo"),
                          ("cartoon 40% head", "cartoon de Leva"))}))
-    return dict(machine=machine_description(), rows=rows, com_paths=com)
+    return dict(machine=machine_description(), source_physics=source_physics, rows=rows, com_paths=com)
 
 
 def markdown(data: dict) -> str:
     lines = ["# Retargeting (issue 19)", "", f"Machine: {data['machine']}", "",
+             f"Sources: capture with physics {data['source_physics']}. GRF % BW: mean magnitude of the net force "
+             "(Rempe's measure); vertical: its vertical component; residual: the root's vertical residual force.", "",
              "| source | rig | physics | skate % | penetration % | contacts kept % | bone cos | bone length err (m) "
-             "| GRF % BW | COM / hip height | IK ms/frame | physics ms/frame |", "|" + "---|" * 12]
+             "| GRF % BW | vertical | residual | COM / hip height | IK ms/frame | physics ms/frame |",
+             "|" + "---|" * 14]
     for r in data["rows"]:
-        grf = "-" if r["grf_mean_percent_bw"] is None else f"{r['grf_mean_percent_bw']:.1f}"
+        grf = "- | - | -" if r["grf_mean_percent_bw"] is None else (
+            f"{r['grf_mean_percent_bw']:.1f} | {r['grf_vertical_mean_percent_bw']:.1f} | "
+            f"{r['residual_vertical_mean_percent_bw']:.1f}")
         kept = "-" if r["contact_frames_kept"] is None else f"{100 * r['contact_frames_kept']:.1f}"
         lines.append(f"| {r['source']} | {r['rig']} | {r['physics']} | {r['skate_percent']:.2f} | "
                      f"{r['penetration_percent']:.2f} | {kept} | {r['bone_cosine_rig']:.4f} | "
@@ -167,10 +180,12 @@ def main(argv=None) -> dict:
     parser.add_argument("--quick", action="store_true", help="one synthetic clip and one video")
     parser.add_argument("--trajopt", action="store_true",
                         help="also trajectory optimisation (two rigs on two sources; several minutes)")
+    parser.add_argument("--source-physics", choices=("physcap", "none"), default=Settings().physics.method,
+                        help="physics of the sources' capture (default: the pipeline's default)")
     parser.add_argument("--work", type=Path, default=Path("/tmp/physmocap_bench_retarget"),
                         help="folder for the sources' runs and the outputs (reused when present)")
     args = parser.parse_args(argv)
-    data = run(args.work, args.quick, args.trajopt)
+    data = run(args.work, args.quick, args.trajopt, args.source_physics)
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "retarget.json").write_text(json.dumps(data, indent=1))
     (RESULTS / "retarget.md").write_text(markdown(data))

@@ -28,6 +28,7 @@ from physmocap.retarget.mapping import load_character_config, map_bones, normali
 from physmocap.retarget.rig import read_accessor, read_rig
 from physmocap.retarget.solve import solve_feet
 from test_export import synthetic_result
+from test_glb import issue_counts, khronos_issues
 
 DATA = Path(__file__).parent / "data"
 DAZ_RIG = DATA / "rig_daz_cgspeed.bvh"  # hierarchy of ../shared/data/mocap/cmu_daz_cgspeed (no motion)
@@ -379,10 +380,12 @@ def _node_matrix(translation, rotation, scale) -> np.ndarray:
     return m
 
 
-def test_glb_with_an_armature_node_and_rest_rotations_moves_its_joints_where_the_result_says(tmp_path, source):
-    """As exported by Blender: the skeleton under a rotated, scaled Armature node, bones with rest rotations."""
+def blender_like_glb(folder: Path) -> tuple[Path, Path]:
+    """Our mannequin (plain.glb) as Blender exports a character (blender_like.glb): the skeleton under a rotated,
+    scaled Armature node, bones with rest rotations, no animation (the accessors of the removed one left behind).
+    """
     body = build_body_model(template_lengths(1.58), 55.0)
-    plain = tmp_path / "plain.glb"
+    plain = folder / "plain.glb"
     write_glb(plain, body, body.rest_qpos[None], 30.0)
     gltf = pygltflib.GLTF2().load(str(plain))
     skin = gltf.skins[0]
@@ -416,8 +419,15 @@ def test_glb_with_an_armature_node_and_rest_rotations_moves_its_joints_where_the
     blob[view.byteOffset:view.byteOffset + inverse_bind.nbytes] = inverse_bind.tobytes()
     gltf.set_binary_blob(bytes(blob))
     gltf.animations = []
-    character_file = tmp_path / "blender_like.glb"
+    character_file = folder / "blender_like.glb"
     gltf.save_binary(str(character_file))
+    return character_file, plain
+
+
+def test_glb_with_an_armature_node_and_rest_rotations_moves_its_joints_where_the_result_says(tmp_path, source):
+    """As exported by Blender: the skeleton under a rotated, scaled Armature node, bones with rest rotations."""
+    character_file, plain = blender_like_glb(tmp_path)
+    places = read_rig(plain).rest_world()[:, :3, 3]
     rig = read_rig(character_file)
     assert rig.names == read_rig(plain).names
     assert np.allclose(rig.rest_world()[:, :3, 3], places, atol=1e-5)  # the same rest places in the file's world
@@ -451,3 +461,19 @@ def test_glb_with_an_armature_node_and_rest_rotations_moves_its_joints_where_the
     order = [bvh.joint_names.index(name) for name in character.rig.names]
     error = np.abs(positions[:, order] @ character.file_to_world.T - character.origin - result["rig_joints_world"])
     assert error.max() < 2e-4, [(n, e) for n, e in zip(character.rig.names, error.max(axis=(0, 2))) if e > 2e-4]
+
+
+def test_khronos_validator_finds_no_new_issue_in_the_characters_glb(tmp_path, source):
+    """The Khronos glTF validator on the GLB the retargeting writes (after PhysCap on the character): our skinned
+    mannequin has no issue before or after; the Blender-like file has after exactly the issues it had before (the
+    unused accessors of its removed animation), none of them an error or a warning."""
+    body = build_body_model(template_lengths(1.58), 55.0)
+    mannequin = tmp_path / "mannequin.glb"
+    write_glb(mannequin, body, body.rest_qpos[None], 30.0)
+    blender_like, _ = blender_like_glb(tmp_path)
+    written = [retarget_result(source, character, tmp_path / character.stem, physics="physcap").files["glb"]
+               for character in (mannequin, blender_like)]
+    clean_in, clean_out, blender_in, blender_out = khronos_issues(mannequin, written[0], blender_like, written[1])
+    assert issue_counts(clean_in) == issue_counts(clean_out) == (0, 0, 0, 0), clean_out["messages"]
+    assert blender_out["messages"] == blender_in["messages"]
+    assert issue_counts(blender_out)[:2] == (0, 0)

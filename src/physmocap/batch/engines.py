@@ -21,6 +21,9 @@ from .task import THREAD_ENV, BatchTask, capture_one, failed_record, limit_threa
 
 MAX_RETRIES = 2  # a run whose worker died is tried this many more times
 STOP_GRACE_SECONDS = 10.0  # after Ctrl-C, how long a worker may take to unwind its run before it is killed
+# A Ray worker runs some twenty threads of Ray's own; glibc's malloc gives threads arenas of their own, and the
+# worker's peak memory grew from run to run with them (docs/decisions/batch-ray-overhead.md, "Memory").
+RAY_WORKER_ENV = THREAD_ENV | {"MALLOC_ARENA_MAX": "2"}
 
 
 def _pool_worker_init() -> None:
@@ -118,12 +121,13 @@ class RayEngine:
         import ray
 
         self._ray = ray
-        options = dict(runtime_env={"env_vars": THREAD_ENV}, include_dashboard=False, log_to_driver=False,
-                       logging_level=logging.WARNING)
+        self._local_node = None
+        options = dict(log_to_driver=False, logging_level=logging.WARNING)
         if address is None:
-            ray.init(num_cpus=workers, **options)
-        else:
-            ray.init(address=address, **options)
+            self._local_node = _start_local_ray(workers)
+            ray.init(address=self._local_node.address, **options)
+        else:  # a cluster's other nodes start their workers from their own environment
+            ray.init(address=address, runtime_env={"env_vars": RAY_WORKER_ENV}, include_dashboard=False, **options)
         self._remote = ray.remote(capture_one).options(num_cpus=1, max_retries=max_retries, retry_exceptions=False)
         self._running: dict = {}
 
@@ -169,6 +173,24 @@ class RayEngine:
     def close(self) -> None:
         if self._ray.is_initialized():
             self._ray.shutdown()
+        if self._local_node is not None:
+            self._local_node.kill_all_processes(check_alive=False, allow_graceful=True, wait=True)
+            self._local_node = None
+
+
+def _start_local_ray(cpus: int):
+    """A local Ray head of `cpus` CPUs without the log monitor (only streams worker output, which the batch does
+    not show) and the autoscaler monitor (nothing to scale on one machine): together about a fifth of Ray's own
+    start-up CPU, taken from the captures when every core runs one (docs/decisions/batch-ray-overhead.md).
+    ray.init cannot leave them out; Ray's own test clusters (ray.cluster_utils) start a node this way. The reaper
+    process it spawns stops the node should this process die without close()."""
+    from ray._private.node import Node
+    from ray._private.parameter import RayParams
+
+    # Its daemons and workers inherit this environment: no runtime_env, which would start more workers.
+    os.environ.update(RAY_WORKER_ENV)
+    params = RayParams(num_cpus=cpus, include_dashboard=False, include_log_monitor=False, no_monitor=True)
+    return Node(params, head=True, shutdown_at_exit=True, spawn_reaper=True, ray_init_cluster=True)
 
 
 def _first_line(exc: BaseException) -> str:

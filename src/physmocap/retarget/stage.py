@@ -26,7 +26,8 @@ from ..config import Settings
 from ..errors import InputError
 from ..export import body_from_result
 from ..io.atomic import write_text
-from ..metrics import FLOATING_THRESHOLD, SKATE_REFERENCE_FPS, SKATE_THRESHOLD, foot_contact_errors, grf_statistics
+from ..metrics import (FLOATING_THRESHOLD, GRAVITY, SKATE_REFERENCE_FPS, SKATE_THRESHOLD, foot_contact_errors,
+                       grf_statistics)
 from ..result import RESULT_POINTS, load_result, save_result
 from .character import Character, build_character
 from .mapping import load_character_config
@@ -88,8 +89,10 @@ def retarget_metrics(character: Character, source_points: np.ndarray, qpos: np.n
         and not sliding more than the skate threshold; bone_cosine_body / bone_cosine_rig: mean cosine between
         the source's bone directions and the body model's / the rig's (limbs, hip and shoulder lines, trunk);
         bone_length_error_m: the largest change of any rig bone's length over the motion; grf_mean_percent_bw:
-        mean net ground reaction force in the character's body weights (None without physics); com: mean centre
-        of mass height as a share of the standing height."""
+        mean magnitude of the net ground reaction force in the character's body weights (Rempe's measure; None
+        without physics), grf_vertical_mean_percent_bw: the mean of its vertical component, which over a clip
+        equals the weight less what the root's residual force carries, plus the change of vertical momentum
+        (docs/decisions/retarget-grf.md); com: mean centre of mass height as a share of the standing height."""
     body = character.body
     pose = kin.forward_kinematics(body, qpos)
     feet = pose.points[:, body.point_index(CONTACT_POINTS)]
@@ -124,6 +127,8 @@ def retarget_metrics(character: Character, source_points: np.ndarray, qpos: np.n
         bone_cosine_body=float(cos_body.mean()), bone_cosine_rig=float(cos_rig.mean()),
         bone_length_error_m=float(np.abs(lengths - rest_lengths).max()) if len(children) else 0.0,
         grf_mean_percent_bw=None if grf is None else grf_statistics(grf, body.mass)["mean_percent_bw"],
+        grf_vertical_mean_percent_bw=None if grf is None else grf_statistics(grf, body.mass,
+                                                                             measure="vertical")["mean_percent_bw"],
         com_height_share=float(com[:, 2].mean() / body.height),
     )
 
@@ -196,7 +201,9 @@ def retarget_result(result_path: str | os.PathLike, character_path: str | os.Pat
     metrics = retarget_metrics(character, source["joints_world"][frames], qpos[frames], positions[frames],
                                contacts[frames], fps, None if grf is None else grf[frames])
     metrics.update(retarget_ms_per_frame=1000 * retarget_seconds / T, physics_ms_per_frame=1000 * physics_seconds / T,
-                   physics=physics, scale=retargeted.scale)
+                   physics=physics, scale=retargeted.scale,
+                   residual_vertical_mean_percent_bw=None if grf is None else float(
+                       100 * residual[frames, 2].mean() / (body.mass * GRAVITY)))
     if simulated is not None:  # the same figures before the feet were planted again
         before = retarget_metrics(character, source["joints_world"][frames], simulated[frames],
                                   rig_positions(character, rig_motion(character, simulated[frames])),
