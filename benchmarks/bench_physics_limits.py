@@ -62,6 +62,12 @@ CACHE = Path(tempfile.gettempdir()) / "physmocap_bench_physics_limits"
 GRAVITY = 9.81
 BOX = dict(start=3.0, end=5.5, ramp=0.5, height=0.3)  # s, s, s, m
 RATES = (10.0, 24.0, 30.0, 60.0)
+# Validation clips (CMU training subjects 2, 5 and 7; the test set holds 6 and 131), on which settings are chosen:
+# walks on both skeletons, jump and balance, dance steps, bend and scoop.
+VALIDATION_CLIPS = ("cmu_raw_cgspeed/02_01.bvh", "cmu_iclone_cc3_retarget/007_01.bvh",
+                    "cmu_iclone_cc3_retarget/002_04.bvh", "cmu_iclone_cc3_retarget/005_11.bvh",
+                    "cmu_iclone_cc3_retarget/002_06.bvh")
+VALIDATION_WALKING = ("02_01.bvh", "007_01.bvh")
 
 
 def box_lift(times: np.ndarray) -> np.ndarray:
@@ -75,10 +81,13 @@ def box_lift(times: np.ndarray) -> np.ndarray:
 def build_case(name: str, seed: int, fps: float = FPS, noise: NoiseModel = MEDIAPIPE_NOISE, box: bool = False,
                online: bool = True) -> dict:
     """Observations, truth, the kinematic fits and the contacts of one clip; cached on disk."""
-    key = f"{name.split('/')[-1][:-4]}_{seed}_{fps:g}{'_box' if box else ''}"
+    key = f"{name.split('/')[0]}_{name.split('/')[-1][:-4]}_{seed}_{fps:g}{'_box' if box else ''}"
     path = CACHE / f"{key}.pkl"
     if path.exists():
-        return pickle.loads(path.read_bytes())
+        case = pickle.loads(path.read_bytes())
+        if not online or "online" in case:
+            return case
+        return add_online_fits(case, path)
     clip = first_seconds(resample(load_mocap(MOCAP / name), fps), SECONDS)
     lift = box_lift(np.arange(clip.num_frames) / fps) if box else np.zeros(clip.num_frames)
     positions = clip.positions.copy()
@@ -88,18 +97,26 @@ def build_case(name: str, seed: int, fps: float = FPS, noise: NoiseModel = MEDIA
     K, R, t = random_camera(clip, rng)
     obs, truth = make_observations(clip, K, R, t, rng, noise)
     settings = Settings().replace("body", height=model_height(truth["landmarks_world"]))
-    calibrated = settings.replace("camera", floor=tuple(float(v) for v in truth["floor"]))
     case = dict(name=key, obs=obs, truth=truth, lift=lift, settings=settings)
     offline = fit_motion(obs, settings)
     contacts, stationary, _ = predict_contacts(obs, "centred")
     refined = refine_kinematics(obs, offline, contacts, settings.fit, settings.trajopt)
     case.update(offline=offline, contacts=contacts, stationary=stationary, refined=refined)
-    if online:
-        causal, causal_stationary, _ = predict_contacts(obs, "causal")
-        case.update(online=fit_motion(obs, settings.replace(None, online=True)),
-                    online_calibrated=fit_motion(obs, calibrated.replace(None, online=True)),
-                    causal=causal, causal_stationary=causal_stationary)
     CACHE.mkdir(parents=True, exist_ok=True)
+    if online:
+        return add_online_fits(case, path)
+    path.write_bytes(pickle.dumps(case))
+    return case
+
+
+def add_online_fits(case: dict, path: Path) -> dict:
+    """The case with the online fits (estimated and calibrated floor) and causal contacts; cached on disk."""
+    obs, settings = case["obs"], case["settings"]
+    calibrated = settings.replace("camera", floor=tuple(float(v) for v in case["truth"]["floor"]))
+    causal, causal_stationary, _ = predict_contacts(obs, "causal")
+    case.update(online=fit_motion(obs, settings.replace(None, online=True)),
+                online_calibrated=fit_motion(obs, calibrated.replace(None, online=True)),
+                causal=causal, causal_stationary=causal_stationary)
     path.write_bytes(pickle.dumps(case))
     return case
 
@@ -255,13 +272,13 @@ def part_online(clips, seeds, physics_settings=None) -> dict:
 METHODS = ("kinematic offline", "kinematic refined (B.4)", "physcap on refined", "trajopt")
 
 
-def part_methods(clips, seeds) -> dict:
+def part_methods(clips, seeds, methods=METHODS, walking=WALKING) -> dict:
     rows = []
     for name in clips:
         for seed in seeds:
-            case = build_case(name, seed)
+            case = build_case(name, seed, online=False)
             truth, fps = case["truth"], case["obs"].fps
-            for method in METHODS:
+            for method in methods:
                 grf, residual, flagged, seconds = None, None, None, 0.0
                 if method == "kinematic offline":
                     motion, qpos, seconds = case["offline"], case["offline"].qpos, case["offline"].seconds
@@ -296,12 +313,12 @@ def part_methods(clips, seeds) -> dict:
                 print("methods", method, row["clip"], seed, "root-rel %.1f skate %.1f float %.1f" % (
                     row["mpjpe_root_mm"], row["skate_percent"], row["floating_percent"]), flush=True)
     summary = {}
-    for method in METHODS:
+    for method in methods:
         sel = [r for r in rows if r["method"] == method]
         keys = [k for k, v in sel[0].items() if isinstance(v, float)]
         summary[method] = {k: float(np.nanmean([r[k] for r in sel])) for k in keys}
         summary[method]["grf_mean_percent_bw_walking"] = float(np.nanmean(
-            [r["grf_mean_percent_bw"] for r in sel if r["clip"] in WALKING]))
+            [r["grf_mean_percent_bw"] for r in sel if r["clip"] in walking]))
     return dict(rows=rows, summary=summary)
 
 
@@ -411,6 +428,11 @@ def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--parts", nargs="+", default=["framerate", "diagnosis", "online", "methods"])
     parser.add_argument("--quick", action="store_true", help="three clips (two for framerate), one seed")
+    parser.add_argument("--set", choices=("test", "validation"), default="test",
+                        help="clips of parts methods and framerate: the test set or the validation clips "
+                             "(training subjects; settings are chosen there)")
+    parser.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS),
+                        help="the rows of part methods")
     parser.add_argument("--json", default=str(RESULTS / "physics_limits.json"))
     parser.add_argument("--against", default=str(Path(__file__).resolve().parents[2] / "main" / "src"),
                         help="src folder of the code to time against in part speed (default: ../main/src)")
@@ -419,21 +441,22 @@ def main(argv=None) -> dict:
     if args.time_only:
         print(json.dumps(time_physics(args.time_only)))
         return {}
-    clips = CLIPS[:3] if args.quick else CLIPS
+    all_clips, walks = (VALIDATION_CLIPS, VALIDATION_WALKING) if args.set == "validation" else (CLIPS, WALKING)
+    clips = all_clips[:3] if args.quick else all_clips
     seeds = (0,) if args.quick else (0, 1)
-    walking = [c for c in clips if c.split("/")[-1] in WALKING]
+    walking = [c for c in clips if c.split("/")[-1] in walks]
     path = Path(args.json)
     out = json.loads(path.read_text()) if path.exists() else {}
     for part in args.parts:
         start = time.perf_counter()
         if part == "framerate":
-            out[part] = part_framerate(CLIPS[:2])
+            out[part] = part_framerate(all_clips[:2])
         elif part == "diagnosis":
             out[part] = part_diagnosis(walking, seeds)
         elif part == "online":
             out[part] = part_online(clips, seeds)
         elif part == "methods":
-            out[part] = part_methods(clips, seeds)
+            out[part] = part_methods(clips, seeds, args.methods, walks)
         elif part == "speed":
             out[part] = part_speed(args.against)
         out[part]["minutes"] = (time.perf_counter() - start) / 60

@@ -29,6 +29,10 @@ MAX_ACCELERATION = 1e4  # m/s^2 or rad/s^2, about 50 times the fastest human lim
 MAX_DESIRED_ACCELERATION = 2e3  # m/s^2 or rad/s^2, the PD targets' bound: about ten times the fastest human limb
 # motions. A fit that flips a wrist back and forth between frames (60 rad/s each way, seen on real video) would
 # otherwise ask the stiff PD for 1e4 and trip the divergence guard.
+CONTACT_SETTLE_TIME = 0.05  # s: a contact point in use that lies above its kinematic target (and the floor)
+# comes down to it at least at (height above it) / this time. The floor only stops points from sinking; without
+# the matching pull a foot held a few cm above the floor still took contact forces, and the body rode up on it
+# (docs/decisions/physics-default.md: floating 8.4 -> 3.5% on the validation clips); 0.011 .. 1
 
 
 def integration_steps(settings: PhysicsSettings, fps: float) -> tuple[int, float]:
@@ -111,6 +115,7 @@ class PhysCapTracker:
         self.qvel = np.zeros(nv)
         self.target_data = mujoco.MjData(self.model)  # kinematics of the frame's target pose
         self._previous_target = np.zeros(self.model.nq)  # the last frame's target: the steps move from it
+        self._previous_target_heights = np.zeros(4)  # m, its contact points' heights
         self._target_step = np.zeros(nv)
         self._no_rows, self._no_bounds = np.zeros((0, nv)), np.zeros(0)
 
@@ -118,6 +123,12 @@ class PhysCapTracker:
         self.qpos[:] = qpos
         self.qvel[:] = qvel
         self._previous_target[:] = qpos
+        self._target_kinematics(qpos)
+        self._previous_target_heights[:] = self.target_data.site_xpos[self.sites, 2]
+
+    def _target_kinematics(self, q_kin: np.ndarray) -> None:
+        self.target_data.qpos[:] = q_kin
+        mujoco.mj_kinematics(self.model, self.target_data)
 
     # ---- the pieces of one step -------------------------------------------------------------------------
     def _dynamics(self):
@@ -159,12 +170,13 @@ class PhysCapTracker:
         forces[active] = x.reshape(k, 3)
         return forces, True, target - root_rows.T @ x
 
-    def pose_accelerations(self, qdd_des, bias, forces, active, heights,
-                           released) -> tuple[np.ndarray, np.ndarray, bool]:
+    def pose_accelerations(self, qdd_des, bias, forces, active, heights, released,
+                           target_heights) -> tuple[np.ndarray, np.ndarray, bool]:
         """Eq. (10): qdd minimising |qdd - qdd_des|^2 + tau' W tau with tau = M qdd + c - J^T lambda (the
         equation of motion, eq. 2), subject to eq. (9) at the active contacts after the step: the normal
-        velocity keeps the point on or above the floor, tangential speeds stay within sigma (except at released
-        contacts, which slide freely but still do not sink).
+        velocity keeps the point on or above the floor and brings a point above its target's height
+        (target_heights, (4,) m) down to it within CONTACT_SETTLE_TIME, tangential speeds stay within sigma
+        (except at released contacts, which slide freely but still do not sink).
         Returns qdd, tau and whether the QP solved (else the unconstrained optimum is used)."""
         M, dt, nv = self.mass_matrix, self.dt, self.model.nv
         W = self.torque_weights
@@ -187,7 +199,9 @@ class PhysCapTracker:
             normal_speed = np.where(h > clearance, (clearance - h) / dt,
                                     np.maximum(-h, 0.0) / max(dt, self.settings.penetration_recovery))
             lower[2::3] = normal_speed - velocity[2::3]
-            upper[2::3] = INF
+            goal = np.maximum(target_heights[active], clearance)
+            settle = np.where(h > goal, (goal - h) / max(dt, CONTACT_SETTLE_TIME), INF)
+            upper[2::3] = np.maximum(settle, normal_speed) - velocity[2::3]
             qdd, _, exitflag, _ = daqp.solve(H, f, dt * rows, upper, lower)
             solved = exitflag == 1
         if not active.any() or not solved:
@@ -200,15 +214,13 @@ class PhysCapTracker:
         x, _, exitflag, _ = daqp.solve(H, f, self._no_rows, self._no_bounds, self._no_bounds)
         return x if exitflag == 1 else np.linalg.solve(H, -f)
 
-    def _released_contacts(self, q_kin: np.ndarray) -> np.ndarray:
+    def _released_contacts(self) -> np.ndarray:
         """(4,) contact points whose target has moved more than release_distance along the floor from where the
         character holds them: the kinematic foot has gone (a wrong contact label or the detector swapping the
         feet), and holding on would drag the whole body after it. Reads the character's contact points from
-        `_dynamics`, which must have run at the current state."""
+        `_dynamics`, which must have run at the current state, and the target's from target_data."""
         if self.settings.release_distance is None:
             return np.zeros(4, bool)
-        self.target_data.qpos[:] = q_kin
-        mujoco.mj_kinematics(self.model, self.target_data)
         offset = self.target_data.site_xpos[self.sites, :2] - self.data.site_xpos[self.sites, :2]
         return np.linalg.norm(offset, axis=1) > self.settings.release_distance
 
@@ -226,18 +238,22 @@ class PhysCapTracker:
         # manifold) between the last frame's target and this one at the step's end time, so that the last step
         # lands on frame t whatever the number of steps.
         mujoco.mj_differentiatePos(self.model, self._target_step, 1.0, self._previous_target, q_kin)
+        self._target_kinematics(q_kin)
+        target_heights = self.target_data.site_xpos[self.sites, 2].copy()
+        height_step = target_heights - self._previous_target_heights
         for i in range(n):
             target[:] = self._previous_target
             mujoco.mj_integratePos(self.model, target, self._target_step, (i + 1) / n)
             bias, heights, touching = self._dynamics()
             if i == 0:  # judged once per frame, where the character stands at its start
-                released = self._released_contacts(q_kin)
+                released = self._released_contacts()
             active = predicted_contacts & (heights < s.contact_height) & ~released  # eq. (5)
             if s.foot_lock != "never":  # airborne or swimming motion: the floor does not push back
                 active |= touching
             qdd_des = self.desired_acceleration(target, qd_kin, qdd_kin)
             forces, grf_ok, _ = self.ground_reaction_forces(qdd_des, bias, active)
-            qdd, torque, pose_ok = self.pose_accelerations(qdd_des, bias, forces, active, heights, released)
+            qdd, torque, pose_ok = self.pose_accelerations(qdd_des, bias, forces, active, heights, released,
+                                                           self._previous_target_heights + (i + 1) / n * height_step)
             failures += (not grf_ok) + (not pose_ok)
             if self.record:
                 records.append(SubstepRecord(self.qpos.copy(), self.qvel.copy(), qdd, torque, forces, active.copy()))
@@ -251,6 +267,7 @@ class PhysCapTracker:
             forces_sum += forces
             residual_sum += torque[:6]
         self._previous_target[:] = q_kin
+        self._previous_target_heights[:] = target_heights
         unexplained = self.kinematic_misfit(q_kin, qd_kin, qdd_kin)
         return FrameOutput(forces_sum / n, residual_sum / n, active, failures, records, unexplained, diverged)
 

@@ -129,6 +129,8 @@ class PhysicsStream:
             self.tracker.reset(q_kin, velocity)
         else:
             mujoco.mj_differentiatePos(self.tracker.model, velocity, 1.0 / self.fps, self._previous, q_kin)
+            if self._frames == 1:  # the first velocity known: the character, started at rest, takes it
+                self.tracker.qvel[:] = velocity
             if self._frames >= 2:
                 velocity = self._new_share * velocity + (1.0 - self._new_share) * self._velocity
                 acceleration = (velocity - self._velocity) * self.fps
