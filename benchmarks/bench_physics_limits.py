@@ -121,11 +121,11 @@ def add_online_fits(case: dict, path: Path) -> dict:
     return case
 
 
-def physcap_offline(case: dict):
+def physcap_offline(case: dict, physics=None):
     """PhysCap on the B.4-refined kinematics, as offline capture runs it."""
-    refined, settings = case["refined"], case["settings"]
+    refined = case["refined"]
     return refined.motion, run_physcap(refined.motion.body, refined.motion.qpos, case["obs"].fps, refined.contacts,
-                                       case["stationary"], settings.physics, refined_input=True)
+                                       case["stationary"], physics or case["settings"].physics, refined_input=True)
 
 
 def physcap_online(case: dict, calibrated: bool = False, physics=None):
@@ -272,7 +272,8 @@ def part_online(clips, seeds, physics_settings=None) -> dict:
 METHODS = ("kinematic offline", "kinematic refined (B.4)", "physcap on refined", "trajopt")
 
 
-def part_methods(clips, seeds, methods=METHODS, walking=WALKING) -> dict:
+def part_methods(clips, seeds, methods=METHODS, walking=WALKING, overrides=None) -> dict:
+    """The methods' metrics on the clips; overrides: PhysicsSettings fields for the PhysCap row."""
     rows = []
     for name in clips:
         for seed in seeds:
@@ -286,7 +287,8 @@ def part_methods(clips, seeds, methods=METHODS, walking=WALKING) -> dict:
                     motion, qpos = case["refined"].motion, case["refined"].motion.qpos
                     seconds = case["offline"].seconds + case["refined"].seconds
                 elif method == "physcap on refined":
-                    motion, physics = physcap_offline(case)
+                    motion, physics = physcap_offline(
+                        case, dataclasses.replace(case["settings"].physics, **(overrides or {})))
                     qpos, grf, residual, flagged = physics.qpos, physics.grf, physics.residual, physics.unexplained
                     seconds = case["offline"].seconds + case["refined"].seconds + physics.seconds
                 else:
@@ -424,6 +426,13 @@ def markdown(out: dict) -> str:
     return "\n".join(lines)
 
 
+def settings_overrides(pairs: list[str]) -> dict:
+    """NAME=VALUE pairs -> PhysicsSettings fields (None, True, False or a number)."""
+    words = {"None": None, "True": True, "False": False}
+    return {name: words[value] if value in words else float(value)
+            for name, value in (pair.split("=", 1) for pair in pairs)}
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--parts", nargs="+", default=["framerate", "diagnosis", "online", "methods"])
@@ -433,6 +442,8 @@ def main(argv=None) -> dict:
                              "(training subjects; settings are chosen there)")
     parser.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS),
                         help="the rows of part methods")
+    parser.add_argument("--physics", nargs="*", default=[], metavar="NAME=VALUE",
+                        help="PhysicsSettings fields for part methods' PhysCap row (trying settings on validation)")
     parser.add_argument("--json", default=str(RESULTS / "physics_limits.json"))
     parser.add_argument("--against", default=str(Path(__file__).resolve().parents[2] / "main" / "src"),
                         help="src folder of the code to time against in part speed (default: ../main/src)")
@@ -456,7 +467,7 @@ def main(argv=None) -> dict:
         elif part == "online":
             out[part] = part_online(clips, seeds)
         elif part == "methods":
-            out[part] = part_methods(clips, seeds, args.methods, walks)
+            out[part] = part_methods(clips, seeds, args.methods, walks, settings_overrides(args.physics))
         elif part == "speed":
             out[part] = part_speed(args.against)
         out[part]["minutes"] = (time.perf_counter() - start) / 60

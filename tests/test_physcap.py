@@ -8,7 +8,7 @@ from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
 from physmocap.config import PhysicsSettings
 from physmocap.dynamics.balance import inside_support
-from physmocap.dynamics.physcap import CONTACT_SETTLE_TIME, PhysCapTracker
+from physmocap.dynamics.physcap import PhysCapTracker
 from physmocap.body.rotations import quat_exp, quat_multiply
 from physmocap.dynamics.stage import PhysicsStream, kinematic_derivatives, run_physcap
 from physmocap.kinematics.stage import rigid_transform_qpos
@@ -240,7 +240,7 @@ def test_contact_released_when_the_kinematic_foot_leaves(body):
 
 def test_a_held_contact_above_its_target_comes_down_to_it(body):
     """The floor only stops a contact point from sinking; a point in use that hovers above its kinematic target
-    must also come down to it (within CONTACT_SETTLE_TIME), or a foot held in the air takes the contact forces
+    must also come down to it (within contact_settle_time), or a foot held in the air takes the contact forces
     and the body rides up on it. A point below its target is left free."""
     settings = PhysicsSettings()
     tracker = PhysCapTracker(body, settings, FPS)
@@ -255,7 +255,7 @@ def test_a_held_contact_above_its_target_comes_down_to_it(body):
     assert solved
     normal_velocity = (tracker.contact_jacobian @ (tracker.dt * qdd))[:, 2]
     goal = np.maximum(targets, settings.floor_clearance)
-    assert np.all(normal_velocity <= (goal - heights) / CONTACT_SETTLE_TIME + 1e-9)
+    assert np.all(normal_velocity <= (goal - heights) / settings.contact_settle_time + 1e-9)
     free = [tracker.pose_accelerations(np.zeros(body.nv), bias, np.zeros((4, 3)), active, heights,
                                        np.zeros(4, bool), heights + above)[0] for above in (0.01, 10.0)]
     assert np.allclose(free[0], free[1])

@@ -242,6 +242,8 @@ class PhysicsSettings:
     # floor; never: no contacts and no floor collisions (airborne or swimming motion)
     penetration_recovery: float = 0.1  # s, a contact point found below the floor rises back at depth / this time
     # (pushing it out within one step launches the body); 0.001 .. 1
+    contact_settle_time: float = 0.05  # s: a contact point in use above its kinematic target comes down to it at
+    # least at (height above it) / this time (ours; docs/decisions/physics-default.md); 0.001 .. 1
     release_distance: float | None = 0.05  # m: a contact whose kinematic target lies farther than this along the
     # floor from the character's contact point is released: no predicted contact there, and a foot touching the
     # floor may slide but not sink (ours; None: never, as the paper). Holding a foot the detector has moved
@@ -338,6 +340,7 @@ class PhysicsSettings:
         _within("physics.floor_tilt_rate", self.floor_tilt_rate, 0.01, 90.0, "deg/s")
         _within("physics.floor_lift_rate", self.floor_lift_rate, 0.001, 1.0, "m/s")
         _within("physics.penetration_recovery", self.penetration_recovery, 1e-3, 1.0, "s")
+        _within("physics.contact_settle_time", self.contact_settle_time, 1e-3, 1.0, "s")
         _within("physics.stray_distance", self.stray_distance, 0.01, 10.0, "m")
         if self.release_distance is not None:
             _within("physics.release_distance", self.release_distance, 0.0, 1.0, "m")

@@ -29,10 +29,6 @@ MAX_ACCELERATION = 1e4  # m/s^2 or rad/s^2, about 50 times the fastest human lim
 MAX_DESIRED_ACCELERATION = 2e3  # m/s^2 or rad/s^2, the PD targets' bound: about ten times the fastest human limb
 # motions. A fit that flips a wrist back and forth between frames (60 rad/s each way, seen on real video) would
 # otherwise ask the stiff PD for 1e4 and trip the divergence guard.
-CONTACT_SETTLE_TIME = 0.05  # s: a contact point in use that lies above its kinematic target (and the floor)
-# comes down to it at least at (height above it) / this time. The floor only stops points from sinking; without
-# the matching pull a foot held a few cm above the floor still took contact forces, and the body rode up on it
-# (docs/decisions/physics-default.md: floating 8.4 -> 3.5% on the validation clips); 0.011 .. 1
 
 
 def integration_steps(settings: PhysicsSettings, fps: float) -> tuple[int, float]:
@@ -175,8 +171,8 @@ class PhysCapTracker:
         """Eq. (10): qdd minimising |qdd - qdd_des|^2 + tau' W tau with tau = M qdd + c - J^T lambda (the
         equation of motion, eq. 2), subject to eq. (9) at the active contacts after the step: the normal
         velocity keeps the point on or above the floor and brings a point above its target's height
-        (target_heights, (4,) m) down to it within CONTACT_SETTLE_TIME, tangential speeds stay within sigma
-        (except at released contacts, which slide freely but still do not sink).
+        (target_heights, (4,) m) down to it within settings.contact_settle_time, tangential speeds stay within
+        sigma (except at released contacts, which slide freely but still do not sink).
         Returns qdd, tau and whether the QP solved (else the unconstrained optimum is used)."""
         M, dt, nv = self.mass_matrix, self.dt, self.model.nv
         W = self.torque_weights
@@ -200,7 +196,7 @@ class PhysCapTracker:
                                     np.maximum(-h, 0.0) / max(dt, self.settings.penetration_recovery))
             lower[2::3] = normal_speed - velocity[2::3]
             goal = np.maximum(target_heights[active], clearance)
-            settle = np.where(h > goal, (goal - h) / max(dt, CONTACT_SETTLE_TIME), INF)
+            settle = np.where(h > goal, (goal - h) / max(dt, self.settings.contact_settle_time), INF)
             upper[2::3] = np.maximum(settle, normal_speed) - velocity[2::3]
             qdd, _, exitflag, _ = daqp.solve(H, f, dt * rows, upper, lower)
             solved = exitflag == 1
