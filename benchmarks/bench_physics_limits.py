@@ -160,9 +160,9 @@ def resample_motion(body, qpos: np.ndarray, fps: float, new_fps: float) -> tuple
     return out, lower
 
 
-def part_framerate(clips) -> dict:
+def part_framerate(clips, overrides=None) -> dict:
     """The 60 fps offline case's B.4-refined kinematic motion resampled to each rate (the same motion), PhysCap at
-    each rate; joints against the 60 fps run at common times. Runs on older code too (no `unexplained` there)."""
+    each rate as offline capture runs it (refined_input); joints against the 60 fps run at common times."""
     rows = []
     for name in clips:
         case = build_case(name, 0, 60.0, online=False)
@@ -172,7 +172,8 @@ def part_framerate(clips) -> dict:
         for fps in RATES:
             qpos, source = resample_motion(body, motion.qpos, 60.0, fps)
             physics = run_physcap(body, qpos, fps, refined.contacts[source], case["stationary"][source],
-                                  case["settings"].physics)
+                                  dataclasses.replace(case["settings"].physics, **(overrides or {})),
+                                  refined_input=True)
             runs[fps] = dict(times=np.arange(len(qpos)) / fps, physics=physics,
                              points=kin.forward_kinematics(body, physics.qpos).points)
         reference = runs[60.0]
@@ -427,10 +428,15 @@ def markdown(out: dict) -> str:
 
 
 def settings_overrides(pairs: list[str]) -> dict:
-    """NAME=VALUE pairs -> PhysicsSettings fields (None, True, False or a number)."""
+    """NAME=VALUE pairs -> PhysicsSettings fields (None, True, False, a number or else the word itself)."""
     words = {"None": None, "True": True, "False": False}
-    return {name: words[value] if value in words else float(value)
-            for name, value in (pair.split("=", 1) for pair in pairs)}
+
+    def value_of(text: str):
+        try:
+            return words[text] if text in words else float(text)
+        except ValueError:
+            return text
+    return {name: value_of(value) for name, value in (pair.split("=", 1) for pair in pairs)}
 
 
 def main(argv=None) -> dict:
@@ -443,7 +449,8 @@ def main(argv=None) -> dict:
     parser.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS),
                         help="the rows of part methods")
     parser.add_argument("--physics", nargs="*", default=[], metavar="NAME=VALUE",
-                        help="PhysicsSettings fields for part methods' PhysCap row (trying settings on validation)")
+                        help="PhysicsSettings fields for PhysCap in parts methods and framerate (trying settings on "
+                             "validation clips)")
     parser.add_argument("--json", default=str(RESULTS / "physics_limits.json"))
     parser.add_argument("--against", default=str(Path(__file__).resolve().parents[2] / "main" / "src"),
                         help="src folder of the code to time against in part speed (default: ../main/src)")
@@ -461,7 +468,7 @@ def main(argv=None) -> dict:
     for part in args.parts:
         start = time.perf_counter()
         if part == "framerate":
-            out[part] = part_framerate(all_clips[:2])
+            out[part] = part_framerate(all_clips[:2], settings_overrides(args.physics))
         elif part == "diagnosis":
             out[part] = part_diagnosis(walking, seeds)
         elif part == "online":

@@ -64,6 +64,25 @@ def test_the_same_motion_at_10_24_30_and_60_fps_gives_the_same_physics(body):
         assert np.linalg.norm(p[common] - reference[match], axis=-1).max() < 0.01, fps
 
 
+def test_a_contact_label_switches_at_the_same_instant_at_any_frame_rate(body):
+    """Contacts are decided per integration step from the frame nearest the step's middle: a label that turns
+    off at 0.5 s takes effect within half a step of 0.5 s - half a frame interval, not a whole frame early."""
+    from physmocap.dynamics.physcap import PhysCapTracker
+
+    settings = PhysicsSettings(foot_lock="never")  # only the labels, not floor collisions, make contacts
+    for fps in (10.0, 24.0, 60.0):
+        tracker = PhysCapTracker(body, settings, fps, record=True)
+        tracker.reset(body.rest_qpos, np.zeros(body.nv))
+        zero = np.zeros(body.nv)
+        records = []
+        for k in range(int(fps) + 1):
+            contacts = np.full(4, k / fps < 0.5 - 1e-9)
+            records += tracker.track(body.rest_qpos, zero, zero, contacts).records
+        first_off = next(i for i, r in enumerate(records) if not r.active.any())
+        switch = (first_off + 0.5) * tracker.dt - 1.0 / fps  # the first step's middle; frame 0 ends at 0 s
+        assert abs(switch - (0.5 - 0.5 / fps)) <= 0.5 * tracker.dt + 1e-9, fps
+
+
 def ballistic_jump(body, fps: float, frames: int, takeoff: int, flight: float):
     """Standing, then a flight of `flight` seconds from frame `takeoff` along the parabola that leaves and meets
     standing height (take-off speed g flight / 2), the feet called in contact outside the flight. Returns the

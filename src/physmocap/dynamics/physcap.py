@@ -111,7 +111,8 @@ class PhysCapTracker:
         self.qvel = np.zeros(nv)
         self.target_data = mujoco.MjData(self.model)  # kinematics of the frame's target pose
         self._previous_target = np.zeros(self.model.nq)  # the last frame's target: the steps move from it
-        self._previous_target_heights = np.zeros(4)  # m, its contact points' heights
+        self._previous_target_sites = np.zeros((4, 3))  # m, its contact points
+        self._previous_contacts: np.ndarray | None = None  # the last frame's predicted contacts (None after a reset)
         self._target_step = np.zeros(nv)
         self._no_rows, self._no_bounds = np.zeros((0, nv)), np.zeros(0)
 
@@ -120,7 +121,8 @@ class PhysCapTracker:
         self.qvel[:] = qvel
         self._previous_target[:] = qpos
         self._target_kinematics(qpos)
-        self._previous_target_heights[:] = self.target_data.site_xpos[self.sites, 2]
+        self._previous_target_sites[:] = self.target_data.site_xpos[self.sites]
+        self._previous_contacts = None
 
     def _target_kinematics(self, q_kin: np.ndarray) -> None:
         self.target_data.qpos[:] = q_kin
@@ -210,14 +212,14 @@ class PhysCapTracker:
         x, _, exitflag, _ = daqp.solve(H, f, self._no_rows, self._no_bounds, self._no_bounds)
         return x if exitflag == 1 else np.linalg.solve(H, -f)
 
-    def _released_contacts(self) -> np.ndarray:
-        """(4,) contact points whose target has moved more than release_distance along the floor from where the
-        character holds them: the kinematic foot has gone (a wrong contact label or the detector swapping the
-        feet), and holding on would drag the whole body after it. Reads the character's contact points from
-        `_dynamics`, which must have run at the current state, and the target's from target_data."""
+    def _released_contacts(self, target_sites: np.ndarray) -> np.ndarray:
+        """(4,) contact points whose target (target_sites, (4, 3) m) lies more than release_distance along the
+        floor from where the character holds them: the kinematic foot has gone (a wrong contact label or the
+        detector swapping the feet), and holding on would drag the whole body after it. Reads the character's
+        contact points from `_dynamics`, which must have run at the current state."""
         if self.settings.release_distance is None:
             return np.zeros(4, bool)
-        offset = self.target_data.site_xpos[self.sites, :2] - self.data.site_xpos[self.sites, :2]
+        offset = target_sites[:, :2] - self.data.site_xpos[self.sites, :2]
         return np.linalg.norm(offset, axis=1) > self.settings.release_distance
 
     # ---- one video frame ----------------------------------------------------------------------------------
@@ -234,22 +236,28 @@ class PhysCapTracker:
         # manifold) between the last frame's target and this one at the step's end time, so that the last step
         # lands on frame t whatever the number of steps.
         mujoco.mj_differentiatePos(self.model, self._target_step, 1.0, self._previous_target, q_kin)
+        # Contacts are decided per step, so that they switch at the same instants at any frame rate: each step
+        # takes the predicted contacts of the frame nearest its middle (the last frame's over the first half of
+        # the interval), and the target's contact points are interpolated like the pose.
         self._target_kinematics(q_kin)
-        target_heights = self.target_data.site_xpos[self.sites, 2].copy()
-        height_step = target_heights - self._previous_target_heights
+        target_sites = self.target_data.site_xpos[self.sites].copy()
+        sites_step = target_sites - self._previous_target_sites
+        earlier_contacts = predicted_contacts if self._previous_contacts is None else self._previous_contacts
         for i in range(n):
             target[:] = self._previous_target
             mujoco.mj_integratePos(self.model, target, self._target_step, (i + 1) / n)
             bias, heights, touching = self._dynamics()
-            if i == 0:  # judged once per frame, where the character stands at its start
-                released = self._released_contacts()
-            active = predicted_contacts & (heights < s.contact_height) & ~released  # eq. (5)
+            step_sites = self._previous_target_sites + (i + 1) / n * sites_step
+            if i == 0:  # judged once per frame against the frame's target (per step it split walks further)
+                released = self._released_contacts(target_sites)
+            predicted = earlier_contacts if (i + 0.5) / n < 0.5 else predicted_contacts
+            active = predicted & (heights < s.contact_height) & ~released  # eq. (5)
             if s.foot_lock != "never":  # airborne or swimming motion: the floor does not push back
                 active |= touching
             qdd_des = self.desired_acceleration(target, qd_kin, qdd_kin)
             forces, grf_ok, _ = self.ground_reaction_forces(qdd_des, bias, active)
             qdd, torque, pose_ok = self.pose_accelerations(qdd_des, bias, forces, active, heights, released,
-                                                           self._previous_target_heights + (i + 1) / n * height_step)
+                                                           step_sites[:, 2])
             failures += (not grf_ok) + (not pose_ok)
             if self.record:
                 records.append(SubstepRecord(self.qpos.copy(), self.qvel.copy(), qdd, torque, forces, active.copy()))
@@ -263,7 +271,8 @@ class PhysCapTracker:
             forces_sum += forces
             residual_sum += torque[:6]
         self._previous_target[:] = q_kin
-        self._previous_target_heights[:] = target_heights
+        self._previous_target_sites[:] = target_sites
+        self._previous_contacts = predicted_contacts.copy()
         unexplained = self.kinematic_misfit(q_kin, qd_kin, qdd_kin)
         return FrameOutput(forces_sum / n, residual_sum / n, active, failures, records, unexplained, diverged)
 
