@@ -207,3 +207,36 @@ def test_refined_kinematics_are_tracked_without_lifting_their_targets(body):
 
 def standing(body, frames):
     return np.repeat(body.rest_qpos[None], frames, axis=0)
+
+
+def test_every_number_in_the_result_file_is_finite_with_personless_frames(body, tmp_path):
+    """A run whose observations hold frames without a person (no keypoints, NaN as another detector writes them)
+    writes only finite numbers; where the reprojection error could not be measured the file says so in
+    reprojection_measured instead of writing NaN."""
+    from physmocap.config import Settings
+    from physmocap.camera import Camera
+    from physmocap.motion import Observations
+    from physmocap.pipeline import run_capture
+    from test_fit import observe
+
+    _, q = swaying(body, 30.0, seconds=2.0)
+    camera = Camera.from_settings((1280, 720), fov=60)
+    R = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])
+    camera = camera.with_extrinsics(R, -R @ np.array([0.0, -4.0, 1.0]))
+    obs = observe(body, q, camera)
+    gone = np.zeros(len(q), bool)
+    gone[25:33] = True
+    keypoints, landmarks = obs.keypoints_2d.copy(), obs.landmarks_3d.copy()
+    keypoints[gone], landmarks[gone] = np.nan, np.nan
+    path = tmp_path / "observations.npz"
+    Observations(keypoints, landmarks, obs.fps, obs.image_size, camera_K=obs.camera_K, valid=~gone,
+                 invalid_reason=np.where(gone, "no person", "")).save(path)
+    run_capture(tmp_path / "run", Settings(), observations=path, overlay=False)
+    with np.load(tmp_path / "run" / "result.npz") as result:
+        for key in result.files:
+            values = result[key]
+            if values.dtype.kind in "fc":
+                assert np.isfinite(values).all(), key
+        measured = result["reprojection_measured"]
+        assert not measured[gone].any() and measured[~gone].all()
+        assert (result["reprojection_error"][measured] > 0).all()
