@@ -111,7 +111,7 @@ class PhysCapTracker:
         self.qvel = np.zeros(nv)
         self.target_data = mujoco.MjData(self.model)  # kinematics of the frame's target pose
         self._previous_target = np.zeros(self.model.nq)  # the last frame's target: the steps move from it
-        self._previous_target_sites = np.zeros((4, 3))  # m, its contact points
+        self._previous_target_heights = np.zeros(4)  # m, its contact points' heights
         self._previous_contacts: np.ndarray | None = None  # the last frame's predicted contacts (None after a reset)
         self._target_step = np.zeros(nv)
         self._no_rows, self._no_bounds = np.zeros((0, nv)), np.zeros(0)
@@ -121,7 +121,7 @@ class PhysCapTracker:
         self.qvel[:] = qvel
         self._previous_target[:] = qpos
         self._target_kinematics(qpos)
-        self._previous_target_sites[:] = self.target_data.site_xpos[self.sites]
+        self._previous_target_heights[:] = self.target_data.site_xpos[self.sites, 2]
         self._previous_contacts = None
 
     def _target_kinematics(self, q_kin: np.ndarray) -> None:
@@ -238,16 +238,15 @@ class PhysCapTracker:
         mujoco.mj_differentiatePos(self.model, self._target_step, 1.0, self._previous_target, q_kin)
         # Contacts are decided per step, so that they switch at the same instants at any frame rate: each step
         # takes the predicted contacts of the frame nearest its middle (the last frame's over the first half of
-        # the interval), and the target's contact points are interpolated like the pose.
+        # the interval), and the target's contact heights are interpolated like the pose.
         self._target_kinematics(q_kin)
         target_sites = self.target_data.site_xpos[self.sites].copy()
-        sites_step = target_sites - self._previous_target_sites
+        height_step = target_sites[:, 2] - self._previous_target_heights
         earlier_contacts = predicted_contacts if self._previous_contacts is None else self._previous_contacts
         for i in range(n):
             target[:] = self._previous_target
             mujoco.mj_integratePos(self.model, target, self._target_step, (i + 1) / n)
             bias, heights, touching = self._dynamics()
-            step_sites = self._previous_target_sites + (i + 1) / n * sites_step
             if i == 0:  # judged once per frame against the frame's target (per step it split walks further)
                 released = self._released_contacts(target_sites)
             predicted = earlier_contacts if (i + 0.5) / n < 0.5 else predicted_contacts
@@ -257,7 +256,7 @@ class PhysCapTracker:
             qdd_des = self.desired_acceleration(target, qd_kin, qdd_kin)
             forces, grf_ok, _ = self.ground_reaction_forces(qdd_des, bias, active)
             qdd, torque, pose_ok = self.pose_accelerations(qdd_des, bias, forces, active, heights, released,
-                                                           step_sites[:, 2])
+                                                           self._previous_target_heights + (i + 1) / n * height_step)
             failures += (not grf_ok) + (not pose_ok)
             if self.record:
                 records.append(SubstepRecord(self.qpos.copy(), self.qvel.copy(), qdd, torque, forces, active.copy()))
@@ -271,7 +270,7 @@ class PhysCapTracker:
             forces_sum += forces
             residual_sum += torque[:6]
         self._previous_target[:] = q_kin
-        self._previous_target_sites[:] = target_sites
+        self._previous_target_heights[:] = target_sites[:, 2]
         self._previous_contacts = predicted_contacts.copy()
         unexplained = self.kinematic_misfit(q_kin, qd_kin, qdd_kin)
         return FrameOutput(forces_sum / n, residual_sum / n, active, failures, records, unexplained, diverged)
