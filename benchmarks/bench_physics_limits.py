@@ -20,6 +20,10 @@ MediaPipe-like noise, the true intrinsics and height, 8 s at 30 fps, seeds 0 and
              (--against SRC, default ../main/src), in alternating child processes.
 
     .venv/bin/python benchmarks/bench_physics_limits.py [--parts framerate diagnosis online methods] [--quick]
+        [--set validation] [--methods ROW ...] [--physics NAME=VALUE ...]
+
+--set validation runs parts methods and framerate on the validation clips (CMU training subjects 2, 5, 7), where
+settings are chosen; --physics tries PhysicsSettings values there (e.g. contact_settle_time=0.1).
 
 Writes benchmarks/results/physics_limits.json and .md. Fits are cached under the system's temporary folder
 (physmocap_bench_physics_limits) so that parts can be rerun alone.
