@@ -334,7 +334,11 @@ SPEED_RATES = (25.0, 30.0, 60.0)
 
 def time_physics(repeats: int) -> dict:
     """CPU seconds per frame of run_physcap (median of `repeats`) on the 60 fps 131_01 case's B.4-refined motion
-    resampled to each of SPEED_RATES; run in a child process whose PYTHONPATH picks the code under test."""
+    resampled to each of SPEED_RATES, tracked as offline capture does (refined_input, where the code under test
+    has it); run in a child process whose PYTHONPATH picks the code under test."""
+    import inspect
+
+    refined_input = "refined_input" in inspect.signature(run_physcap).parameters
     case = build_case(CLIPS[0], 0, 60.0, online=False)
     motion, refined = case["refined"].motion, case["refined"]
     out = {}
@@ -344,7 +348,7 @@ def time_physics(repeats: int) -> dict:
         for _ in range(repeats):
             start = time.process_time()
             run_physcap(motion.body, qpos, fps, refined.contacts[source], case["stationary"][source],
-                        case["settings"].physics)
+                        case["settings"].physics, refined_input=refined_input)
             runs.append((time.process_time() - start) / len(qpos))
         out[f"{fps:g}"] = float(np.median(runs))
     return out

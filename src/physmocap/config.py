@@ -242,8 +242,9 @@ class PhysicsSettings:
     # floor; never: no contacts and no floor collisions (airborne or swimming motion)
     penetration_recovery: float = 0.1  # s, a contact point found below the floor rises back at depth / this time
     # (pushing it out within one step launches the body); 0.001 .. 1
-    contact_settle_time: float = 0.05  # s: a contact point in use above its kinematic target comes down to it at
-    # least at (height above it) / this time (ours; docs/decisions/physics-default.md); 0.001 .. 1
+    contact_settle_time: float = 0.05  # s: tracking B.4's refined kinematics, a contact point in use above its
+    # kinematic target comes down to it at least at (height above it) / this time (ours;
+    # docs/decisions/physics-default.md); 0.001 .. 1
     release_distance: float | None = 0.05  # m: a contact whose kinematic target lies farther than this along the
     # floor from the character's contact point is released: no predicted contact there, and a foot touching the
     # floor may slide but not sink (ours; None: never, as the paper). Holding a foot the detector has moved

@@ -73,8 +73,12 @@ class FrameOutput:
 class PhysCapTracker:
     """The physics-based character tracking a kinematic motion. One per clip (it holds the state q, qdot)."""
 
-    def __init__(self, body: BodyModel, settings: PhysicsSettings, fps: float, record: bool = False):
+    def __init__(self, body: BodyModel, settings: PhysicsSettings, fps: float, record: bool = False,
+                 settle_contacts: bool = True):
+        """settle_contacts: held contact points above their target are brought down to it
+        (settings.contact_settle_time); the stage turns it off for targets it lifts itself (online fits)."""
         self.body, self.settings, self.record = body, settings, record
+        self.settle_contacts = settle_contacts
         self.model = copy.copy(body.mujoco_model())  # its own: the foot geoms get the touch margin
         self.data = mujoco.MjData(self.model)
         nv = self.model.nv
@@ -172,7 +176,7 @@ class PhysCapTracker:
                            target_heights) -> tuple[np.ndarray, np.ndarray, bool]:
         """Eq. (10): qdd minimising |qdd - qdd_des|^2 + tau' W tau with tau = M qdd + c - J^T lambda (the
         equation of motion, eq. 2), subject to eq. (9) at the active contacts after the step: the normal
-        velocity keeps the point on or above the floor and brings a point above its target's height
+        velocity keeps the point on or above the floor and (settle_contacts) brings a point above its target's height
         (target_heights, (4,) m) down to it within settings.contact_settle_time, tangential speeds stay within
         sigma (except at released contacts, which slide freely but still do not sink).
         Returns qdd, tau and whether the QP solved (else the unconstrained optimum is used)."""
@@ -197,9 +201,12 @@ class PhysCapTracker:
             normal_speed = np.where(h > clearance, (clearance - h) / dt,
                                     np.maximum(-h, 0.0) / max(dt, self.settings.penetration_recovery))
             lower[2::3] = normal_speed - velocity[2::3]
-            goal = np.maximum(target_heights[active], clearance)
-            settle = np.where(h > goal, (goal - h) / max(dt, self.settings.contact_settle_time), INF)
-            upper[2::3] = np.maximum(settle, normal_speed) - velocity[2::3]
+            if self.settle_contacts:
+                goal = np.maximum(target_heights[active], clearance)
+                settle = np.where(h > goal, (goal - h) / max(dt, self.settings.contact_settle_time), INF)
+                upper[2::3] = np.maximum(settle, normal_speed) - velocity[2::3]
+            else:
+                upper[2::3] = INF
             qdd, _, exitflag, _ = daqp.solve(H, f, dt * rows, upper, lower)
             solved = exitflag == 1
         if not active.any() or not solved:
