@@ -20,6 +20,10 @@ MediaPipe-like noise, the true intrinsics and height, 8 s at 30 fps, seeds 0 and
              (--against SRC, default ../main/src), in alternating child processes.
 
     .venv/bin/python benchmarks/bench_physics_limits.py [--parts framerate diagnosis online methods] [--quick]
+        [--set validation] [--methods ROW ...] [--physics NAME=VALUE ...]
+
+--set validation runs parts methods and framerate on the validation clips (CMU training subjects 2, 5, 7), where
+settings are chosen; --physics tries PhysicsSettings values there (e.g. contact_settle_time=0.1).
 
 Writes benchmarks/results/physics_limits.json and .md. Fits are cached under the system's temporary folder
 (physmocap_bench_physics_limits) so that parts can be rerun alone.
@@ -62,6 +66,12 @@ CACHE = Path(tempfile.gettempdir()) / "physmocap_bench_physics_limits"
 GRAVITY = 9.81
 BOX = dict(start=3.0, end=5.5, ramp=0.5, height=0.3)  # s, s, s, m
 RATES = (10.0, 24.0, 30.0, 60.0)
+# Validation clips (CMU training subjects 2, 5 and 7; the test set holds 6 and 131), on which settings are chosen:
+# walks on both skeletons, jump and balance, dance steps, bend and scoop.
+VALIDATION_CLIPS = ("cmu_raw_cgspeed/02_01.bvh", "cmu_iclone_cc3_retarget/007_01.bvh",
+                    "cmu_iclone_cc3_retarget/002_04.bvh", "cmu_iclone_cc3_retarget/005_11.bvh",
+                    "cmu_iclone_cc3_retarget/002_06.bvh")
+VALIDATION_WALKING = ("02_01.bvh", "007_01.bvh")
 
 
 def box_lift(times: np.ndarray) -> np.ndarray:
@@ -75,10 +85,13 @@ def box_lift(times: np.ndarray) -> np.ndarray:
 def build_case(name: str, seed: int, fps: float = FPS, noise: NoiseModel = MEDIAPIPE_NOISE, box: bool = False,
                online: bool = True) -> dict:
     """Observations, truth, the kinematic fits and the contacts of one clip; cached on disk."""
-    key = f"{name.split('/')[-1][:-4]}_{seed}_{fps:g}{'_box' if box else ''}"
+    key = f"{name.split('/')[0]}_{name.split('/')[-1][:-4]}_{seed}_{fps:g}{'_box' if box else ''}"
     path = CACHE / f"{key}.pkl"
     if path.exists():
-        return pickle.loads(path.read_bytes())
+        case = pickle.loads(path.read_bytes())
+        if not online or "online" in case:
+            return case
+        return add_online_fits(case, path)
     clip = first_seconds(resample(load_mocap(MOCAP / name), fps), SECONDS)
     lift = box_lift(np.arange(clip.num_frames) / fps) if box else np.zeros(clip.num_frames)
     positions = clip.positions.copy()
@@ -88,27 +101,35 @@ def build_case(name: str, seed: int, fps: float = FPS, noise: NoiseModel = MEDIA
     K, R, t = random_camera(clip, rng)
     obs, truth = make_observations(clip, K, R, t, rng, noise)
     settings = Settings().replace("body", height=model_height(truth["landmarks_world"]))
-    calibrated = settings.replace("camera", floor=tuple(float(v) for v in truth["floor"]))
     case = dict(name=key, obs=obs, truth=truth, lift=lift, settings=settings)
     offline = fit_motion(obs, settings)
     contacts, stationary, _ = predict_contacts(obs, "centred")
     refined = refine_kinematics(obs, offline, contacts, settings.fit, settings.trajopt)
     case.update(offline=offline, contacts=contacts, stationary=stationary, refined=refined)
-    if online:
-        causal, causal_stationary, _ = predict_contacts(obs, "causal")
-        case.update(online=fit_motion(obs, settings.replace(None, online=True)),
-                    online_calibrated=fit_motion(obs, calibrated.replace(None, online=True)),
-                    causal=causal, causal_stationary=causal_stationary)
     CACHE.mkdir(parents=True, exist_ok=True)
+    if online:
+        return add_online_fits(case, path)
     path.write_bytes(pickle.dumps(case))
     return case
 
 
-def physcap_offline(case: dict):
+def add_online_fits(case: dict, path: Path) -> dict:
+    """The case with the online fits (estimated and calibrated floor) and causal contacts; cached on disk."""
+    obs, settings = case["obs"], case["settings"]
+    calibrated = settings.replace("camera", floor=tuple(float(v) for v in case["truth"]["floor"]))
+    causal, causal_stationary, _ = predict_contacts(obs, "causal")
+    case.update(online=fit_motion(obs, settings.replace(None, online=True)),
+                online_calibrated=fit_motion(obs, calibrated.replace(None, online=True)),
+                causal=causal, causal_stationary=causal_stationary)
+    path.write_bytes(pickle.dumps(case))
+    return case
+
+
+def physcap_offline(case: dict, physics=None):
     """PhysCap on the B.4-refined kinematics, as offline capture runs it."""
-    refined, settings = case["refined"], case["settings"]
+    refined = case["refined"]
     return refined.motion, run_physcap(refined.motion.body, refined.motion.qpos, case["obs"].fps, refined.contacts,
-                                       case["stationary"], settings.physics, refined_input=True)
+                                       case["stationary"], physics or case["settings"].physics, refined_input=True)
 
 
 def physcap_online(case: dict, calibrated: bool = False, physics=None):
@@ -143,9 +164,9 @@ def resample_motion(body, qpos: np.ndarray, fps: float, new_fps: float) -> tuple
     return out, lower
 
 
-def part_framerate(clips) -> dict:
+def part_framerate(clips, overrides=None) -> dict:
     """The 60 fps offline case's B.4-refined kinematic motion resampled to each rate (the same motion), PhysCap at
-    each rate; joints against the 60 fps run at common times. Runs on older code too (no `unexplained` there)."""
+    each rate as offline capture runs it (refined_input); joints against the 60 fps run at common times."""
     rows = []
     for name in clips:
         case = build_case(name, 0, 60.0, online=False)
@@ -155,7 +176,8 @@ def part_framerate(clips) -> dict:
         for fps in RATES:
             qpos, source = resample_motion(body, motion.qpos, 60.0, fps)
             physics = run_physcap(body, qpos, fps, refined.contacts[source], case["stationary"][source],
-                                  case["settings"].physics)
+                                  dataclasses.replace(case["settings"].physics, **(overrides or {})),
+                                  refined_input=True)
             runs[fps] = dict(times=np.arange(len(qpos)) / fps, physics=physics,
                              points=kin.forward_kinematics(body, physics.qpos).points)
         reference = runs[60.0]
@@ -255,13 +277,14 @@ def part_online(clips, seeds, physics_settings=None) -> dict:
 METHODS = ("kinematic offline", "kinematic refined (B.4)", "physcap on refined", "trajopt")
 
 
-def part_methods(clips, seeds) -> dict:
+def part_methods(clips, seeds, methods=METHODS, walking=WALKING, overrides=None) -> dict:
+    """The methods' metrics on the clips; overrides: PhysicsSettings fields for the PhysCap row."""
     rows = []
     for name in clips:
         for seed in seeds:
-            case = build_case(name, seed)
+            case = build_case(name, seed, online=False)
             truth, fps = case["truth"], case["obs"].fps
-            for method in METHODS:
+            for method in methods:
                 grf, residual, flagged, seconds = None, None, None, 0.0
                 if method == "kinematic offline":
                     motion, qpos, seconds = case["offline"], case["offline"].qpos, case["offline"].seconds
@@ -269,7 +292,8 @@ def part_methods(clips, seeds) -> dict:
                     motion, qpos = case["refined"].motion, case["refined"].motion.qpos
                     seconds = case["offline"].seconds + case["refined"].seconds
                 elif method == "physcap on refined":
-                    motion, physics = physcap_offline(case)
+                    motion, physics = physcap_offline(
+                        case, dataclasses.replace(case["settings"].physics, **(overrides or {})))
                     qpos, grf, residual, flagged = physics.qpos, physics.grf, physics.residual, physics.unexplained
                     seconds = case["offline"].seconds + case["refined"].seconds + physics.seconds
                 else:
@@ -296,12 +320,12 @@ def part_methods(clips, seeds) -> dict:
                 print("methods", method, row["clip"], seed, "root-rel %.1f skate %.1f float %.1f" % (
                     row["mpjpe_root_mm"], row["skate_percent"], row["floating_percent"]), flush=True)
     summary = {}
-    for method in METHODS:
+    for method in methods:
         sel = [r for r in rows if r["method"] == method]
         keys = [k for k, v in sel[0].items() if isinstance(v, float)]
         summary[method] = {k: float(np.nanmean([r[k] for r in sel])) for k in keys}
         summary[method]["grf_mean_percent_bw_walking"] = float(np.nanmean(
-            [r["grf_mean_percent_bw"] for r in sel if r["clip"] in WALKING]))
+            [r["grf_mean_percent_bw"] for r in sel if r["clip"] in walking]))
     return dict(rows=rows, summary=summary)
 
 
@@ -310,7 +334,11 @@ SPEED_RATES = (25.0, 30.0, 60.0)
 
 def time_physics(repeats: int) -> dict:
     """CPU seconds per frame of run_physcap (median of `repeats`) on the 60 fps 131_01 case's B.4-refined motion
-    resampled to each of SPEED_RATES; run in a child process whose PYTHONPATH picks the code under test."""
+    resampled to each of SPEED_RATES, tracked as offline capture does (refined_input, where the code under test
+    has it); run in a child process whose PYTHONPATH picks the code under test."""
+    import inspect
+
+    refined_input = "refined_input" in inspect.signature(run_physcap).parameters
     case = build_case(CLIPS[0], 0, 60.0, online=False)
     motion, refined = case["refined"].motion, case["refined"]
     out = {}
@@ -320,7 +348,7 @@ def time_physics(repeats: int) -> dict:
         for _ in range(repeats):
             start = time.process_time()
             run_physcap(motion.body, qpos, fps, refined.contacts[source], case["stationary"][source],
-                        case["settings"].physics)
+                        case["settings"].physics, refined_input=refined_input)
             runs.append((time.process_time() - start) / len(qpos))
         out[f"{fps:g}"] = float(np.median(runs))
     return out
@@ -407,10 +435,30 @@ def markdown(out: dict) -> str:
     return "\n".join(lines)
 
 
+def settings_overrides(pairs: list[str]) -> dict:
+    """NAME=VALUE pairs -> PhysicsSettings fields (None, True, False, a number or else the word itself)."""
+    words = {"None": None, "True": True, "False": False}
+
+    def value_of(text: str):
+        try:
+            return words[text] if text in words else float(text)
+        except ValueError:
+            return text
+    return {name: value_of(value) for name, value in (pair.split("=", 1) for pair in pairs)}
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--parts", nargs="+", default=["framerate", "diagnosis", "online", "methods"])
     parser.add_argument("--quick", action="store_true", help="three clips (two for framerate), one seed")
+    parser.add_argument("--set", choices=("test", "validation"), default="test",
+                        help="clips of parts methods and framerate: the test set or the validation clips "
+                             "(training subjects; settings are chosen there)")
+    parser.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS),
+                        help="the rows of part methods")
+    parser.add_argument("--physics", nargs="*", default=[], metavar="NAME=VALUE",
+                        help="PhysicsSettings fields for PhysCap in parts methods and framerate (trying settings on "
+                             "validation clips)")
     parser.add_argument("--json", default=str(RESULTS / "physics_limits.json"))
     parser.add_argument("--against", default=str(Path(__file__).resolve().parents[2] / "main" / "src"),
                         help="src folder of the code to time against in part speed (default: ../main/src)")
@@ -419,21 +467,22 @@ def main(argv=None) -> dict:
     if args.time_only:
         print(json.dumps(time_physics(args.time_only)))
         return {}
-    clips = CLIPS[:3] if args.quick else CLIPS
+    all_clips, walks = (VALIDATION_CLIPS, VALIDATION_WALKING) if args.set == "validation" else (CLIPS, WALKING)
+    clips = all_clips[:3] if args.quick else all_clips
     seeds = (0,) if args.quick else (0, 1)
-    walking = [c for c in clips if c.split("/")[-1] in WALKING]
+    walking = [c for c in clips if c.split("/")[-1] in walks]
     path = Path(args.json)
     out = json.loads(path.read_text()) if path.exists() else {}
     for part in args.parts:
         start = time.perf_counter()
         if part == "framerate":
-            out[part] = part_framerate(CLIPS[:2])
+            out[part] = part_framerate(all_clips[:2], settings_overrides(args.physics))
         elif part == "diagnosis":
             out[part] = part_diagnosis(walking, seeds)
         elif part == "online":
             out[part] = part_online(clips, seeds)
         elif part == "methods":
-            out[part] = part_methods(clips, seeds)
+            out[part] = part_methods(clips, seeds, args.methods, walks, settings_overrides(args.physics))
         elif part == "speed":
             out[part] = part_speed(args.against)
         out[part]["minutes"] = (time.perf_counter() - start) / 60

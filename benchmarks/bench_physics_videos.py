@@ -3,7 +3,10 @@
 third frame, OpenCV), each run once as a user would. Per video: exit code, wall time, frames flagged as
 unexplained by the physics (result.npz physics_unexplained), the largest contact force and residual root force
 in body weights, whether every number in result.npz is finite, and the physics' jitter (mean joint acceleration)
-and foot slide during contact against its own kinematic input (result.npz joints_world_kinematic).
+and foot slide during contact against its own kinematic input (result.npz joints_world_kinematic); jitter and the
+median reprojection error (the accuracy available without a 3D truth) also over the feet-only frames alone (valid,
+not flagged, and so their neighbours). --runs FOLDER keeps the run folders, whose caches a second run reuses (then
+only contacts, physics and the outputs run again).
 
     .venv/bin/python benchmarks/bench_physics_videos.py [--physics physcap] [--videos NAME ...]
 
@@ -61,6 +64,16 @@ def slide_cm(points: np.ndarray, contacts: np.ndarray) -> np.ndarray:
     return step[contacts[1:] & contacts[:-1]]
 
 
+def feet_only_jitter(points: np.ndarray, fps: float, explained: np.ndarray) -> float:
+    """m/s^2: mean joint acceleration (central second differences) at the frames whose neighbours and themselves
+    are all `explained` (valid and not flagged: where only the feet carry the body, as far as the physics knows)."""
+    inner = explained[1:-1] & explained[:-2] & explained[2:]
+    if not inner.any():
+        return float("nan")
+    second = points[2:] - 2 * points[1:-1] + points[:-2]
+    return float(np.linalg.norm(second[inner], axis=-1).mean() * fps ** 2)
+
+
 def score(result_path: Path) -> dict:
     result = dict(np.load(result_path, allow_pickle=False))
     names = [str(n) for n in result["joint_names"]]
@@ -72,6 +85,10 @@ def score(result_path: Path) -> dict:
     non_finite = sorted(k for k, v in result.items() if np.asarray(v).dtype.kind in "fc" and not np.isfinite(v).all())
     flagged = result.get("physics_unexplained", np.zeros(len(valid), bool))
     physics_slide, kinematic_slide = slide_cm(final[:, feet], contacts), slide_cm(kinematic[:, feet], contacts)
+    explained = valid & ~flagged.astype(bool)
+    measured = result["reprojection_measured"].astype(bool) if "reprojection_measured" in result else np.isfinite(
+        result["reprojection_error"])
+    measured &= explained
     return dict(frames=int(len(valid)), fps=fps, valid_frames=int(valid.sum()), all_finite=not non_finite,
                 non_finite_keys=non_finite,
                 flagged_frames=int(np.sum(flagged)),
@@ -80,14 +97,18 @@ def score(result_path: Path) -> dict:
                                                 / weight),
                 jitter=metrics.mean_acceleration(final, fps),
                 kinematic_jitter=metrics.mean_acceleration(kinematic, fps),
+                feet_only_jitter=feet_only_jitter(result["joints_world"], fps, explained),
+                feet_only_kinematic_jitter=feet_only_jitter(result["joints_world_kinematic"], fps, explained),
+                feet_only_reprojection_px=float(np.median(result["reprojection_error_final"][measured])),
+                feet_only_kinematic_reprojection_px=float(np.median(result["reprojection_error"][measured])),
                 slide_median_cm=float(np.median(physics_slide)) if physics_slide.size else float("nan"),
                 kinematic_slide_median_cm=float(np.median(kinematic_slide)) if kinematic_slide.size else float("nan"),
                 physics_deviation_mm=1000 * float(result["physics_deviation"][valid].mean()))
 
 
-def run_video(video: Path, out: Path, physics: str) -> dict:
+def run_video(video: Path, out: Path, physics: str, config: str | None = None) -> dict:
     command = [sys.executable, "-m", "physmocap.cli", "capture", str(video), "-o", str(out), "--physics", physics,
-               "--no-overlay"]
+               "--no-overlay"] + (["--config", config] if config else [])
     start = time.perf_counter()
     done = subprocess.run(command, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(REPO / "src")})
     row = dict(video=video.name, exit_code=done.returncode, wall_s=time.perf_counter() - start,
@@ -104,6 +125,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--videos", nargs="*", default=None, help="names under the videos folder (default: all)")
     parser.add_argument("--json", default=str(RESULTS / "physics_videos.json"))
     parser.add_argument("--runs", default=None, help="keep the run folders here (default: a temporary folder)")
+    parser.add_argument("--config", default=None, help="a TOML settings file passed to every capture")
     args = parser.parse_args(argv)
     rows = []
     with tempfile.TemporaryDirectory() as folder:
@@ -114,24 +136,27 @@ def main(argv=None) -> dict:
             reencode(VIDEOS / "sports2d_demo.mp4", slow, 3)
             videos.append(slow)
         for video in videos:
-            row = run_video(video, work / video.stem, args.physics)
+            row = run_video(video, work / video.stem, args.physics, args.config)
             rows.append(row)
             print(json.dumps(row), flush=True)
     out = dict(physics=args.physics, rows=rows, load_average=os.getloadavg()[0])
     RESULTS.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(out, indent=1))
     lines = [f"| video | exit | wall s | frames (fps) | flagged | largest contact force BW | largest residual BW | "
-             f"all finite | jitter m/s² (kinematic input) | foot slide in contact cm/frame, median (input) |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             f"all finite | jitter m/s² (kinematic input) | feet-only jitter m/s² (input) | feet-only reprojection "
+             f"px, median (input) | foot slide in contact cm/frame, median (input) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if "frames" in r:
             lines.append(f"| {r['video']} | {r['exit_code']} | {r['wall_s']:.0f} | {r['frames']} ({r['fps']:.0f}) | "
                          f"{r['flagged_frames']} | {r['largest_contact_force_bw']:.2f} | "
                          f"{r['largest_residual_force_bw']:.2f} | {r['all_finite']} | {r['jitter']:.1f} "
-                         f"({r['kinematic_jitter']:.1f}) | {r['slide_median_cm']:.2f} "
+                         f"({r['kinematic_jitter']:.1f}) | {r['feet_only_jitter']:.1f} "
+                         f"({r['feet_only_kinematic_jitter']:.1f}) | {r['feet_only_reprojection_px']:.1f} "
+                         f"({r['feet_only_kinematic_reprojection_px']:.1f}) | {r['slide_median_cm']:.2f} "
                          f"({r['kinematic_slide_median_cm']:.2f}) |")
         else:
-            lines.append(f"| {r['video']} | {r['exit_code']} | {r['wall_s']:.0f} | {r['last_line']} | | | | | | |")
+            lines.append(f"| {r['video']} | {r['exit_code']} | {r['wall_s']:.0f} | {r['last_line']} | | | | | | | | |")
     Path(args.json).with_suffix(".md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     return out

@@ -220,12 +220,14 @@ def test_contact_released_when_the_kinematic_foot_leaves(body):
     bias, heights, _ = tracker._dynamics()
     away = q.copy()
     away[0] += 2 * settings.release_distance
-    released = tracker._released_contacts(away)
-    assert released.all() and not tracker._released_contacts(q).any()
+    tracker._target_kinematics(away)
+    released = tracker._released_contacts(tracker.target_data.site_xpos[tracker.sites])
+    tracker._target_kinematics(q)
+    assert released.all() and not tracker._released_contacts(tracker.target_data.site_xpos[tracker.sites]).any()
     active = np.ones(4, bool)
     for let_go in (np.zeros(4, bool), released):
         qdd, _, solved = tracker.pose_accelerations(np.zeros(body.nv), bias, np.zeros((4, 3)), active, heights,
-                                                    let_go)
+                                                    let_go, heights)
         assert solved
         velocity = tracker.contact_jacobian @ (sliding + tracker.dt * qdd)  # (4, 3) after the step
         assert np.all(velocity[:, 2] >= -heights / tracker.dt - 1e-9)  # no sinking either way
@@ -234,6 +236,30 @@ def test_contact_released_when_the_kinematic_foot_leaves(body):
             assert np.all(along_floor > 0.5)
         else:
             assert np.all(along_floor <= np.sqrt(2) * settings.slide_speed + 1e-6)
+
+
+def test_a_held_contact_above_its_target_comes_down_to_it(body):
+    """The floor only stops a contact point from sinking; a point in use that hovers above its kinematic target
+    must also come down to it (within contact_settle_time), or a foot held in the air takes the contact forces
+    and the body rides up on it. A point below its target is left free."""
+    settings = PhysicsSettings()
+    tracker = PhysCapTracker(body, settings, FPS)
+    q = body.rest_qpos.copy()
+    q[2] += 0.02  # the character 2 cm above its target, which stands on the floor
+    tracker.reset(q, np.zeros(body.nv))
+    bias, heights, _ = tracker._dynamics()
+    targets = heights - 0.02
+    active = np.ones(4, bool)
+    qdd, _, solved = tracker.pose_accelerations(np.zeros(body.nv), bias, np.zeros((4, 3)), active, heights,
+                                                np.zeros(4, bool), targets)
+    assert solved
+    normal_velocity = (tracker.contact_jacobian @ (tracker.dt * qdd))[:, 2]
+    goal = np.maximum(targets, settings.floor_clearance)
+    assert np.all(normal_velocity <= (goal - heights) / settings.contact_settle_time + 1e-9)
+    free = [tracker.pose_accelerations(np.zeros(body.nv), bias, np.zeros((4, 3)), active, heights,
+                                       np.zeros(4, bool), heights + above)[0] for above in (0.01, 10.0)]
+    assert np.allclose(free[0], free[1])
+
 
 def _on_tilted_floor(body, frames, degrees):
     """Standing poses sliding along a winding path on a floor tilted by `degrees` about the world x axis (the

@@ -64,6 +64,25 @@ def test_the_same_motion_at_10_24_30_and_60_fps_gives_the_same_physics(body):
         assert np.linalg.norm(p[common] - reference[match], axis=-1).max() < 0.01, fps
 
 
+def test_a_contact_label_switches_at_the_same_instant_at_any_frame_rate(body):
+    """Contacts are decided per integration step from the frame nearest the step's middle: a label that turns
+    off at 0.5 s takes effect within half a step of 0.5 s - half a frame interval, not a whole frame early."""
+    from physmocap.dynamics.physcap import PhysCapTracker
+
+    settings = PhysicsSettings(foot_lock="never")  # only the labels, not floor collisions, make contacts
+    for fps in (10.0, 24.0, 60.0):
+        tracker = PhysCapTracker(body, settings, fps, record=True)
+        tracker.reset(body.rest_qpos, np.zeros(body.nv))
+        zero = np.zeros(body.nv)
+        records = []
+        for k in range(int(fps) + 1):
+            contacts = np.full(4, k / fps < 0.5 - 1e-9)
+            records += tracker.track(body.rest_qpos, zero, zero, contacts).records
+        first_off = next(i for i, r in enumerate(records) if not r.active.any())
+        switch = (first_off + 0.5) * tracker.dt - 1.0 / fps  # the first step's middle; frame 0 ends at 0 s
+        assert abs(switch - (0.5 - 0.5 / fps)) <= 0.5 * tracker.dt + 1e-9, fps
+
+
 def ballistic_jump(body, fps: float, frames: int, takeoff: int, flight: float):
     """Standing, then a flight of `flight` seconds from frame `takeoff` along the parabola that leaves and meets
     standing height (take-off speed g flight / 2), the feet called in contact outside the flight. Returns the
@@ -188,3 +207,36 @@ def test_refined_kinematics_are_tracked_without_lifting_their_targets(body):
 
 def standing(body, frames):
     return np.repeat(body.rest_qpos[None], frames, axis=0)
+
+
+def test_every_number_in_the_result_file_is_finite_with_personless_frames(body, tmp_path):
+    """A run whose observations hold frames without a person (no keypoints, NaN as another detector writes them)
+    writes only finite numbers; where the reprojection error could not be measured the file says so in
+    reprojection_measured instead of writing NaN."""
+    from physmocap.config import Settings
+    from physmocap.camera import Camera
+    from physmocap.motion import Observations
+    from physmocap.pipeline import run_capture
+    from test_fit import observe
+
+    _, q = swaying(body, 30.0, seconds=2.0)
+    camera = Camera.from_settings((1280, 720), fov=60)
+    R = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])
+    camera = camera.with_extrinsics(R, -R @ np.array([0.0, -4.0, 1.0]))
+    obs = observe(body, q, camera)
+    gone = np.zeros(len(q), bool)
+    gone[25:33] = True
+    keypoints, landmarks = obs.keypoints_2d.copy(), obs.landmarks_3d.copy()
+    keypoints[gone], landmarks[gone] = np.nan, np.nan
+    path = tmp_path / "observations.npz"
+    Observations(keypoints, landmarks, obs.fps, obs.image_size, camera_K=obs.camera_K, valid=~gone,
+                 invalid_reason=np.where(gone, "no person", "")).save(path)
+    run_capture(tmp_path / "run", Settings(), observations=path, overlay=False)
+    with np.load(tmp_path / "run" / "result.npz") as result:
+        for key in result.files:
+            values = result[key]
+            if values.dtype.kind in "fc":
+                assert np.isfinite(values).all(), key
+        measured = result["reprojection_measured"]
+        assert not measured[gone].any() and measured[~gone].all()
+        assert (result["reprojection_error"][measured] > 0).all()

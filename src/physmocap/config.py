@@ -106,6 +106,8 @@ class PhysicsSettings(Section):
     foot_lock: str = setting("auto", choices=("auto", "always", "never"), help="contacts: predicted; any sole point "
                              "within contact_height; none and no floor (airborne)")
     penetration_recovery: float = setting(0.1, "s", (1e-3, 1.0), "a point under the floor rises back at depth / this")
+    contact_settle_time: float = setting(0.05, "s", (1e-3, 1.0), "tracking B.4's motion, a held contact point "
+                                         "above its target comes down at (height above it) / this")
     release_distance: float | None = setting(0.05, "m", (0.0, 1.0), "a contact whose target moved farther along "
                                              "the floor is released, not dragging the body (None: never)")
     touch_margin: float = setting(0.003, "m", (0.0, 0.1), "sole points this close collide with the floor (eq. 5)")

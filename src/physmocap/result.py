@@ -90,8 +90,24 @@ def build_result(obs: Observations, motion: KinematicMotion, stage_seconds: dict
 
 
 def save_result(path: str | os.PathLike, result: dict[str, np.ndarray]) -> None:
-    """Write result.npz atomically, its per-frame arrays finite (io.finite: blanked frames are named)."""
-    save_npz(path, **finite_result(result, str(path)))
+    """Write result.npz atomically with every number finite: per-frame motion arrays as io.finite blanks them
+    (the frames named in a warning); the reprojection errors 0 where they could not be measured (no confident
+    keypoint, e.g. a frame without a person), which `reprojection_measured` marks; unseen keypoints (non-finite)
+    as (0, 0) with confidence 0."""
+    out = finite_result(result, str(path))
+    if "reprojection_error" in out:
+        measured = np.isfinite(np.asarray(out["reprojection_error"], dtype=float))
+        if "reprojection_error_final" in out:
+            measured &= np.isfinite(np.asarray(out["reprojection_error_final"], dtype=float))
+            out["reprojection_error_final"] = np.where(measured, out["reprojection_error_final"], 0.0)
+        out["reprojection_error"] = np.where(measured, out["reprojection_error"], 0.0)
+        out["reprojection_measured"] = measured
+    if "keypoints_2d" in out:
+        keypoints = np.array(out["keypoints_2d"], dtype=float)
+        unseen = ~np.isfinite(keypoints).all(axis=-1)
+        keypoints[unseen] = 0.0
+        out["keypoints_2d"] = keypoints
+    save_npz(path, **out)
 
 
 def load_result(path: str | os.PathLike) -> dict[str, np.ndarray]:

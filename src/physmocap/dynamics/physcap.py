@@ -73,8 +73,12 @@ class FrameOutput:
 class PhysCapTracker:
     """The physics-based character tracking a kinematic motion. One per clip (it holds the state q, qdot)."""
 
-    def __init__(self, body: BodyModel, settings: PhysicsSettings, fps: float, record: bool = False):
+    def __init__(self, body: BodyModel, settings: PhysicsSettings, fps: float, record: bool = False,
+                 settle_contacts: bool = True):
+        """settle_contacts: held contact points above their target are brought down to it
+        (settings.contact_settle_time); the stage turns it off for targets it lifts itself (online fits)."""
         self.body, self.settings, self.record = body, settings, record
+        self.settle_contacts = settle_contacts
         self.model = copy.copy(body.mujoco_model())  # its own: the foot geoms get the touch margin
         self.data = mujoco.MjData(self.model)
         nv = self.model.nv
@@ -111,6 +115,8 @@ class PhysCapTracker:
         self.qvel = np.zeros(nv)
         self.target_data = mujoco.MjData(self.model)  # kinematics of the frame's target pose
         self._previous_target = np.zeros(self.model.nq)  # the last frame's target: the steps move from it
+        self._previous_target_heights = np.zeros(4)  # m, its contact points' heights
+        self._previous_contacts: np.ndarray | None = None  # the last frame's predicted contacts (None after a reset)
         self._target_step = np.zeros(nv)
         self._no_rows, self._no_bounds = np.zeros((0, nv)), np.zeros(0)
 
@@ -118,6 +124,13 @@ class PhysCapTracker:
         self.qpos[:] = qpos
         self.qvel[:] = qvel
         self._previous_target[:] = qpos
+        self._target_kinematics(qpos)
+        self._previous_target_heights[:] = self.target_data.site_xpos[self.sites, 2]
+        self._previous_contacts = None
+
+    def _target_kinematics(self, q_kin: np.ndarray) -> None:
+        self.target_data.qpos[:] = q_kin
+        mujoco.mj_kinematics(self.model, self.target_data)
 
     # ---- the pieces of one step -------------------------------------------------------------------------
     def _dynamics(self):
@@ -159,12 +172,13 @@ class PhysCapTracker:
         forces[active] = x.reshape(k, 3)
         return forces, True, target - root_rows.T @ x
 
-    def pose_accelerations(self, qdd_des, bias, forces, active, heights,
-                           released) -> tuple[np.ndarray, np.ndarray, bool]:
+    def pose_accelerations(self, qdd_des, bias, forces, active, heights, released,
+                           target_heights) -> tuple[np.ndarray, np.ndarray, bool]:
         """Eq. (10): qdd minimising |qdd - qdd_des|^2 + tau' W tau with tau = M qdd + c - J^T lambda (the
         equation of motion, eq. 2), subject to eq. (9) at the active contacts after the step: the normal
-        velocity keeps the point on or above the floor, tangential speeds stay within sigma (except at released
-        contacts, which slide freely but still do not sink).
+        velocity keeps the point on or above the floor and (settle_contacts) brings a point above its target's height
+        (target_heights, (4,) m) down to it within settings.contact_settle_time, tangential speeds stay within
+        sigma (except at released contacts, which slide freely but still do not sink).
         Returns qdd, tau and whether the QP solved (else the unconstrained optimum is used)."""
         M, dt, nv = self.mass_matrix, self.dt, self.model.nv
         W = self.torque_weights
@@ -187,7 +201,12 @@ class PhysCapTracker:
             normal_speed = np.where(h > clearance, (clearance - h) / dt,
                                     np.maximum(-h, 0.0) / max(dt, self.settings.penetration_recovery))
             lower[2::3] = normal_speed - velocity[2::3]
-            upper[2::3] = INF
+            if self.settle_contacts:
+                goal = np.maximum(target_heights[active], clearance)
+                settle = np.where(h > goal, (goal - h) / max(dt, self.settings.contact_settle_time), INF)
+                upper[2::3] = np.maximum(settle, normal_speed) - velocity[2::3]
+            else:
+                upper[2::3] = INF
             qdd, _, exitflag, _ = daqp.solve(H, f, dt * rows, upper, lower)
             solved = exitflag == 1
         if not active.any() or not solved:
@@ -200,16 +219,14 @@ class PhysCapTracker:
         x, _, exitflag, _ = daqp.solve(H, f, self._no_rows, self._no_bounds, self._no_bounds)
         return x if exitflag == 1 else np.linalg.solve(H, -f)
 
-    def _released_contacts(self, q_kin: np.ndarray) -> np.ndarray:
-        """(4,) contact points whose target has moved more than release_distance along the floor from where the
-        character holds them: the kinematic foot has gone (a wrong contact label or the detector swapping the
-        feet), and holding on would drag the whole body after it. Reads the character's contact points from
-        `_dynamics`, which must have run at the current state."""
+    def _released_contacts(self, target_sites: np.ndarray) -> np.ndarray:
+        """(4,) contact points whose target (target_sites, (4, 3) m) lies more than release_distance along the
+        floor from where the character holds them: the kinematic foot has gone (a wrong contact label or the
+        detector swapping the feet), and holding on would drag the whole body after it. Reads the character's
+        contact points from `_dynamics`, which must have run at the current state."""
         if self.settings.release_distance is None:
             return np.zeros(4, bool)
-        self.target_data.qpos[:] = q_kin
-        mujoco.mj_kinematics(self.model, self.target_data)
-        offset = self.target_data.site_xpos[self.sites, :2] - self.data.site_xpos[self.sites, :2]
+        offset = target_sites[:, :2] - self.data.site_xpos[self.sites, :2]
         return np.linalg.norm(offset, axis=1) > self.settings.release_distance
 
     # ---- one video frame ----------------------------------------------------------------------------------
@@ -226,18 +243,27 @@ class PhysCapTracker:
         # manifold) between the last frame's target and this one at the step's end time, so that the last step
         # lands on frame t whatever the number of steps.
         mujoco.mj_differentiatePos(self.model, self._target_step, 1.0, self._previous_target, q_kin)
+        # Contacts are decided per step, so that they switch at the same instants at any frame rate: each step
+        # takes the predicted contacts of the frame nearest its middle (the last frame's over the first half of
+        # the interval), and the target's contact heights are interpolated like the pose.
+        self._target_kinematics(q_kin)
+        target_sites = self.target_data.site_xpos[self.sites].copy()
+        height_step = target_sites[:, 2] - self._previous_target_heights
+        earlier_contacts = predicted_contacts if self._previous_contacts is None else self._previous_contacts
         for i in range(n):
             target[:] = self._previous_target
             mujoco.mj_integratePos(self.model, target, self._target_step, (i + 1) / n)
             bias, heights, touching = self._dynamics()
-            if i == 0:  # judged once per frame, where the character stands at its start
-                released = self._released_contacts(q_kin)
-            active = predicted_contacts & (heights < s.contact_height) & ~released  # eq. (5)
+            if i == 0:  # judged once per frame against the frame's target (per step it split walks further)
+                released = self._released_contacts(target_sites)
+            predicted = earlier_contacts if (i + 0.5) / n < 0.5 else predicted_contacts
+            active = predicted & (heights < s.contact_height) & ~released  # eq. (5)
             if s.foot_lock != "never":  # airborne or swimming motion: the floor does not push back
                 active |= touching
             qdd_des = self.desired_acceleration(target, qd_kin, qdd_kin)
             forces, grf_ok, _ = self.ground_reaction_forces(qdd_des, bias, active)
-            qdd, torque, pose_ok = self.pose_accelerations(qdd_des, bias, forces, active, heights, released)
+            qdd, torque, pose_ok = self.pose_accelerations(qdd_des, bias, forces, active, heights, released,
+                                                           self._previous_target_heights + (i + 1) / n * height_step)
             failures += (not grf_ok) + (not pose_ok)
             if self.record:
                 records.append(SubstepRecord(self.qpos.copy(), self.qvel.copy(), qdd, torque, forces, active.copy()))
@@ -251,6 +277,8 @@ class PhysCapTracker:
             forces_sum += forces
             residual_sum += torque[:6]
         self._previous_target[:] = q_kin
+        self._previous_target_heights[:] = target_sites[:, 2]
+        self._previous_contacts = predicted_contacts.copy()
         unexplained = self.kinematic_misfit(q_kin, qd_kin, qdd_kin)
         return FrameOutput(forces_sum / n, residual_sum / n, active, failures, records, unexplained, diverged)
 

@@ -75,7 +75,9 @@ class PhysicsStream:
         self.floor = (FloorRefiner(body, fps, settings.floor_refit_interval, np.radians(settings.floor_tilt_rate),
                                    settings.floor_lift_rate, settings.floor_refine_after)
                       if refine_floor and settings.floor_refit_interval is not None else None)
-        self.tracker = PhysCapTracker(body, settings, fps)
+        # Held contacts are settled onto B.4's feet; targets this stream lifts itself (online fits) are not: there
+        # it doubled the held contacts' p95 slide on the estimated floor (docs/decisions/physics-default.md).
+        self.tracker = PhysCapTracker(body, settings, fps, settle_contacts=refined_input)
         self.balance = BalanceCorrector(body, settings.correction_rate)
         self._previous: np.ndarray | None = None  # last kinematic pose
         self._velocity = np.zeros(body.nv)  # smoothed kinematic velocity of the last frame
@@ -129,6 +131,8 @@ class PhysicsStream:
             self.tracker.reset(q_kin, velocity)
         else:
             mujoco.mj_differentiatePos(self.tracker.model, velocity, 1.0 / self.fps, self._previous, q_kin)
+            if self._frames == 1:  # the first velocity known: the character, started at rest, takes it
+                self.tracker.qvel[:] = velocity
             if self._frames >= 2:
                 velocity = self._new_share * velocity + (1.0 - self._new_share) * self._velocity
                 acceleration = (velocity - self._velocity) * self.fps
