@@ -26,7 +26,6 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
 from common import REPO, RESULTS, VIDEOS, git_revision, machine_description  # noqa: E402
-
 from physmocap.config import Settings  # noqa: E402
 from physmocap.io.atomic import write_text  # noqa: E402
 from physmocap.io.video import VideoWriter, iter_frames, probe_video  # noqa: E402
@@ -277,12 +276,12 @@ def main() -> None:
     for a, b in (("Ray local, 1 CPU", "pool, 1 worker"), ("Ray local, 2 CPUs", "pool, 2 workers")):
         if a in runs and b in runs:  # Ray's start-up taken out: what it costs per task
             ratios[f"{a} / {b}, Ray's start-up taken out"] = statistics.median(
-                rb["wall_s"] / (ra["wall_s"] - ra["ray_start_s"]) for ra, rb in zip(runs[a], runs[b]))
+                rb["wall_s"] / (ra["wall_s"] - ra["ray_start_s"]) for ra, rb in zip(runs[a], runs[b], strict=True))
     for a, b in (("pool, 2 workers", "pool, 1 worker"), ("Ray local, 2 CPUs", "Ray local, 1 CPU"),
                  ("Ray local, 1 CPU", "pool, 1 worker"), ("Ray local, 2 CPUs", "pool, 2 workers")):
         if a in runs and b in runs:  # round by round: both ran side by side under the same load
             ratios[f"{a} / {b}"] = statistics.median(
-                rb["wall_s"] / ra["wall_s"] for ra, rb in zip(runs[a], runs[b]))
+                rb["wall_s"] / ra["wall_s"] for ra, rb in zip(runs[a], runs[b], strict=True))
     per_frame = {stage: statistics.median(c[stage] for c in costs.get("rounds", [])) for stage in
                  costs.get("rounds", [{}])[0]} if costs else {}
     one_worker = table.get("pool, 1 worker", {}).get("cpu_seconds_per_frame")

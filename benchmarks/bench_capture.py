@@ -35,7 +35,10 @@ from __future__ import annotations
 
 import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
 
+# isort: split
+
 import argparse
+import itertools
 import json
 import os
 import re
@@ -44,9 +47,8 @@ import subprocess
 import sys
 import tempfile
 import time
-from pathlib import Path
-
 from fractions import Fraction
+from pathlib import Path
 
 import av
 import numpy as np
@@ -254,8 +256,6 @@ def overlay_speed(video: Path, width: int | None, repeats: int) -> dict:
 def background_difference(video: Path, overlay_video: Path, width: int, every: int = 50) -> float:
     """Mean absolute difference (0-255, BGR) between the overlay and its source video, scaled to the overlay's
     width, in the left quarter of every `every`-th frame, where overlay_speed draws nothing."""
-    import itertools
-
     import cv2
 
     def frames(path: Path) -> list[np.ndarray]:
@@ -264,7 +264,7 @@ def background_difference(video: Path, overlay_video: Path, width: int, every: i
             return [frame.to_ndarray(format="bgr24") for frame in decoded]
 
     differences = []
-    for source, drawn in zip(frames(video), frames(overlay_video)):
+    for source, drawn in zip(frames(video), frames(overlay_video), strict=True):
         source = cv2.resize(source, drawn.shape[1::-1], interpolation=cv2.INTER_AREA)
         quarter = drawn.shape[1] // 4
         differences.append(np.abs(source[:, :quarter].astype(int) - drawn[:, :quarter]).mean())
@@ -293,8 +293,6 @@ def overlay_side_by_side(video: Path, width: int | None, repeats: int, before: P
 def overlay_pieces(video: Path, width: int, frames: int = 300) -> dict:
     """CPU ms per frame of each step of the overlay, old way and new, each over the first `frames` frames on its
     own (all threads of the process; decoding uses PyAV's frame threads as the reader does)."""
-    import itertools
-
     import cv2
 
     from physmocap.body.kinematics import forward_kinematics
@@ -359,11 +357,10 @@ def time_and_orientation(folder: Path) -> list[dict]:
     import cv2
 
     sys.path.insert(0, str(REPO / "tests"))
-    from test_video_io import write_timed_video
-
     from physmocap.detect.mediapipe_pose import detect_video
     from physmocap.io.video import iter_frames
     from physmocap.landmarks import LANDMARK_INDEX
+    from test_video_io import write_timed_video
 
     folder.mkdir(parents=True, exist_ok=True)
     frames = [frame for _, frame in iter_frames(REPO / "src" / "physmocap" / "data" / "demo" / "taiji_demo.mp4")]
@@ -381,7 +378,7 @@ def time_and_orientation(folder: Path) -> list[dict]:
                       for _, f in iter_frames(vfr)])
     true_time, read_time = shown * step, np.arange(len(shown)) / info.fps
     starts = [0, int(np.searchsorted(shown, 32)), int(np.searchsorted(shown, 64)), len(shown)]
-    speed = [(true_time[b - 1] - true_time[a]) / (read_time[b - 1] - read_time[a]) for a, b in zip(starts, starts[1:])]
+    speed = [(true_time[b - 1] - true_time[a]) / (read_time[b - 1] - read_time[a]) for a, b in itertools.pairwise(starts)]
     rows = [dict(case="24/12/8 fps video", fps_read=round(info.fps, 2), frames_read=len(shown),
                  max_time_error_ms=round(1000 * float(np.abs(read_time - true_time).max()), 1),
                  speed_24_12_8fps_segments=[round(v, 2) for v in speed])]

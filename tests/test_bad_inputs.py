@@ -13,11 +13,11 @@ import re
 import numpy as np
 import pytest
 
+from conftest import DEMO_VIDEO
 from physmocap.body.model import build_body_model, template_lengths
 from physmocap.camera import Camera
 from physmocap.cli import _join_negative_number_lists, _progress_factory, main
 from physmocap.errors import EXIT_CODES
-from conftest import DEMO_VIDEO
 from test_fit import observe, walking_motion
 
 TRUE_FLOOR = "0,-0.990268,0.139173,1.188322"  # the camera below: 1.2 m high, pitched 8 degrees down

@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import DEMO_VIDEO
 from physmocap.batch import expand_inputs
 from physmocap.errors import InputError
 from physmocap.io.video import VideoWriter, iter_frames, probe_video
 from physmocap.result import load_result
-from conftest import DEMO_VIDEO
 
 FAST = ("--physics", "none", "--no-overlay")
 CLIP_FRAMES = 40

@@ -8,9 +8,9 @@ import sys
 import numpy as np
 import pytest
 
+from conftest import DEMO_VIDEO
 from physmocap.io.video import VideoWriter
 from physmocap.result import REQUIRED_KEYS, RESULT_POINTS, load_result
-from conftest import DEMO_VIDEO
 
 
 def physmocap(*args, cwd=None):

@@ -130,7 +130,7 @@ def test_rest_pose_is_the_bind_pose_standing_upright(exported):
         for parent, candidate in enumerate(gltf.nodes):
             if index in (candidate.children or []):
                 rest_world[index, :3, 3] += rest_world[parent, :3, 3]
-    for joint, matrix in zip(skin.joints, inverse_bind):
+    for joint, matrix in zip(skin.joints, inverse_bind, strict=True):
         np.testing.assert_allclose(rest_world[joint] @ matrix, np.eye(4), atol=1e-6)
     names = [n.name for n in gltf.nodes]
     head, hips = rest_world[names.index("Head"), :3, 3], rest_world[names.index("Hips"), :3, 3]
@@ -234,5 +234,5 @@ def test_khronos_validator_finds_no_issue(exported, tmp_path):
     held[3] = np.nan
     write_glb(tmp_path / "held.glb", body, held, 30.0)
     for file, issues in zip((path, tmp_path / "origin.glb", tmp_path / "held.glb"),
-                            khronos_issues(path, tmp_path / "origin.glb", tmp_path / "held.glb")):
+                            khronos_issues(path, tmp_path / "origin.glb", tmp_path / "held.glb"), strict=True):
         assert issue_counts(issues) == (0, 0, 0, 0), (file.name, issues["messages"])

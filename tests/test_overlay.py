@@ -13,11 +13,17 @@ import pytest
 
 from physmocap.body.kinematics import forward_kinematics
 from physmocap.body.model import CONTACT_POINTS, JOINT_NAMES, build_body_model, template_lengths
-from physmocap.io.video import VideoWriter
+from physmocap.io.video import VideoWriter, yuv420_planes
 from physmocap.viz.figures import result_figure
-from physmocap.io.video import yuv420_planes
-from physmocap.viz.overlay import (BANNER_COLOUR, YuvScratch, _draw_in_place, _draw_yuv420, render_overlay,
-                                   skeleton_edges, start_overlay)
+from physmocap.viz.overlay import (
+    BANNER_COLOUR,
+    YuvScratch,
+    _draw_in_place,
+    _draw_yuv420,
+    render_overlay,
+    skeleton_edges,
+    start_overlay,
+)
 
 WIDTH, HEIGHT, FRAMES, FPS = 320, 240, 10, 25.0
 BACKGROUND = 60  # grey level of the synthetic frames
@@ -135,7 +141,7 @@ def test_drawing_in_yuv420_equals_drawing_in_bgr_and_converting(body, scene, val
     # luma: the same strokes everywhere, to the rounding of anti-aliased edges (a stroke cut off differs by ~100)
     assert np.abs(drawn_y - expected_y).max() <= 6 and np.mean(np.abs(drawn_y - expected_y) > 2) < 0.001
     assert np.abs(drawn_y - untouched[0]).max() > 100  # and something was drawn
-    for drawn, wanted in zip(yuv420_planes(picture)[1:], yuv420_planes(expected)[1:]):
+    for drawn, wanted in zip(yuv420_planes(picture)[1:], yuv420_planes(expected)[1:], strict=True):
         difference = np.abs(drawn.astype(int) - wanted)
         # chroma: averaged 2 x 2 here, filtered by swscale there: alike but at the strokes' edges
         assert difference.mean() < 1.0 and np.percentile(difference, 99) <= 12

@@ -234,9 +234,11 @@ def test_body_model_has_the_rigs_lengths_and_the_mass_distribution_asked_for(tmp
     assert masses["head"] == pytest.approx(0.40 * 36.5)
     human = build_body_model(lengths, 36.5)  # de Leva: the other groups keep their proportions
     human_masses = {b.name: b.mass for b in human.bodies}
-    assert masses["left_thigh"] / masses["pelvis"] == pytest.approx(human_masses["left_thigh"] / human_masses["pelvis"])
+    assert (masses["left_thigh"] / masses["pelvis"]
+            == pytest.approx(human_masses["left_thigh"] / human_masses["pelvis"]))
     head = body.body_index["head"]
-    assert body.bodies[head].inertia == pytest.approx(human.bodies[head].inertia * masses["head"] / human_masses["head"])
+    assert body.bodies[head].inertia == pytest.approx(
+        human.bodies[head].inertia * masses["head"] / human_masses["head"])
 
 
 def test_default_mass_scales_with_the_cube_of_the_height(tmp_path):
@@ -460,7 +462,8 @@ def test_glb_with_an_armature_node_and_rest_rotations_moves_its_joints_where_the
     positions, _ = forward_kinematics(bvh)
     order = [bvh.joint_names.index(name) for name in character.rig.names]
     error = np.abs(positions[:, order] @ character.file_to_world.T - character.origin - result["rig_joints_world"])
-    assert error.max() < 2e-4, [(n, e) for n, e in zip(character.rig.names, error.max(axis=(0, 2))) if e > 2e-4]
+    worst = error.max(axis=(0, 2))
+    assert error.max() < 2e-4, [(n, e) for n, e in zip(character.rig.names, worst, strict=True) if e > 2e-4]
 
 
 def test_khronos_validator_finds_no_new_issue_in_the_characters_glb(tmp_path, source):

@@ -160,7 +160,7 @@ def write_timed_video(path: Path, frames: list[np.ndarray], times: list[int], ti
         stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
         stream.time_base = stream.codec_context.time_base = time_base
         stream.options = {"crf": "10", "bf": "0"}
-        for frame, time in zip(frames, times):
+        for frame, time in zip(frames, times, strict=True):
             video_frame = av.VideoFrame.from_ndarray(frame, format="bgr24")
             video_frame.pts, video_frame.time_base = time, time_base
             container.mux(stream.encode(video_frame))

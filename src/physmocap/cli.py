@@ -12,9 +12,17 @@ import time
 from pathlib import Path
 
 import physmocap  # noqa: F401 - sets single-threaded BLAS before numpy loads
+
 from .config import Settings
-from .errors import (EXIT_BUG, EXIT_INTERRUPTED, InputError, OutputLocationError, PhysmocapError,
-                     check_output_folder, output_error)
+from .errors import (
+    EXIT_BUG,
+    EXIT_INTERRUPTED,
+    InputError,
+    OutputLocationError,
+    PhysmocapError,
+    check_output_folder,
+    output_error,
+)
 from .presets import PRESETS, SMOOTHING_LIMITS
 from .settings_fields import declaration, describe
 
@@ -49,7 +57,8 @@ def _floats(count: int, name: str):
         try:
             values = tuple(float(x) for x in text.split(","))
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be {count} comma-separated numbers, got '{text}'")
+            raise argparse.ArgumentTypeError(
+                f"{name} must be {count} comma-separated numbers, got '{text}'") from None
         if len(values) != count or not all(math.isfinite(v) for v in values):
             raise argparse.ArgumentTypeError(f"{name} must be {count} comma-separated finite numbers, got '{text}'")
         return values

@@ -11,8 +11,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .errors import SettingsError
-from .settings_fields import Section, floor_plane, image_box, load_toml, setting
-from .settings_fields import read_toml as read_toml  # retarget.mapping reads character maps with it
+from .settings_fields import (
+    Section,
+    floor_plane,
+    image_box,
+    load_toml,
+    read_toml as read_toml,  # retarget.mapping reads character maps with it
+    setting,
+)
 
 
 @dataclass(frozen=True)

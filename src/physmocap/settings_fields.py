@@ -142,7 +142,7 @@ def _has_type(value, hint) -> bool:
             return False
         if len(items) == 2 and items[1] is Ellipsis:
             return all(_has_type(v, items[0]) for v in value)
-        return len(value) == len(items) and all(_has_type(v, t) for v, t in zip(value, items))
+        return len(value) == len(items) and all(_has_type(v, t) for v, t in zip(value, items, strict=True))
     return hint is type(None) and value is None
 
 

@@ -66,7 +66,7 @@ def expand_inputs(paths: list[Path], out_dir: Path) -> list[BatchInput]:
     if not found:
         raise InputError("no video or observations file found in " + ", ".join(str(p) for p in paths) + ".")
     names = unique_names([path for path, _ in found])
-    return [BatchInput(path, kind, name) for (path, kind), name in zip(found, names)]
+    return [BatchInput(path, kind, name) for (path, kind), name in zip(found, names, strict=True)]
 
 
 def _hidden(relative: Path) -> bool:

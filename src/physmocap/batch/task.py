@@ -16,9 +16,9 @@ import signal
 import socket
 import time
 import traceback
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
 
 import physmocap  # noqa: F401 - single-threaded BLAS before numpy loads
 

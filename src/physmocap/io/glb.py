@@ -90,20 +90,20 @@ def mannequin_parts(body: BodyModel) -> list[MannequinPart]:
                       np.array([0.11 * size, 0.5 * L.ear_width + 0.02 * size, 0.7 * L.head_top + 0.03 * size]),
                       "centre"),
     ]
+
+    def limb(side: str, joint: str, start: str, end: str, thickness: float) -> MannequinPart:
+        a, b = point(f"{side}_{start}"), point(f"{side}_{end}")
+        along = np.abs(b - a) / 2 + 0.01 * size
+        radii = np.where(along > 0.02 * size, along, thickness * size)
+        return MannequinPart(f"{side.capitalize()}{joint}", (a + b) / 2, radii, side)
+
     for side in ("left", "right"):
         prefix = side.capitalize()
-
-        def limb(joint: str, start: str, end: str, thickness: float) -> MannequinPart:
-            a, b = point(start), point(end)
-            along = np.abs(b - a) / 2 + 0.01 * size
-            radii = np.where(along > 0.02 * size, along, thickness * size)
-            return MannequinPart(joint, (a + b) / 2, radii, side)
-
         parts += [
-            limb(f"{prefix}Arm", f"{side}_shoulder", f"{side}_elbow", 0.05),
-            limb(f"{prefix}ForeArm", f"{side}_elbow", f"{side}_wrist", 0.04),
-            limb(f"{prefix}UpLeg", f"{side}_hip", f"{side}_knee", 0.075),
-            limb(f"{prefix}Leg", f"{side}_knee", f"{side}_ankle", 0.055),
+            limb(side, "Arm", "shoulder", "elbow", 0.05),
+            limb(side, "ForeArm", "elbow", "wrist", 0.04),
+            limb(side, "UpLeg", "hip", "knee", 0.075),
+            limb(side, "Leg", "knee", "ankle", 0.055),
         ]
         knuckles = (point(f"{side}_index") + point(f"{side}_pinky")) / 2
         wrist = point(f"{side}_wrist")
@@ -221,8 +221,9 @@ def glb_document(body: BodyModel, qpos: np.ndarray, fps: float, *,
         offsets = np.cumsum([0] + [len(m[0]) for m in meshes])
         positions = np.concatenate([m[0] for m in meshes]) @ WORLD_TO_GLTF.T
         normals = np.concatenate([m[1] for m in meshes]) @ WORLD_TO_GLTF.T
-        triangles = np.concatenate([m[2] + offset for m, offset in zip(meshes, offsets)])
-        joint_ids = np.concatenate([np.full(len(m[0]), names.index(p.joint)) for m, p in zip(meshes, chosen)])
+        triangles = np.concatenate([m[2] + offset for m, offset in zip(meshes, offsets[:-1], strict=True)])
+        joint_ids = np.concatenate([np.full(len(m[0]), names.index(p.joint))
+                                    for m, p in zip(meshes, chosen, strict=True)])
         joints_attribute = np.zeros((len(joint_ids), 4), dtype=np.uint16)
         joints_attribute[:, 0] = joint_ids
         weights = np.zeros((len(joint_ids), 4))

@@ -15,11 +15,11 @@ import functools
 import os
 import queue
 import threading
+from collections.abc import Iterator
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
 from types import TracebackType
-from typing import Iterator
 
 import av
 import cv2
@@ -168,7 +168,7 @@ def _read_timeline(path: Path, size: int, mtime_ns: int) -> _Timeline:
     info = VideoInfo(path=path, fps=float(rate), frame_count=frame_count, width=width, height=height,
                      rotation=rotation, source_frames=source_frames, repeated_frames=int((slots > 1).sum()),
                      dropped_frames=int((slots == 0).sum()))
-    return _Timeline(info, {int(p): int(s) for p, s in zip(unique, slots) if s != 1})
+    return _Timeline(info, {int(p): int(s) for p, s in zip(unique, slots, strict=True) if s != 1})
 
 
 def probe_video(path: str | os.PathLike) -> VideoInfo:
@@ -323,7 +323,7 @@ def copy_yuv420(source: av.VideoFrame, target: av.VideoFrame | None = None) -> a
     so that drawing on it leaves the decoder's pictures untouched."""
     if target is None or (target.width, target.height) != (source.width, source.height):
         target = av.VideoFrame(source.width, source.height, "yuv420p")
-    for source_plane, target_plane in zip(yuv420_planes(source), yuv420_planes(target)):
+    for source_plane, target_plane in zip(yuv420_planes(source), yuv420_planes(target), strict=True):
         target_plane[...] = source_plane
     return target
 
@@ -332,7 +332,7 @@ def _rotated_yuv420(picture: av.VideoFrame, rotation: int) -> av.VideoFrame:
     """A new yuv420p picture: `picture` turned `rotation` degrees clockwise, plane by plane."""
     planes = [cv2.rotate(plane, _UPRIGHT[rotation]) for plane in yuv420_planes(picture)]
     upright = av.VideoFrame(planes[0].shape[1], planes[0].shape[0], "yuv420p")
-    for target, plane in zip(yuv420_planes(upright), planes):
+    for target, plane in zip(yuv420_planes(upright), planes, strict=True):
         target[...] = plane
     return upright
 
@@ -454,7 +454,7 @@ class VideoWriter:
         # Handing the error to atomic_path makes it delete the temporary file instead of renaming it.
         self._files.__exit__(type(error), error, error.__traceback__)
 
-    def __enter__(self) -> "VideoWriter":
+    def __enter__(self) -> VideoWriter:
         return self
 
     def __exit__(

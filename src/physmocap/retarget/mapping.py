@@ -183,7 +183,7 @@ def map_bones(rig: Rig, config: CharacterConfig | None = None) -> dict[str, int]
             f"{rig.path}: no bone found for {', '.join(missing)}; name them in a TOML map ([bones] "
             f"{missing[0]} = \"BoneName\") given with --character-map (bones: {_sample(rig)}).")
     toes = [f"{s}_toe" for s in SIDES]
-    for toe, ankle in zip(toes, ("left_ankle", "right_ankle")):
+    for toe, ankle in zip(toes, ("left_ankle", "right_ankle"), strict=True):
         if toe in found and int(rig.parents[found[toe]]) != found[ankle]:
             del found[toe]  # a "toe" that is not the foot's child is some other bone
     if "pelvis" not in found:

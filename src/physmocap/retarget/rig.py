@@ -224,7 +224,7 @@ def read_gltf_rig(path: str | os.PathLike) -> Rig:
               "gltf", str(path), tuple(ordered), _rest_vertices(gltf, skin, ordered, rest_local, parents, base),
               _vrm_humanoid(gltf, index))
     scales = [np.cbrt(abs(np.linalg.det(m[:3, :3]))) for m in rig.rest_world()]
-    frames = [m[:3, :3] / s for m, s in zip(rig.rest_world(), scales)]
+    frames = [m[:3, :3] / s for m, s in zip(rig.rest_world(), scales, strict=True)]
     if any(not np.allclose(f @ f.T, np.eye(3), atol=1e-4) for f in frames):
         raise InputError(f"{path}: the skeleton has non-uniform scale, which retargeting does not handle.")
     return rig

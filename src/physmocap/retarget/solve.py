@@ -57,7 +57,7 @@ def contact_runs(flags: np.ndarray) -> list[tuple[int, int]]:
     """[(start, end)) of each run of True in a (T,) bool array."""
     padded = np.concatenate([[False], flags.astype(bool), [False]])
     edges = np.flatnonzero(np.diff(padded.astype(int)))
-    return list(zip(edges[0::2], edges[1::2]))
+    return list(zip(edges[0::2], edges[1::2], strict=True))
 
 
 def planted_spots(points: np.ndarray, contacts: np.ndarray) -> np.ndarray:

@@ -26,8 +26,14 @@ from ..config import Settings
 from ..errors import InputError
 from ..export import body_from_result
 from ..io.atomic import write_text
-from ..metrics import (FLOATING_THRESHOLD, GRAVITY, SKATE_REFERENCE_FPS, SKATE_THRESHOLD, foot_contact_errors,
-                       grf_statistics)
+from ..metrics import (
+    FLOATING_THRESHOLD,
+    GRAVITY,
+    SKATE_REFERENCE_FPS,
+    SKATE_THRESHOLD,
+    foot_contact_errors,
+    grf_statistics,
+)
 from ..result import RESULT_POINTS, load_result, save_result
 from .character import Character, build_character
 from .mapping import load_character_config
@@ -109,7 +115,8 @@ def retarget_metrics(character: Character, source_points: np.ndarray, qpos: np.n
     cos_body = np.sum(_directions(body_points, names, BODY_BONES) * _directions(source_points, names, BODY_BONES), -1)
     rig_points, roles = _rig_role_points(character, positions)
     source_roles = np.stack([source_points[:, names.index(r)] if r in names else
-                             (source_points[:, names.index("left_hip")] + source_points[:, names.index("right_hip")]) / 2
+                             (source_points[:, names.index("left_hip")]
+                              + source_points[:, names.index("right_hip")]) / 2
                              if r == "hips_mid" else
                              (source_points[:, names.index("left_shoulder")]
                               + source_points[:, names.index("right_shoulder")]) / 2 for r in roles], axis=1)

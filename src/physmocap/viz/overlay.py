@@ -18,8 +18,8 @@ import functools
 import os
 import threading
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Sequence
 
 import cv2
 import numpy as np
@@ -108,7 +108,7 @@ def _as_is(colour: Colour) -> Colour:
     return colour
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def yuv_colour(colour: Colour) -> Colour:
     """(Y, U, V) of a BGR colour as swscale writes yuv420p from BGR: ITU-R BT.601, limited range (Y 16-235)."""
     blue, green, red = colour
@@ -193,14 +193,14 @@ def _draw_in_place(image: np.ndarray, points_2d: np.ndarray, edges: Sequence[tup
     fixed = _fixed(np.where(finite[:, None], points_2d, 0.0))
     edge_colours, point_colours = _palette(tuple((int(i), int(j)) for i, j in edges),
                                            None if labels is None else tuple(labels), ink)
-    for (i, j), colour in zip(edges, edge_colours):
+    for (i, j), colour in zip(edges, edge_colours, strict=True):
         if finite[i] and finite[j]:
             cv2.line(image, fixed[i], fixed[j], colour, width, cv2.LINE_AA, SHIFT)
     for i, colour in point_colours:
         if finite[i]:
             _circle(image, fixed[i], width, colour, cv2.FILLED)
     if contacts is not None:
-        for index, in_contact in zip(contact_point_indices(labels), contacts):
+        for index, in_contact in zip(contact_point_indices(labels), contacts, strict=True):
             if finite[index]:
                 _circle(image, fixed[index], 2.5 * width, ink(CONTACT_COLOUR),
                         cv2.FILLED if in_contact else max(1, width // 2))
@@ -208,7 +208,7 @@ def _draw_in_place(image: np.ndarray, points_2d: np.ndarray, edges: Sequence[tup
         force_arrows = np.asarray(force_arrows, dtype=float)
         arrows = force_arrows[drawable(force_arrows).all(axis=-1)]
         ends = _fixed(arrows)
-        for (start, tip), start_fixed, tip_fixed in zip(arrows, ends[0::2], ends[1::2]):
+        for (start, tip), start_fixed, tip_fixed in zip(arrows, ends[0::2], ends[1::2], strict=True):
             length = np.linalg.norm(tip - start)
             if length > 0.5:
                 # The head is at most 6 line widths long: DRAWN_MARGIN_LINE_WIDTHS counts on it.
@@ -278,7 +278,7 @@ def _draw_yuv420(planes: tuple[np.ndarray, np.ndarray, np.ndarray], scratch: Yuv
     halves = [plane[y0 // 2:y1 // 2, x0 // 2:x1 // 2] for plane in (u_plane, v_plane)]
     full = [chroma[:size[1], :size[0]] for chroma in scratch.chroma]
     region = scratch.yuv[:size[1], :size[0]]
-    for half, chroma in zip(halves, full):
+    for half, chroma in zip(halves, full, strict=True):
         cv2.resize(half, size, dst=chroma, interpolation=cv2.INTER_NEAREST)
     cv2.merge([luma, *full], dst=region)
     origin = np.array([x0, y0], dtype=float)
@@ -287,7 +287,7 @@ def _draw_yuv420(planes: tuple[np.ndarray, np.ndarray, np.ndarray], scratch: Yuv
                    None if force_arrows is None else force_arrows - origin, valid, unexplained,
                    ink=yuv_colour, width=line)
     cv2.extractChannel(region, 0, dst=luma)
-    for channel, (half, chroma) in enumerate(zip(halves, full), start=1):
+    for channel, (half, chroma) in enumerate(zip(halves, full, strict=True), start=1):
         cv2.extractChannel(region, channel, dst=chroma)
         cv2.resize(chroma, (size[0] // 2, size[1] // 2), dst=half, interpolation=cv2.INTER_AREA)
 
@@ -490,7 +490,7 @@ class OverlayJob:
         self._cancel.set()
         self._thread.join()
 
-    def __enter__(self) -> "OverlayJob":
+    def __enter__(self) -> OverlayJob:
         return self
 
     def __exit__(self, exc_type, exc, traceback) -> None:
