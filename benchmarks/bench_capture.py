@@ -264,7 +264,8 @@ def background_difference(video: Path, overlay_video: Path, width: int, every: i
             return [frame.to_ndarray(format="bgr24") for frame in decoded]
 
     differences = []
-    for source, drawn in zip(frames(video), frames(overlay_video), strict=True):
+    # strict=False: a variable-rate source decodes to more or fewer frames than its constant-rate overlay
+    for source, drawn in zip(frames(video), frames(overlay_video), strict=False):
         source = cv2.resize(source, drawn.shape[1::-1], interpolation=cv2.INTER_AREA)
         quarter = drawn.shape[1] // 4
         differences.append(np.abs(source[:, :quarter].astype(int) - drawn[:, :quarter]).mean())

@@ -80,15 +80,8 @@ def _join_negative_number_lists(argv: list[str]) -> list[str]:
     return out
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="physmocap",
-        description="Physics-based monocular 3D human motion capture: one person, one static camera, "
-                    "global 3D motion out.",
-        formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EXAMPLES)
-    parser.add_argument("--version", action="version", version=f"physmocap {physmocap.__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-
+def _add_capture_command(sub: argparse._SubParsersAction) -> None:
+    """`capture`: one video or observations file into a run folder."""
     cap = sub.add_parser("capture", help="video (or observations file) -> 3D motion, BVH, overlay",
                          formatter_class=_DefaultsUnlessUnsetFormatter,
                          description="Capture the 3D motion of one person in a video.")
@@ -99,6 +92,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_capture_options(cap)
     _add_character_arguments(cap, required=False)
 
+
+def _add_batch_command(sub: argparse._SubParsersAction) -> None:
+    """`batch`: many inputs, one run folder each, on local processes or Ray."""
     batch = sub.add_parser(
         "batch", help="capture many videos (or observations files): local processes, or a Ray cluster",
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -127,6 +123,19 @@ def build_parser() -> argparse.ArgumentParser:
                             "(inputs and OUT on a file system every node shares)")
     _add_capture_options(batch)
 
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="physmocap",
+        description="Physics-based monocular 3D human motion capture: one person, one static camera, "
+                    "global 3D motion out.",
+        formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EXAMPLES)
+    parser.add_argument("--version", action="version", version=f"physmocap {physmocap.__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    _add_capture_command(sub)
+    _add_batch_command(sub)
+
     live = sub.add_parser("live", help="live capture from a camera or a video played at its frame rate",
                           formatter_class=argparse.ArgumentDefaultsHelpFormatter,
                           description="Detection, causal fit, contacts and PhysCap physics frame by frame, with "
@@ -142,6 +151,16 @@ def build_parser() -> argparse.ArgumentParser:
     live.add_argument("--online", action="store_true", default=True, help=argparse.SUPPRESS)
     _add_settings_arguments(live)
 
+    _add_export_command(sub)
+    _add_evaluate_command(sub)
+    _add_train_contacts_command(sub)
+    _add_retarget_command(sub)
+    _add_detect_command(sub)
+    return parser
+
+
+def _add_export_command(sub: argparse._SubParsersAction) -> None:
+    """`export`: BVH, GLB or OpenSim files from a result.npz."""
     exp = sub.add_parser("export", help="BVH, GLB or OpenSim files from a result.npz of any earlier run",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     exp.add_argument("result", type=Path, help="a result.npz")
@@ -150,6 +169,9 @@ def build_parser() -> argparse.ArgumentParser:
     exp.add_argument("--units", default=None, help="bvh: m or cm; opensim: m or mm")
     exp.add_argument("--root-at-origin", action="store_true", help="bvh, glb: start the root above the origin")
 
+
+def _add_evaluate_command(sub: argparse._SubParsersAction) -> None:
+    """`evaluate`: every metric of a run."""
     ev = sub.add_parser("evaluate", help="every metric of a run, against ground truth if given",
                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     ev.add_argument("result", type=Path, help="a result.npz")
@@ -158,6 +180,9 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("-o", "--output", type=Path, default=None,
                     help="evaluation JSON to write (default: evaluation.json beside the result)")
 
+
+def _add_train_contacts_command(sub: argparse._SubParsersAction) -> None:
+    """`train-contacts`: the contact networks' weights from motion capture."""
     train = sub.add_parser("train-contacts", help="rebuild the contact networks' weights from motion capture",
                            formatter_class=argparse.ArgumentDefaultsHelpFormatter,
                            description="Deterministic training of the causal and centred contact networks on "
@@ -174,6 +199,9 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--seed", type=int, default=0,
                        help="seed of every random draw (synthetic data, initial weights, batches)")
 
+
+def _add_retarget_command(sub: argparse._SubParsersAction) -> None:
+    """`retarget`: a result's motion on the user's character."""
     ret = sub.add_parser("retarget", help="motion of a result.npz on your own character (BVH or glTF/GLB rig)",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter,
                          description="Retarget a run's motion onto a character: uniform scale by the legs, IK with "
@@ -189,6 +217,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="physics on the character's body model")
     ret.add_argument("--config", type=Path, help="TOML settings file (physics and trajopt settings)")
 
+
+def _add_detect_command(sub: argparse._SubParsersAction) -> None:
+    """`detect`: the keypoint detector alone, into an observations file."""
     det = sub.add_parser("detect", help="run only the 2D/3D keypoint detector and write an observations file",
                          formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     det.add_argument("video", type=Path)
@@ -197,7 +228,6 @@ def build_parser() -> argparse.ArgumentParser:
                      help="follow the person inside this box (pixels)")
     det.add_argument("--max-width", type=int, default=None,
                      help="downscale what the detector sees to this width, pixels (default: native)")
-    return parser
 
 
 class _DefaultsUnlessUnsetFormatter(argparse.ArgumentDefaultsHelpFormatter):
@@ -671,14 +701,16 @@ def _report_bug(exc: BaseException, outputs: list[Path]) -> int:
 
     text = (f"physmocap {physmocap.__version__}, {time.strftime('%Y-%m-%d %H:%M:%S')}\n"
             f"command: {' '.join(sys.argv)}\n\n" + "".join(traceback.format_exception(exc)))
+    crash_log: Path | None = None
     for folder in [*[f for f in outputs if f.is_dir()], Path(tempfile.gettempdir())]:
-        log = folder / f"physmocap-crash-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.log"
+        candidate = folder / f"physmocap-crash-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.log"
         try:
-            log.write_text(text)
-            break
+            candidate.write_text(text)
         except OSError:
-            log = None
-    where = f"with the crash log {log}" if log else "(no crash log could be written)"
+            continue
+        crash_log = candidate
+        break
+    where = f"with the crash log {crash_log}" if crash_log else "(no crash log could be written)"
     print(f"physmocap: internal error ({type(exc).__name__}: {_one_line(str(exc))[:200]}); this is a bug, "
           f"please report it {where}.", file=sys.stderr)
     return EXIT_BUG

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -16,6 +17,9 @@ from .io.atomic import read_npz, save_npz
 from .io.finite import finite_result
 from .kinematics.stage import KinematicMotion, reprojection_errors
 from .motion import Observations
+
+if TYPE_CHECKING:
+    from .trajopt.stage import TrajoptMotion
 
 RESULT_POINTS: tuple[str, ...] = JOINT_NAMES + LANDMARK_POINTS
 
@@ -34,19 +38,21 @@ def person_height_pixels(motion: KinematicMotion) -> np.ndarray:
 
 def build_result(obs: Observations, motion: KinematicMotion, stage_seconds: dict[str, float],
                  settings: dict, contacts: np.ndarray, stationary: np.ndarray,
-                 physics: PhysicsMotion | None = None, predicted: np.ndarray | None = None,
+                 physics: PhysicsMotion | TrajoptMotion | None = None, predicted: np.ndarray | None = None,
                  physics_method: str = "physcap") -> dict[str, np.ndarray]:
     """All arrays of result.npz. `contacts`: the flags after foot-lock; `predicted`: the contact network's
     (default: the same). Without physics the final motion is the kinematic one and the force keys are zeros;
-    with physics, `contacts` become the flags the physics used."""
+    with physics, `contacts` become the flags the physics used. Per-run numbers and texts are 0-d arrays, as
+    load_result reads them back."""
     body, T = motion.body, len(motion.qpos)
+    unexplained = getattr(physics, "unexplained", None)  # trajopt's motion has none
     points = body.point_index(RESULT_POINTS)
     kinematic = kin.forward_kinematics(body, motion.qpos).points[:, points]
     final = kinematic if physics is None else kin.forward_kinematics(body, physics.qpos).points[:, points]
     final_reprojection = (motion.reprojection_error if physics is None
                           else reprojection_errors(body, motion.camera, physics.qpos, obs))
     return dict(
-        fps=np.float64(obs.fps),
+        fps=np.array(obs.fps, dtype=np.float64),
         joint_names=np.array(RESULT_POINTS),
         joints_world=final,
         joints_world_kinematic=kinematic,
@@ -58,22 +64,22 @@ def build_result(obs: Observations, motion: KinematicMotion, stage_seconds: dict
         stationary=stationary,
         grf=np.zeros((T, 4, 3)) if physics is None else physics.grf,
         residual_root_force=np.zeros((T, 6)) if physics is None else physics.residual,
-        physics=np.str_("none" if physics is None else physics_method),
+        physics=np.array("none" if physics is None else physics_method),
         physics_fallback=np.zeros(T, bool) if physics is None else physics.qp_failures > 0,
         # frames the physics' contact model could not explain (hands or a raised floor carrying the body, a force
         # over PhysicsSettings.max_force, a failed solver): the final motion there is the kinematic one, blended in
         # and out over PhysicsSettings.unexplained_blend
-        physics_unexplained=(np.zeros(T, bool) if getattr(physics, "unexplained", None) is None  # trajopt: none
-                             else np.asarray(physics.unexplained, bool)),
+        physics_unexplained=np.zeros(T, bool) if unexplained is None else np.asarray(unexplained, bool),
         balance_corrected=np.zeros(T, bool) if physics is None else physics.corrected,
         camera_K=motion.camera.K,
         camera_R=motion.camera.R,
         camera_t=motion.camera.t,
         image_size=np.array(obs.image_size),
         floor=motion.floor.plane,
-        floor_trusted=np.bool_(motion.floor.trusted),  # False: the floor is level with the posture, not the feet
-        floor_confidence=np.str_(json.dumps(motion.floor.confidence())),
-        body_height_source=np.str_(motion.calibration.height_source),  # "given" (default 1.70 m too) or "estimated"
+        # False: the floor is level with the posture, not the feet
+        floor_trusted=np.array(motion.floor.trusted, dtype=bool),
+        floor_confidence=np.array(json.dumps(motion.floor.confidence())),
+        body_height_source=np.array(motion.calibration.height_source),  # "given" (default 1.70 m too) or "estimated"
         keypoints_2d=obs.keypoints_2d,
         valid=motion.valid,
         invalid_reason=np.asarray(obs.invalid_reason, dtype=str),
@@ -81,11 +87,11 @@ def build_result(obs: Observations, motion: KinematicMotion, stage_seconds: dict
         reprojection_error_final=final_reprojection,
         physics_deviation=np.linalg.norm(final - kinematic, axis=-1).mean(axis=1),
         person_height_px=person_height_pixels(motion),
-        body_mass=np.float64(body.mass),
-        body_height=np.float64(body.height),
-        body_lengths=np.str_(json.dumps(body.lengths.__dict__)),
-        stage_seconds=np.str_(json.dumps(stage_seconds)),
-        settings=np.str_(json.dumps(settings)),
+        body_mass=np.array(body.mass, dtype=np.float64),
+        body_height=np.array(body.height, dtype=np.float64),
+        body_lengths=np.array(json.dumps(body.lengths.__dict__)),
+        stage_seconds=np.array(json.dumps(stage_seconds)),
+        settings=np.array(json.dumps(settings)),
     )
 
 

@@ -34,7 +34,8 @@ class Section:
         return f"{section}.{name}" if section else name
 
     def check(self):
-        hints = _hints(type(self))
+        owner: type = type(self)  # as `type`: mypy takes a dataclass class object for unhashable
+        hints = _hints(owner)
         for f in dataclasses.fields(self):  # type: ignore[arg-type]
             value = getattr(self, f.name)
             if isinstance(value, Section):

@@ -122,12 +122,12 @@ class RayEngine:
 
         self._ray = ray
         self._local_node = None
-        options = dict(log_to_driver=False, logging_level=logging.WARNING)
         if address is None:
             self._local_node = _start_local_ray(workers)
-            ray.init(address=self._local_node.address, **options)
+            ray.init(address=self._local_node.address, log_to_driver=False, logging_level=logging.WARNING)
         else:  # a cluster's other nodes start their workers from their own environment
-            ray.init(address=address, runtime_env={"env_vars": RAY_WORKER_ENV}, include_dashboard=False, **options)
+            ray.init(address=address, runtime_env={"env_vars": RAY_WORKER_ENV}, include_dashboard=False,
+                     log_to_driver=False, logging_level=logging.WARNING)
         self._remote = ray.remote(capture_one).options(num_cpus=1, max_retries=max_retries, retry_exceptions=False)
         self._running: dict = {}
 
@@ -189,7 +189,8 @@ def _start_local_ray(cpus: int):
 
     # Its daemons and workers inherit this environment: no runtime_env, which would start more workers.
     os.environ.update(RAY_WORKER_ENV)
-    params = RayParams(num_cpus=cpus, include_dashboard=False, include_log_monitor=False, no_monitor=True)
+    params = RayParams(num_cpus=cpus, include_dashboard=False, no_monitor=True,
+                       include_log_monitor=False)  # type: ignore[arg-type]  # a flag Ray annotates as str
     return Node(params, head=True, shutdown_at_exit=True, spawn_reaper=True, ray_init_cluster=True)
 
 

@@ -185,14 +185,12 @@ def continuous_quaternions(rotations: np.ndarray) -> np.ndarray:
     return quats * np.cumprod(flips, axis=0)[..., None]
 
 
-def glb_document(body: BodyModel, qpos: np.ndarray, fps: float, *,
-                 root_at_origin: bool = False) -> tuple[dict, bytes]:
-    """The glTF JSON and its binary buffer for the motion qpos (T, nq) of `body` at `fps` (see the module)."""
-    joints: list[BvhJoint] = bvh_hierarchy(body)
+def _skeleton_nodes(body: BodyModel, joints: list[BvhJoint]) -> tuple[list[dict], np.ndarray]:
+    """The skeleton's nodes (the joints, then one "<joint>_End" leaf per End Site) with their rest translations
+    and children, and each node's rest position (N, 3) in glTF axes."""
     names = [j.name for j in joints]
     ends = [(index, j) for index, j in enumerate(joints) if j.end_site is not None]
     node_count = len(joints) + len(ends)
-
     rest_root = WORLD_TO_GLTF @ body.rest_qpos[0:3]
     translations = [rest_root if j.parent < 0 else WORLD_TO_GLTF @ j.offset for j in joints]
     translations += [WORLD_TO_GLTF @ j.end_site for _, j in ends]
@@ -209,11 +207,14 @@ def glb_document(body: BodyModel, qpos: np.ndarray, fps: float, *,
         if children:
             entry["children"] = children
         nodes.append(entry)
-    mesh_node = node_count
-    nodes.append({"name": "Mannequin", "mesh": 0, "skin": 0})
+    return nodes, rest_world
 
-    buffer = _BinaryBuffer()
-    primitives, materials = [], []
+
+def _mannequin_mesh(buffer: _BinaryBuffer, body: BodyModel, names: list[str]) -> tuple[list[dict], list[dict]]:
+    """The mannequin's primitives, one per side colour, each ellipsoid skinned to its joint (index into
+    `names`), and their materials; their arrays go into `buffer`."""
+    primitives: list[dict] = []
+    materials: list[dict] = []
     parts = mannequin_parts(body)
     for side, colour in SIDE_COLOURS_SRGB.items():
         chosen = [p for p in parts if p.side == side]
@@ -240,13 +241,22 @@ def glb_document(body: BodyModel, qpos: np.ndarray, fps: float, *,
         })
         materials.append({"name": f"mannequin_{side}", "pbrMetallicRoughness": {
             "baseColorFactor": _linear_rgba(colour), "metallicFactor": 0.0, "roughnessFactor": 0.7}})
+    return primitives, materials
 
+
+def _skin(buffer: _BinaryBuffer, rest_world: np.ndarray) -> dict:
+    """The skin of every node, its inverse bind matrices (the inverse rest translations) put into `buffer`."""
+    node_count = len(rest_world)
     inverse_bind = np.tile(np.eye(4), (node_count, 1, 1))
     inverse_bind[:, :3, 3] = -rest_world
-    skin = {"name": "skeleton", "joints": list(range(node_count)), "skeleton": 0,
+    return {"name": "skeleton", "joints": list(range(node_count)), "skeleton": 0,
             "inverseBindMatrices": buffer.add(np.transpose(inverse_bind, (0, 2, 1)).reshape(node_count, 16),
                                               "MAT4")}  # column-major
 
+
+def _animation(buffer: _BinaryBuffer, body: BodyModel, joints: list[BvhJoint], qpos: np.ndarray, fps: float,
+               root_at_origin: bool) -> dict:
+    """The animation "motion": the root's translation and every moving joint's rotation, one keyframe a frame."""
     T = len(qpos)
     times = buffer.add(np.arange(T) / fps, "SCALAR", bounds=True)
     root = qpos[:, 0:3] @ WORLD_TO_GLTF.T
@@ -261,7 +271,20 @@ def glb_document(body: BodyModel, qpos: np.ndarray, fps: float, *,
         samplers.append({"input": times, "output": buffer.add(quaternions[:, index], "VEC4"),
                          "interpolation": "LINEAR"})
         channels.append({"sampler": len(samplers) - 1, "target": {"node": index, "path": "rotation"}})
+    return {"name": "motion", "samplers": samplers, "channels": channels}
 
+
+def glb_document(body: BodyModel, qpos: np.ndarray, fps: float, *,
+                 root_at_origin: bool = False) -> tuple[dict, bytes]:
+    """The glTF JSON and its binary buffer for the motion qpos (T, nq) of `body` at `fps` (see the module)."""
+    joints: list[BvhJoint] = bvh_hierarchy(body)
+    nodes, rest_world = _skeleton_nodes(body, joints)
+    mesh_node = len(nodes)
+    nodes.append({"name": "Mannequin", "mesh": 0, "skin": 0})
+    buffer = _BinaryBuffer()  # the mesh's arrays first, then the skin's, then the animation's
+    primitives, materials = _mannequin_mesh(buffer, body, [j.name for j in joints])
+    skin = _skin(buffer, rest_world)
+    animation = _animation(buffer, body, joints, qpos, fps, root_at_origin)
     document = {
         "asset": {"version": "2.0", "generator": f"physmocap {physmocap.__version__}"},
         "scene": 0,
@@ -270,7 +293,7 @@ def glb_document(body: BodyModel, qpos: np.ndarray, fps: float, *,
         "meshes": [{"name": "Mannequin", "primitives": primitives}],
         "materials": materials,
         "skins": [skin],
-        "animations": [{"name": "motion", "samplers": samplers, "channels": channels}],
+        "animations": [animation],
         "buffers": [{"byteLength": len(buffer.data)}],
         "bufferViews": buffer.buffer_views,
         "accessors": buffer.accessors,

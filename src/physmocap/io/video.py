@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
 from types import TracebackType
+from typing import Generic, Literal, TypeVar, cast, overload
 
 import av
 import cv2
@@ -97,7 +98,7 @@ def _grid_slots(times: np.ndarray, stated_rates: list[Fraction]) -> tuple[Fracti
         return next((r for r in stated_rates if r), Fraction(30)), np.ones(len(times), dtype=np.int64)
     typical = float(np.median(np.diff(times)))
     mismatch = {r: abs(float(r) * typical - 1.0) for r in stated_rates if r}
-    closest = min(mismatch, key=mismatch.get, default=None)
+    closest = min(mismatch, key=lambda r: mismatch[r], default=None)
     rate = closest if closest is not None and mismatch[closest] < RATE_SNAP \
         else Fraction(1.0 / typical).limit_denominator(1001)
     grid = np.arange(int(round(times[-1] * rate)) + 1) / float(rate)
@@ -138,7 +139,7 @@ def _read_timeline(path: Path, size: int, mtime_ns: int) -> _Timeline:
                     pts.append(packet.pts)
                 if first is None:
                     with contextlib.suppress(av.error.FFmpegError):
-                        first = next(iter(packet.decode()), None)
+                        first = next(iter(stream.decode(packet)), None)
             if first is None:
                 with contextlib.suppress(av.error.FFmpegError):
                     first = next(iter(stream.codec_context.decode(None)), None)
@@ -159,7 +160,7 @@ def _read_timeline(path: Path, size: int, mtime_ns: int) -> _Timeline:
     if stream_has_times:
         rate, slots = _grid_slots((unique - unique[0]) * time_base, stated)
     else:  # no usable timestamps (raw streams): frames are taken at the stated rate
-        rate, slots, unique = stated[0], np.ones(max(len(pts), 1), dtype=np.int64), np.array([], dtype=np.int64)
+        rate, slots = stated[0], np.ones(max(len(pts), 1), dtype=np.int64)
     rotation = _upright_rotation(first)
     width, height = (first.height, first.width) if rotation in (90, 270) else (first.width, first.height)
     source_frames = max(len(pts), 1)
@@ -168,6 +169,8 @@ def _read_timeline(path: Path, size: int, mtime_ns: int) -> _Timeline:
     info = VideoInfo(path=path, fps=float(rate), frame_count=frame_count, width=width, height=height,
                      rotation=rotation, source_frames=source_frames, repeated_frames=int((slots > 1).sum()),
                      dropped_frames=int((slots == 0).sum()))
+    if not stream_has_times:
+        return _Timeline(info, {})
     return _Timeline(info, {int(p): int(s) for p, s in zip(unique, slots, strict=True) if s != 1})
 
 
@@ -189,12 +192,13 @@ def resize_to_width(frame: np.ndarray, width: int) -> np.ndarray:
 
 
 _END = object()
+Frame = TypeVar("Frame", np.ndarray, av.VideoFrame)  # what a FrameReader yields: BGR arrays or yuv420p pictures
 
 
 PIXEL_FORMATS = ("bgr24", "yuv420p")
 
 
-class FrameReader:
+class FrameReader(Generic[Frame]):
     """Iterable over (index, frame) of a video's upright, constant-rate frames; re-iterating starts again.
 
     Decoding stops quietly where the file stops decoding. After a pass, `frames_read` says how many frames came
@@ -229,7 +233,7 @@ class FrameReader:
             width, height = width + width % 2, height + height % 2
         return width, height
 
-    def __iter__(self) -> Iterator[tuple[int, np.ndarray | av.VideoFrame]]:
+    def __iter__(self) -> Iterator[tuple[int, Frame]]:
         self.frames_read = 0
         if self.prefetch <= 0:
             yield from self._decode(threading.Event())
@@ -266,7 +270,7 @@ class FrameReader:
                     frames.get_nowait()
             producer.join()
 
-    def _decode(self, stop: threading.Event) -> Iterator[tuple[int, np.ndarray | av.VideoFrame]]:
+    def _decode(self, stop: threading.Event) -> Iterator[tuple[int, Frame]]:
         width, height = self.output_size
         rotation = self.info.rotation
         stored = (height, width) if rotation in (90, 270) else (width, height)
@@ -288,15 +292,16 @@ class FrameReader:
                         picture = _rotated_yuv420(picture, rotation)
                     for _ in range(copies):  # repeats share the picture: callers copy before drawing
                         self.frames_read += 1
-                        yield self.frames_read - 1, picture
+                        yield self.frames_read - 1, cast(Frame, picture)
                     continue
-                image = frame.to_ndarray(format="bgr24", width=stored[0], height=stored[1], interpolation="AREA")
+                image: np.ndarray = frame.to_ndarray(format="bgr24", width=stored[0], height=stored[1],
+                                                     interpolation="AREA")
                 if rotation:
                     image = cv2.rotate(image, _UPRIGHT[rotation])
                 for copy in range(copies):
                     self.frames_read += 1
                     # Each repeat is its own array: callers may draw on the frames they get.
-                    yield self.frames_read - 1, image if copy == copies - 1 else image.copy()
+                    yield self.frames_read - 1, cast(Frame, image if copy == copies - 1 else image.copy())
         finally:
             container.close()
 
@@ -313,7 +318,7 @@ def yuv420_planes(picture: av.VideoFrame) -> tuple[np.ndarray, np.ndarray, np.nd
         raise ValueError(f"expected a yuv420p picture, got {picture.format.name}.")
     views = []
     for plane in picture.planes:
-        rows = np.frombuffer(plane, np.uint8).reshape(plane.height, plane.line_size)
+        rows = np.frombuffer(memoryview(plane), np.uint8).reshape(plane.height, plane.line_size)
         views.append(rows[:, :plane.width])
     return views[0], views[1], views[2]
 
@@ -337,16 +342,26 @@ def _rotated_yuv420(picture: av.VideoFrame, rotation: int) -> av.VideoFrame:
     return upright
 
 
-def _decoded_frames(container: av.container.InputContainer, stream) -> Iterator[av.VideoFrame]:
+def _decoded_frames(container: av.container.InputContainer, stream: av.VideoStream) -> Iterator[av.VideoFrame]:
     """The frames of `stream` in presentation order; undecodable packets are skipped, a damaged tail ends it."""
     try:
         for packet in container.demux(stream):
             try:
-                yield from packet.decode()
+                yield from stream.decode(packet)
             except av.error.InvalidDataError:
                 continue
     except av.error.FFmpegError:
         return
+
+
+@overload
+def iter_frames(path: str | os.PathLike, max_width: int | None = None, prefetch: int = 0,
+                pixel_format: Literal["bgr24"] = "bgr24") -> FrameReader[np.ndarray]: ...
+
+
+@overload
+def iter_frames(path: str | os.PathLike, max_width: int | None = None, prefetch: int = 0, *,
+                pixel_format: Literal["yuv420p"]) -> FrameReader[av.VideoFrame]: ...
 
 
 def iter_frames(path: str | os.PathLike, max_width: int | None = None, prefetch: int = 0,

@@ -120,14 +120,14 @@ def build_character(rig: Rig, config: CharacterConfig | None = None, default_mas
     hips_mid = (rotated[bones["left_hip"]] + rotated[bones["right_hip"]]) / 2
     origin = np.array([hips_mid[0], hips_mid[1], lowest])
     rest = rotated - origin
-    lengths, tips = _measure(rig, bones, rest, A, units, origin, notes)
+    lengths, foot_tips, hand_tips = _measure(rig, bones, rest, A, units, origin, notes)
     height = lengths.standing_height
     mass = config.mass
     if mass is None:
         mass = default_mass * (1.0 if default_height is None else (height / default_height) ** 3)
     body = distribute_mass(build_body_model(lengths, mass), config.mass_fractions)
     segment = _segments(rig, bones, body)
-    alignment = _alignment(bones, rest, tips, body)
+    alignment = _alignment(bones, rest, foot_tips, hand_tips, body)
     return Character(rig, bones, A, float(units), origin, rest, segment, alignment, body, tuple(notes))
 
 
@@ -142,14 +142,16 @@ def _upright(rig: Rig, bones: dict[str, int]) -> bool:
 
 
 def _measure(rig: Rig, bones: dict[str, int], rest: np.ndarray, A: np.ndarray, units: float, origin: np.ndarray,
-             notes: list[str]) -> tuple[SkeletonLengths, dict[str, np.ndarray]]:
-    """SkeletonLengths of the rig at rest (world metres, floor z = 0) and the tips of the feet and hands."""
+             notes: list[str]) -> tuple[SkeletonLengths, dict[str, np.ndarray], dict[str, np.ndarray | None]]:
+    """SkeletonLengths of the rig at rest (world metres, floor z = 0), and by side the tips of the feet and of the
+    hands (None: a hand without fingers)."""
     P = {role: rest[j] for role, j in bones.items()}
 
     def mean_distance(a: str, b: str) -> float:
         return float(np.mean([np.linalg.norm(P[f"{s}_{a}"] - P[f"{s}_{b}"]) for s in ("left", "right")]))
 
-    tips: dict[str, np.ndarray] = {}
+    foot_tips: dict[str, np.ndarray] = {}
+    hand_tips: dict[str, np.ndarray | None] = {}
     toe_front = []
     for side in ("left", "right"):
         ankle = P[f"{side}_ankle"]
@@ -162,11 +164,11 @@ def _measure(rig: Rig, bones: dict[str, int], rest: np.ndarray, A: np.ndarray, u
                                  "its length is unknown.")
             toe, share = rest[max(below, key=lambda j: rest[j, 0])], TOE_OF_FOOT_TIP
             notes.append(f"{side} toe contact point {TOE_OF_FOOT_TIP:g} of the way to the foot's tip")
-        tips[f"{side}_foot"] = toe
+        foot_tips[side] = toe
         toe_front.append(share * (toe - ankle)[0])
         hand = bones[f"{side}_wrist"]
         fingers = rig.children(hand)
-        tips[f"{side}_hand"] = rest[fingers].mean(axis=0) if fingers else None
+        hand_tips[side] = rest[fingers].mean(axis=0) if fingers else None
     pelvis_z = (P["left_hip"][2] + P["right_hip"][2]) / 2
     shoulders_z = (P["left_shoulder"][2] + P["right_shoulder"][2]) / 2
     spine_low = max(P["spine"][2] - pelvis_z, MIN_TRUNK_LENGTH) if bones["spine"] != bones["pelvis"] \
@@ -175,8 +177,7 @@ def _measure(rig: Rig, bones: dict[str, int], rest: np.ndarray, A: np.ndarray, u
     crown = _crown(rig, bones, rest, A, units, origin, shoulders_z)
     head_total = crown - shoulders_z
     face = head_total / (TEMPLATE_RATIOS["head_height"] + TEMPLATE_RATIOS["head_top"])  # a stature for the face
-    hand_lengths = [np.linalg.norm(tips[f"{s}_hand"] - P[f"{s}_wrist"]) for s in ("left", "right")
-                    if tips[f"{s}_hand"] is not None]
+    hand_lengths = [np.linalg.norm(tip - P[f"{side}_wrist"]) for side, tip in hand_tips.items() if tip is not None]
     forearm = mean_distance("elbow", "wrist")
     hand_length = float(np.mean(hand_lengths)) if hand_lengths else forearm * 0.38
     foot_front = float(np.mean(toe_front))
@@ -195,7 +196,7 @@ def _measure(rig: Rig, bones: dict[str, int], rest: np.ndarray, A: np.ndarray, u
         ear_width=face * TEMPLATE_RATIOS["ear_width"], nose_forward=face * TEMPLATE_RATIOS["nose_forward"],
         nose_down=face * TEMPLATE_RATIOS["nose_down"], eye_forward=face * TEMPLATE_RATIOS["eye_forward"],
         eye_up=face * TEMPLATE_RATIOS["eye_up"], eye_width=face * TEMPLATE_RATIOS["eye_width"])
-    return lengths, tips
+    return lengths, foot_tips, hand_tips
 
 
 def _crown(rig: Rig, bones: dict[str, int], rest: np.ndarray, A: np.ndarray, units: float, origin: np.ndarray,
@@ -248,8 +249,8 @@ def _segments(rig: Rig, bones: dict[str, int], body: BodyModel) -> np.ndarray:
     return out
 
 
-def _alignment(bones: dict[str, int], rest: np.ndarray, tips: dict[str, np.ndarray | None],
-               body: BodyModel) -> np.ndarray:
+def _alignment(bones: dict[str, int], rest: np.ndarray, foot_tips: dict[str, np.ndarray],
+               hand_tips: dict[str, np.ndarray | None], body: BodyModel) -> np.ndarray:
     """(B, 3, 3) each body's C: the smallest rotation of its rest direction in the body model onto the rig's."""
     P = {role: rest[j] for role, j in bones.items()}
     up, down = np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, -1.0])
@@ -261,12 +262,12 @@ def _alignment(bones: dict[str, int], rest: np.ndarray, tips: dict[str, np.ndarr
         out = np.array([0.0, sign, 0.0])
         directions[f"{side}_upper_arm"] = (out, P[f"{side}_elbow"] - P[f"{side}_shoulder"])
         directions[f"{side}_forearm"] = (out, P[f"{side}_wrist"] - P[f"{side}_elbow"])
-        hand_tip = tips[f"{side}_hand"]
+        hand_tip = hand_tips[side]
         directions[f"{side}_hand"] = (out, (P[f"{side}_wrist"] - P[f"{side}_elbow"]) if hand_tip is None
                                       else hand_tip - P[f"{side}_wrist"])
         directions[f"{side}_thigh"] = (down, P[f"{side}_knee"] - P[f"{side}_hip"])
         directions[f"{side}_shin"] = (down, P[f"{side}_ankle"] - P[f"{side}_knee"])
-        toward_toe = tips[f"{side}_foot"] - P[f"{side}_ankle"]
+        toward_toe = foot_tips[side] - P[f"{side}_ankle"]
         directions[f"{side}_foot"] = (np.array([1.0, 0.0, 0.0]), toward_toe * np.array([1.0, 1.0, 0.0]))
     C = np.tile(np.eye(3), (len(body.bodies), 1, 1))
     for name, (model_direction, rig_direction) in directions.items():

@@ -142,11 +142,9 @@ def _path_down(rig: Rig, top: int, bottom: int) -> list[int]:
     return out[::-1]
 
 
-def map_bones(rig: Rig, config: CharacterConfig | None = None) -> dict[str, int]:
-    """Role (body-model joint name: pelvis, spine, neck, head, left_hip, ..., right_toe) -> rig joint index.
-
-    Toes are optional. InputError (one sentence) listing the roles no bone could be found for."""
-    config = config or CharacterConfig()
+def _named_bones(rig: Rig, config: CharacterConfig) -> dict[str, int]:
+    """The roles found by name: the TOML map's bones, then VRM humanoid bones and the name patterns of the limbs
+    and the head."""
     by_name: dict[str, int] = {}
     for j, name in enumerate(rig.names):
         if not rig.end_site[j]:
@@ -176,16 +174,11 @@ def map_bones(rig: Rig, config: CharacterConfig | None = None) -> dict[str, int]
         hit = vrm.get("head", next((by_name[p] for p in HEAD_PATTERNS if p in by_name), None))
         if hit is not None:
             found["head"] = hit
-    required = [r for r in ROLES if r not in OPTIONAL_ROLES]
-    missing = [r for r in required if r not in found]
-    if missing:
-        raise InputError(
-            f"{rig.path}: no bone found for {', '.join(missing)}; name them in a TOML map ([bones] "
-            f"{missing[0]} = \"BoneName\") given with --character-map (bones: {_sample(rig)}).")
-    toes = [f"{s}_toe" for s in SIDES]
-    for toe, ankle in zip(toes, ("left_ankle", "right_ankle"), strict=True):
-        if toe in found and int(rig.parents[found[toe]]) != found[ankle]:
-            del found[toe]  # a "toe" that is not the foot's child is some other bone
+    return found
+
+
+def _add_trunk(rig: Rig, found: dict[str, int]) -> None:
+    """The pelvis, spine and neck the map did not name, found in place from the hips, shoulders and head."""
     if "pelvis" not in found:
         found["pelvis"] = _common_ancestor(rig, [found["left_hip"], found["right_hip"]])
     arms = _common_ancestor(rig, [found["left_shoulder"], found["right_shoulder"]])
@@ -199,7 +192,25 @@ def map_bones(rig: Rig, config: CharacterConfig | None = None) -> dict[str, int]
     if "neck" not in found:
         chain = _path_down(rig, arms, found["head"])
         found["neck"] = chain[0] if chain else found["head"]
-    roles_of = {}
+
+
+def map_bones(rig: Rig, config: CharacterConfig | None = None) -> dict[str, int]:
+    """Role (body-model joint name: pelvis, spine, neck, head, left_hip, ..., right_toe) -> rig joint index.
+
+    Toes are optional. InputError (one sentence) listing the roles no bone could be found for."""
+    found = _named_bones(rig, config or CharacterConfig())
+    required = [r for r in ROLES if r not in OPTIONAL_ROLES]
+    missing = [r for r in required if r not in found]
+    if missing:
+        raise InputError(
+            f"{rig.path}: no bone found for {', '.join(missing)}; name them in a TOML map ([bones] "
+            f"{missing[0]} = \"BoneName\") given with --character-map (bones: {_sample(rig)}).")
+    toes = [f"{s}_toe" for s in SIDES]
+    for toe, ankle in zip(toes, ("left_ankle", "right_ankle"), strict=True):
+        if toe in found and int(rig.parents[found[toe]]) != found[ankle]:
+            del found[toe]  # a "toe" that is not the foot's child is some other bone
+    _add_trunk(rig, found)
+    roles_of: dict[int, str] = {}
     for role, joint in found.items():
         if joint in roles_of and role not in ("neck", "spine") and roles_of[joint] not in ("neck", "spine"):
             raise InputError(f"{rig.path}: bone {rig.names[joint]} matches both {roles_of[joint]} and {role}; "

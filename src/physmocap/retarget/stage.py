@@ -17,11 +17,12 @@ import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..body import kinematics as kin
-from ..body.model import CONTACT_POINTS
+from ..body.model import CONTACT_POINTS, BodyModel
 from ..config import Settings
 from ..errors import InputError
 from ..export import body_from_result
@@ -38,8 +39,12 @@ from ..result import RESULT_POINTS, load_result, save_result
 from .character import Character, build_character
 from .mapping import load_character_config
 from .rig import read_rig
-from .solve import retarget_qpos, solve_feet
-from .writers import rig_motion, rig_positions, write_rig_bvh, write_rig_glb
+from .solve import Retargeted, retarget_qpos, solve_feet
+from .writers import RigMotion, rig_motion, rig_positions, write_rig_bvh, write_rig_glb
+
+if TYPE_CHECKING:
+    from ..dynamics.stage import PhysicsMotion
+    from ..trajopt.stage import TrajoptMotion
 
 PHYSICS_METHODS = ("physcap", "trajopt", "none")
 # Bones compared between the source and the character (body-model points), and the same on the rig (roles).
@@ -140,6 +145,108 @@ def retarget_metrics(character: Character, source_points: np.ndarray, qpos: np.n
     )
 
 
+@dataclass
+class _PhysicsOutcome:
+    """The retargeted motion after physics (T frames): qpos with the feet planted again, the contacts used, and
+    where physics ran the simulated qpos, grf (T, 4, 3) N, residual (T, 6), fallback and corrected flags (T,);
+    without physics qpos is the retargeted motion, simulated and grf None, the rest zeros."""
+
+    qpos: np.ndarray
+    contacts: np.ndarray
+    simulated: np.ndarray | None
+    grf: np.ndarray | None
+    residual: np.ndarray
+    fallback: np.ndarray
+    corrected: np.ndarray
+
+
+def _run_physics(body: BodyModel, retargeted_qpos: np.ndarray, fps: float, contacts: np.ndarray, stationary: np.ndarray,
+                 valid: np.ndarray, physics: str, settings: Settings, notes: list[str]) -> _PhysicsOutcome:
+    """`physics` on the character's body model over the frames from the first to the last with a person; the
+    capture's extrapolation before and after them (no observations) keeps the kinematic motion, without forces,
+    as the pipeline's physics does. A note says how many frames fell back."""
+    T = len(retargeted_qpos)
+    outcome = _PhysicsOutcome(retargeted_qpos, contacts, None, None, np.zeros((T, 6)), np.zeros(T, bool),
+                              np.zeros(T, bool))
+    span = slice(*((int(np.argmax(valid)), T - int(np.argmax(valid[::-1]))) if valid.any() else (0, 0)))
+    if physics == "none" or span.stop - span.start < 3:
+        return outcome
+    motion: PhysicsMotion | TrajoptMotion
+    if physics == "physcap":
+        from ..dynamics.stage import run_physcap
+
+        motion = run_physcap(body, retargeted_qpos[span], fps, contacts[span], stationary[span], settings.physics,
+                             valid=valid[span])
+    else:
+        from ..trajopt.stage import run_trajopt
+
+        motion = run_trajopt(body, retargeted_qpos[span], fps, contacts[span], settings.trajopt, None, valid[span])
+    grf, used_contacts, simulated = np.zeros((T, 4, 3)), contacts.copy(), retargeted_qpos.copy()
+    grf[span], outcome.residual[span], used_contacts[span] = motion.grf, motion.residual, motion.contacts
+    outcome.fallback[span], outcome.corrected[span], simulated[span] = motion.qp_failures > 0, motion.corrected, \
+        motion.qpos
+    if outcome.fallback.any():
+        notes.append(f"physics fell back on {int(outcome.fallback.sum())} frames (kinematic motion kept there)")
+    # The tracker's feet can drift a few centimetres off their spots (balance correction, soft contacts); the
+    # same IK plants them again on the simulated motion (docs/decisions/retarget-feet-after-physics.md).
+    outcome.qpos, _ = solve_feet(body, simulated, contacts)
+    outcome.contacts, outcome.simulated, outcome.grf = used_contacts, simulated, grf
+    return outcome
+
+
+def _write_rig_files(out_dir: Path, character: Character, rig_moves: RigMotion, fps: float) -> dict[str, str]:
+    """character.bvh, and character.glb for a glTF rig; the names of those and of the files written later."""
+    files = {"bvh": str(out_dir / "character.bvh"), "result": str(out_dir / "result.npz"),
+             "report": str(out_dir / "retarget.json")}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_rig_bvh(files["bvh"], character, rig_moves, fps)
+    if character.rig.kind == "gltf":
+        files["glb"] = str(out_dir / "character.glb")
+        write_rig_glb(files["glb"], character, rig_moves, fps)
+    return files
+
+
+def _simulated_metrics(character: Character, source_points: np.ndarray, simulated: np.ndarray, grf: np.ndarray,
+                       final: np.ndarray, points: np.ndarray, frames: np.ndarray, fps: float,
+                       contacts: np.ndarray) -> dict:
+    """The foot and bone figures of the simulated motion before the feet were planted again, and how far that
+    moved the points (metres: mean, 99th percentile of each frame's largest)."""
+    before = retarget_metrics(character, source_points[frames], simulated[frames],
+                              rig_positions(character, rig_motion(character, simulated[frames])),
+                              contacts[frames], fps, grf[frames])
+    shift = np.linalg.norm(final - kin.forward_kinematics(character.body, simulated).points[:, points],
+                           axis=-1)[frames]
+    return {"simulated": {k: before[k] for k in ("skate_percent", "penetration_percent", "floating_percent",
+                                                 "contact_frames_kept", "bone_cosine_rig")},
+            "moved_after_physics_m": dict(mean=float(shift.mean()),
+                                          frame_max_p99=float(np.percentile(shift.max(axis=1), 99)))}
+
+
+def _character_result(source: dict[str, np.ndarray], character: Character, character_path: str | os.PathLike,
+                      physics: str, retargeted: Retargeted, outcome: _PhysicsOutcome, final: np.ndarray,
+                      kinematic: np.ndarray, positions: np.ndarray, masses: dict[str, float]) -> dict[str, np.ndarray]:
+    """The source's result.npz with the motion, forces, body and rig of the character; ValueError (a bug) when a
+    motion array is not finite."""
+    body, T = character.body, len(outcome.qpos)
+    result = dict(source)
+    result.update(
+        joints_world=final, joints_world_kinematic=kinematic, qpos=outcome.qpos, qpos_kinematic=retargeted.qpos,
+        contacts=np.asarray(outcome.contacts, bool), grf=np.zeros((T, 4, 3)) if outcome.grf is None else outcome.grf,
+        residual_root_force=outcome.residual, physics=np.array(physics), physics_fallback=outcome.fallback,
+        balance_corrected=outcome.corrected,
+        physics_deviation=np.linalg.norm(final - kinematic, axis=-1).mean(axis=1),
+        body_mass=np.array(body.mass, dtype=np.float64), body_height=np.array(body.height, dtype=np.float64),
+        body_lengths=np.array(json.dumps(body.lengths.__dict__)), body_segment_masses=np.array(json.dumps(masses)),
+        character_file=np.array(str(character_path)), rig_joint_names=np.array(character.rig.names),
+        rig_joints_world=positions,
+        center_of_mass=kin.center_of_mass(body, kin.forward_kinematics(body, outcome.qpos)),
+        retarget_scale=np.array(retargeted.scale, dtype=np.float64))
+    for key in ("joints_world", "qpos", "grf", "rig_joints_world"):
+        if not np.all(np.isfinite(result[key])):
+            raise ValueError(f"retargeting produced non-finite {key}")  # a bug, not a user error
+    return result
+
+
 def retarget_result(result_path: str | os.PathLike, character_path: str | os.PathLike, out_dir: str | os.PathLike,
                     *, character_map: str | os.PathLike | None = None, physics: str = "physcap",
                     settings: Settings | None = None) -> RetargetReport:
@@ -156,7 +263,6 @@ def retarget_result(result_path: str | os.PathLike, character_path: str | os.Pat
     body = character.body
     fps = float(source["fps"])
     contacts = np.asarray(source["contacts"], bool)
-    stationary = np.asarray(source["stationary"], bool)
     valid = np.asarray(source["valid"], bool)
     T = len(source["qpos"])
 
@@ -165,77 +271,30 @@ def retarget_result(result_path: str | os.PathLike, character_path: str | os.Pat
     retarget_seconds = time.perf_counter() - started
     notes = list(character.notes)
     started = time.perf_counter()
-    grf, residual, fallback, corrected = None, np.zeros((T, 6)), np.zeros(T, bool), np.zeros(T, bool)
-    qpos, used_contacts, simulated = retargeted.qpos, contacts, None
-    # Physics runs over the frames from the first to the last with a person; the capture's extrapolation before and
-    # after them (no observations) keeps the kinematic motion, without forces, as the pipeline's physics does.
-    span = slice(*((int(np.argmax(valid)), T - int(np.argmax(valid[::-1]))) if valid.any() else (0, 0)))
-    if physics != "none" and span.stop - span.start >= 3:
-        if physics == "physcap":
-            from ..dynamics.stage import run_physcap
-
-            motion = run_physcap(body, retargeted.qpos[span], fps, contacts[span], stationary[span],
-                                 settings.physics, valid=valid[span])
-        else:
-            from ..trajopt.stage import run_trajopt
-
-            motion = run_trajopt(body, retargeted.qpos[span], fps, contacts[span], settings.trajopt, None,
-                                 valid[span])
-        grf, used_contacts, simulated = np.zeros((T, 4, 3)), contacts.copy(), retargeted.qpos.copy()
-        grf[span], residual[span], used_contacts[span] = motion.grf, motion.residual, motion.contacts
-        fallback[span], corrected[span], simulated[span] = motion.qp_failures > 0, motion.corrected, motion.qpos
-        if fallback.any():
-            notes.append(f"physics fell back on {int(fallback.sum())} frames (kinematic motion kept there)")
-        # The tracker's feet can drift a few centimetres off their spots (balance correction, soft contacts); the
-        # same IK plants them again on the simulated motion (docs/decisions/retarget-feet-after-physics.md).
-        qpos, _ = solve_feet(body, simulated, contacts)
+    outcome = _run_physics(body, retargeted.qpos, fps, contacts, np.asarray(source["stationary"], bool), valid,
+                           physics, settings, notes)
     physics_seconds = time.perf_counter() - started
 
-    rig_moves = rig_motion(character, qpos)
+    rig_moves = rig_motion(character, outcome.qpos)
     positions = rig_positions(character, rig_moves)
-    files = {"bvh": str(out_dir / "character.bvh"), "result": str(out_dir / "result.npz"),
-             "report": str(out_dir / "retarget.json")}
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_rig_bvh(files["bvh"], character, rig_moves, fps)
-    if rig.kind == "gltf":
-        files["glb"] = str(out_dir / "character.glb")
-        write_rig_glb(files["glb"], character, rig_moves, fps)
-
+    files = _write_rig_files(out_dir, character, rig_moves, fps)
     points = body.point_index(RESULT_POINTS)
-    final = kin.forward_kinematics(body, qpos).points[:, points]
+    final = kin.forward_kinematics(body, outcome.qpos).points[:, points]
     kinematic = kin.forward_kinematics(body, retargeted.qpos).points[:, points]
     frames = valid if valid.any() else np.ones(T, bool)  # figures over the frames with a person
-    metrics = retarget_metrics(character, source["joints_world"][frames], qpos[frames], positions[frames],
+    grf = outcome.grf
+    metrics = retarget_metrics(character, source["joints_world"][frames], outcome.qpos[frames], positions[frames],
                                contacts[frames], fps, None if grf is None else grf[frames])
     metrics.update(retarget_ms_per_frame=1000 * retarget_seconds / T, physics_ms_per_frame=1000 * physics_seconds / T,
                    physics=physics, scale=retargeted.scale,
                    residual_vertical_mean_percent_bw=None if grf is None else float(
-                       100 * residual[frames, 2].mean() / (body.mass * GRAVITY)))
-    if simulated is not None:  # the same figures before the feet were planted again
-        before = retarget_metrics(character, source["joints_world"][frames], simulated[frames],
-                                  rig_positions(character, rig_motion(character, simulated[frames])),
-                                  contacts[frames], fps, grf[frames])
-        metrics["simulated"] = {k: before[k] for k in ("skate_percent", "penetration_percent", "floating_percent",
-                                                       "contact_frames_kept", "bone_cosine_rig")}
-        shift = np.linalg.norm(final - kin.forward_kinematics(body, simulated).points[:, points], axis=-1)[frames]
-        metrics["moved_after_physics_m"] = dict(mean=float(shift.mean()),
-                                                frame_max_p99=float(np.percentile(shift.max(axis=1), 99)))
-    result = dict(source)
+                       100 * outcome.residual[frames, 2].mean() / (body.mass * GRAVITY)))
+    if outcome.simulated is not None and grf is not None:  # the same figures before the feet were planted again
+        metrics.update(_simulated_metrics(character, source["joints_world"], outcome.simulated, grf, final, points,
+                                          frames, fps, contacts))
     masses = {b.name: round(b.mass, 4) for b in body.bodies}
-    result.update(
-        joints_world=final, joints_world_kinematic=kinematic, qpos=qpos, qpos_kinematic=retargeted.qpos,
-        contacts=np.asarray(used_contacts, bool), grf=np.zeros((T, 4, 3)) if grf is None else grf,
-        residual_root_force=residual, physics=np.str_(physics), physics_fallback=fallback,
-        balance_corrected=corrected, physics_deviation=np.linalg.norm(final - kinematic, axis=-1).mean(axis=1),
-        body_mass=np.float64(body.mass), body_height=np.float64(body.height),
-        body_lengths=np.str_(json.dumps(body.lengths.__dict__)), body_segment_masses=np.str_(json.dumps(masses)),
-        character_file=np.str_(str(character_path)), rig_joint_names=np.array(rig.names),
-        rig_joints_world=positions, center_of_mass=kin.center_of_mass(body, kin.forward_kinematics(body, qpos)),
-        retarget_scale=np.float64(retargeted.scale))
-    for key in ("joints_world", "qpos", "grf", "rig_joints_world"):
-        if not np.all(np.isfinite(result[key])):
-            raise ValueError(f"retargeting produced non-finite {key}")  # a bug, not a user error
-    save_result(files["result"], result)
+    save_result(files["result"], _character_result(source, character, character_path, physics, retargeted, outcome,
+                                                   final, kinematic, positions, masses))
     described = dict(file=str(character_path), kind=rig.kind, joints=len(rig.names),
                      bones={role: rig.names[j] for role, j in character.bones.items()},
                      units_to_metres=character.units_to_metres, height_m=round(body.height, 4),

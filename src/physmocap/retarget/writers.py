@@ -20,6 +20,7 @@ from scipy.spatial.transform import Rotation
 from ..body import kinematics as kin
 from ..io.atomic import atomic_path, write_text
 from .character import Character
+from .rig import Rig
 
 FLOAT, ANIMATION_NAME = 5126, "physmocap"
 
@@ -87,16 +88,10 @@ def _row(values) -> str:
     return " ".join(f"{v:.6f}" for v in np.round(np.asarray(values, float), 6) + 0.0)
 
 
-def write_rig_bvh(path: str | os.PathLike, character: Character, motion: RigMotion, fps: float) -> None:
-    """The motion as a BVH file with the rig's hierarchy. A BVH rig keeps its names, OFFSETs, End Sites and
-    channel orders (a root without position channels gets them, since the character moves); a glTF rig becomes
-    a BVH in its glTF axes and units whose zero pose is its rest pose (every joint a JOINT, channels "Xposition
-    Yposition Zposition" on the root and "Zrotation Xrotation Yrotation"). Written atomically."""
-    rig = character.rig
+def _bvh_offsets_and_channels(rig: Rig) -> tuple[np.ndarray, list[list[str]]]:
+    """Each joint's OFFSET (J, 3) and CHANNELS in the file written: a BVH rig's own (less the non-root position
+    channels' rest values), a glTF rig's rest offsets with Z-X-Y rotations; the root gets position channels."""
     J = len(rig.names)
-    world_file = rig.rest_world()
-    rest_file = world_file[:, :3, 3]
-    offsets = np.array([rest_file[j] - (rest_file[p] if p >= 0 else 0.0) for j, p in enumerate(rig.parents)])
     if rig.kind == "bvh":
         offsets = rig.rest_local[:, :3, 3].copy()
         channels = [list(c) for c in rig.channels]
@@ -108,31 +103,52 @@ def write_rig_bvh(path: str | os.PathLike, character: Character, motion: RigMoti
                         offsets[j, "XYZ".index(channel[0])] -= rig.rest_frame[start + c]
                 start += len(names)
     else:
+        rest_file = rig.rest_world()[:, :3, 3]
+        offsets = np.array([rest_file[j] - (rest_file[p] if p >= 0 else 0.0) for j, p in enumerate(rig.parents)])
         channels = [["Zrotation", "Xrotation", "Yrotation"] for _ in range(J)]
     if not any(c.endswith("position") for c in channels[0]):
         channels[0] = ["Xposition", "Yposition", "Zposition"] + channels[0]
+    return offsets, channels
+
+
+def _bvh_local_rotations(character: Character, motion: RigMotion) -> np.ndarray:
+    """(T, J, 3, 3) each joint's rotation in the BVH written, relative to its parent in the file's axes."""
+    rig = character.rig
     if rig.kind == "bvh":
-        local = local_rotations(character, motion)
-    else:  # the BVH's zero pose is the glTF rest pose: rotations relative to it, without the nodes' rest frames
-        delta = _file_rotations(character, motion)
-        local = delta.copy()
-        for j, parent in enumerate(rig.parents):
-            if parent >= 0:
-                local[:, j] = np.swapaxes(delta[:, parent], 1, 2) @ delta[:, j]
+        return local_rotations(character, motion)
+    # the BVH's zero pose is the glTF rest pose: rotations relative to it, without the nodes' rest frames
+    delta = _file_rotations(character, motion)
+    local = delta.copy()
+    for j, parent in enumerate(rig.parents):
+        if parent >= 0:
+            local[:, j] = np.swapaxes(delta[:, parent], 1, 2) @ delta[:, j]
+    return local
+
+
+def _depth_first(rig: Rig) -> list[int]:
+    """The joints in depth-first order, as the hierarchy is written; the MOTION channels follow it."""
+    order: list[int] = []
+    stack = [0]
+    while stack:
+        j = stack.pop()
+        order.append(j)
+        stack.extend(reversed(rig.children(j)))
+    return order
+
+
+def _bvh_motion(character: Character, motion: RigMotion, offsets: np.ndarray, channels: list[list[str]]) -> np.ndarray:
+    """(T, channels) the MOTION rows: the root's position less its OFFSET, a BVH rig's other position channels at
+    their rest values, and continuous Euler angles in each joint's own rotation order, degrees."""
+    rig = character.rig
+    local = _bvh_local_rotations(character, motion)
     rest_values = np.zeros(sum(len(c) for c in rig.channels)) if rig.rest_frame is None else rig.rest_frame
     rest_starts = np.concatenate([[0], np.cumsum([len(c) for c in rig.channels])]).astype(int)
     root_file = character.to_file(motion.root)  # (T, 3)
     T = len(local)
-    file_order: list[int] = []  # depth-first, as the hierarchy is written; the channels follow it
-    stack = [0]
-    while stack:
-        j = stack.pop()
-        file_order.append(j)
-        stack.extend(reversed(rig.children(j)))
     columns = []
-    for j in file_order:
+    for j in _depth_first(rig):
         rotation_channels = [c for c in channels[j] if c.endswith("rotation")]
-        euler = None
+        euler = np.zeros((T, 0))
         if rotation_channels:
             sequence = "".join(c[0] for c in rotation_channels)
             if len(set(sequence)) != 3:
@@ -148,7 +164,11 @@ def write_rig_bvh(path: str | os.PathLike, character: Character, motion: RigMoti
             else:
                 columns.append(euler[:, used])
                 used += 1
-    motion_rows = np.stack(columns, axis=1) if columns else np.zeros((T, 0))
+    return np.stack(columns, axis=1) if columns else np.zeros((T, 0))
+
+
+def _bvh_hierarchy(rig: Rig, offsets: np.ndarray, channels: list[list[str]]) -> list[str]:
+    """The HIERARCHY section's lines: the rig's joints (spaces in names as underscores), End Sites, tab-indented."""
     lines = ["HIERARCHY"]
 
     def emit(j: int, depth: int) -> None:
@@ -165,7 +185,18 @@ def write_rig_bvh(path: str | os.PathLike, character: Character, motion: RigMoti
         lines.append(f"{pad}}}")
 
     emit(0, 0)
-    lines += ["MOTION", f"Frames: {T}", f"Frame Time: {1.0 / fps:.8f}"]
+    return lines
+
+
+def write_rig_bvh(path: str | os.PathLike, character: Character, motion: RigMotion, fps: float) -> None:
+    """The motion as a BVH file with the rig's hierarchy. A BVH rig keeps its names, OFFSETs, End Sites and
+    channel orders (a root without position channels gets them, since the character moves); a glTF rig becomes
+    a BVH in its glTF axes and units whose zero pose is its rest pose (every joint a JOINT, channels "Xposition
+    Yposition Zposition" on the root and "Zrotation Xrotation Yrotation"). Written atomically."""
+    offsets, channels = _bvh_offsets_and_channels(character.rig)
+    motion_rows = _bvh_motion(character, motion, offsets, channels)
+    lines = _bvh_hierarchy(character.rig, offsets, channels)
+    lines += ["MOTION", f"Frames: {len(motion_rows)}", f"Frame Time: {1.0 / fps:.8f}"]
     lines += [_row(row) for row in motion_rows]
     write_text(path, "\n".join(lines) + "\n")
 

@@ -21,11 +21,12 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+import av
 import cv2
 import numpy as np
 
 from ..body.model import CONTACT_POINTS, BodyModel
-from ..io.video import VideoWriter, copy_yuv420, iter_frames, yuv420_planes
+from ..io.video import FrameReader, VideoWriter, copy_yuv420, iter_frames, yuv420_planes
 from ..metrics import GRAVITY
 
 Colour = tuple[int, int, int]  # BGR, 0-255
@@ -79,7 +80,7 @@ DRAWN_MARGIN_PX = 2
 
 def skeleton_edges(body: BodyModel) -> list[tuple[int, int]]:
     """Bones as (i, j) index pairs into `body.point_names` (see SKELETON_EDGE_NAMES)."""
-    return [tuple(int(i) for i in body.point_index(pair)) for pair in SKELETON_EDGE_NAMES]
+    return [(int(i), int(j)) for i, j in map(body.point_index, SKELETON_EDGE_NAMES)]
 
 
 def side_colour(name: str) -> Colour:
@@ -209,7 +210,7 @@ def _draw_in_place(image: np.ndarray, points_2d: np.ndarray, edges: Sequence[tup
         arrows = force_arrows[drawable(force_arrows).all(axis=-1)]
         ends = _fixed(arrows)
         for (start, tip), start_fixed, tip_fixed in zip(arrows, ends[0::2], ends[1::2], strict=True):
-            length = np.linalg.norm(tip - start)
+            length = float(np.linalg.norm(tip - start))
             if length > 0.5:
                 # The head is at most 6 line widths long: DRAWN_MARGIN_LINE_WIDTHS counts on it.
                 cv2.arrowedLine(image, start_fixed, tip_fixed, ink(FORCE_COLOUR), width, cv2.LINE_AA, SHIFT,
@@ -230,9 +231,9 @@ def _drawn_box(size: tuple[int, int], line: int, points_2d: np.ndarray, keypoint
         drawn.append(points_2d[drawable(points_2d)])
         if force_arrows is not None:
             drawn.append(force_arrows[drawable(force_arrows).all(axis=-1)].reshape(-1, 2))
-    drawn = np.concatenate(drawn) if drawn else np.zeros((0, 2))
-    if len(drawn):
-        low, high = drawn.min(axis=0) - margin, drawn.max(axis=0) + margin
+    points = np.concatenate(drawn) if drawn else np.zeros((0, 2))
+    if len(points):
+        low, high = points.min(axis=0) - margin, points.max(axis=0) + margin
         x0, y0, x1, y1 = np.clip(np.floor(low[0]), 0, width), np.clip(np.floor(low[1]), 0, height), \
             np.clip(np.ceil(high[0]), 0, width), np.clip(np.ceil(high[1]), 0, height)
     else:
@@ -394,6 +395,37 @@ def render_overlay(
     ValueError (and writes nothing). Non-finite points and arrows are not drawn; the report lists the frames.
     """
     started = time.perf_counter()
+    drawing = _overlay_drawing(points_2d, edges, valid, keypoints, contacts, labels, force_arrows, unexplained)
+    frames = iter_frames(video_path, max_width=max_width, prefetch=PREFETCH_FRAMES, pixel_format="yuv420p")
+    out_width, out_height = frames.output_size
+    with VideoWriter(out_path, frames.info.fps, out_width, out_height, crf=OVERLAY_CRF,
+                     preset=OVERLAY_PRESET) as writer:
+        _draw_frames(frames, writer, drawing, progress, cancel, out_path)
+        if writer.frames_written < drawing.frames:
+            raise ValueError(f"{video_path}: has {writer.frames_written} frames, fewer than the {drawing.frames} to "
+                             "draw.")
+    return OverlayReport(drawing.frames, out_width, out_height, _nonfinite_frames(drawing).tolist(),
+                         time.perf_counter() - started)
+
+
+@dataclass(frozen=True)
+class _OverlayDrawing:
+    """What render_overlay draws on each of `frames` frames, checked and as arrays (see render_overlay)."""
+
+    frames: int
+    points_2d: np.ndarray
+    edges: Sequence[tuple[int, int]]
+    valid: np.ndarray
+    keypoints: np.ndarray | None
+    contacts: np.ndarray | None
+    labels: Sequence[str] | None
+    force_arrows: np.ndarray | None
+    unexplained: np.ndarray
+
+
+def _overlay_drawing(points_2d, edges: Sequence[tuple[int, int]], valid, keypoints, contacts,
+                     labels: Sequence[str] | None, force_arrows, unexplained) -> _OverlayDrawing:
+    """render_overlay's inputs as arrays; ValueError naming the first whose shape or indices do not fit."""
     points_2d = np.asarray(points_2d, dtype=float)
     valid = np.asarray(valid, dtype=bool)
     if points_2d.ndim != 3 or points_2d.shape[2] != 2:
@@ -419,36 +451,42 @@ def render_overlay(
         raise ValueError(f"labels must name all {P} points, got {len(labels)} names.")
     if any(not (0 <= i < P and 0 <= j < P) for i, j in edges):
         raise ValueError(f"edges must index the {P} points.")
-    drawn_points = sorted({i for edge in edges for i in edge})
-    nonfinite = np.flatnonzero(valid & ~drawable(points_2d[:, drawn_points]).all(axis=1)) if drawn_points \
-        else np.array([], dtype=int)
+    return _OverlayDrawing(T, points_2d, edges, valid, keypoints, contacts, labels, force_arrows, unexplained)
 
-    frames = iter_frames(video_path, max_width=max_width, prefetch=PREFETCH_FRAMES, pixel_format="yuv420p")
+
+def _nonfinite_frames(drawing: _OverlayDrawing) -> np.ndarray:
+    """Indices of the reconstructed frames with a bone end that cannot be drawn (non-finite or far out)."""
+    drawn_points = sorted({i for edge in drawing.edges for i in edge})
+    if not drawn_points:
+        return np.array([], dtype=int)
+    return np.flatnonzero(drawing.valid & ~drawable(drawing.points_2d[:, drawn_points]).all(axis=1))
+
+
+def _draw_frames(frames: FrameReader[av.VideoFrame], writer: VideoWriter, drawing: _OverlayDrawing,
+                 progress: Callable[[int, int], None] | None, cancel: threading.Event | None,
+                 out_path: str | os.PathLike) -> None:
+    """Each of the first drawing.frames pictures copied, drawn on in place (yuv420p) and written."""
     info = frames.info
     out_width, out_height = frames.output_size
     scale = np.array([out_width / info.width, out_height / info.height])  # native pixels -> output pixels
     canvas = None  # the picture drawn on and encoded, reused frame after frame
     scratch = YuvScratch(out_width, out_height)
-    with VideoWriter(out_path, info.fps, out_width, out_height, crf=OVERLAY_CRF, preset=OVERLAY_PRESET) as writer:
-        for index, picture in frames:
-            if index >= T:
-                break
-            if cancel is not None and cancel.is_set():
-                raise OverlayCancelled(f"{out_path}: rendering was cancelled.")
-            canvas = copy_yuv420(picture, canvas)
-            _draw_yuv420(
-                yuv420_planes(canvas), scratch, points_2d[index] * scale, edges, labels,
-                None if keypoints is None else keypoints[index] * np.append(scale, 1.0),
-                None if contacts is None else contacts[index],
-                None if force_arrows is None else force_arrows[index] * scale,
-                bool(valid[index]), bool(unexplained[index]),
-            )
-            writer.write_yuv420(canvas)
-            if progress is not None:
-                progress(index + 1, T)
-        if writer.frames_written < T:
-            raise ValueError(f"{video_path}: has {writer.frames_written} frames, fewer than the {T} to draw.")
-    return OverlayReport(T, out_width, out_height, nonfinite.tolist(), time.perf_counter() - started)
+    for index, picture in frames:
+        if index >= drawing.frames:
+            break
+        if cancel is not None and cancel.is_set():
+            raise OverlayCancelled(f"{out_path}: rendering was cancelled.")
+        canvas = copy_yuv420(picture, canvas)
+        _draw_yuv420(
+            yuv420_planes(canvas), scratch, drawing.points_2d[index] * scale, drawing.edges, drawing.labels,
+            None if drawing.keypoints is None else drawing.keypoints[index] * np.append(scale, 1.0),
+            None if drawing.contacts is None else drawing.contacts[index],
+            None if drawing.force_arrows is None else drawing.force_arrows[index] * scale,
+            bool(drawing.valid[index]), bool(drawing.unexplained[index]),
+        )
+        writer.write_yuv420(canvas)
+        if progress is not None:
+            progress(index + 1, drawing.frames)
 
 
 class OverlayJob:
