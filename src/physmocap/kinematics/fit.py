@@ -440,8 +440,14 @@ class KinematicFitter:
         def system_at(q, passes_left):
             nonlocal passed
             planned = passed + T * passes_left
-            report = (lambda frames: progress(passed + frames, planned)) if progress else None
-            cost, g, _ = self._offline_system(q, targets, band, report)
+
+            def report(frames):
+                # A pass's end is reported by the next pass or by the fit's end: a rejected last step adds
+                # passes, and a display must not close before they are done.
+                if frames < T:
+                    progress(passed + frames, planned)
+
+            cost, g, _ = self._offline_system(q, targets, band, report if progress else None)
             passed += T
             return cost, g
 
