@@ -413,3 +413,26 @@ def test_fit_reports_progress_for_each_of_its_parts(body, camera, online, monkey
     else:
         assert bars["fit start"][1][-1] == (26, 26)  # the valid frames
         assert bars["fit clip"][1][-1][0] % 30 == 0  # whole passes over the clip
+
+
+def test_assembly_and_solve_hold_no_buffer_that_grows_with_the_clip(body, camera, monkeypatch):
+    """Beyond the bands (given) and vectors of the clip's length, the assembly holds one chunk's Jacobians and
+    the solve a pair's blocks: their peak allocation stays put from 24 to 96 frames."""
+    import tracemalloc
+
+    from physmocap.kinematics import fit as fit_module
+
+    monkeypatch.setattr(fit_module, "ASSEMBLY_FRAMES", 8)
+    fitter = KinematicFitter(body, camera, FitSettings(), 30.0)
+    peaks = {}
+    for T in (24, 96):
+        truth = walking_motion(body, T)
+        targets = _targets(body, truth, camera, np.random.default_rng(T))
+        band = np.empty((3, T, body.nv, body.nv))
+        tracemalloc.start()
+        _, g, _ = fitter._offline_system(truth, targets, band)
+        fitter._solve_banded(g, band, 1.0)
+        peaks[T] = tracemalloc.get_traced_memory()[1] - 20 * g.nbytes  # vectors of the clip's length allowed
+        tracemalloc.stop()
+    assert peaks[96] < 1.2 * peaks[24]
+    assert peaks[96] < 0.2 * band.nbytes  # main's solve alone copied the bands five times
