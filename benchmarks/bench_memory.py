@@ -87,6 +87,30 @@ def child(stage: str, observations: Path, frames: int, motion_file: Path) -> dic
     return dict(peak_mb=round(peak_mb, 1), start_mb=round(start_mb, 1), cpu_s=round(cpu, 2), wall_s=round(wall, 2))
 
 
+def count_passes(observations: Path, frames: int) -> dict[str, float]:
+    """Passes over the clip of each whole-clip fit (this checkout's code, in this process), from the progress
+    counts: 1 + accepted steps + 2 per rejected step (the rejected step's pass and the system assembled again)."""
+    from physmocap.config import Settings
+    from physmocap.contacts.predict import predict_contacts
+    from physmocap.kinematics.stage import fit_motion
+    from physmocap.motion import Observations
+    from physmocap.trajopt.kinematic import refine_kinematics
+
+    obs = looped(Observations.load(observations), frames)
+    done: dict[str, int] = {}
+
+    def factory(name, total, unit="frames"):
+        def update(count, total_now):
+            done[name] = count
+        return update if unit == "frame passes" else (lambda count, total_now: None)
+
+    settings = Settings()
+    motion = fit_motion(obs, settings, factory)
+    refine_kinematics(obs, motion, predict_contacts(obs, "centred")[0], settings.fit, settings.trajopt,
+                      progress=factory)
+    return {name: count / frames for name, count in done.items()}
+
+
 def measure(code: str, src: Path, stage: str, observations: Path, frames: int, motion_file: Path) -> dict:
     load_before = os.getloadavg()[0]
     env = dict(os.environ, PYTHONPATH=str(src))
@@ -131,11 +155,16 @@ def main() -> int:
     parser.add_argument("--after-src", type=Path, default=REPO / "src", help="the 'after' rows' source")
     parser.add_argument("--work", type=Path, default=Path(tempfile.gettempdir()) / "physmocap_bench_memory",
                         help="where the fitted motions are kept (the refinement starts from them)")
+    parser.add_argument("--count-passes", action="store_true",
+                        help="only count each whole-clip fit's passes (rejected steps) at the first --frames")
     parser.add_argument("--child", choices=STAGES, help=argparse.SUPPRESS)
     parser.add_argument("--motion-file", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
         print(json.dumps(child(args.child, args.observations, args.frames[0], args.motion_file)))
+        return 0
+    if args.count_passes:
+        print(json.dumps(count_passes(args.observations, args.frames[0])))
         return 0
 
     sources = {"after": args.after_src, "before": args.before_src}
