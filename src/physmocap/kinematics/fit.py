@@ -316,7 +316,7 @@ class KinematicFitter:
         H[0, first:last] += Jt @ J
         g[first:last] += (Jt @ r[..., None])[..., 0]
         cost = float(np.sum(r * r))
-        del r, J, Jt
+        del r, J, Jt  # freed before the temporal terms make theirs: the chunk's peak
         F = end - first
         window_targets = targets.frames(window)
         signals = [(v, j, c, None) for v, j, c in self.temporal_signals(points, jac, qpos[window])]
@@ -345,7 +345,8 @@ class KinematicFitter:
                 if pair_weights is None:
                     H[d, first:end - d] += row_weights[:, None, None] * (transposed[:F - d] @ jacobians[d:])
                 else:
-                    H[d, first:end - d] += (row_weights[..., None] * jacobians[:F - d]).transpose(0, 2, 1) @ jacobians[d:]
+                    weighted = (row_weights[..., None] * jacobians[:F - d]).transpose(0, 2, 1)
+                    H[d, first:end - d] += weighted @ jacobians[d:]
         return cost
 
     @staticmethod
