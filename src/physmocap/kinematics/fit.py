@@ -56,8 +56,8 @@ MARKER_LANDMARKS = np.array([LANDMARK_INDEX[a] for a, _ in MARKERS])
 OFFLINE_DAMPING = 3.0
 ONLINE_DAMPING = 1e-3
 LM_TOLERANCE = 1e-3  # a Levenberg-Marquardt fit stops after a step that lowers its cost by less than this fraction
-# Frames whose Jacobians the whole-clip fit holds at once while it assembles its system (about 0.25 MB a frame);
-# the assembly's memory is bounded by this, not by the clip. See docs/decisions/fit-memory.md.
+# Frames (1 or more) whose Jacobians the whole-clip fit holds at once while it assembles its system (about 0.2 MB
+# a frame): the assembly's memory is bounded by this, not by the clip. See docs/decisions/fit-memory.md.
 ASSEMBLY_FRAMES = 256
 TEMPORAL_REACH = 2  # frames after a frame that its temporal residuals reach (the acceleration's three frames)
 
