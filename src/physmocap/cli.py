@@ -276,9 +276,10 @@ PLAIN_PROGRESS_SECONDS = 5.0  # s between progress lines when stderr is not a te
 
 
 def _progress_factory(terminal: bool | None = None, stream=None, interval: float = PLAIN_PROGRESS_SECONDS):
-    """A factory of progress callbacks: `factory(stage, total_frames)` gives `update(frames_done, total)`.
+    """A factory of progress callbacks: `factory(stage, total, unit)` gives `update(done, total)`, counting `unit`
+    (plural; frames unless given: the whole-clip fits count frame passes).
 
-    On a terminal a tqdm bar per stage; otherwise one plain line (stage, frames done, rate) every `interval`
+    On a terminal a tqdm bar per stage; otherwise one plain line (stage, count done, rate) every `interval`
     seconds and one when the stage ends, so that a log shows a long run moving."""
     stream = sys.stderr if stream is None else stream
     if terminal is None:
@@ -286,9 +287,9 @@ def _progress_factory(terminal: bool | None = None, stream=None, interval: float
     if terminal:
         return _bar_factory(stream)
 
-    def factory(name: str, total: int):
+    def factory(name: str, total: int, unit: str = "frames"):
         started = time.monotonic()
-        last = [started, -1]  # time of the last line, frames it reported
+        last = [started, -1]  # time of the last line, the count it reported
 
         def update(done: int, total_now: int):
             now = time.monotonic()
@@ -298,7 +299,7 @@ def _progress_factory(terminal: bool | None = None, stream=None, interval: float
             last[:] = [now, done]
             rate = done / max(now - started, 1e-9)
             of = f"/{total_now}" if total_now else ""
-            print(f"physmocap: {name}: {done}{of} frames, {rate:.1f} frames/s" + (", done" if finished else ""),
+            print(f"physmocap: {name}: {done}{of} {unit}, {rate:.1f} {unit}/s" + (", done" if finished else ""),
                   file=stream, flush=True)
         return update
     return factory
@@ -307,8 +308,8 @@ def _progress_factory(terminal: bool | None = None, stream=None, interval: float
 def _bar_factory(stream):
     from tqdm import tqdm
 
-    def factory(name: str, total: int):
-        bar = tqdm(total=total or None, desc=f"{name:>8}", unit="frame", leave=True, file=stream,
+    def factory(name: str, total: int, unit: str = "frames"):
+        bar = tqdm(total=total or None, desc=f"{name:>10}", unit=f" {unit}", leave=True, file=stream,
                    dynamic_ncols=True)
 
         def update(done: int, total_now: int):

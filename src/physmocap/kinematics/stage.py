@@ -8,7 +8,7 @@ import logging
 import time
 import warnings
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -23,6 +23,9 @@ from ..motion import Observations
 from .calibration import Calibration, calibrate, plausible_length, resolve_height
 from .filters import one_euro_qpos
 from .fit import MARKER_LANDMARKS, MARKERS, FitTargets, KinematicFitter
+
+if TYPE_CHECKING:
+    from ..stages import ProgressFactory
 
 log = logging.getLogger("physmocap")
 
@@ -317,12 +320,12 @@ def estimate_floor(body: BodyModel, qpos: np.ndarray, camera: Camera, fps: float
     return Floor(normal, offset, inliers, spread, disagreement, trusted, source)
 
 
-def fit_motion(obs: Observations, settings: Settings,
-               progress: Callable[[int, int], None] | None = None) -> KinematicMotion:
+def fit_motion(obs: Observations, settings: Settings, progress: ProgressFactory | None = None) -> KinematicMotion:
     """Calibrate, fit, find the floor and express everything in the world frame.
 
-    Online: frame by frame through OnlineFitter, exactly as a live stream is fitted. Offline: causal fits of
-    short runs of frames, all side by side, start a joint optimisation over the whole clip, after which the
+    Online: frame by frame through OnlineFitter, exactly as a live stream is fitted (progress: "fit", frames).
+    Offline: causal fits of short runs of frames, all side by side ("fit start", frames), start a joint
+    optimisation over the whole clip ("fit clip", frame passes: see KinematicFitter.fit_offline), after which the
     floor is found from all frames.
     """
     start = time.perf_counter()
@@ -336,9 +339,10 @@ def fit_motion(obs: Observations, settings: Settings,
     return dataclasses.replace(motion, qpos=qpos, reprojection_error=error, seconds=time.perf_counter() - start)
 
 
-def _fit_online(obs: Observations, settings: Settings, progress) -> KinematicMotion:
+def _fit_online(obs: Observations, settings: Settings, progress: ProgressFactory | None) -> KinematicMotion:
     from .online import OnlineFitter
 
+    bar = progress("fit", obs.num_frames) if progress else None
     online = OnlineFitter(settings, obs.fps, obs.image_size, obs.camera_K)
     qpos: np.ndarray | None = None
 
@@ -351,8 +355,8 @@ def _fit_online(obs: Observations, settings: Settings, progress) -> KinematicMot
 
     for t in range(obs.num_frames):
         store(online.push(obs.keypoints_2d[t], obs.landmarks_3d[t], bool(obs.valid[t])))
-        if progress:
-            progress(t + 1, obs.num_frames)
+        if bar:
+            bar(t + 1, obs.num_frames)
     store(online.finish())
     swaps = np.zeros(obs.num_frames, dtype=bool)
     swaps[online.foot_swap_frames] = True
@@ -360,7 +364,7 @@ def _fit_online(obs: Observations, settings: Settings, progress) -> KinematicMot
                            obs.valid.copy(), 0.0, True, swaps)
 
 
-def _fit_offline(obs: Observations, settings: Settings, progress) -> KinematicMotion:
+def _fit_offline(obs: Observations, settings: Settings, progress: ProgressFactory | None) -> KinematicMotion:
     from .online import fit_streams
 
     s = settings
@@ -379,7 +383,7 @@ def _fit_offline(obs: Observations, settings: Settings, progress) -> KinematicMo
     targets = make_targets(obs.keypoints_2d, obs.landmarks_3d, obs.valid, depth, camera, calibration, s.fit)
     fitter = KinematicFitter(body, camera, s.fit, obs.fps)
     qpos = fit_streams(fitter, targets, obs.valid, s.fit.offline_chunk, s.fit.offline_start_iterations,
-                       progress)
+                       progress("fit start", int(obs.valid.sum())) if progress else None)
     if s.fit.rescale_landmark_depth:
         scale = landmark_depth_scale(body, camera, qpos, obs, targets, calibration)
         obs = dataclasses.replace(obs, landmarks_3d=obs.landmarks_3d * np.stack(
@@ -389,7 +393,8 @@ def _fit_offline(obs: Observations, settings: Settings, progress) -> KinematicMo
         calibration = refine_lengths(body, camera, qpos, targets, calibration, calibration.height)
         body = build_body_model(calibration.lengths, s.body.mass)
         fitter = KinematicFitter(body, camera, s.fit, obs.fps)
-    qpos = hold_outside_valid(fitter.fit_offline(qpos, targets).qpos, obs.valid)
+    bar = progress("fit clip", fitter.planned_passes(len(qpos)), "frame passes") if progress else None
+    qpos = hold_outside_valid(fitter.fit_offline(qpos, targets, bar).qpos, obs.valid)
     floor = (Floor.from_plane(s.camera.floor) if s.camera.floor is not None
              else estimate_floor(body, qpos, camera, obs.fps, obs.valid))
     qpos, camera = move_world_to_floor(qpos, camera, floor, int(np.argmax(obs.valid)))
