@@ -4,7 +4,7 @@ length (issue 23, "Bounded memory").
 Long observations are made by looping a real observations file forwards and backwards (the motion stays
 continuous at the joins) to 300, 1,800, 5,400 and 18,000 frames (10 s to 10 minutes at 30 fps). Each stage runs
 in a child process of its own, so that its ru_maxrss is the stage's peak and nothing else's: `fit` is
-kinematics.stage.fit_motion with the default settings (offline); `refine` is trajopt.kinematic.refine_kinematics
+kinematics.stage.fit_motion with the default settings (offline); `refine` is kinematics.refine.refine_kinematics
 on that fit's motion with the centred contact network's contacts. `--before-src DIR` runs the same children on
 another checkout's source (e.g. main's) for the "before" rows; the fitted poses of both are compared.
 
@@ -75,7 +75,7 @@ def child(stage: str, observations: Path, frames: int, motion_file: Path) -> dic
         np.savez(motion_file, **motion.to_arrays())
     else:
         from physmocap.contacts.predict import predict_contacts
-        from physmocap.trajopt.kinematic import refine_kinematics
+        from physmocap.kinematics.refine import refine_kinematics
 
         with np.load(motion_file) as arrays:
             motion = KinematicMotion.from_arrays(arrays)
@@ -94,7 +94,7 @@ def count_passes(observations: Path, frames: int) -> dict[str, float]:
     from physmocap.contacts.predict import predict_contacts
     from physmocap.kinematics.stage import fit_motion
     from physmocap.motion import Observations
-    from physmocap.trajopt.kinematic import refine_kinematics
+    from physmocap.kinematics.refine import refine_kinematics
 
     obs = looped(Observations.load(observations), frames)
     done: dict[str, int] = {}

@@ -54,7 +54,8 @@ from physmocap.io.atomic import write_text  # noqa: E402
 from physmocap.kinematics.stage import fit_motion  # noqa: E402
 from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
 from physmocap.mocap.synthetic import make_observations, random_camera, resample  # noqa: E402
-from physmocap.trajopt import refine_kinematics, run_trajopt  # noqa: E402
+from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
+from physmocap.trajopt import run_trajopt  # noqa: E402
 
 METHODS = ("kinematic offline", "kinematic refined (B.4)", "physcap on offline", "trajopt",
            "kinematic refined, true floor", "trajopt, true floor")

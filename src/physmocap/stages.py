@@ -326,7 +326,7 @@ def refine(settings: Settings, progress: ProgressFactory | None, obs: Observatio
            contacts: np.ndarray) -> RefinedMotion:
     """Rempe et al.'s three-stage kinematic refinement (B.4) of the offline fit, which trajopt and offline
     PhysCap start from; a given floor (settings.camera.floor) is kept."""
-    from .trajopt.kinematic import refine_kinematics
+    from .kinematics.refine import refine_kinematics
 
     refined = refine_kinematics(obs, motion, contacts, settings.fit, settings.trajopt,
                                 keep_floor=settings.camera.floor is not None, progress=progress)
@@ -394,7 +394,7 @@ KINEMATICS: Stage[KinematicMotion] = Stage(
     "kinematics", "kinematics", ("physmocap.kinematics.stage",), lambda s: (s.body, s.camera, s.fit, s.online),
     fit, _write_arrays, _reader(_kinematic_motion))
 REFINE: Stage[RefinedMotion] = Stage(
-    "refine", "refined", ("physmocap.trajopt.kinematic",), lambda s: (s.fit, s.trajopt, s.camera.floor), refine,
+    "refine", "refined", ("physmocap.kinematics.refine",), lambda s: (s.fit, s.trajopt, s.camera.floor), refine,
     _write_arrays, _reader(lambda: RefinedMotion))
 PHYSCAP: Stage[PhysicsMotion] = Stage(
     "physics", "physics", ("physmocap.dynamics.stage",), lambda s: (s.physics, s.online, s.camera.floor), physcap,

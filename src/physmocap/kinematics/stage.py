@@ -14,7 +14,6 @@ import numpy as np
 
 from ..body import kinematics as kin
 from ..body.model import CONTACT_POINTS, BodyModel, SkeletonLengths, build_body_model
-from ..body.rotations import matrix_to_quat, quat_multiply
 from ..camera import Camera, Floor, angle_degrees, fit_floor, robust_offset, world_from_floor
 from ..config import FitSettings, Settings
 from ..detect.foot_swaps import find_foot_swaps, undo_foot_swaps
@@ -238,20 +237,12 @@ def smooth_depth(depth: np.ndarray, width: int = 9) -> np.ndarray:
     return np.median(np.lib.stride_tricks.sliding_window_view(padded, width), axis=1)
 
 
-def rigid_transform_qpos(qpos: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Move whole poses by x -> R x + t (the root's position and orientation; joints are relative)."""
-    out = qpos.copy()
-    out[:, 0:3] = qpos[:, 0:3] @ R.T + t
-    out[:, 3:7] = quat_multiply(matrix_to_quat(R)[None], qpos[:, 3:7])
-    return out
-
-
 def move_world_to_floor(qpos: np.ndarray, camera: Camera, floor: Floor, anchor_frame: int):
     """Re-express a motion in the world whose z = 0 plane is `floor` (camera frame), origin on the floor
     below the pelvis of `anchor_frame`. Returns (qpos, camera) in the new world."""
     R_new, t_new = world_from_floor(floor, camera.to_camera(qpos[anchor_frame, :3]))
     # old world -> camera -> new world
-    qpos = rigid_transform_qpos(qpos, R_new.T @ camera.R, R_new.T @ (camera.t - t_new))
+    qpos = kin.rigid_transform_qpos(qpos, R_new.T @ camera.R, R_new.T @ (camera.t - t_new))
     return qpos, camera.with_extrinsics(R_new, t_new)
 
 

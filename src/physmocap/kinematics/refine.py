@@ -25,10 +25,10 @@ from ..body import kinematics as kin
 from ..body.model import CONTACT_POINTS
 from ..camera import Floor, tangent_basis
 from ..config import FitSettings, TrajoptSettings
-from ..kinematics.fit import KinematicFitter
+from .fit import KinematicFitter
 from ..detect.foot_swaps import find_foot_swaps, undo_foot_swaps
-from ..kinematics.stage import (KinematicMotion, hold_outside_valid, landmark_depth_scale, make_targets,
-                                move_world_to_floor, raw_depth, reprojection_errors, smooth_depth)
+from .stage import (KinematicMotion, hold_outside_valid, landmark_depth_scale, make_targets,
+                    move_world_to_floor, raw_depth, reprojection_errors, smooth_depth)
 from ..motion import Observations
 
 if TYPE_CHECKING:

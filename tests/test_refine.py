@@ -10,7 +10,7 @@ from physmocap.camera import Camera
 from physmocap.config import FitSettings, Settings, TrajoptSettings
 from physmocap.kinematics.stage import fit_motion
 from physmocap.trajopt.ik import ik_targets, solve_ik
-from physmocap.trajopt.kinematic import (false_flights, fit_contact_floor, fitted_observations, refine_kinematics,
+from physmocap.kinematics.refine import (false_flights, fit_contact_floor, fitted_observations, refine_kinematics,
                                          resting_points, slipping_contacts, tilt_axes)
 from physmocap.trajopt.reduced import reduced_motion
 from test_fit import observe
