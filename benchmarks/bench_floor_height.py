@@ -1,7 +1,7 @@
 """Floor tilt and body height on the synthetic set with ground truth (issue 17, points 5 and 7).
 
 Floor: per clip, the angle between the estimated floor's normal and the true one (both in the camera frame) for
-the offline kinematic floor (kinematics.stage.estimate_floor), the B.4-refined offline floor that both offline
+the offline kinematic floor (kinematics.floor.estimate_floor), the B.4-refined offline floor that both offline
 physics methods run on, the online warm-up floor, and the floor the online PhysCap ends on (FloorRefiner), with
 the floor confidence the kinematic stage reports.
 

@@ -3,14 +3,15 @@ import dataclasses
 import numpy as np
 import pytest
 
+from conftest import assert_frame_terms_jacobian, random_poses
 from physmocap.body import kinematics as kin
 from physmocap.camera import Camera
 from physmocap.config import FitSettings, Settings
-from physmocap.kinematics.fit import MARKER_LANDMARKS, MARKERS, FitTargets, KinematicFitter, _soft_excess
-from physmocap.kinematics.stage import fit_motion, make_targets, reprojection_errors
 from physmocap.kinematics.calibration import calibrate
+from physmocap.kinematics.fit import MARKER_LANDMARKS, MARKERS, FitTargets, KinematicFitter, _soft_excess
+from physmocap.kinematics.stage import fit_motion, reprojection_errors
+from physmocap.kinematics.targets import make_targets
 from physmocap.motion import Observations
-from conftest import assert_frame_terms_jacobian, random_poses
 
 
 def walking_motion(body, frames, fps=30.0):
@@ -248,7 +249,7 @@ def test_lengths_measured_again_along_the_fitted_axes_lose_the_noise_bias(camera
     had wrong (heel behind the ankle, ankle height)."""
     from physmocap.body.model import build_body_model, template_lengths
     from physmocap.kinematics.calibration import Calibration
-    from physmocap.kinematics.stage import REFINED_LENGTHS, refine_lengths
+    from physmocap.kinematics.targets import REFINED_LENGTHS, refine_lengths
 
     template = template_lengths(1.75)
     true = dataclasses.replace(template, upper_arm=template.upper_arm + 0.02, heel_back=0.03, ankle_height=0.065)

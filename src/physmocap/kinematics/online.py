@@ -19,7 +19,8 @@ from ..detect.foot_swaps import CausalFootSwaps, find_foot_swaps, swap_feet, und
 from ..motion import Observations
 from .calibration import calibrate, resolve_height
 from .fit import FitTargets, KinematicFitter, initial_qpos
-from .stage import estimate_floor, make_targets, move_world_to_floor, raw_depth, refine_lengths, smooth_depth
+from .floor import estimate_floor, move_world_to_floor
+from .targets import make_targets, raw_depth, refine_lengths, smooth_depth
 
 FIRST_FRAME_ITERATIONS = 60  # the first frame starts from a generic pose and needs more steps
 WARMUP_SECONDS = 3.0  # held back to calibrate and find the floor when body.calibration_frames is 0 (all: offline

@@ -25,11 +25,12 @@ from ..body import kinematics as kin
 from ..body.model import CONTACT_POINTS
 from ..camera import Floor, tangent_basis
 from ..config import FitSettings, TrajoptSettings
-from .fit import KinematicFitter
 from ..detect.foot_swaps import find_foot_swaps, undo_foot_swaps
-from .stage import (KinematicMotion, hold_outside_valid, landmark_depth_scale, make_targets,
-                    move_world_to_floor, raw_depth, reprojection_errors, smooth_depth)
 from ..motion import Observations
+from .fit import KinematicFitter
+from .floor import move_world_to_floor
+from .stage import KinematicMotion, hold_outside_valid, reprojection_errors
+from .targets import landmark_depth_scale, make_targets, raw_depth, smooth_depth
 
 if TYPE_CHECKING:
     from ..stages import ProgressFactory
