@@ -20,8 +20,8 @@ from physmocap.config import TrajoptSettings
 from physmocap.errors import InputError
 from physmocap.trajopt.formulation import (Window, acceleration_continuity, angular_velocity, build_window_problem,
                                           euler_torque, frame_sample_times, phase_layout, rotate)
-from physmocap.trajopt.phases import (clean_flags, contact_phases, flags_from_phases, segment_count,
-                                     split_drifting)
+from physmocap.trajopt.phases import (clean_flags, contact_phases, flags_from_phases, flight_support,
+                                     segment_count, split_drifting, support_held_flights)
 from physmocap.trajopt.problem import ConstraintSet, CostTerm, Program, VariableSet
 from physmocap.trajopt.reduced import (boundary_velocity, euler_to_matrix, matrix_to_euler, reduced_motion,
                                        world_inertia)
@@ -144,6 +144,46 @@ def test_contact_phases_from_flags():
     assert np.isclose(phases[1].start, 4.5 / FPS) and np.isclose(phases[1].end, 7.5 / FPS)
     assert np.array_equal(flags_from_phases(phases, times), cleaned)
     assert segment_count(0.3, 6, 2.0) == 6 and segment_count(5.0, 6, 2.0) == 15
+
+
+def test_flight_the_motion_does_not_fall_through_keeps_its_lowest_point():
+    """Labels that lift every point for 7 frames while the body stands (the juggler on one foot, issue 24) keep
+    the lowest point in contact; a ballistic flight, and a flight whose lowest point slides, stay flights."""
+    fps, frames = 24.0, 48
+    times = np.arange(frames) / fps
+    points = np.zeros((frames, 4, 3))
+    points[:, :2, 2] = 0.3  # the left foot raised
+    points[:, 3, 2] = 0.01
+    points[:, 2, 2] = 0.04  # the right heel a little up: the toe is the lowest
+    flags = np.zeros((frames, 4), bool)
+    flags[:, 2:] = True
+    flags[20:27] = False
+    standing_com = np.full(frames, 0.95) + 0.002 * np.sin(times)
+    out, changed = support_held_flights(flags, standing_com, points, times, G, 0.5, 0.05)
+    assert [(a, b, p) for a, b, p, _ in changed] == [(20, 27, 3)] and changed[0][3] > 0.9
+    assert out[20:27, 3].all() and not out[20:27, :3].any() and np.array_equal(out[:20], flags[:20])
+    tau = np.clip(times - 19 / fps, 0.0, 8 / fps)  # take-off at frame 19, landing at frame 27
+    ballistic = 0.95 + 0.5 * G * (8 / fps) * tau - 0.5 * G * tau ** 2
+    assert abs(flight_support(ballistic, times, 20, 27, G)) < 1e-6
+    assert support_held_flights(flags, ballistic, points, times, G, 0.5, 0.05)[1] == []
+    sliding = points.copy()
+    sliding[:, 3, 0] = np.linspace(0, 1.0, frames)  # 15 cm over the flight's 7 frames
+    assert support_held_flights(flags, standing_com, sliding, times, G, 0.5, 0.05)[1] == []
+
+
+def test_false_flight_is_not_landed_with_a_force_peak(body, caplog):
+    """Standing still, the labels say every point flies for 7 frames at 24 fps: physics must not launch and land
+    the body (the flight would need about 2.5 body weights at its ends); the lowest point stays in contact."""
+    fps, frames = 24.0, 48
+    q = standing(body, frames)
+    flags = np.ones((frames, 4), bool)
+    flags[20:27] = False
+    with caplog.at_level(logging.WARNING, logger="physmocap"):
+        result = run_trajopt(body, q, fps, flags, TrajoptSettings(contact_drift=0.0))
+    assert result.converged.all() and "labelled in flight" in caplog.text
+    assert result.contacts[20:27].any(axis=1).all()
+    vertical = result.grf[..., 2].sum(axis=1)
+    assert vertical.max() < 1.2 * body.mass * G
 
 
 def test_drifting_contact_split_where_the_point_moves_with_a_support_kept():
@@ -498,6 +538,20 @@ def test_failure_is_loud_and_keeps_the_kinematic_motion(body, caplog):
     assert np.array_equal(result.qpos, q) and np.all(result.grf == 0) and np.all(result.qp_failures == 1)
     assert "did not converge" in caplog.text and "NOT converged" in result.summary()
     assert result.failed_frames == ["0-39"]
+
+
+def test_every_window_keeps_within_its_iteration_budget(body):
+    """All IPOPT runs of a window (fit, dynamics, a restart) share settings.max_iterations: on long clips a window
+    that wandered to each stage's limit and then restarted cost 20-70 times a converged one (issue 23)."""
+    q, in_air = jump(body, frames=60, takeoff=25)
+    contacts = np.repeat(~in_air[:, None], 4, axis=1)
+    s = TrajoptSettings(window_seconds=1.0, window_overlap=0.3, max_iterations=12)
+    result = run_trajopt(body, q, FPS, contacts, s)
+    assert len(result.windows) >= 2
+    for window in result.windows:
+        runs = [st.iterations for st in window.stages]
+        assert sum(runs) <= s.max_iterations and runs[0] <= s.max_iterations // 2
+    assert not result.converged.all()
 
 
 def test_duration_stage_keeps_the_better_solution(body):

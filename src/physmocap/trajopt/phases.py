@@ -129,3 +129,43 @@ def segment_count(duration: float, minimum: int, per_seconds: float, longest: fl
     if np.isfinite(longest) and longest > 0:
         count = max(count, int(np.ceil(duration / longest - 1e-9)))
     return count
+
+
+def flight_support(com_height: np.ndarray, times: np.ndarray, start: int, stop: int, gravity: float) -> float:
+    """The mean vertical force, in body weights, that a COM height path (T,) m at `times` (T,) s needs over the
+    flight of frames [start, stop): 1 + z''/g, z'' the curvature of the parabola fitted to the flight and the two
+    frames around it (its take-off and landing). A free fall needs 0; a body held up, 1. nan for fewer than 3
+    frames."""
+    lo, hi = max(start - 1, 0), min(stop + 1, len(com_height))
+    if hi - lo < 3:
+        return float("nan")
+    t = times[lo:hi] - times[lo]
+    return 1.0 + 2.0 * float(np.polyfit(t, com_height[lo:hi], 2)[0]) / gravity
+
+
+def support_held_flights(flags: np.ndarray, com_height: np.ndarray, points: np.ndarray, times: np.ndarray,
+                         gravity: float, max_support: float, drift: float) -> tuple[np.ndarray, list[tuple]]:
+    """(T, P) contact flags in which every whole-body flight (no point in contact) that the input motion does not
+    fall through is given back a support: a flight whose COM needs more than `max_support` body weights
+    (`flight_support`) is the labels' error (the body is held up), and physics would have to launch and land it
+    with forces the motion never shows. Its lowest point (mean height of `points` (T, P, 3) over the flight) is
+    put in contact there, if it stays within `drift` m of its median floor position (a contact holds its point
+    still); otherwise the flight stays. Returns the flags and (start, stop, point, support) of each relabelled
+    flight."""
+    flags = np.asarray(flags, bool).copy()
+    changed = []
+    starts, lengths = runs(flags.any(axis=1))
+    for s, n in zip(starts, lengths):
+        if flags[s].any():
+            continue
+        support = flight_support(com_height, times, int(s), int(s + n), gravity)
+        if not support > max_support:
+            continue
+        heights = points[s:s + n, :, 2].mean(axis=0)
+        lowest = int(np.argmin(heights))
+        xy = points[s:s + n, lowest, :2]
+        if np.linalg.norm(xy - np.median(xy, axis=0), axis=1).max() > drift:
+            continue
+        flags[s:s + n, lowest] = True
+        changed.append((int(s), int(s + n), lowest, support))
+    return flags, changed
