@@ -144,14 +144,13 @@ def flight_support(com_height: np.ndarray, times: np.ndarray, start: int, stop: 
 
 
 def support_held_flights(flags: np.ndarray, com_height: np.ndarray, points: np.ndarray, times: np.ndarray,
-                         gravity: float, max_support: float, drift: float) -> tuple[np.ndarray, list[tuple]]:
+                         gravity: float, max_support: float, near: float) -> tuple[np.ndarray, list[tuple]]:
     """(T, P) contact flags in which every whole-body flight (no point in contact) that the input motion does not
     fall through is given back a support: a flight whose COM needs more than `max_support` body weights
     (`flight_support`) is the labels' error (the body is held up), and physics would have to launch and land it
-    with forces the motion never shows. Its lowest point (mean height of `points` (T, P, 3) over the flight) is
-    put in contact there, if it stays within `drift` m of its median floor position (a contact holds its point
-    still); otherwise the flight stays. Returns the flags and (start, stop, point, support) of each relabelled
-    flight."""
+    with forces the motion never shows. Of the points (T, P, 3) whose mean height over the flight is within
+    `near` m of the lowest one's, the one that strays least along the floor (a contact holds its point still) is
+    put in contact there. Returns the flags and (start, stop, point, support) of each relabelled flight."""
     flags = np.asarray(flags, bool).copy()
     changed = []
     starts, lengths = runs(flags.any(axis=1))
@@ -162,10 +161,9 @@ def support_held_flights(flags: np.ndarray, com_height: np.ndarray, points: np.n
         if not support > max_support:
             continue
         heights = points[s:s + n, :, 2].mean(axis=0)
-        lowest = int(np.argmin(heights))
-        xy = points[s:s + n, lowest, :2]
-        if np.linalg.norm(xy - np.median(xy, axis=0), axis=1).max() > drift:
-            continue
-        flags[s:s + n, lowest] = True
-        changed.append((int(s), int(s + n), lowest, support))
+        xy = points[s:s + n, :, :2]
+        strays = np.linalg.norm(xy - np.median(xy, axis=0), axis=-1).max(axis=0)
+        point = int(np.argmin(np.where(heights <= heights.min() + near, strays, np.inf)))
+        flags[s:s + n, point] = True
+        changed.append((int(s), int(s + n), point, support))
     return flags, changed
