@@ -376,6 +376,36 @@ def long_scaling(lengths: list[float], settings_trajopt: TrajoptSettings) -> lis
     return out
 
 
+def one_window(seconds: float, first: int, last: int) -> dict:
+    """Frames first..last of the looped dance of `long_scaling` (looped to `seconds`) as one window from a free
+    start (its start velocity the input's), solved as run_trajopt solves a window: every IPOPT run's status,
+    iterations and CPU seconds. The windows that cost most on long clips can be studied alone this way."""
+    from physmocap.trajopt.formulation import Window
+    from physmocap.trajopt.phases import clean_flags, contact_phases, split_drifting
+    from physmocap.trajopt.reduced import boundary_velocity, reduced_motion
+    from physmocap.trajopt.solve import solve_window
+
+    obs, truth, settings = observe(LONG_CLIP, 0, 10.0)
+    motion = fit_motion(obs, settings)
+    contacts, _, _ = predict_contacts(obs, "centred")
+    s = TrajoptSettings()
+    refined = refine_kinematics(obs, motion, contacts, settings.fit, s)
+    idx = loop_indices(len(refined.motion.qpos), int(round(seconds * obs.fps)))
+    red = reduced_motion(refined.motion.body, refined.motion.qpos[idx], obs.fps)
+    min_frames = max(1, int(np.ceil(s.min_phase_seconds * obs.fps - 1e-9)))
+    flags = np.stack([clean_flags(refined.contacts[idx, i], min_frames) for i in range(4)], axis=1)
+    flags = split_drifting(flags, red.feet[..., :2], s.contact_drift, min_frames)
+    part = red.frames(slice(first, last + 1))
+    window = Window(part, [contact_phases(flags[first:last + 1, i], part.times) for i in range(4)],
+                    start_velocity=boundary_velocity(red.com[first:], obs.fps, s.boundary_frames, end=False))
+    cpu = time.process_time()
+    result = solve_window(window, s)
+    cpu = time.process_time() - cpu
+    print(f"window {first}-{last} of the {seconds:.0f} s loop: CPU {cpu:.1f} s, " + "; ".join(
+        f"{st.name} {st.status} {st.iterations} iterations" for st in result.stages), flush=True)
+    return dict(cpu_seconds=cpu, stages=[dataclasses.asdict(st) for st in result.stages])
+
+
 def scaling_fit(rows: list[dict]) -> dict:
     """The growth of solve time with clip length from the scaling rows: the least-squares line through
     (log length, log median wall time), t = a L^b (exponent b: 1 linear, 2 quadratic), and the cost per second of
@@ -493,6 +523,8 @@ def main(argv=None) -> dict:
                         help="only the accuracy rows of the cases (no 2 s pieces, no scaling); writes --json")
     parser.add_argument("--long", type=float, nargs="+", metavar="SECONDS",
                         help="only the time against clip length on a looped dance, at these lengths (s)")
+    parser.add_argument("--window", type=float, nargs=3, metavar=("SECONDS", "FIRST", "LAST"),
+                        help="only one window (frames FIRST..LAST) of the looped dance at SECONDS, from a free start")
     parser.add_argument("--videos", nargs="+", metavar="RUN_FOLDER",
                         help="only trajopt on these capture run folders' refined motion: forces against implied")
     parser.add_argument("--flights", action="store_true",
@@ -508,6 +540,8 @@ def main(argv=None) -> dict:
         write_text(RESULTS / "trajopt_long.json", json.dumps(dict(
             machine=machine_description(), revision=git_revision(), rows=rows, cpu_fit=fit), indent=2, default=float))
         return dict(rows=rows)
+    if args.window:
+        return one_window(args.window[0], int(args.window[1]), int(args.window[2]))
     if args.videos:
         rows = videos(args.videos)
         write_text(RESULTS / "trajopt_videos.json", json.dumps(dict(

@@ -147,28 +147,33 @@ def test_contact_phases_from_flags():
 
 
 def test_flight_the_motion_does_not_fall_through_keeps_a_support():
-    """Labels that lift every point for 7 frames while the body stands (the juggler on one foot, issue 24) keep
-    the stillest of the lowest points in contact; a ballistic flight stays a flight."""
+    """Labels that lift every point for 7 frames while the body stands (the juggler on one foot, issue 24) keep a
+    support there: a point in contact beside the flight, the one nearest below the COM; with none beside it, the
+    low point nearest below the COM. A ballistic flight stays a flight."""
     fps, frames = 24.0, 48
     times = np.arange(frames) / fps
     points = np.zeros((frames, 4, 3))
+    points[:, :, 0] = [-0.1, 0.1, -0.1, 0.1]  # heels behind the COM, toes ahead
+    points[:, :, 1] = [0.3, 0.3, -0.05, -0.05]  # the right foot below the COM, the left to the side
     points[:, :2, 2] = 0.3  # the left foot raised
-    points[:, 2, 2], points[:, 3, 2] = 0.07, 0.01  # the right toe lowest, the heel 6 cm above it
     flags = np.zeros((frames, 4), bool)
     flags[:, 2:] = True
+    flags[:20, 3] = False  # before the flight only the right heel; after it both right points
     flags[20:27] = False
-    standing_com = np.full(frames, 0.95) + 0.002 * np.sin(times)
-    out, changed = support_held_flights(flags, standing_com, points, times, G, 0.5, 0.05)
-    assert [(a, b, p) for a, b, p, _ in changed] == [(20, 27, 3)] and changed[0][3] > 0.9
-    assert out[20:27, 3].all() and not out[20:27, :3].any() and np.array_equal(out[:20], flags[:20])
-    sliding = points.copy()
-    sliding[:, 2, 2] = 0.03  # the heel 2 cm above the toe, which slides 15 cm over the flight: the heel holds
-    sliding[:, 3, 0] = np.linspace(0, 1.0, frames)
-    assert [p for _, _, p, _ in support_held_flights(flags, standing_com, sliding, times, G, 0.5, 0.05)[1]] == [2]
+    com = np.zeros((frames, 3))
+    com[:, 2] = 0.95 + 0.002 * np.sin(times)
+    out, changed = support_held_flights(flags, com, points, times, G, 0.5, 0.05)
+    assert [(a, b, p) for a, b, p, _ in changed] == [(20, 27, 2)] and changed[0][3] > 0.9
+    assert out[20:27, 2].all() and not out[20:27, [0, 1, 3]].any() and np.array_equal(out[:20], flags[:20])
+    alone = flags.copy()
+    alone[:20], alone[27:] = False, False  # no contact beside the flight: the low points, nearest the COM
+    points[:, 2, 2] = 0.02
+    points[:, 3, 1] = 0.0  # the right toe right below the COM
+    assert [p for _, _, p, _ in support_held_flights(alone, com, points, times, G, 0.5, 0.05)[1]] == [3]
     tau = np.clip(times - 19 / fps, 0.0, 8 / fps)  # take-off at frame 19, landing at frame 27
-    ballistic = 0.95 + 0.5 * G * (8 / fps) * tau - 0.5 * G * tau ** 2
-    assert abs(flight_support(ballistic, times, 20, 27, G)) < 1e-6
-    assert support_held_flights(flags, ballistic, points, times, G, 0.5, 0.05)[1] == []
+    com[:, 2] = 0.95 + 0.5 * G * (8 / fps) * tau - 0.5 * G * tau ** 2
+    assert abs(flight_support(com[:, 2], times, 20, 27, G)) < 1e-6
+    assert support_held_flights(flags, com, points, times, G, 0.5, 0.05)[1] == []
 
 
 def test_false_flight_is_not_landed_with_a_force_peak(body, caplog):

@@ -143,27 +143,35 @@ def flight_support(com_height: np.ndarray, times: np.ndarray, start: int, stop: 
     return 1.0 + 2.0 * float(np.polyfit(t, com_height[lo:hi], 2)[0]) / gravity
 
 
-def support_held_flights(flags: np.ndarray, com_height: np.ndarray, points: np.ndarray, times: np.ndarray,
+def support_held_flights(flags: np.ndarray, com: np.ndarray, points: np.ndarray, times: np.ndarray,
                          gravity: float, max_support: float, near: float) -> tuple[np.ndarray, list[tuple]]:
     """(T, P) contact flags in which every whole-body flight (no point in contact) that the input motion does not
-    fall through is given back a support: a flight whose COM needs more than `max_support` body weights
+    fall through is given back a support: a flight whose COM (T, 3) needs more than `max_support` body weights
     (`flight_support`) is the labels' error (the body is held up), and physics would have to launch and land it
-    with forces the motion never shows. Of the points (T, P, 3) whose mean height over the flight is within
-    `near` m of the lowest one's, the one that strays least along the floor (a contact holds its point still) is
-    put in contact there. Returns the flags and (start, stop, point, support) of each relabelled flight."""
+    with forces the motion never shows. The support is one of the points (T, P, 3) in contact just before or
+    just after the flight (its contact then continues through it), or where none is, of the points whose mean
+    height over the flight lies within `near` m of the lowest one's: the one nearest, on average, below the COM
+    (a support far to one side would turn the body). Returns the flags and (start, stop, point, support) of each
+    relabelled flight."""
     flags = np.asarray(flags, bool).copy()
     changed = []
     starts, lengths = runs(flags.any(axis=1))
     for s, n in zip(starts, lengths):
         if flags[s].any():
             continue
-        support = flight_support(com_height, times, int(s), int(s + n), gravity)
+        support = flight_support(com[:, 2], times, int(s), int(s + n), gravity)
         if not support > max_support:
             continue
-        heights = points[s:s + n, :, 2].mean(axis=0)
-        xy = points[s:s + n, :, :2]
-        strays = np.linalg.norm(xy - np.median(xy, axis=0), axis=-1).max(axis=0)
-        point = int(np.argmin(np.where(heights <= heights.min() + near, strays, np.inf)))
+        candidates = np.zeros(flags.shape[1], bool)
+        if s > 0:
+            candidates |= flags[s - 1]
+        if s + n < len(flags):
+            candidates |= flags[s + n]
+        if not candidates.any():
+            heights = points[s:s + n, :, 2].mean(axis=0)
+            candidates = heights <= heights.min() + near
+        reach = np.linalg.norm(points[s:s + n, :, :2] - com[s:s + n, None, :2], axis=-1).mean(axis=0)
+        point = int(np.argmin(np.where(candidates, reach, np.inf)))
         flags[s:s + n, point] = True
         changed.append((int(s), int(s + n), point, support))
     return flags, changed

@@ -255,12 +255,11 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
 
 def _support_held_flights(flags: np.ndarray, reduced, valid: np.ndarray, settings: TrajoptSettings) -> np.ndarray:
     """The flags with each whole-body flight that the input's COM does not fall through given back a support
-    (phases.support_held_flights: the stillest point within floor_outlier_distance of the lowest), within each
-    run of valid frames; each one logged."""
+    (phases.support_held_flights), within each run of valid frames; each one logged."""
     flags = flags.copy()
     for first, end in valid_runs(valid):
         flags[first:end], changed = support_held_flights(
-            flags[first:end], reduced.com[first:end, 2], reduced.feet[first:end], reduced.times[first:end],
+            flags[first:end], reduced.com[first:end], reduced.feet[first:end], reduced.times[first:end],
             settings.gravity, FLIGHT_MAX_SUPPORT, settings.floor_outlier_distance)
         for start, stop, point, support in changed:
             log.warning("trajopt: frames %d-%d are labelled in flight, but the motion's centre of mass needs %.0f%% of "
