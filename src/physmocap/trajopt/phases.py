@@ -152,7 +152,7 @@ def support_held_flights(flags: np.ndarray, com: np.ndarray, points: np.ndarray,
     just after the flight (its contact then continues through it), or where none is, of the points whose mean
     height over the flight lies within `near` m of the lowest one's: the one nearest, on average, below the COM
     (a support far to one side would turn the body). Returns the flags and (start, stop, point, support) of each
-    relabelled flight."""
+    relabelled flight, [start, stop) the frames the point was put in contact."""
     flags = np.asarray(flags, bool).copy()
     changed = []
     starts, lengths = runs(flags.any(axis=1))
@@ -172,6 +172,14 @@ def support_held_flights(flags: np.ndarray, com: np.ndarray, points: np.ndarray,
             candidates = heights <= heights.min() + near
         reach = np.linalg.norm(points[s:s + n, :, :2] - com[s:s + n, None, :2], axis=-1).mean(axis=0)
         point = int(np.argmin(np.where(candidates, reach, np.inf)))
-        flags[s:s + n, point] = True
-        changed.append((int(s), int(s + n), point, support))
+        # The contact bridges to the point's own contacts before and after when they resume within the
+        # flight's length: a hand-over from one point to another with no frame of both would again leave
+        # the body a moment without force (each force fades to zero where its phase meets a flight).
+        a, b = int(s), int(s + n)
+        before = np.flatnonzero(flags[max(0, a - n):a, point])
+        after = np.flatnonzero(flags[b:b + n, point])
+        a = max(0, a - n) + int(before[-1]) + 1 if len(before) else a
+        b = b + int(after[0]) if len(after) else b
+        flags[a:b, point] = True
+        changed.append((a, b, point, support))
     return flags, changed

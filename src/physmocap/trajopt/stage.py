@@ -262,9 +262,9 @@ def _support_held_flights(flags: np.ndarray, reduced, valid: np.ndarray, setting
             flags[first:end], reduced.com[first:end], reduced.feet[first:end], reduced.times[first:end],
             settings.gravity, FLIGHT_MAX_SUPPORT, settings.floor_outlier_distance)
         for start, stop, point, support in changed:
-            log.warning("trajopt: frames %d-%d are labelled in flight, but the motion's centre of mass needs %.0f%% of "
-                        "body weight there: the %s is kept in contact.", first + start, first + stop - 1,
-                        100 * support, CONTACT_POINTS[point].replace("_", " "))
+            log.warning("trajopt: around frames %d-%d the labels give a flight, but the motion's centre of mass needs "
+                        "%.0f%% of body weight there: the %s is kept in contact over these frames.", first + start,
+                        first + stop - 1, 100 * support, CONTACT_POINTS[point].replace("_", " "))
     return flags
 
 
