@@ -293,6 +293,7 @@ def videos(run_folders: list[str]) -> list[dict]:
         weight = body.mass * metrics.GRAVITY
         fz = result.grf[..., 2].sum(axis=1)
         rows.append(dict(video=folder.name, fps=obs.fps, frames=len(qpos), cpu_seconds=cpu,
+                         window_iterations=[sum(st.iterations for st in w.stages) for w in result.windows],
                          frames_over_4bw=int((fz > 4 * weight).sum()),
                          relabelled_flight_frames=int((result.contacts.any(axis=1)
                                                        & ~refined.contacts.any(axis=1) & obs.valid).sum()),
@@ -302,7 +303,7 @@ def videos(run_folders: list[str]) -> list[dict]:
               f" / implied {r['implied_max_percent_bw']:.0f}% BW = {r['ratio']:.2f}, alternation "
               f"{r['alternation_percent_bw']:.0f}% BW, frames > 400% BW {r['frames_over_4bw']}, converged "
               f"{100 * r['converged_fraction']:.0f}%, flight frames given a support {r['relabelled_flight_frames']}, "
-              f"CPU {cpu:.1f} s", flush=True)
+              f"CPU {cpu:.1f} s, IPOPT iterations per window {r['window_iterations']}", flush=True)
     return rows
 
 

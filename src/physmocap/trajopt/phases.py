@@ -49,9 +49,9 @@ def split_drifting(flags: np.ndarray, points: np.ndarray, limit: float, gap: int
     farther than `limit` from the part's median position. A contact phase holds its point still (no slip), so a
     foot that shuffles or pivots while labelled in contact (the motion capture of CMU subject 131: a toe 25 cm
     in 3 s) needs a new phase, not one position for all. The gap goes where the two parts' positions scatter
-    least about their means, among the frames in which another point stays in contact (the body keeps a support:
-    a whole-body flight the input does not fly would launch it); runs with no such place stay whole. The parts
-    keep at least `gap` frames. limit 0: flags unchanged."""
+    least about their means, among the frames in which another point stays in contact, from the frame before to
+    the frame after (the body keeps a support: a whole-body flight the input does not fly would launch it); runs
+    with no such place stay whole. The parts keep at least `gap` frames. limit 0: flags unchanged."""
     flags = np.asarray(flags, bool).copy()
     if limit <= 0:
         return flags
@@ -69,7 +69,9 @@ def split_drifting(flags: np.ndarray, points: np.ndarray, limit: float, gap: int
 
         lo = np.arange(gap, b - a - 2 * gap + 1)
         others = np.delete(flags[a:b], i, axis=1).any(axis=1)
-        supported = np.array([others[k:k + gap].all() for k in lo], bool)
+        # Supported from the frame before the gap to the frame after: a support whose own phase began or ended
+        # at the gap would carry no force there (forces fade to zero where a phase meets a flight).
+        supported = np.array([others[k - 1:k + gap + 1].all() for k in lo], bool)
         if not supported.any():
             return
         cost = np.where(supported, [scatter(0, k) + scatter(k + gap, b - a) for k in lo], np.inf)
