@@ -260,7 +260,7 @@ def _support_held_flights(flags: np.ndarray, reduced, valid: np.ndarray, setting
     for first, end in valid_runs(valid):
         flags[first:end], changed = support_held_flights(
             flags[first:end], reduced.com[first:end], reduced.feet[first:end], reduced.times[first:end],
-            settings.gravity, FLIGHT_MAX_SUPPORT, settings.floor_outlier_distance)
+            settings.gravity, FLIGHT_MAX_SUPPORT)
         for start, stop, point, support in changed:
             log.warning("trajopt: around frames %d-%d the labels give a flight, but the motion's centre of mass needs "
                         "%.0f%% of body weight there: the %s is kept in contact over these frames.", first + start,
