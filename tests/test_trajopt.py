@@ -204,6 +204,13 @@ def test_drifting_contact_split_where_the_point_moves_with_a_support_kept():
     alone = flags.copy()
     alone[:, 0] = False
     assert np.array_equal(split_drifting(alone, points, 0.03, 2), alone)
+    # A support whose own contact begins at the best gap carries no force there (it fades in from zero): the gap
+    # goes where the heel holds from the frame before to the frame after.
+    late = flags.copy()
+    late[:24, 0] = False
+    out = split_drifting(late, points, 0.03, 2)
+    gap = np.flatnonzero(~out[:, 1])
+    assert len(gap) == 2 and gap[0] >= 25 and out[gap[0] - 1:gap[-1] + 2, 0].all()
     # Within the limit, or the split off: unchanged; a steady slide is cut until every part is within the limit.
     assert np.array_equal(split_drifting(flags, points, 0.1, 2), flags)
     assert np.array_equal(split_drifting(flags, points, 0.0, 2), flags)
