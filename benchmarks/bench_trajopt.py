@@ -18,7 +18,13 @@ Writes benchmarks/results/trajopt.json and trajopt.md. Other modes (issues 23, 2
                              accuracy, largest solved vertical force over the largest the true motion implies,
                              frame-to-frame alternation; writes results/trajopt_validation.json
     --long 2 5 10 30 ...     time against clip length on a looped dance, wall and CPU seconds, load, every
-                             window's frames, iterations, seconds and restarts; writes results/trajopt_long.json
+                             window's frames, iterations, seconds, restarts and contact switches; writes
+                             results/trajopt_long.json
+    --window 60 178 297      one window of that looped dance (seconds, first and last frame) from a free start
+    --flights                the labels' whole-body flights on validation clips (subjects 1, 2, 5, 7) at 24 and
+                             30 fps: the support their COM needs; writes results/trajopt_flights.json
+    --videos RUN ...         trajopt on capture run folders' refined motion: solved against implied forces;
+                             writes results/trajopt_videos.json
 """
 
 from __future__ import annotations

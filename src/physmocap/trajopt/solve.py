@@ -24,7 +24,6 @@ from .phases import Phase
 from .problem import Program, Solution
 
 
-
 @dataclass
 class StageReport:
     """One IPOPT run: the stage's name, IPOPT's status, whether it converged, iterations, seconds, objective
