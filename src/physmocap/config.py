@@ -450,8 +450,7 @@ class TrajoptSettings:
     max_duration_change: float = 0.1  # s each phase boundary may move in that stage (ours); 0 .. 1
     tolerance: float = 1e-6  # IPOPT tol (the authors' code: 1e-3, with another scaling: at 1e-4 here the COM wiggles by
     # a millimetre and the forces of a person standing still by 10%); 1e-10 .. 1
-    max_iterations: int = 1000  # IPOPT iterations per window, all its stages and a restart together (the
-    # authors' code: 7000 per stage; docs/decisions/trajopt-long-clips.md); 1 .. 100000
+    max_iterations: int = 1000  # IPOPT iterations per stage (the authors' code: 7000); 1 .. 100000
     max_seconds: float = 120.0  # CPU-time limit of one IPOPT run (CPU, not wall: under load a wall-clock limit cut
     # windows short and the result depended on the machine's load, sports2d_demo.mp4 at load 15-18); 0.1 .. 1e5
     reject_departure: float | None = 0.3  # m: a window that converges with its COM farther than this from the
