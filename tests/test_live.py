@@ -103,7 +103,8 @@ def test_dropped_frames_are_flagged_finite_and_tracked_by_the_physics(replayed_d
     from physmocap.dynamics.stage import run_physcap
 
     replayed_detector(2.5 / FRAME_RATE)  # a detector that takes 2.5 frame intervals
-    settings = SHORT_WARMUP.replace("physics", method="physcap")
+    # The floor kept as fitted (not refined while tracking), so that the physics stage below starts from it too.
+    settings = SHORT_WARMUP.replace("physics", method="physcap", floor_refit_interval=None)
     report = stream_capture(str(DEMO_VIDEO), settings, realtime=True)
     obs = report.observations
     dropped = obs.invalid_reason == DROPPED_REASON
@@ -117,7 +118,7 @@ def test_dropped_frames_are_flagged_finite_and_tracked_by_the_physics(replayed_d
     assert np.allclose(batch.qpos, report.physics.qpos, atol=1e-9)
 
 
-def test_live_without_an_output_folder_says_nothing_is_saved(replayed_detector, capsys, tmp_path):
+def test_live_says_where_it_saves_or_that_nothing_is_saved(replayed_detector, capsys, tmp_path):
     from physmocap.cli import main
 
     assert main(["live", str(DEMO_VIDEO), "--max-frames", "12", "--as-fast-as-possible", "--physics", "none"]) == 0

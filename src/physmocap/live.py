@@ -141,9 +141,8 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
     reasons: list[str] = []
     arrivals: dict[int, float] = {}  # perf_counter of each processed frame's arrival
     fit_seconds = 0.0
+    dropped = 0  # frames so far that a stage skipped
     nothing = np.zeros((NUM_LANDMARKS, 3))
-
-    dropped = 0
 
     def deliver(results, fitted_straight_away: bool):
         for index, q in results:
@@ -178,18 +177,19 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
         item = detection_handoff.take()
         while item is not None:
             index, arrival, kp, wl, reason = item
+            gap = index - len(reasons)
             for skipped in range(len(reasons), index):  # frames a stage skipped, kept on the grid
                 add(skipped, nothing, nothing, DROPPED_REASON, None)
-            if (newer := detection_handoff.take_newer()) is not None:  # came while those were predicted
-                item = newer
+            # A detection that came while those were predicted is taken instead while the gaps shrink; when
+            # predicting a gap takes longer than the gap lasted, the next would only grow, and this one is fitted.
+            if (newer := detection_handoff.waiting_index()) is not None and newer - index < gap:
+                item = detection_handoff.take_newer()
                 continue
             # as the observations file keeps them (stages.as_stored)
             add(index, stored_precision(kp), stored_precision(wl), reason, arrival)
             item = detection_handoff.take()
         detector.join()
         reader.join()
-        for skipped in range(len(reasons), reader.arrived):  # none: each stage hands on the newest it has
-            add(skipped, nothing, nothing, DROPPED_REASON, None)
         t0 = time.perf_counter()
         results = fitter.finish()
         fit_seconds += time.perf_counter() - t0
@@ -259,12 +259,14 @@ class _Handoff:
             self._ended = True
             self._changed.notify_all()
 
-    def take_newer(self):
-        """With keep_newest, the item put since the last `take` (the one taken then counted as dropped), or None;
-        without, None."""
+    def waiting_index(self) -> int | None:
+        """With keep_newest, the index (first element) of the item waiting; else, or with none waiting, None."""
         with self._changed:
-            if not self.keep_newest or not self._items:
-                return None
+            return self._items[0][0] if self.keep_newest and self._items else None
+
+    def take_newer(self):
+        """The item waiting (keep_newest), instead of the one taken last, which is counted as dropped."""
+        with self._changed:
             self.dropped += 1
             return self._items.popleft()
 
@@ -288,7 +290,6 @@ class _SourceThread(threading.Thread):
         super().__init__(name="physmocap-source", daemon=True)
         self.frames, self.fps, self.close, self.scheduled = frames, fps, close, scheduled
         self.max_frames, self.handoff, self.stop = max_frames, handoff, stop
-        self.arrived = 0
         self.failure: BaseException | None = None
 
     def run(self) -> None:
@@ -302,7 +303,6 @@ class _SourceThread(threading.Thread):
                     time.sleep(max(0.0, arrival - time.perf_counter()))
                 else:
                     arrival = time.perf_counter()
-                self.arrived = index + 1
                 self.handoff.put((index, frame, arrival), self.stop)
         except BaseException as exc:  # handed to the fitting thread, which raises it
             self.failure = exc
