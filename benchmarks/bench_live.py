@@ -11,6 +11,7 @@ decode with area scaling, libx264 CRF 18).
     .venv/bin/python benchmarks/bench_live.py                        # both videos, physics none and physcap
     .venv/bin/python benchmarks/bench_live.py --videos hybrik_taiji.mp4 --physics physcap --repeats 3
     .venv/bin/python benchmarks/bench_live.py --loops 3                # on a loaded machine: a longer steady state
+    .venv/bin/python benchmarks/bench_live.py --fit-thread-costs       # CPU ms of a kept and a dropped frame
 
 Prints a markdown table and writes benchmarks/results/live.json.
 """
@@ -68,6 +69,44 @@ def live_run(video: Path, physics: str, drop: bool) -> dict:
         cpu_seconds=time.process_time() - cpu, load_before=load_before, load_after=os.getloadavg()[0])
 
 
+def fit_thread_costs(video: Path, frames: int = 200, first_dropped: int = 80) -> list[dict]:
+    """CPU ms per frame in the fit thread: the first `frames` detections of `video` replayed through the fit and
+    contacts + physics with every other frame from `first_dropped` on dropped, the dropped ones predicted
+    (OnlineFitter.skip) or fitted as unseen frames (push(valid=False)); means over the frames from first_dropped."""
+    from physmocap.kinematics.online import OnlineFitter
+    from physmocap.live import _AfterFit
+
+    obs = stream_capture(str(video), Settings(online=True).replace("physics", method="none"),
+                         max_frames=frames).observations
+    nothing = np.zeros_like(obs.keypoints_2d[0])
+    rows = []
+    for physics in ("none", "physcap"):
+        settings = Settings(online=True).replace("physics", method=physics)
+        for skip in (True, False):
+            fitter, after = OnlineFitter(settings, obs.fps, obs.image_size), _AfterFit(settings, obs.fps)
+            keypoints, reasons = [], []
+            cost: dict[str, list[float]] = {"fit": [], "fit_dropped": [], "after": [], "after_dropped": []}
+            for t in range(obs.num_frames):
+                dropped = t >= first_dropped and t % 2 == 1
+                keypoints.append(nothing if dropped else obs.keypoints_2d[t])
+                reasons.append(DROPPED_REASON if dropped else str(obs.invalid_reason[t]))
+                start = time.process_time()
+                if dropped:
+                    poses = fitter.skip() if skip else fitter.push(nothing, nothing, False)
+                else:
+                    poses = fitter.push(obs.keypoints_2d[t], obs.landmarks_3d[t], bool(obs.valid[t]))
+                fitted = time.process_time()
+                for index, q in poses:
+                    after.push(index, q, fitter.body, keypoints, reasons)
+                if t >= first_dropped:
+                    cost["fit_dropped" if dropped else "fit"].append(fitted - start)
+                    cost["after_dropped" if dropped else "after"].append(time.process_time() - fitted)
+            rows.append(dict(physics=physics, dropped_frames="skip" if skip else "push(valid=False)",
+                             **{f"{k}_ms": float(np.mean(v) * 1000) for k, v in cost.items()}))
+            print(rows[-1])
+    return rows
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--videos", nargs="+", default=list(VIDEO_NAMES), help="files in the shared videos folder")
@@ -79,7 +118,13 @@ def main(argv=None) -> dict:
                              "pipeline processes few frames (the 3-s calibration warm-up waits for 3 s of detected "
                              "frames; the person jumps back at each loop)")
     parser.add_argument("--json", default=str(RESULTS / "live.json"))
+    parser.add_argument("--fit-thread-costs", action="store_true",
+                        help="instead: CPU ms per kept and dropped frame in the fit thread (the first video)")
     args = parser.parse_args(argv)
+    if args.fit_thread_costs:
+        with tempfile.TemporaryDirectory(prefix="bench_live_") as folder:
+            return {"fit_thread_costs": fit_thread_costs(scaled_copy(VIDEOS / args.videos[0], args.width, 1,
+                                                                      Path(folder)))}
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench_live_") as folder:
         for name in args.videos:
