@@ -4,8 +4,9 @@ Three stages, each in its own thread: the source (a camera read as fast as it de
 its own frame rate, as a camera would), the detector, and the fit with contacts and physics (the caller's thread).
 On two cores the throughput is set by the slowest stage, not their sum.
 
-The drop policy (`drop_stale_frames`, on for `physmocap live`): a stage that falls behind skips to the newest frame
-that has reached it, so that the latency from a frame's arrival to its pose stays bounded. The detector takes the
+The drop policy (`drop_stale_frames`, on for `physmocap live`): from the end of the calibration warm-up on, a stage
+that falls behind skips to the newest frame that has reached it, so that the latency from a frame's arrival to its
+pose stays bounded. The detector takes the
 newest arrived frame (older ones were read and are discarded); the fit takes the newest detection (older ones are
 discarded). A skipped frame stays in the result on the frame grid, invalid with reason DROPPED_REASON: its pose is
 the causal fit's constant-velocity prediction (OnlineFitter.skip), its contacts are the network's for an unseen
@@ -129,8 +130,10 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
     paced = realtime or camera  # frames arrive whether or not the pipeline is ready for them
     stop = threading.Event()
     # Only a camera's frames must be taken as they come (or the driver discards them); a file's wait to be decoded.
-    frame_handoff = _Handoff(keep_newest=paced and drop_stale_frames, capacity=None if camera else FILE_READ_AHEAD)
-    detection_handoff = _Handoff(keep_newest=paced and drop_stale_frames)
+    # Frames are dropped from the end of the warm-up on: the warm-up holds every frame up to its last detected one
+    # and fits them all when it ends, so frames dropped before would only make that longer.
+    frame_handoff = _Handoff(keep_newest=False, capacity=None if camera else FILE_READ_AHEAD)
+    detection_handoff = _Handoff(keep_newest=False)
     reader = _SourceThread(frames, fps, close, scheduled, max_frames, frame_handoff, stop)
     detector = _DetectionThread(frame_handoff, detection_handoff, fps, image_size, settings, stop)
     fitter = OnlineFitter(settings, fps, image_size)
@@ -167,6 +170,8 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
         t0 = time.perf_counter()
         results = fitter.push(kp, wl, reason == "") if arrival is not None else fitter.skip()
         fit_seconds += time.perf_counter() - t0
+        if not calibrated and fitter.body is not None:
+            frame_handoff.keep_newest = detection_handoff.keep_newest = paced and drop_stale_frames
         deliver(results, calibrated)
 
     detector.start()
@@ -260,21 +265,27 @@ class _Handoff:
             self._changed.notify_all()
 
     def waiting_index(self) -> int | None:
-        """With keep_newest, the index (first element) of the item waiting; else, or with none waiting, None."""
+        """With keep_newest, the index (first element) of the newest item waiting; else, or with none, None."""
         with self._changed:
-            return self._items[0][0] if self.keep_newest and self._items else None
+            return self._items[-1][0] if self.keep_newest and self._items else None
 
     def take_newer(self):
-        """The item waiting (keep_newest), instead of the one taken last, which is counted as dropped."""
+        """The newest item waiting (keep_newest), instead of the one taken last; both that and any older waiting
+        ones are counted as dropped."""
         with self._changed:
-            self.dropped += 1
-            return self._items.popleft()
+            self.dropped += len(self._items)
+            item = self._items.pop()
+            self._items.clear()
+            return item
 
     def take(self):
-        """The oldest waiting item, after waiting for one; None at the end."""
+        """The oldest waiting item (with keep_newest the newest), after waiting for one; None at the end."""
         with self._changed:
             while not self._items and not self._ended:
                 self._changed.wait()
+            if self.keep_newest and len(self._items) > 1:  # those waiting from before keep_newest was set
+                self.dropped += len(self._items) - 1
+                self._items = deque([self._items[-1]])
             item = self._items.popleft() if self._items else None
             self._changed.notify_all()
             return item
