@@ -119,11 +119,12 @@ def build_parser() -> argparse.ArgumentParser:
                           formatter_class=argparse.ArgumentDefaultsHelpFormatter,
                           description="Detection, causal fit, contacts and PhysCap physics frame by frame, with "
                                       "frames arrived, processed and dropped and the true latency (from a frame's "
-                                      "arrival to its pose) reported at the end. Drop policy: when the pipeline "
-                                      "falls behind the source, the detector and the fit skip to the newest frame "
-                                      "that has reached them, so the latency stays bounded; a skipped frame is "
-                                      "kept in the result as invalid (\"dropped: the pipeline fell behind\"), its "
-                                      "pose predicted from the frames before it. A warning says when it happens.")
+                                      "arrival to its pose) reported at the end. Drop policy: after the calibration "
+                                      "warm-up, when the pipeline falls behind the source, the detector and the "
+                                      "fit skip to the newest frame that has reached them, so the latency stays "
+                                      "bounded; a skipped frame is kept in the result as invalid (\"dropped: the "
+                                      "pipeline fell behind\"), its pose predicted from the frames before it. A "
+                                      "warning says when it happens.")
     live.add_argument("source", help="camera index (0, 1, ...) or a video file")
     live.add_argument("-o", "--output", type=Path, default=None,
                       help="folder for live.jsonl (one line per processed frame as its pose is ready) and, at the "
