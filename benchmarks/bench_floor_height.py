@@ -1,7 +1,7 @@
 """Floor tilt and body height on the synthetic set with ground truth (issue 17, points 5 and 7).
 
 Floor: per clip, the angle between the estimated floor's normal and the true one (both in the camera frame) for
-the offline kinematic floor (kinematics.stage.estimate_floor), the B.4-refined offline floor that both offline
+the offline kinematic floor (kinematics.floor.estimate_floor), the B.4-refined offline floor that both offline
 physics methods run on, the online warm-up floor, and the floor the online PhysCap ends on (FloorRefiner), with
 the floor confidence the kinematic stage reports.
 
@@ -49,7 +49,7 @@ from physmocap.kinematics.stage import fit_motion  # noqa: E402
 from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
 from physmocap.mocap.synthetic import landmarks_from_clip, make_observations, random_camera, resample  # noqa: E402
 from physmocap.motion import Observations  # noqa: E402
-from physmocap.trajopt import refine_kinematics  # noqa: E402
+from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
 
 VALIDATION_CLIPS = (
     "cmu_raw_cgspeed/02_01.bvh", "cmu_iclone_cc3_retarget/007_04.bvh", "cmu_iclone_cc3_retarget/002_04.bvh",

@@ -60,7 +60,8 @@ from physmocap.evaluation import score_against_truth, to_truth_world  # noqa: E4
 from physmocap.kinematics.stage import fit_motion  # noqa: E402
 from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
 from physmocap.mocap.synthetic import NoiseModel, make_observations, random_camera, resample  # noqa: E402
-from physmocap.trajopt import refine_kinematics, run_trajopt  # noqa: E402
+from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
+from physmocap.trajopt import run_trajopt  # noqa: E402
 
 CACHE = Path(tempfile.gettempdir()) / "physmocap_bench_physics_limits"
 GRAVITY = 9.81

@@ -46,7 +46,7 @@ from physmocap.kinematics.stage import fit_motion  # noqa: E402
 from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
 from physmocap.mocap.synthetic import NoiseModel, make_observations, random_camera, resample  # noqa: E402
 from physmocap.result import build_result  # noqa: E402
-from physmocap.trajopt import refine_kinematics  # noqa: E402
+from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
 from physmocap.viz.plots import write_plots  # noqa: E402
 
 # Only the contact networks' held-out CMU subjects (6 and 131, physmocap.contacts.dataset.TEST_SUBJECTS), since

@@ -18,7 +18,13 @@ Writes benchmarks/results/trajopt.json and trajopt.md. Other modes (issues 23, 2
                              accuracy, largest solved vertical force over the largest the true motion implies,
                              frame-to-frame alternation; writes results/trajopt_validation.json
     --long 2 5 10 30 ...     time against clip length on a looped dance, wall and CPU seconds, load, every
-                             window's frames, iterations, seconds and restarts; writes results/trajopt_long.json
+                             window's frames, iterations, seconds, restarts and contact switches; writes
+                             results/trajopt_long.json
+    --window 60 178 297      one window of that looped dance (seconds, first and last frame) from a free start
+    --flights                the labels' whole-body flights on validation clips (subjects 1, 2, 5, 7) at 24 and
+                             30 fps: the support their COM needs; writes results/trajopt_flights.json
+    --videos RUN ...         trajopt on capture run folders' refined motion: solved against implied forces;
+                             writes results/trajopt_videos.json
 """
 
 from __future__ import annotations
@@ -54,7 +60,8 @@ from physmocap.io.atomic import write_text  # noqa: E402
 from physmocap.kinematics.stage import fit_motion  # noqa: E402
 from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
 from physmocap.mocap.synthetic import make_observations, random_camera, resample  # noqa: E402
-from physmocap.trajopt import refine_kinematics, run_trajopt  # noqa: E402
+from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
+from physmocap.trajopt import run_trajopt  # noqa: E402
 
 METHODS = ("kinematic offline", "kinematic refined (B.4)", "physcap on offline", "trajopt",
            "kinematic refined, true floor", "trajopt, true floor")
@@ -223,6 +230,90 @@ def validation(weights: list[float], fps_values: list[float]) -> list[dict]:
     return rows
 
 
+# Flights in the labels on validation clips (subjects 1, 2, 5, 7): jumps, a run, jetes, walks, a scoop; the
+# flight_support threshold of trajopt.stage is chosen on these.
+FLIGHT_CLIPS = ("cmu_iclone_cc3_retarget/001_01.bvh", "cmu_iclone_cc3_retarget/002_03.bvh",
+                "cmu_iclone_cc3_retarget/002_04.bvh", "cmu_iclone_cc3_retarget/002_06.bvh",
+                "cmu_iclone_cc3_retarget/005_05.bvh", "cmu_iclone_cc3_retarget/005_07.bvh",
+                "cmu_iclone_cc3_retarget/005_16.bvh", "cmu_iclone_cc3_retarget/002_01.bvh",
+                "cmu_iclone_cc3_retarget/007_04.bvh")
+
+
+def flights(fps_values: list[float]) -> list[dict]:
+    """Every whole-body flight (no point in contact) of the contact labels trajopt receives (the B.4 relabelled
+    centred-network flags, short runs merged as run_trajopt merges them) on FLIGHT_CLIPS, seed 0: its frames, the
+    support its input COM needs (phases.flight_support, body weights), how far its lowest point strays, and the
+    share of its frames in which the true motion has a point in contact by the true labels (1: a false flight)."""
+    from physmocap.trajopt.phases import clean_flags, flight_support
+    from physmocap.trajopt.reduced import reduced_motion
+
+    rows = []
+    for name in FLIGHT_CLIPS:
+        for fps in fps_values:
+            obs, truth, settings = observe(name, 0, SECONDS, fps)
+            motion = fit_motion(obs, settings)
+            contacts, _, _ = predict_contacts(obs, "centred")
+            s = TrajoptSettings()
+            refined = refine_kinematics(obs, motion, contacts, settings.fit, s)
+            red = reduced_motion(refined.motion.body, refined.motion.qpos, fps)
+            min_frames = max(1, int(np.ceil(s.min_phase_seconds * fps - 1e-9)))
+            flags = np.stack([clean_flags(refined.contacts[:, i], min_frames) for i in range(4)], axis=1)
+            names = [str(n) for n in truth["joint_names"]]
+            sites = truth["joints_world"][:, [names.index(n) for n in CONTACT_POINTS]]
+            true_contact = contact_labels(sites, fps).any(axis=1)
+            edges = np.flatnonzero(np.diff(np.concatenate([[1], flags.any(axis=1).astype(int), [1]])))
+            for a, b in zip(edges[::2], edges[1::2]):
+                heights = red.feet[a:b, :, 2].mean(axis=0)
+                lowest = int(np.argmin(heights))
+                xy = red.feet[a:b, lowest, :2]
+                rows.append(dict(clip=name.split("/")[-1], fps=fps, start=int(a), frames=int(b - a),
+                                 support=flight_support(red.com[:, 2], red.times, int(a), int(b), s.gravity),
+                                 lowest_height_m=float(heights[lowest]),
+                                 lowest_drift_m=float(np.linalg.norm(xy - np.median(xy, axis=0), axis=1).max()),
+                                 true_contact_share=float(true_contact[a:b].mean())))
+                r = rows[-1]
+                print(f"flight {r['clip']} {fps:.0f} fps frames {a}-{b - 1}: support {r['support']:.2f} BW, lowest "
+                      f"point {100 * r['lowest_height_m']:.0f} cm up, strays {100 * r['lowest_drift_m']:.0f} cm, "
+                      f"true contact in {100 * r['true_contact_share']:.0f}% of its frames", flush=True)
+    return rows
+
+
+def videos(run_folders: list[str]) -> list[dict]:
+    """Trajopt on the B.4-refined motion of each run folder (`physmocap capture VIDEO --physics physcap` or
+    `trajopt` leaves it in cache/refined.npz): the largest solved net vertical force against the largest the
+    refined motion implies (implied_vertical_force), the alternation, the frames above 400% of body weight, the
+    converged share, the whole-body flights relabelled as supported, and this process's CPU seconds."""
+    from physmocap.motion import Observations
+    from physmocap.stages import RefinedMotion
+
+    rows = []
+    for folder in map(Path, run_folders):
+        with np.load(folder / "cache" / "refined.npz") as arrays:
+            refined = RefinedMotion.from_arrays(arrays)
+        obs = Observations.load(folder / "cache" / "observations.npz")
+        body, qpos = refined.motion.body, refined.motion.qpos
+        implied = implied_vertical_force(kin.center_of_mass(body, kin.forward_kinematics(body, qpos)), body.mass,
+                                         obs.fps)
+        cpu = time.process_time()
+        result = run_trajopt(body, qpos, obs.fps, refined.contacts, TrajoptSettings(), valid=obs.valid)
+        cpu = time.process_time() - cpu
+        weight = body.mass * metrics.GRAVITY
+        fz = result.grf[..., 2].sum(axis=1)
+        rows.append(dict(video=folder.name, fps=obs.fps, frames=len(qpos), cpu_seconds=cpu,
+                         window_iterations=[sum(st.iterations for st in w.stages) for w in result.windows],
+                         frames_over_4bw=int((fz > 4 * weight).sum()),
+                         relabelled_flight_frames=int((result.contacts.any(axis=1)
+                                                       & ~refined.contacts.any(axis=1) & obs.valid).sum()),
+                         **force_check(result.grf, result.converged, implied, body.mass)))
+        r = rows[-1]
+        print(f"video {r['video']} {r['fps']:.3g} fps, {r['frames']} frames: solved {r['solved_max_percent_bw']:.0f}"
+              f" / implied {r['implied_max_percent_bw']:.0f}% BW = {r['ratio']:.2f}, alternation "
+              f"{r['alternation_percent_bw']:.0f}% BW, frames > 400% BW {r['frames_over_4bw']}, converged "
+              f"{100 * r['converged_fraction']:.0f}%, flight frames given a support {r['relabelled_flight_frames']}, "
+              f"CPU {cpu:.1f} s, IPOPT iterations per window {r['window_iterations']}", flush=True)
+    return rows
+
+
 def scaling(settings_trajopt: TrajoptSettings, repeats: int) -> list[dict]:
     obs, truth, settings = observe(SCALING_CLIP, 0, max(SCALING_SECONDS) + 0.5)
     motion = fit_motion(obs, settings)
@@ -274,6 +365,8 @@ def long_scaling(lengths: list[float], settings_trajopt: TrajoptSettings) -> lis
         wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
         windows = [dict(frames=w.stop - w.start + 1, kept=w.keep - w.start, seconds=w.seconds,
                         build_seconds=w.build_seconds, restarted=w.restarted, converged=w.converged,
+                        contact_switches=int(np.abs(np.diff(result.contacts[w.start:w.stop + 1].astype(int),
+                                                            axis=0)).sum()),
                         iterations={st.name: st.iterations for st in w.stages},
                         ipopt_seconds=sum(st.seconds for st in w.stages), variables=w.variables)
                    for w in result.windows]
@@ -289,6 +382,36 @@ def long_scaling(lengths: list[float], settings_trajopt: TrajoptSettings) -> lis
               f"IK {result.ik_seconds:.1f} s, restarts {sum(w['restarted'] for w in windows)}, converged "
               f"{r['converged_fraction']:.2f}", flush=True)
     return out
+
+
+def one_window(seconds: float, first: int, last: int) -> dict:
+    """Frames first..last of the looped dance of `long_scaling` (looped to `seconds`) as one window from a free
+    start (its start velocity the input's), solved as run_trajopt solves a window: every IPOPT run's status,
+    iterations and CPU seconds. The windows that cost most on long clips can be studied alone this way."""
+    from physmocap.trajopt.formulation import Window
+    from physmocap.trajopt.phases import clean_flags, contact_phases, split_drifting
+    from physmocap.trajopt.reduced import boundary_velocity, reduced_motion
+    from physmocap.trajopt.solve import solve_window
+
+    obs, truth, settings = observe(LONG_CLIP, 0, 10.0)
+    motion = fit_motion(obs, settings)
+    contacts, _, _ = predict_contacts(obs, "centred")
+    s = TrajoptSettings()
+    refined = refine_kinematics(obs, motion, contacts, settings.fit, s)
+    idx = loop_indices(len(refined.motion.qpos), int(round(seconds * obs.fps)))
+    red = reduced_motion(refined.motion.body, refined.motion.qpos[idx], obs.fps)
+    min_frames = max(1, int(np.ceil(s.min_phase_seconds * obs.fps - 1e-9)))
+    flags = np.stack([clean_flags(refined.contacts[idx, i], min_frames) for i in range(4)], axis=1)
+    flags = split_drifting(flags, red.feet[..., :2], s.contact_drift, min_frames)
+    part = red.frames(slice(first, last + 1))
+    window = Window(part, [contact_phases(flags[first:last + 1, i], part.times) for i in range(4)],
+                    start_velocity=boundary_velocity(red.com[first:], obs.fps, s.boundary_frames, end=False))
+    cpu = time.process_time()
+    result = solve_window(window, s)
+    cpu = time.process_time() - cpu
+    print(f"window {first}-{last} of the {seconds:.0f} s loop: CPU {cpu:.1f} s, " + "; ".join(
+        f"{st.name} {st.status} {st.iterations} iterations" for st in result.stages), flush=True)
+    return dict(cpu_seconds=cpu, stages=[dataclasses.asdict(st) for st in result.stages])
 
 
 def scaling_fit(rows: list[dict]) -> dict:
@@ -408,6 +531,12 @@ def main(argv=None) -> dict:
                         help="only the accuracy rows of the cases (no 2 s pieces, no scaling); writes --json")
     parser.add_argument("--long", type=float, nargs="+", metavar="SECONDS",
                         help="only the time against clip length on a looped dance, at these lengths (s)")
+    parser.add_argument("--window", type=float, nargs=3, metavar=("SECONDS", "FIRST", "LAST"),
+                        help="only one window (frames FIRST..LAST) of the looped dance at SECONDS, from a free start")
+    parser.add_argument("--videos", nargs="+", metavar="RUN_FOLDER",
+                        help="only trajopt on these capture run folders' refined motion: forces against implied")
+    parser.add_argument("--flights", action="store_true",
+                        help="only the whole-body flights of the labels on validation clips, at 24 and 30 fps")
     parser.add_argument("--validation", type=float, nargs="+", metavar="WEIGHT",
                         help="only the validation clips, trajopt with each force_rate weight given")
     args = parser.parse_args(argv)
@@ -418,6 +547,18 @@ def main(argv=None) -> dict:
         print(f"CPU seconds against length: t = {fit['coefficient_seconds']:.2f} L^{fit['exponent']:.2f}")
         write_text(RESULTS / "trajopt_long.json", json.dumps(dict(
             machine=machine_description(), revision=git_revision(), rows=rows, cpu_fit=fit), indent=2, default=float))
+        return dict(rows=rows)
+    if args.window:
+        return one_window(args.window[0], int(args.window[1]), int(args.window[2]))
+    if args.videos:
+        rows = videos(args.videos)
+        write_text(RESULTS / "trajopt_videos.json", json.dumps(dict(
+            machine=machine_description(), revision=git_revision(), rows=rows), indent=2, default=float))
+        return dict(rows=rows)
+    if args.flights:
+        rows = flights([24.0, 30.0])
+        write_text(RESULTS / "trajopt_flights.json", json.dumps(dict(
+            machine=machine_description(), revision=git_revision(), rows=rows), indent=2, default=float))
         return dict(rows=rows)
     if args.validation:
         rows = validation(args.validation, [24.0, 30.0])

@@ -353,8 +353,8 @@ def trajopt_targets() -> list[tuple]:
 
 
 SECTIONS = REPO / "benchmarks" / "sections"
-HAND_SECTIONS = ("contacts_more_data", "physics_footage", "floor_height", "trajopt_long", "capture", "caches",
-                 "bad_inputs", "batch", "retarget")
+HAND_SECTIONS = ("contacts_more_data", "physics_footage", "physics", "floor_height", "trajopt_long", "trajopt", "capture",
+                 "outputs", "memory", "live", "caches", "bad_inputs", "batch", "rayretarget", "retarget", "settings", "lint")
 
 
 def compose(seconds: dict[str, float]) -> str:

@@ -283,18 +283,6 @@ def test_plain_progress_lines_off_a_terminal(monkeypatch):
     assert "6.7 frames/s" in lines[0]
 
 
-def test_fit_progress_counts_frames(tmp_path):
-    from physmocap.config import Settings
-    from physmocap.kinematics.stage import fit_motion
-    from physmocap.motion import Observations
-
-    calls = []
-    obs = Observations.load(save_obs(tmp_path / "o.npz", 30))
-    fit_motion(obs, Settings().replace("fit", offline_chunk=8), lambda done, total: calls.append((done, total)))
-    assert calls[-1] == (30, 30) and all(total == 30 for _, total in calls)
-    assert [d for d, _ in calls] == sorted(d for d, _ in calls)
-
-
 # Writers: a NaN or infinite frame is held at the last finite frame and named in a warning.
 
 @pytest.fixture(scope="module")

@@ -3,14 +3,15 @@ import dataclasses
 import numpy as np
 import pytest
 
+from conftest import assert_frame_terms_jacobian, random_poses
 from physmocap.body import kinematics as kin
 from physmocap.camera import Camera
 from physmocap.config import FitSettings, Settings
-from physmocap.kinematics.fit import MARKER_LANDMARKS, MARKERS, FitTargets, KinematicFitter, _soft_excess
-from physmocap.kinematics.stage import fit_motion, make_targets, reprojection_errors
 from physmocap.kinematics.calibration import calibrate
+from physmocap.kinematics.fit import MARKER_LANDMARKS, MARKERS, FitTargets, KinematicFitter, _soft_excess
+from physmocap.kinematics.stage import fit_motion, reprojection_errors
+from physmocap.kinematics.targets import make_targets
 from physmocap.motion import Observations
-from conftest import assert_frame_terms_jacobian, random_poses
 
 
 def walking_motion(body, frames, fps=30.0):
@@ -248,7 +249,7 @@ def test_lengths_measured_again_along_the_fitted_axes_lose_the_noise_bias(camera
     had wrong (heel behind the ankle, ankle height)."""
     from physmocap.body.model import build_body_model, template_lengths
     from physmocap.kinematics.calibration import Calibration
-    from physmocap.kinematics.stage import REFINED_LENGTHS, refine_lengths
+    from physmocap.kinematics.targets import REFINED_LENGTHS, refine_lengths
 
     template = template_lengths(1.75)
     true = dataclasses.replace(template, upper_arm=template.upper_arm + 0.02, heel_back=0.03, ankle_height=0.065)
@@ -285,3 +286,154 @@ def test_online_warmup_measures_the_lengths_again(body, camera):
         errors[refine] = sum(abs(getattr(lengths, n) - getattr(body.lengths, n))
                              for n in ("upper_arm", "forearm", "heel_back"))
     assert errors[True] < 0.5 * errors[False]
+
+
+def dense_system(fitter, qpos, targets):
+    """The Gauss-Newton system of the whole clip written out densely, every residual row with its full Jacobian
+    row: cost, gradient (T, nv) and matrix (T nv, T nv)."""
+    T, nv = len(qpos), fitter.body.nv
+    points, jac = fitter.evaluate(qpos)
+    r, J = fitter.frame_terms(qpos, points, jac, targets)
+    residuals, rows = [r.ravel()], []
+    for t in range(T):
+        block = np.zeros((J.shape[1], T * nv))
+        block[:, t * nv:(t + 1) * nv] = J[t]
+        rows.append(block)
+    signals = [(v, j, c, None) for v, j, c in fitter.temporal_signals(points, jac, qpos)]
+    for values, jacobians, coeffs, pair_weights in signals + fitter.contact_signals(points, jac, targets):
+        for u in range(T - len(coeffs) + 1):
+            weight = np.ones(values.shape[1]) if pair_weights is None else pair_weights[u]
+            residuals.append(weight * sum(c * values[u + a] for a, c in enumerate(coeffs)))
+            block = np.zeros((values.shape[1], T * nv))
+            for a, c in enumerate(coeffs):
+                block[:, (u + a) * nv:(u + a + 1) * nv] += c * weight[:, None] * jacobians[u + a]
+            rows.append(block)
+    r, J = np.concatenate(residuals), np.concatenate(rows)
+    return float(r @ r), (J.T @ r).reshape(T, nv), J.T @ J
+
+
+@pytest.mark.parametrize("chunk", [1, 4, 256])
+def test_chunked_assembly_equals_the_dense_system(body, camera, monkeypatch, chunk):
+    """The whole-clip system assembled a few frames at a time (the temporal terms crossing the chunks' borders)
+    is the dense one's block band, with every optional term on."""
+    from physmocap.kinematics import fit as fit_module
+
+    monkeypatch.setattr(fit_module, "ASSEMBLY_FRAMES", chunk)
+    rng = np.random.default_rng(8)
+    T = 9
+    q = random_poses(body, T, rng, scale=0.3)
+    settings = FitSettings(weight_contact_velocity=10.0, weight_floor=10.0, weight_velocity=0.1,
+                           weight_angle_velocity=0.1)
+    targets = dataclasses.replace(_targets(body, q, camera, rng), contacts=rng.uniform(0, 1, (T, 4)),
+                                  floor=np.array([0.0, 0.0, 1.0, 0.1]))
+    fitter = KinematicFitter(body, camera, settings, 30.0)
+    frames = []
+    cost, g, H = fitter._offline_system(q, targets, progress=frames.append)
+    dense_cost, dense_g, dense_H = dense_system(fitter, q, targets)
+    nv = body.nv
+    assert abs(cost - dense_cost) < 1e-12 * dense_cost
+    assert np.abs(g - dense_g).max() < 1e-12 * np.abs(dense_g).max()
+    scale = np.abs(dense_H).max()
+    for d in range(3):
+        for t in range(T):
+            block = dense_H[t * nv:(t + 1) * nv, (t + d) * nv:(t + d + 1) * nv] if t + d < T else 0.0
+            assert np.abs(H[d, t] - block).max() < 1e-12 * scale
+    assert frames == list(range(chunk, T, chunk)) + [T]
+
+
+def reference_offline_fit(fitter, qpos, targets):
+    """Levenberg-Marquardt as fit_offline runs it, with dense systems kept whole and solved densely: the same
+    steps without the band factored in place. Returns the poses and the number of rejected steps."""
+    T, nv = qpos.shape[0], fitter.body.nv
+    cost, g, H = dense_system(fitter, qpos, targets)
+    damping, rejected = 3.0, 0
+    for _ in range(fitter.settings.offline_iterations):
+        improved = False
+        while damping < 1e8:
+            A = H + damping * np.diag(np.diag(H)) + 1e-9 * np.eye(T * nv)
+            q_new = fitter.integrate(qpos, np.linalg.solve(A, -g.ravel()).reshape(T, nv))
+            cost_new, g_new, H_new = dense_system(fitter, q_new, targets)
+            if cost_new < cost:
+                decrease = (cost - cost_new) / cost
+                qpos, cost, g, H, improved = q_new, cost_new, g_new, H_new, True
+                damping = max(damping / 3, 1e-7)
+                break
+            damping *= 4
+            rejected += 1
+        if not improved or decrease < 1e-3:
+            break
+    return qpos, rejected
+
+
+def test_offline_fit_with_its_band_factored_in_place_takes_the_reference_steps(body, camera, monkeypatch):
+    """From a poor start some steps are rejected: the system at the current poses is assembled again after each
+    and the fit ends where the dense reference does; progress counts every frame pass, ending at its total."""
+    from physmocap.kinematics import fit as fit_module
+
+    monkeypatch.setattr(fit_module, "ASSEMBLY_FRAMES", 3)  # progress within each pass too
+    rng = np.random.default_rng(9)
+    T = 7
+    truth = walking_motion(body, T)
+    targets = _targets(body, truth, camera, rng)
+    fitter = KinematicFitter(body, camera, FitSettings(offline_iterations=12), 30.0)
+    start = kin.integrate(body, truth, rng.normal(scale=0.6, size=(T, body.nv)))
+    expected, rejected = reference_offline_fit(fitter, start, targets)
+    assert rejected > 0
+    calls = []
+    result = fitter.fit_offline(start, targets, lambda done, total: calls.append((done, total)))
+    assert np.abs(kin.difference(body, expected, result.qpos)).max() < 1e-6  # rounding, through 12 steps
+    done = [d for d, _ in calls]
+    assert done == sorted(done) and len(set(done)) > 2 * result.iterations and calls[-1] == (done[-1], done[-1])
+    assert all(d < total for d, total in calls[:-1])  # the display closes at the end only
+    assert done[-1] == T * (1 + result.iterations + 2 * rejected)  # a rejected step: its pass and one again
+    assert calls[0][1] == fitter.planned_passes(T)
+
+
+@pytest.mark.parametrize("online", [False, True])
+def test_fit_reports_progress_for_each_of_its_parts(body, camera, online, monkeypatch):
+    from physmocap.kinematics import fit as fit_module
+
+    monkeypatch.setattr(fit_module, "ASSEMBLY_FRAMES", 8)
+    obs = observe(body, walking_motion(body, 30), camera)
+    obs.valid[:4] = False
+    bars = {}
+
+    def factory(name, total, unit="frames"):
+        bars[name] = (unit, [])
+        return lambda done, total_now: bars[name][1].append((done, total_now))
+
+    settings = Settings(online=online).replace("body", height=body.height, mass=body.mass)
+    fit_motion(obs, settings.replace("fit", offline_chunk=8), factory)
+    expected = {"fit": "frames"} if online else {"fit start": "frames", "fit clip": "frame passes"}
+    assert {name: unit for name, (unit, _) in bars.items()} == expected
+    for name, (_, calls) in bars.items():
+        done = [d for d, _ in calls]
+        assert done == sorted(done) and len(set(done)) > 3 and calls[-1][0] == calls[-1][1], name
+    if online:
+        assert bars["fit"][1][-1] == (30, 30)
+    else:
+        assert bars["fit start"][1][-1] == (26, 26)  # the valid frames
+        assert bars["fit clip"][1][-1][0] % 30 == 0  # whole passes over the clip
+
+
+def test_assembly_and_solve_hold_no_buffer_that_grows_with_the_clip(body, camera, monkeypatch):
+    """Beyond the bands (given) and vectors of the clip's length, the assembly holds one chunk's Jacobians and
+    the solve a pair's blocks: their peak allocation stays put from 24 to 96 frames."""
+    import tracemalloc
+
+    from physmocap.kinematics import fit as fit_module
+
+    monkeypatch.setattr(fit_module, "ASSEMBLY_FRAMES", 8)
+    fitter = KinematicFitter(body, camera, FitSettings(), 30.0)
+    peaks = {}
+    for T in (24, 96):
+        truth = walking_motion(body, T)
+        targets = _targets(body, truth, camera, np.random.default_rng(T))
+        band = np.empty((3, T, body.nv, body.nv))
+        tracemalloc.start()
+        _, g, _ = fitter._offline_system(truth, targets, band)
+        fitter._solve_banded(g, band, 1.0)
+        peaks[T] = tracemalloc.get_traced_memory()[1] - 20 * g.nbytes  # vectors of the clip's length allowed
+        tracemalloc.stop()
+    assert peaks[96] < 1.2 * peaks[24]
+    assert peaks[96] < 0.2 * band.nbytes  # main's solve alone copied the bands five times

@@ -1,4 +1,4 @@
-"""The floor from the feet and the person's posture (kinematics.stage.estimate_floor): it agrees with the true floor,
+"""The floor from the feet and the person's posture (kinematics.floor.estimate_floor): it agrees with the true floor,
 reports its confidence, and when the feet's plane leans far from the posture it is not trusted, says so and
 stays level with the posture instead of leaning the whole motion."""
 
@@ -10,7 +10,7 @@ import pytest
 from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
 from physmocap.camera import Camera, angle_degrees, robust_offset
-from physmocap.kinematics import stage
+from physmocap.kinematics import floor as floor_module
 
 
 def standing_and_travelling(body, frames, fps=30.0):
@@ -49,18 +49,18 @@ def rotate_about_x(v, degrees):
 
 def test_floor_of_a_walk_is_the_true_floor_and_trusted(scene):
     body, camera, qpos = scene
-    floor = stage.estimate_floor(body, qpos, camera, 30.0, np.ones(len(qpos), bool))
+    floor = floor_module.estimate_floor(body, qpos, camera, 30.0, np.ones(len(qpos), bool))
     assert angle_degrees(floor.normal, camera.R[:, 2]) < 2.0
     assert floor.trusted and floor.source == "feet and posture"
     assert floor.inlier_fraction > 0.9 and 0.0 <= floor.tilt_spread < 2.0
-    assert np.isfinite(floor.prior_disagreement) and floor.prior_disagreement < stage.FLOOR_AGREEMENT
+    assert np.isfinite(floor.prior_disagreement) and floor.prior_disagreement < floor_module.FLOOR_AGREEMENT
 
 
 def test_a_posture_that_leans_a_little_is_outweighed_by_the_feet(scene, monkeypatch):
     body, camera, qpos = scene
     leaning = rotate_about_x(camera.R[:, 2], 4.0)
-    monkeypatch.setattr(stage, "posture_vertical", lambda *args: leaning)
-    floor = stage.estimate_floor(body, qpos, camera, 30.0, np.ones(len(qpos), bool))
+    monkeypatch.setattr(floor_module, "posture_vertical", lambda *args: leaning)
+    floor = floor_module.estimate_floor(body, qpos, camera, 30.0, np.ones(len(qpos), bool))
     assert floor.trusted
     assert angle_degrees(floor.normal, camera.R[:, 2]) < angle_degrees(leaning, camera.R[:, 2]) - 1.0
 
@@ -70,18 +70,18 @@ def test_feet_far_from_the_posture_are_not_trusted_and_the_floor_stays_level_wit
     depth) must not lean the whole motion: the floor follows the posture, a warning says so."""
     body, camera, qpos = scene
     posture = rotate_about_x(camera.R[:, 2], 20.0)
-    monkeypatch.setattr(stage, "posture_vertical", lambda *args: posture)
+    monkeypatch.setattr(floor_module, "posture_vertical", lambda *args: posture)
     with caplog.at_level(logging.WARNING, logger="physmocap"):
-        floor = stage.estimate_floor(body, qpos, camera, 30.0, np.ones(len(qpos), bool))
+        floor = floor_module.estimate_floor(body, qpos, camera, 30.0, np.ones(len(qpos), bool))
     assert not floor.trusted and floor.source == "posture"
     assert angle_degrees(floor.normal, posture) < 1e-6
-    assert floor.prior_disagreement > stage.FLOOR_AGREEMENT
+    assert floor.prior_disagreement > floor_module.FLOOR_AGREEMENT
     assert any("cannot be trusted" in r.message for r in caplog.records)
 
 
 def test_posture_vertical_of_a_walk_is_near_the_true_vertical(scene):
     body, camera, qpos = scene
-    up = stage.posture_vertical(body, qpos, camera, np.ones(len(qpos), bool))
+    up = floor_module.posture_vertical(body, qpos, camera, np.ones(len(qpos), bool))
     assert angle_degrees(up, camera.R[:, 2]) < 5.0
 
 

@@ -11,7 +11,7 @@ from physmocap.dynamics.balance import inside_support
 from physmocap.dynamics.physcap import PhysCapTracker
 from physmocap.body.rotations import quat_exp, quat_multiply
 from physmocap.dynamics.stage import PhysicsStream, kinematic_derivatives, run_physcap
-from physmocap.kinematics.stage import rigid_transform_qpos
+from physmocap.body.kinematics import rigid_transform_qpos
 
 FPS = 25.0
 G = 9.81

@@ -20,8 +20,8 @@ from physmocap.config import TrajoptSettings
 from physmocap.errors import InputError
 from physmocap.trajopt.formulation import (Window, acceleration_continuity, angular_velocity, build_window_problem,
                                           euler_torque, frame_sample_times, phase_layout, rotate)
-from physmocap.trajopt.phases import (clean_flags, contact_phases, flags_from_phases, segment_count,
-                                     split_drifting)
+from physmocap.trajopt.phases import (clean_flags, contact_phases, flags_from_phases, flight_support,
+                                     segment_count, split_drifting, support_held_flights)
 from physmocap.trajopt.problem import ConstraintSet, CostTerm, Program, VariableSet
 from physmocap.trajopt.reduced import (boundary_velocity, euler_to_matrix, matrix_to_euler, reduced_motion,
                                        world_inertia)
@@ -146,6 +146,50 @@ def test_contact_phases_from_flags():
     assert segment_count(0.3, 6, 2.0) == 6 and segment_count(5.0, 6, 2.0) == 15
 
 
+def test_flight_the_motion_does_not_fall_through_keeps_a_support():
+    """Labels that lift every point for 7 frames while the body stands (the juggler on one foot, issue 24) keep a
+    support there: of the points in contact beside the flight, the one nearest below the COM. A ballistic flight,
+    and one running to the clip's end, stay flights."""
+    fps, frames = 24.0, 48
+    times = np.arange(frames) / fps
+    points = np.zeros((frames, 4, 3))
+    points[:, :, 0] = [-0.05, 0.1, -0.05, 0.1]  # heels behind the COM, toes farther ahead
+    points[:, :, 1] = [0.3, 0.3, -0.05, -0.05]  # the right foot below the COM, the left to the side
+    points[:, :2, 2] = 0.3  # the left foot raised
+    flags = np.zeros((frames, 4), bool)
+    flags[:, 2:] = True
+    flags[:20, 3] = False  # before the flight only the right heel; after it both right points
+    flags[20:27] = False
+    flags[27:29, 2] = False  # the right heel resumes two frames after the flight: its contact bridges them
+    com = np.zeros((frames, 3))
+    com[:, 2] = 0.95 + 0.002 * np.sin(times)
+    out, changed = support_held_flights(flags, com, points, times, G, 0.5)
+    assert [(a, b, p) for a, b, p, _ in changed] == [(20, 29, 2)] and changed[0][3] > 0.9
+    assert out[:, 2].all() and not out[20:27, [0, 1, 3]].any() and np.array_equal(out[:20], flags[:20])
+    edge = flags.copy()
+    edge[27:] = False  # a flight to the clip's end has no landing in it: left alone
+    assert support_held_flights(edge, com, points, times, G, 0.5)[1] == []
+    tau = np.clip(times - 19 / fps, 0.0, 8 / fps)  # take-off at frame 19, landing at frame 27
+    com[:, 2] = 0.95 + 0.5 * G * (8 / fps) * tau - 0.5 * G * tau ** 2
+    assert abs(flight_support(com[:, 2], times, 20, 27, G)) < 1e-6
+    assert support_held_flights(flags, com, points, times, G, 0.5)[1] == []
+
+
+def test_false_flight_is_not_landed_with_a_force_peak(body, caplog):
+    """Standing still, the labels say every point flies for 7 frames at 24 fps: physics must not launch and land
+    the body (the flight would need about 2.5 body weights at its ends); the lowest point stays in contact."""
+    fps, frames = 24.0, 48
+    q = standing(body, frames)
+    flags = np.ones((frames, 4), bool)
+    flags[20:27] = False
+    with caplog.at_level(logging.WARNING, logger="physmocap"):
+        result = run_trajopt(body, q, fps, flags, TrajoptSettings(contact_drift=0.0))
+    assert result.converged.all() and "the labels give a flight" in caplog.text
+    assert result.contacts[20:27].any(axis=1).all()
+    vertical = result.grf[..., 2].sum(axis=1)
+    assert vertical.max() < 1.2 * body.mass * G
+
+
 def test_drifting_contact_split_where_the_point_moves_with_a_support_kept():
     T = 40
     flags = np.zeros((T, 4), bool)
@@ -160,6 +204,13 @@ def test_drifting_contact_split_where_the_point_moves_with_a_support_kept():
     alone = flags.copy()
     alone[:, 0] = False
     assert np.array_equal(split_drifting(alone, points, 0.03, 2), alone)
+    # A support whose own contact begins at the best gap carries no force there (it fades in from zero): the gap
+    # goes where the heel holds from the frame before to the frame after.
+    late = flags.copy()
+    late[:24, 0] = False
+    out = split_drifting(late, points, 0.03, 2)
+    gap = np.flatnonzero(~out[:, 1])
+    assert len(gap) == 2 and gap[0] >= 25 and out[gap[0] - 1:gap[-1] + 2, 0].all()
     # Within the limit, or the split off: unchanged; a steady slide is cut until every part is within the limit.
     assert np.array_equal(split_drifting(flags, points, 0.1, 2), flags)
     assert np.array_equal(split_drifting(flags, points, 0.0, 2), flags)
@@ -498,6 +549,20 @@ def test_failure_is_loud_and_keeps_the_kinematic_motion(body, caplog):
     assert np.array_equal(result.qpos, q) and np.all(result.grf == 0) and np.all(result.qp_failures == 1)
     assert "did not converge" in caplog.text and "NOT converged" in result.summary()
     assert result.failed_frames == ["0-39"]
+
+
+def test_every_window_keeps_within_its_iteration_budget(body):
+    """All IPOPT runs of a window (fit, dynamics, a restart) share settings.max_iterations: on long clips a window
+    that wandered to each stage's limit and then restarted cost 20-70 times a converged one (issue 23)."""
+    q, in_air = jump(body, frames=60, takeoff=25)
+    contacts = np.repeat(~in_air[:, None], 4, axis=1)
+    s = TrajoptSettings(window_seconds=1.0, window_overlap=0.3, max_iterations=12)
+    result = run_trajopt(body, q, FPS, contacts, s)
+    assert len(result.windows) >= 2
+    for window in result.windows:
+        runs = [st.iterations for st in window.stages]
+        assert sum(runs) <= s.max_iterations and runs[0] <= s.max_iterations // 2
+    assert not result.converged.all()
 
 
 def test_duration_stage_keeps_the_better_solution(body):

@@ -15,7 +15,7 @@ from physmocap.contacts.features import FEATURE_LANDMARKS, select_keypoints
 from physmocap.contacts.predict import predict_contacts
 from physmocap.kinematics.calibration import OFFSETS, calibrate, estimate_height, height_line, resolve_height
 from physmocap.kinematics.fit import MARKERS, initial_qpos
-from physmocap.kinematics.stage import make_targets
+from physmocap.kinematics.targets import make_targets
 from physmocap.landmarks import LANDMARK_INDEX, LANDMARK_NAMES
 from physmocap.motion import Observations
 from physmocap.result import load_result

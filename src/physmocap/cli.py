@@ -139,13 +139,23 @@ def build_parser() -> argparse.ArgumentParser:
     live = sub.add_parser("live", help="live capture from a camera or a video played at its frame rate",
                           formatter_class=argparse.ArgumentDefaultsHelpFormatter,
                           description="Detection, causal fit, contacts and PhysCap physics frame by frame, with "
-                                      "latency and frames per second reported at the end.")
+                                      "frames arrived, processed and dropped and the true latency (from a frame's "
+                                      "arrival to its pose) reported at the end. Drop policy: after the calibration "
+                                      "warm-up, when the pipeline falls behind the source, the detector and the "
+                                      "fit skip to the newest frame that has reached them, so the latency stays "
+                                      "bounded; a skipped frame is kept in the result as invalid (\"dropped: the "
+                                      "pipeline fell behind\"), its pose predicted from the frames before it. A "
+                                      "warning says when it happens.")
     live.add_argument("source", help="camera index (0, 1, ...) or a video file")
     live.add_argument("-o", "--output", type=Path, default=None,
-                      help="folder for live.jsonl (one line per frame as it arrives) and, at the end, result.npz, "
-                           "motion.bvh and summary.json")
+                      help="folder for live.jsonl (one line per processed frame as its pose is ready) and, at the "
+                           "end, result.npz, motion.bvh and summary.json; without it nothing is saved")
     live.add_argument("--as-fast-as-possible", action="store_true",
-                      help="feed a video file as fast as the pipeline goes instead of at its own frame rate")
+                      help="feed a video file as fast as the pipeline goes instead of at its own frame rate (no "
+                           "frame is dropped then)")
+    live.add_argument("--keep-every-frame", action="store_true",
+                      help="turn the drop policy off: process every frame, and let the lag grow while the "
+                           "pipeline is slower than the source")
     live.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
     live.add_argument("--physics", choices=("none", "physcap"), default="physcap")
     live.add_argument("--online", action="store_true", default=True, help=argparse.SUPPRESS)
@@ -315,9 +325,10 @@ PLAIN_PROGRESS_SECONDS = 5.0  # s between progress lines when stderr is not a te
 
 
 def _progress_factory(terminal: bool | None = None, stream=None, interval: float = PLAIN_PROGRESS_SECONDS):
-    """A factory of progress callbacks: `factory(stage, total_frames)` gives `update(frames_done, total)`.
+    """A factory of progress callbacks: `factory(stage, total, unit)` gives `update(done, total)`, counting `unit`
+    (plural; frames unless given: the whole-clip fits count frame passes).
 
-    On a terminal a tqdm bar per stage; otherwise one plain line (stage, frames done, rate) every `interval`
+    On a terminal a tqdm bar per stage; otherwise one plain line (stage, count done, rate) every `interval`
     seconds and one when the stage ends, so that a log shows a long run moving."""
     stream = sys.stderr if stream is None else stream
     if terminal is None:
@@ -325,9 +336,9 @@ def _progress_factory(terminal: bool | None = None, stream=None, interval: float
     if terminal:
         return _bar_factory(stream)
 
-    def factory(name: str, total: int):
+    def factory(name: str, total: int, unit: str = "frames"):
         started = time.monotonic()
-        last = [started, -1]  # time of the last line, frames it reported
+        last = [started, -1]  # time of the last line, the count it reported
 
         def update(done: int, total_now: int):
             now = time.monotonic()
@@ -337,7 +348,7 @@ def _progress_factory(terminal: bool | None = None, stream=None, interval: float
             last[:] = [now, done]
             rate = done / max(now - started, 1e-9)
             of = f"/{total_now}" if total_now else ""
-            print(f"physmocap: {name}: {done}{of} frames, {rate:.1f} frames/s" + (", done" if finished else ""),
+            print(f"physmocap: {name}: {done}{of} {unit}, {rate:.1f} {unit}/s" + (", done" if finished else ""),
                   file=stream, flush=True)
         return update
     return factory
@@ -346,8 +357,8 @@ def _progress_factory(terminal: bool | None = None, stream=None, interval: float
 def _bar_factory(stream):
     from tqdm import tqdm
 
-    def factory(name: str, total: int):
-        bar = tqdm(total=total or None, desc=f"{name:>8}", unit="frame", leave=True, file=stream,
+    def factory(name: str, total: int, unit: str = "frames"):
+        bar = tqdm(total=total or None, desc=f"{name:>10}", unit=f" {unit}", leave=True, file=stream,
                    dynamic_ncols=True)
 
         def update(done: int, total_now: int):
@@ -496,6 +507,8 @@ def cmd_live(args) -> int:
     if args.output is not None:
         check_output_folder(args.output)
         stream = open(args.output / "live.jsonl", "w")  # a log written as frames arrive, not a result file
+        print(f"saving to {args.output}/: live.jsonl as poses come, result.npz, motion.bvh and summary.json at the "
+              "end", file=sys.stderr)
     else:
         print("note: no -o folder given: nothing will be saved (give -o DIR to keep the result, exports and "
               "live.jsonl)", file=sys.stderr)
@@ -505,7 +518,8 @@ def cmd_live(args) -> int:
         if stream is None:
             return
         line = dict(frame=index, seconds=round(time.perf_counter() - started, 4), root=qpos[:3].round(4).tolist(),
-                    contacts=details["contacts"].tolist(), stationary=details["stationary"])
+                    contacts=details["contacts"].tolist(), stationary=details["stationary"],
+                    latency_ms=round(details["latency_s"] * 1000, 1))
         if "grf" in details:
             line["grf_total_n"] = details["grf"].sum(axis=0).round(2).tolist()
         stream.write(json.dumps(line) + "\n")
@@ -513,12 +527,15 @@ def cmd_live(args) -> int:
 
     try:
         report = stream_capture(source, settings, realtime=not args.as_fast_as_possible,
-                                max_frames=args.max_frames, on_pose=on_pose)
+                                max_frames=args.max_frames, on_pose=on_pose,
+                                drop_stale_frames=not args.keep_every_frame)
     finally:
         if stream is not None:
             stream.close()
     T = report.observations.num_frames
-    print(f"live: {T} frames at {report.frames_per_second:.1f} frames per second; latency median "
+    print(f"live: {report.frames_arrived} frames arrived at {report.observations.fps:.1f} fps, "
+          f"{report.frames_processed} processed ({report.frames_per_second:.1f} per second), "
+          f"{report.frames_dropped} dropped; true latency from arrival to pose: median "
           f"{report.latency_median_ms:.0f} ms, 95th percentile {report.latency_p95_ms:.0f} ms "
           f"(after the {report.warmup_frames}-frame calibration warm-up)")
     print(f"per frame: detect {report.detect_ms_per_frame:.1f} ms, fit {report.fit_ms_per_frame:.1f} ms, "

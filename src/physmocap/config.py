@@ -191,7 +191,8 @@ class TrajoptSettings(Section):
     optimize_durations: bool = setting(False, help="C.3's last stage, free phase durations (10x the time)")
     max_duration_change: float = setting(0.1, "s", (0.0, 1.0), "each phase boundary may move there (ours)")
     tolerance: float = setting(1e-6, "", (1e-10, 1.0), "IPOPT tol (looser: the COM wiggles, standing forces err)")
-    max_iterations: int = setting(1000, "", (1, 100000), "IPOPT iterations per stage")
+    max_iterations: int = setting(1000, "", (1, 100000), "IPOPT iterations per window, all its stages and a "
+                                  "restart together")
     max_seconds: float = setting(120.0, "s", (0.1, 1e5), "CPU-time limit of one IPOPT run (not wall: load-proof)")
     reject_departure: float | None = setting(0.3, "m", (0.01, 10.0), "windows whose COM ends farther from the "
                                              "input on average are not used (ours; None: all kept)")

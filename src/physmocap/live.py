@@ -1,14 +1,27 @@
-"""Live capture: the detector and the causal fit run concurrently, one frame at a time.
+"""Live capture: frames arrive, a detector thread and the calling thread's causal fit work on them concurrently.
 
-A reader thread decodes frames and runs the detector; the calling thread fits each detection as it arrives
-(OnlineFitter), so on two cores the throughput is set by the slower of the two, not their sum.
+Three stages, each in its own thread: the source (a camera read as fast as it delivers, or a video file played at
+its own frame rate, as a camera would), the detector, and the fit with contacts and physics (the caller's thread).
+On two cores the throughput is set by the slowest stage, not their sum.
+
+The drop policy (`drop_stale_frames`, on for `physmocap live`): from the end of the calibration warm-up on, a stage
+that falls behind skips to the newest frame that has reached it, so that the latency from a frame's arrival to its
+pose stays bounded. The detector takes the
+newest arrived frame (older ones were read and are discarded); the fit takes the newest detection (older ones are
+discarded). A skipped frame stays in the result on the frame grid, invalid with reason DROPPED_REASON: its pose is
+the causal fit's constant-velocity prediction (OnlineFitter.skip), its contacts are the network's for an unseen
+frame (none) and the physics steps through it, so every stage keeps its time step of 1 / fps, and a dropped frame
+costs the fit thread a few milliseconds, a fraction of a fitted one. Without the policy every frame is processed and the lag grows for as long as
+the pipeline is slower than the source. A file fed as fast as possible (realtime=False) is never dropped: its
+reader waits for the pipeline.
 """
 
 from __future__ import annotations
 
-import queue
+import logging
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -20,6 +33,7 @@ from .config import Settings
 from .contacts.features import CAUSAL_WINDOW
 from .contacts.footlock import lock_feet
 from .contacts.baselines import CAUSAL_SIZE_WINDOW, velocity_2d
+from .contacts.networks import NUM_OUTPUTS
 from .contacts.predict import load_weights, network_probabilities
 from .dynamics.stage import PhysicsMotion, PhysicsStream, onto_refined_floor
 from .errors import InputError
@@ -29,13 +43,20 @@ from .landmarks import NUM_LANDMARKS
 from .motion import Observations
 from .stages import stored_precision
 
-_END = object()
+log = logging.getLogger("physmocap")
+
+DROPPED_REASON = "dropped: the pipeline fell behind"
+LAG_WARNING_SECONDS = 0.5  # latency (s, > 0) from arrival to pose above which the pipeline is said to fall behind
+WARNING_INTERVAL_SECONDS = 5.0  # the falling-behind warning is repeated at most once per this many seconds
+FILE_READ_AHEAD = 4  # frames decoded ahead of the detector for a file fed as fast as possible (memory bound)
 
 
 @dataclass
 class LiveReport:
-    """What a live run did. Latency runs from a frame being decoded to its final pose being ready (after
-    physics when it runs); the first `warmup_frames` wait for the calibration and are reported apart."""
+    """What a live run did. Latency is true latency: from a frame's arrival (read from the camera; for a file
+    played at its frame rate its scheduled time, start + index / fps) to its final pose being ready (after physics
+    when it runs), over the processed frames after the calibration warm-up (the first `warmup_frames`, which wait
+    for it). Dropped frames (drop policy) are in the result as invalid frames with reason DROPPED_REASON."""
 
     observations: Observations
     motion: KinematicMotion
@@ -43,17 +64,29 @@ class LiveReport:
     stationary: np.ndarray  # (T,)
     physics: PhysicsMotion | None
     wall_seconds: float
-    frames_per_second: float
+    frames_per_second: float  # processed (not dropped) frames per second of wall time
     latency_median_ms: float
     latency_p95_ms: float
     warmup_frames: int
-    detect_ms_per_frame: float
-    fit_ms_per_frame: float
-    contacts_physics_ms_per_frame: float
+    detect_ms_per_frame: float  # per detected frame
+    fit_ms_per_frame: float  # per frame of the grid, dropped ones included
+    contacts_physics_ms_per_frame: float  # per frame of the grid
+    drop_stale_frames: bool
+    frames_arrived: int
+    frames_dropped_before_detection: int
+    frames_dropped_before_fit: int  # detected, but a newer detection was waiting when the fit got to it
+
+    @property
+    def frames_dropped(self) -> int:
+        return self.frames_dropped_before_detection + self.frames_dropped_before_fit
+
+    @property
+    def frames_processed(self) -> int:
+        return self.frames_arrived - self.frames_dropped
 
 
-def _open_source(source) -> tuple[Iterator[tuple[int, np.ndarray]], float, tuple[int, int], Callable[[], None]]:
-    """A camera index or a video path -> (frames, fps, (width, height), close)."""
+def _open_source(source) -> tuple[Iterator[tuple[int, np.ndarray]], float, tuple[int, int], Callable[[], None], bool]:
+    """A camera index or a video path -> (frames, fps, (width, height), close, whether it is a camera)."""
     if isinstance(source, int) or (isinstance(source, str) and source.isdigit()):
         capture = cv2.VideoCapture(int(source))
         if not capture.isOpened():
@@ -70,60 +103,112 @@ def _open_source(source) -> tuple[Iterator[tuple[int, np.ndarray]], float, tuple
                 ok, frame = capture.read()
                 frame = frame if ok else None
                 index += 1
-        return camera_frames(), fps, (first.shape[1], first.shape[0]), capture.release
+        return camera_frames(), fps, (first.shape[1], first.shape[0]), capture.release, True
     from .io.video import iter_frames
 
     reader = iter_frames(source)
-    return iter(reader), reader.info.fps, (reader.info.width, reader.info.height), lambda: None
+    return iter(reader), reader.info.fps, (reader.info.width, reader.info.height), lambda: None, False
 
 
 def stream_capture(source, settings: Settings, *, realtime: bool = False, max_frames: int | None = None,
-                   on_pose: Callable[[int, np.ndarray, dict], None] | None = None) -> LiveReport:
+                   on_pose: Callable[[int, np.ndarray, dict], None] | None = None,
+                   drop_stale_frames: bool = True) -> LiveReport:
     """Capture from a camera index or video file frame by frame: detection, causal fit, causal contacts and,
     with settings.physics.method == "physcap", the physics tracker.
 
-    realtime: feed a video file at its own frame rate, as a camera would (frames the pipeline cannot keep up
-        with queue up and show as latency); otherwise as fast as the detector goes.
-    on_pose: called with (frame index, final qpos, details) as soon as each pose is ready; details holds the
-        frame's contacts (4,), stationary flag and, with physics, grf (4, 3) and residual (6,).
+    realtime: feed a video file at its own frame rate, as a camera would (a camera always is).
+    drop_stale_frames: the drop policy of the module docstring; off, every frame is processed and frames the
+        pipeline cannot keep up with wait, which shows as latency (a camera's wait in memory, about 1 MB a frame at
+        640x480). A file fed with realtime=False is never dropped.
+    on_pose: called in the calling thread with (frame index, final qpos, details) as soon as each processed
+        frame's pose is ready (not for dropped frames); details holds the frame's contacts (4,), stationary flag,
+        latency_s (from its arrival) and, with physics, grf (4, 3) and residual (6,). The time it takes delays the
+        frames after it, as a slower fit would.
     """
-    frames, fps, image_size, close = _open_source(source)
-    reader = _DetectionThread(frames, fps, image_size, close, settings, realtime, max_frames)
+    frames, fps, image_size, close, camera = _open_source(source)
+    scheduled = realtime and not camera  # a file played as a camera: frames arrive at start + index / fps
+    paced = realtime or camera  # frames arrive whether or not the pipeline is ready for them
+    stop = threading.Event()
+    # Only a camera's frames must be taken as they come (or the driver discards them); a file's wait to be decoded.
+    # Frames are dropped from the end of the warm-up on: the warm-up holds every frame up to its last detected one
+    # and fits them all when it ends, so frames dropped before would only make that longer.
+    frame_handoff = _Handoff(keep_newest=False, capacity=None if camera else FILE_READ_AHEAD)
+    detection_handoff = _Handoff(keep_newest=False)
+    reader = _SourceThread(frames, fps, close, scheduled, max_frames, frame_handoff, stop)
+    detector = _DetectionThread(frame_handoff, detection_handoff, fps, image_size, settings, stop)
     fitter = OnlineFitter(settings, fps, image_size)
     after = _AfterFit(settings, fps)
+    warning = _FallingBehind(fps, paced and drop_stale_frames) if paced else None
     keypoints: list[np.ndarray] = []
     world: list[np.ndarray] = []
     reasons: list[str] = []
+    arrivals: dict[int, float] = {}  # perf_counter of each processed frame's arrival
     fit_seconds = 0.0
-    started = time.perf_counter()
-    reader.start()
+    dropped = 0  # frames so far that a stage skipped
+    nothing = np.zeros((NUM_LANDMARKS, 3))
 
-    def deliver(results):
+    def deliver(results, fitted_straight_away: bool):
         for index, q in results:
             final, details = after.push(index, q, fitter.body, keypoints, reasons)
-            after.latency[index] = time.perf_counter() - reader.decoded_at[index]
-            if on_pose:
-                on_pose(index, final, details)
+            if index in arrivals:
+                after.latency[index] = details["latency_s"] = time.perf_counter() - arrivals[index]
+                if warning and fitted_straight_away:
+                    warning.check(index, details["latency_s"], len(reasons), dropped)
+                if on_pose:
+                    on_pose(index, final, details)
 
-    for _, kp, wl, reason in reader.detections():
-        kp, wl = stored_precision(kp), stored_precision(wl)  # as the observations file keeps them (stages.as_stored)
+    def add(index, kp, wl, reason, arrival):
+        nonlocal fit_seconds, dropped
         keypoints.append(kp)
         world.append(wl)
         reasons.append(reason)
+        if arrival is None:
+            dropped += 1
+        else:
+            arrivals[index] = arrival
+        calibrated = fitter.body is not None  # else the frame may be held by the warm-up
         t0 = time.perf_counter()
-        results = fitter.push(kp, wl, reason == "")
+        results = fitter.push(kp, wl, reason == "") if arrival is not None else fitter.skip()
         fit_seconds += time.perf_counter() - t0
-        deliver(results)
-    t0 = time.perf_counter()
-    results = fitter.finish()
-    fit_seconds += time.perf_counter() - t0
-    deliver(results)
-    wall = time.perf_counter() - started
-    reader.join()
+        if not calibrated and fitter.body is not None:
+            frame_handoff.keep_newest = detection_handoff.keep_newest = paced and drop_stale_frames
+        deliver(results, calibrated)
+
+    detector.start()
+    try:
+        detector.ready.wait()
+        started = time.perf_counter()
+        reader.start()
+        item = detection_handoff.take()
+        while item is not None:
+            index, arrival, kp, wl, reason = item
+            gap = index - len(reasons)
+            for skipped in range(len(reasons), index):  # frames a stage skipped, kept on the grid
+                add(skipped, nothing, nothing, DROPPED_REASON, None)
+            # A detection that came while those were predicted is taken instead while the gaps shrink; when
+            # predicting a gap takes longer than the gap lasted, the next would only grow, and this one is fitted.
+            if (newer := detection_handoff.waiting_index()) is not None and newer - index < gap:
+                item = detection_handoff.take_newer()
+                continue
+            # as the observations file keeps them (stages.as_stored)
+            add(index, stored_precision(kp), stored_precision(wl), reason, arrival)
+            item = detection_handoff.take()
+        detector.join()
+        reader.join()
+        t0 = time.perf_counter()
+        results = fitter.finish()
+        fit_seconds += time.perf_counter() - t0
+        deliver(results, False)
+        wall = time.perf_counter() - started
+    finally:
+        stop.set()
+        if reader.ident is None:  # never started, so it will not close the source
+            close()
     if fitter.body is None:
         raise InputError(f"{source}: no person was found in any frame.")
     T = len(reasons)
-    obs = _observations(keypoints, world, reasons, fps, image_size, str(source), reader.seconds / max(T, 1))
+    obs = _observations(keypoints, world, reasons, fps, image_size, str(source),
+                        detector.seconds / max(detector.detected, 1))
     q = np.stack([after.qpos[i] for i in range(T)])
     motion = KinematicMotion(fitter.body, fitter.calibration, fitter.camera, fitter.floor, q,
                              reprojection_errors(fitter.body, fitter.camera, q, obs), obs.valid.copy(), fit_seconds,
@@ -132,12 +217,13 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
     if physics is not None:  # both on the floor the physics refined, which becomes z = 0
         motion, physics = onto_refined_floor(motion, physics)
     warmup = min(T, int(np.argmax(np.cumsum(obs.valid) >= fitter.warmup)) + 1) if obs.valid.any() else T
-    steady = np.array([after.latency[i] for i in range(warmup, T)]) * 1000
+    steady = np.array([after.latency[i] for i in range(warmup, T) if i in after.latency]) * 1000
     contacts, stationary = after.contact_flags(T)
     median, p95 = (float(np.median(steady)), float(np.percentile(steady, 95))) if len(steady) else (np.nan, np.nan)
-    return LiveReport(obs, motion, contacts, stationary, physics, wall, T / wall, median, p95, warmup,
-                      reader.seconds / max(T, 1) * 1000, fit_seconds / max(T, 1) * 1000,
-                      after.seconds / max(T, 1) * 1000)
+    return LiveReport(obs, motion, contacts, stationary, physics, wall, len(arrivals) / wall, median, p95, warmup,
+                      detector.seconds / max(detector.detected, 1) * 1000, fit_seconds / max(T, 1) * 1000,
+                      after.seconds / max(T, 1) * 1000, paced and drop_stale_frames, T,
+                      frame_handoff.dropped, detection_handoff.dropped)
 
 
 def _observations(keypoints: list[np.ndarray], world: list[np.ndarray], reasons: list[str], fps: float,
@@ -150,50 +236,171 @@ def _observations(keypoints: list[np.ndarray], world: list[np.ndarray], reasons:
                         seconds_per_frame=seconds_per_frame)
 
 
-class _DetectionThread(threading.Thread):
-    """Decodes frames and runs the detector on them, handing (index, keypoints, landmarks, invalid reason) to
-    the fitting thread through a short queue; an exception in it is raised again by `join`."""
+class _Handoff:
+    """Items passed from one stage's thread to the next. keep_newest: an item put while an older one still waits
+    replaces it (counted in `dropped`); otherwise every item is kept, in order, and with a capacity the putting
+    stage waits while that many are waiting."""
 
-    def __init__(self, frames, fps: float, image_size: tuple[int, int], close: Callable[[], None],
-                 settings: Settings, realtime: bool, max_frames: int | None):
+    def __init__(self, keep_newest: bool, capacity: int | None = None):
+        self.keep_newest, self.capacity = keep_newest, capacity
+        self.dropped = 0
+        self._items: deque = deque()
+        self._ended = False
+        self._changed = threading.Condition()
+
+    def put(self, item, stop: threading.Event) -> None:
+        with self._changed:
+            while self.capacity is not None and len(self._items) >= self.capacity and not stop.is_set():
+                self._changed.wait(0.1)
+            if self.keep_newest:
+                self.dropped += len(self._items)
+                self._items.clear()
+            self._items.append(item)
+            self._changed.notify_all()
+
+    def end(self) -> None:
+        """No more items will come: `take` returns None once the waiting ones are taken."""
+        with self._changed:
+            self._ended = True
+            self._changed.notify_all()
+
+    def waiting_index(self) -> int | None:
+        """With keep_newest, the index (first element) of the newest item waiting; else, or with none, None."""
+        with self._changed:
+            return self._items[-1][0] if self.keep_newest and self._items else None
+
+    def take_newer(self):
+        """The newest item waiting (keep_newest), instead of the one taken last; both that and any older waiting
+        ones are counted as dropped."""
+        with self._changed:
+            self.dropped += len(self._items)
+            item = self._items.pop()
+            self._items.clear()
+            return item
+
+    def take(self):
+        """The oldest waiting item (with keep_newest the newest), after waiting for one; None at the end."""
+        with self._changed:
+            while not self._items and not self._ended:
+                self._changed.wait()
+            if self.keep_newest and len(self._items) > 1:  # those waiting from before keep_newest was set
+                self.dropped += len(self._items) - 1
+                self._items = deque([self._items[-1]])
+            item = self._items.popleft() if self._items else None
+            self._changed.notify_all()
+            return item
+
+
+class _SourceThread(threading.Thread):
+    """Reads the source's frames into a _Handoff as (index, frame, arrival time): for a file played as a camera
+    (scheduled) its time start + index / fps, when the frame is due whether or not it was decoded by then; otherwise
+    when it was read. An exception in it is raised again by `join`."""
+
+    def __init__(self, frames, fps: float, close: Callable[[], None], scheduled: bool, max_frames: int | None,
+                 handoff: _Handoff, stop: threading.Event):
+        super().__init__(name="physmocap-source", daemon=True)
+        self.frames, self.fps, self.close, self.scheduled = frames, fps, close, scheduled
+        self.max_frames, self.handoff, self.stop = max_frames, handoff, stop
+        self.failure: BaseException | None = None
+
+    def run(self) -> None:
+        start = time.perf_counter()
+        try:
+            for index, frame in self.frames:
+                if self.stop.is_set() or (self.max_frames is not None and index >= self.max_frames):
+                    break
+                if self.scheduled:
+                    arrival = start + index / self.fps
+                    time.sleep(max(0.0, arrival - time.perf_counter()))
+                else:
+                    arrival = time.perf_counter()
+                self.handoff.put((index, frame, arrival), self.stop)
+        except BaseException as exc:  # handed to the fitting thread, which raises it
+            self.failure = exc
+        finally:
+            self.close()
+            self.handoff.end()
+
+    def join(self, timeout: float | None = None) -> None:
+        super().join(timeout)
+        if self.failure is not None:
+            raise self.failure
+
+
+class _DetectionThread(threading.Thread):
+    """Runs the detector on the frames it takes, handing (index, arrival, keypoints, landmarks, invalid reason) to
+    the fitting thread; `ready` is set once the detector is loaded (the source starts then). An exception in it is
+    raised again by `join`."""
+
+    def __init__(self, frames: _Handoff, detections: _Handoff, fps: float, image_size: tuple[int, int],
+                 settings: Settings, stop: threading.Event):
         super().__init__(name="physmocap-detect", daemon=True)
-        self.frames, self.fps, self.image_size, self.close = frames, fps, image_size, close
-        self.settings, self.realtime, self.max_frames = settings, realtime, max_frames
-        self.queue: queue.Queue = queue.Queue(maxsize=8)
-        self.decoded_at: dict[int, float] = {}  # perf_counter when each frame was decoded
+        self.frames, self.detections, self.fps, self.image_size = frames, detections, fps, image_size
+        self.settings, self.stop = settings, stop
+        self.ready = threading.Event()
+        self.detected = 0
         self.seconds = 0.0  # spent detecting
         self.failure: BaseException | None = None
 
     def run(self) -> None:
         from .detect.mediapipe_pose import PersonFollower
 
-        follower = PersonFollower(self.image_size, self.fps, person_box=self.settings.detect.person_box,
-                                  max_width=self.settings.detect.max_width)
-        start = time.perf_counter()
+        follower = None
         try:
-            for index, frame in self.frames:
-                if self.max_frames is not None and index >= self.max_frames:
-                    break
-                if self.realtime:
-                    time.sleep(max(0.0, start + index / self.fps - time.perf_counter()))
-                self.decoded_at[index] = time.perf_counter()
-                self.queue.put((index, *follower.detect(index, frame)))
+            follower = PersonFollower(self.image_size, self.fps, person_box=self.settings.detect.person_box,
+                                      max_width=self.settings.detect.max_width)
+            self.ready.set()
+            while not self.stop.is_set() and (item := self.frames.take()) is not None:
+                index, frame, arrival = item
+                self.detections.put((index, arrival, *follower.detect(index, frame)), self.stop)
+                self.detected += 1
         except BaseException as exc:  # handed to the fitting thread, which raises it
             self.failure = exc
         finally:
-            follower.close()
-            self.close()
-            self.seconds = follower.seconds
-            self.queue.put(_END)
-
-    def detections(self) -> Iterator[tuple[int, np.ndarray, np.ndarray, str]]:
-        while (item := self.queue.get()) is not _END:
-            yield item
+            if follower is not None:
+                follower.close()
+                self.seconds = follower.seconds
+            self.stop.set()  # the source stops too (it has ended already unless this thread failed)
+            self.ready.set()
+            self.detections.end()
 
     def join(self, timeout: float | None = None) -> None:
         super().join(timeout)
         if self.failure is not None:
             raise self.failure
+
+
+class _FallingBehind:
+    """The warning that the pipeline falls behind its source: one line when frames are dropped or a pose comes
+    more than LAG_WARNING_SECONDS after its frame arrived, repeated at most every WARNING_INTERVAL_SECONDS.
+    Counted from the first frame fitted straight away after the calibration warm-up: the warm-up's frames all wait
+    for it, and frames dropped while the pipeline catches up with it are no sign of a slow pipeline."""
+
+    def __init__(self, fps: float, dropping: bool):
+        self.fps, self.dropping = fps, dropping
+        self.last_warning: float | None = None
+        self.first_steady: tuple[int, int] | None = None  # (its index, frames dropped before it)
+
+    def check(self, index: int, latency: float, arrived: int, dropped: int) -> None:
+        """After frame `index`'s pose, `arrived` frames having arrived and `dropped` been dropped so far."""
+        if self.first_steady is None:
+            self.first_steady = index, dropped
+            return
+        dropped -= self.first_steady[1]
+        if latency <= LAG_WARNING_SECONDS and not dropped:
+            return
+        now = time.perf_counter()
+        if self.last_warning is not None and now - self.last_warning < WARNING_INTERVAL_SECONDS:
+            return
+        self.last_warning = now
+        if self.dropping:
+            log.warning("live: the pipeline falls behind the %.0f fps source: %d of the %d frames since the warm-up "
+                        "dropped so far to keep the latency bounded (now %.0f ms)", self.fps, dropped,
+                        arrived - self.first_steady[0], latency * 1000)
+        else:
+            log.warning("live: the pipeline falls behind the %.0f fps source: frame %d posed %.1f s after it "
+                        "arrived; every frame is kept, so the lag grows while the pipeline is slower than the source",
+                        self.fps, index, latency)
 
 
 class _AfterFit:
@@ -206,7 +413,7 @@ class _AfterFit:
         self.physics_on = settings.physics.method == "physcap"
         self.stream: PhysicsStream | None = None
         self.qpos: dict[int, np.ndarray] = {}
-        self.latency: dict[int, float] = {}  # seconds from decoding to the final pose
+        self.latency: dict[int, float] = {}  # seconds from arrival to the final pose, processed frames only
         self.contacts: dict[int, np.ndarray] = {}  # (4,) bool after foot-lock
         self.stationary: dict[int, bool] = {}
         self.physics_frames: dict[int, tuple] = {}
@@ -217,9 +424,12 @@ class _AfterFit:
         started = time.perf_counter()
         self.qpos[index] = q
         first = max(0, index - CAUSAL_WINDOW.length + 1)
-        window = np.array(keypoints[first:index + 1])
         valid = np.array([r == "" for r in reasons[first:index + 1]])
-        _, flags = network_probabilities(window, valid, self.fps, self.weights, "causal")
+        if valid[-1]:
+            window = np.array(keypoints[first:index + 1])
+            _, flags = network_probabilities(window, valid, self.fps, self.weights, "causal")
+        else:  # what the network gives an unseen frame, without running it (a dropped frame must cost little)
+            flags = np.zeros((1, NUM_OUTPUTS), bool)
         # the stationary flag of the causal 2D root-speed heuristic, over the frames it reads (clamped at 0, as the
         # whole-clip computation of pipeline.contacts_stage is)
         past = np.clip(np.arange(index - CAUSAL_SIZE_WINDOW.length + 1, index + 1), 0, None)

@@ -21,7 +21,7 @@ import logging
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Generic, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
 
 import numpy as np
 
@@ -37,8 +37,15 @@ if TYPE_CHECKING:
 log = logging.getLogger("physmocap")
 
 Output = TypeVar("Output")
-Progress = Callable[[int, int], None]
-ProgressFactory = Callable[[str, int], Progress]
+Progress = Callable[[int, int], None]  # update(done, total)
+
+
+class ProgressFactory(Protocol):
+    """factory(name, total, unit) -> one progress display, updated as update(done, total); `unit` names what is
+    counted, in the plural."""
+
+    def __call__(self, name: str, total: int, unit: str = "frames") -> Progress: ...
+
 
 PACKAGE = "physmocap"
 
@@ -291,7 +298,7 @@ def fit(settings: Settings, progress: ProgressFactory | None, obs: Observations)
     """The calibrated skeleton, camera, floor and fitted motion (kinematics.stage.fit_motion)."""
     from .kinematics.stage import fit_motion
 
-    return fit_motion(obs, settings, _bar(progress, "fit", obs.num_frames))
+    return fit_motion(obs, settings, progress)
 
 
 @dataclass
@@ -319,10 +326,10 @@ def refine(settings: Settings, progress: ProgressFactory | None, obs: Observatio
            contacts: np.ndarray) -> RefinedMotion:
     """Rempe et al.'s three-stage kinematic refinement (B.4) of the offline fit, which trajopt and offline
     PhysCap start from; a given floor (settings.camera.floor) is kept."""
-    from .trajopt.kinematic import refine_kinematics
+    from .kinematics.refine import refine_kinematics
 
     refined = refine_kinematics(obs, motion, contacts, settings.fit, settings.trajopt,
-                                keep_floor=settings.camera.floor is not None)
+                                keep_floor=settings.camera.floor is not None, progress=progress)
     report = dict(seconds=refined.seconds, contacts_removed=int(refined.relabelled.sum()),
                   contacts_added=int(refined.added.sum()), floor=refined.motion.floor.plane.tolist())
     return RefinedMotion(refined.motion, refined.contacts, report)
@@ -387,7 +394,7 @@ KINEMATICS: Stage[KinematicMotion] = Stage(
     "kinematics", "kinematics", ("physmocap.kinematics.stage",), lambda s: (s.body, s.camera, s.fit, s.online),
     fit, _write_arrays, _reader(_kinematic_motion))
 REFINE: Stage[RefinedMotion] = Stage(
-    "refine", "refined", ("physmocap.trajopt.kinematic",), lambda s: (s.fit, s.trajopt, s.camera.floor), refine,
+    "refine", "refined", ("physmocap.kinematics.refine",), lambda s: (s.fit, s.trajopt, s.camera.floor), refine,
     _write_arrays, _reader(lambda: RefinedMotion))
 PHYSCAP: Stage[PhysicsMotion] = Stage(
     "physics", "physics", ("physmocap.dynamics.stage",), lambda s: (s.physics, s.online, s.camera.floor), physcap,

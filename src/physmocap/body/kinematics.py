@@ -12,7 +12,15 @@ from functools import lru_cache
 import numpy as np
 
 from .model import BodyModel
-from .rotations import axis_angle_matrix, quat_conjugate, quat_exp, quat_log, quat_multiply, quat_to_matrix
+from .rotations import (
+    axis_angle_matrix,
+    matrix_to_quat,
+    quat_conjugate,
+    quat_exp,
+    quat_log,
+    quat_multiply,
+    quat_to_matrix,
+)
 
 
 @dataclass
@@ -209,3 +217,11 @@ def center_of_mass_from_points(model: BodyModel, points: np.ndarray, names) -> n
         start, end = points[:, names.index(a)], points[:, names.index(c)]
         total += body.mass * (start + fraction * (end - start))
     return total / model.mass
+
+
+def rigid_transform_qpos(qpos: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Move whole poses by x -> R x + t (the root's position and orientation; joints are relative)."""
+    out = qpos.copy()
+    out[:, 0:3] = qpos[:, 0:3] @ R.T + t
+    out[:, 3:7] = quat_multiply(matrix_to_quat(R)[None], qpos[:, 3:7])
+    return out

@@ -103,3 +103,8 @@ def so3_right_jacobian_inverse(rotvec: np.ndarray) -> np.ndarray:
     safe = np.where(small, 1.0, angle)
     coeff = np.where(small, 1.0 / 12.0, 1.0 / safe**2 - (1 + np.cos(safe)) / (2 * safe * np.sin(safe)))
     return np.eye(3) + 0.5 * K + coeff * (K @ K)
+
+
+def unit_vectors(v: np.ndarray) -> np.ndarray:
+    """(..., 3) vectors scaled to length 1 along the last axis (zero vectors stay near zero)."""
+    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)

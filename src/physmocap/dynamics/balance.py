@@ -10,7 +10,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from ..body.model import CONTACT_POINTS, BodyModel
 from ..body.rotations import axis_angle_matrix, quat_exp, quat_log
-from ..kinematics.stage import rigid_transform_qpos
+from ..body.kinematics import rigid_transform_qpos
 
 UP = np.array([0.0, 0.0, 1.0])
 SMALL_LEAN = np.radians(2.0)  # below this the tilt is done and the legs are straightened instead

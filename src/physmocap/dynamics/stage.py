@@ -15,7 +15,8 @@ from ..body import kinematics as kin
 from ..body.model import BodyModel
 from ..camera import floor_in_camera
 from ..config import PhysicsSettings
-from ..kinematics.stage import KinematicMotion, rigid_transform_qpos
+from ..body.kinematics import rigid_transform_qpos
+from ..kinematics.stage import KinematicMotion
 from .balance import BalanceCorrector
 from .floor import FloorRefiner, floor_frame
 from .physcap import FrameOutput, PhysCapTracker

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..body.model import SkeletonLengths, TEMPLATE_RATIOS, template_lengths
+from ..body.model import TEMPLATE_RATIOS, SkeletonLengths, template_lengths
 from ..landmarks import LANDMARK_INDEX as LM
 from ..motion import Observations
 
@@ -32,7 +32,7 @@ CORE_LENGTHS = ("thigh", "shank", "spine_up", "upper_arm", "forearm", "shoulder_
 # above the sole (about 5 cm) is as short as the detector's 3D error, which lengthened it by 27% on average
 # (synthetic, MediaPipe's measured noise) and, through the height, shortened every other bone (global root error
 # 69 -> 45 mm with the template's value). The offline fit measures it again along the fitted foot
-# (kinematics.stage.refine_lengths).
+# (kinematics.targets.refine_lengths).
 TEMPLATE_ONLY = ("head_top", "ankle_height")
 
 

@@ -21,6 +21,7 @@ Variables are steps in MuJoCo's velocity space applied on the manifold.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import mujoco
 import numpy as np
@@ -54,6 +55,11 @@ MARKER_LANDMARKS = np.array([LANDMARK_INDEX[a] for a, _ in MARKERS])
 # mm); one warm-started frame starts close and converges fastest with little.
 OFFLINE_DAMPING = 3.0
 ONLINE_DAMPING = 1e-3
+LM_TOLERANCE = 1e-3  # a Levenberg-Marquardt fit stops after a step that lowers its cost by less than this fraction
+# Frames (1 or more) whose Jacobians the whole-clip fit holds at once while it assembles its system (about 0.2 MB
+# a frame): the assembly's memory is bounded by this, not by the clip. See docs/decisions/fit-memory.md.
+ASSEMBLY_FRAMES = 256
+TEMPORAL_REACH = 2  # frames after a frame that its temporal residuals reach (the acceleration's three frames)
 
 
 @dataclass
@@ -280,96 +286,199 @@ class KinematicFitter:
         return [(values, jacobians, np.array([-1.0, 1.0]), pair)]
 
     # ---- offline: the whole clip -------------------------------------------------------------------------
-    def _offline_system(self, qpos, targets):
-        """Cost, gradient g (T, nv) and upper block bands H (3, T, nv, nv) of the Gauss-Newton system."""
-        points, jac = self.evaluate(qpos)
-        r, J = self.frame_terms(qpos, points, jac, targets)
+    def _offline_system(self, qpos, targets, band=None, progress=None):
+        """Cost, gradient g (T, nv) and upper block bands H (3, T, nv, nv) of the Gauss-Newton system: H[d, t]
+        is the block of frames (t, t + d). Written into `band` when given (it is overwritten), else allocated.
+
+        Assembled ASSEMBLY_FRAMES frames at a time: only one chunk's Jacobians are alive at once, so the memory
+        beyond the band does not grow with the clip. progress(frames done) after each chunk."""
         T, nv = len(qpos), self.body.nv
-        H = np.zeros((3, T, nv, nv))
+        H = np.empty((3, T, nv, nv)) if band is None else band
+        H[...] = 0.0
+        g = np.zeros((T, nv))
+        cost = 0.0
+        for first in range(0, T, ASSEMBLY_FRAMES):
+            last = min(first + ASSEMBLY_FRAMES, T)
+            cost += self._add_chunk(qpos, targets, first, last, g, H)
+            if progress:
+                progress(last)
+        return cost, g, H
+
+    def _add_chunk(self, qpos, targets, first, last, g, H) -> float:
+        """Add to g and H the terms of frames first .. last - 1 and the temporal residuals that start there (they
+        reach up to two frames further, evaluated again by the next chunk); returns their cost."""
+        end = min(last + TEMPORAL_REACH, len(qpos))
+        window = slice(first, end)
+        points, jac = self.evaluate(qpos[window])
+        own = last - first
+        r, J = self.frame_terms(qpos[first:last], points[:own], jac[:own], targets.frames(slice(first, last)))
         Jt = J.transpose(0, 2, 1)
-        H[0] = Jt @ J
-        g = (Jt @ r[..., None])[..., 0]
+        H[0, first:last] += Jt @ J
+        g[first:last] += (Jt @ r[..., None])[..., 0]
         cost = float(np.sum(r * r))
-        signals = [(v, j, c, None) for v, j, c in self.temporal_signals(points, jac, qpos)]
-        for values, jacobians, coeffs, pair_weights in signals + self.contact_signals(points, jac, targets):
+        del r, J, Jt  # freed before the temporal terms make theirs: the chunk's peak
+        F = end - first
+        window_targets = targets.frames(window)
+        signals = [(v, j, c, None) for v, j, c in self.temporal_signals(points, jac, qpos[window])]
+        for values, jacobians, coeffs, pair_weights in signals + self.contact_signals(points, jac, window_targets):
             K = len(coeffs)
-            n = T - K + 1
+            if K - 1 > TEMPORAL_REACH:
+                raise ValueError(f"a temporal term spans {K} frames, more than TEMPORAL_REACH allows")
+            n = min(own, F - K + 1)  # residuals that start in this chunk and end within the clip
             if n <= 0:
                 continue
             # rho_u = w_u * sum_a c_a v_(u+a): frame s enters rho_(s-a) with c_a, so the block of frames
             # (s, s + d) is J_s^T diag(sum_a c_a c_(a+d) w_(s-a)^2) J_(s+d), one product per band.
             rho = sum(c * values[k:k + n] for k, c in enumerate(coeffs))
-            squared = 1.0 if pair_weights is None else pair_weights**2
+            squared = 1.0 if pair_weights is None else pair_weights[:n]**2
             cost += float(np.sum(squared * rho * rho))
             pull = np.zeros_like(values)
             for a in range(K):
                 pull[a:a + n] += coeffs[a] * squared * rho
             transposed = jacobians.transpose(0, 2, 1)
-            g += (transposed @ pull[..., None])[..., 0]
+            g[window] += (transposed @ pull[..., None])[..., 0]
             for d in range(K):
                 # Without pair weights all rows of a frame weigh the same: scale the (nv, nv) products instead.
-                row_weights = np.zeros((T - d,) + (() if pair_weights is None else values.shape[1:]))
+                row_weights = np.zeros((F - d,) + (() if pair_weights is None else values.shape[1:]))
                 for a in range(K - d):
                     row_weights[a:a + n] += coeffs[a] * coeffs[a + d] * squared
                 if pair_weights is None:
-                    H[d, :T - d] += row_weights[:, None, None] * (transposed[:T - d] @ jacobians[d:])
+                    H[d, first:end - d] += row_weights[:, None, None] * (transposed[:F - d] @ jacobians[d:])
                 else:
-                    H[d, :T - d] += (row_weights[..., None] * jacobians[:T - d]).transpose(0, 2, 1) @ jacobians[d:]
-        return cost, g, H
+                    weighted = (row_weights[..., None] * jacobians[:F - d]).transpose(0, 2, 1)
+                    H[d, first:end - d] += weighted @ jacobians[d:]
+        return cost
 
     @staticmethod
     def _solve_banded(g, H, damping):
-        """Solve (H + damping * diag(H)) dx = -g; H holds the upper block bands (3, T, nv, nv).
+        """Solve (H + damping * diag(H) + 1e-9 I) dx = -g; H holds the upper block bands (3, T, nv, nv) and is
+        overwritten by the factor.
 
-        Pairs of frames make the system block-tridiagonal, solved by block Cholesky in O(T)."""
+        Pairs of frames make the system block-tridiagonal, solved by block Cholesky in O(T). Each pair's factor
+        and its coupling to the next pair take the place of the pair's own blocks of H (three each), so the
+        solve needs no memory that grows with the clip beyond H."""
         T, nv = g.shape
         pairs = (T + 1) // 2
-        n = 2 * nv
-        D = np.zeros((pairs, n, n))
-        C = np.zeros((pairs, n, n))  # coupling of pair s to pair s + 1
-        full = np.zeros((2 * pairs + 2, 3, nv, nv))
-        full[:T] = H.transpose(1, 0, 2, 3)
-        for a in range(2):  # frames 2s + a
-            D[:, a * nv:(a + 1) * nv, a * nv:(a + 1) * nv] = full[a:2 * pairs:2, 0]
-        D[:, :nv, nv:] = full[0:2 * pairs:2, 1]
-        D[:, nv:, :nv] = D[:, :nv, nv:].transpose(0, 2, 1)
-        C[:, :nv, :nv] = full[0:2 * pairs:2, 2]  # frame 2s to 2s + 2
-        C[:, nv:, :nv] = full[1:2 * pairs:2, 1]  # frame 2s + 1 to 2s + 2
-        C[:, nv:, nv:] = full[1:2 * pairs:2, 2]  # frame 2s + 1 to 2s + 3
-        if T % 2:  # the padding frame is decoupled with unit diagonal
-            D[-1, nv:, nv:] = np.eye(nv)
-        idx = np.arange(n)
-        D[:, idx, idx] += damping * D[:, idx, idx] + 1e-9
-        b = np.zeros(2 * pairs * nv)
-        b[:T * nv] = -g.ravel()
-        b = b.reshape(pairs, n)
-        # LAPACK called directly: the loop is sequential, and scipy's checking wrappers cost as much as the
-        # 80 x 80 factorisations themselves.
-        L = np.empty_like(D)
-        W = np.empty_like(C)
-        y = np.empty_like(b)
+        diagonal = np.arange(2 * nv)
+        b = -g.ravel()
+        y = np.empty(T * nv)
+        previous = None  # the factor of the pair before
         for s_ in range(pairs):
-            rhs = b[s_]
+            a = 2 * s_
+            m = min(2, T - a)  # frames in the pair: the last one of an odd clip is alone
+            n = m * nv
+            D = np.empty((n, n))
+            D[:nv, :nv] = H[0, a]
+            if m == 2:
+                D[:nv, nv:] = H[1, a]
+                D[nv:, :nv] = H[1, a].T
+                D[nv:, nv:] = H[0, a + 1]
+            D[diagonal[:n], diagonal[:n]] += damping * D[diagonal[:n], diagonal[:n]] + 1e-9
+            rhs = b[a * nv:(a + m) * nv]
             if s_:
-                W[s_] = _triangular_solve(L[s_ - 1], C[s_ - 1])
-                D[s_] -= W[s_].T @ W[s_]
-                rhs = rhs - W[s_].T @ y[s_ - 1]
-            L[s_], info = dpotrf(D[s_], lower=1, clean=1)
+                # The coupling of the pair before (frames a - 2, a - 1) to this one: frames two apart and the
+                # neighbours a - 1, a; the block of frames a - 2 and a + 1 is zero, and stays so in W.
+                C = np.zeros((2 * nv, n))
+                C[:nv, :nv] = H[2, a - 2]
+                C[nv:, :nv] = H[1, a - 1]
+                if m == 2:
+                    C[nv:, nv:] = H[2, a - 1]
+                W = _triangular_solve(previous, C)
+                H[2, a - 2], H[1, a - 1] = W[:nv, :nv], W[nv:, :nv]
+                if m == 2:
+                    H[2, a - 1] = W[nv:, nv:]
+                D -= W.T @ W
+                rhs = rhs - W.T @ y[(a - 2) * nv:a * nv]
+            # LAPACK called directly: the loop is sequential, and scipy's checking wrappers cost as much as the
+            # 80 x 80 factorisations themselves.
+            L, info = dpotrf(D, lower=1, clean=1)
             if info:
                 raise LinAlgError("the damped normal matrix is not positive definite")
-            y[s_] = _triangular_solve(L[s_], rhs)
-        x = np.empty_like(b)
+            H[0, a] = L[:nv, :nv]
+            if m == 2:
+                H[1, a], H[0, a + 1] = L[nv:, :nv], L[nv:, nv:]
+            y[a * nv:(a + m) * nv] = _triangular_solve(L, rhs)
+            previous = L
+        x = np.empty(T * nv)
+        L = np.zeros((2 * nv, 2 * nv))  # lower triangle read only
         for s_ in range(pairs - 1, -1, -1):
-            rhs = y[s_] - W[s_ + 1] @ x[s_ + 1] if s_ + 1 < pairs else y[s_]
-            x[s_] = _triangular_solve(L[s_], rhs, transpose=1)
-        return x.ravel()[:T * nv].reshape(T, nv)
+            a = 2 * s_
+            m = min(2, T - a)
+            n = m * nv
+            L[:nv, :nv] = H[0, a]
+            if m == 2:
+                L[nv:, :nv], L[nv:, nv:] = H[1, a], H[0, a + 1]
+            rhs = y[a * nv:(a + m) * nv]
+            if s_ + 1 < pairs:  # minus W x of the next pair, W's blocks stored over the coupling's
+                after = x[(a + 2) * nv:(a + 4) * nv]
+                coupled = np.concatenate([H[2, a] @ after[:nv], H[1, a + 1] @ after[:nv]])
+                if len(after) > nv:
+                    coupled[nv:] += H[2, a + 1] @ after[nv:]
+                rhs = rhs - coupled
+            x[a * nv:(a + m) * nv] = _triangular_solve(L[:n, :n], rhs, transpose=1)
+        return x.reshape(T, nv)
 
-    def fit_offline(self, qpos_init: np.ndarray, targets: FitTargets) -> FitResult:
-        """Minimise the energy over all frames jointly, starting from qpos_init (T, nq)."""
-        return _levenberg_marquardt(
-            lambda q: self._offline_system(q, targets),
-            lambda system, damping: self._solve_banded(system[1], system[2], damping),
-            self.integrate, qpos_init, self.settings.offline_iterations, damping=OFFLINE_DAMPING)
+    def planned_passes(self, frames: int) -> int:
+        """The frame passes fit_offline plans for a clip of `frames` frames (its progress's first total)."""
+        return frames * (self.settings.offline_iterations + 1)
+
+    def fit_offline(self, qpos_init: np.ndarray, targets: FitTargets,
+                    progress: Callable[[int, int], None] | None = None) -> FitResult:
+        """Minimise the energy over all frames jointly, starting from qpos_init (T, nq), by Levenberg-Marquardt on
+        the manifold: stops after `offline_iterations` accepted steps or when a step lowers the cost by less than
+        LM_TOLERANCE (relative).
+
+        The Gauss-Newton bands are the fit's one buffer that grows with the clip (3 nv^2 doubles a frame); the
+        solve factors them in place, so after a rejected step the system at the current poses is assembled
+        again (the same numbers) rather than kept in a second copy. progress(frame passes done, planned): a
+        frame pass is one frame's terms and Jacobians evaluated once; one pass over the clip to start and one
+        per step tried (two more for a rejected one)."""
+        T, nv = len(qpos_init), self.body.nv
+        iterations = self.settings.offline_iterations
+        band = np.empty((3, T, nv, nv))
+        passed = 0
+
+        def system_at(q, passes_left):
+            nonlocal passed
+            planned = passed + T * passes_left
+
+            def report(frames):
+                # A pass's end is reported by the next pass or by the fit's end: a rejected last step adds
+                # passes, and a display must not close before they are done.
+                if frames < T:
+                    progress(passed + frames, planned)
+
+            cost, g, _ = self._offline_system(q, targets, band, report if progress else None)
+            passed += T
+            return cost, g
+
+        q = np.array(qpos_init, dtype=float)
+        cost, g = system_at(q, iterations + 1)
+        damping, factored, done = OFFLINE_DAMPING, False, 0
+        for done in range(1, iterations + 1):
+            improved = False
+            while damping < 1e8:
+                if factored:  # the band holds a factor or a rejected step's system: the same one again
+                    cost, g = system_at(q, iterations - done + 2)
+                factored = True
+                try:
+                    step = self._solve_banded(g, band, damping)
+                except (LinAlgError, np.linalg.LinAlgError):
+                    damping *= 10
+                    continue
+                q_new = self.integrate(q, step)
+                cost_new, g_new = system_at(q_new, iterations - done + 1)
+                if cost_new < cost:
+                    decrease = (cost - cost_new) / max(cost, 1e-12)
+                    q, cost, g, factored, improved = q_new, cost_new, g_new, False, True
+                    damping = max(damping / 3, 1e-7)
+                    break
+                damping *= 4
+            if not improved or decrease < LM_TOLERANCE:
+                break
+        if progress:
+            progress(passed, passed)
+        return FitResult(q, done, cost)
 
     # ---- online: frames each with its own fixed past ---------------------------------------------------
     def _frames_system(self, qpos, targets, history):
@@ -395,11 +504,11 @@ class KinematicFitter:
         return cost, g, H, [values for values, _, _ in signals]
 
     def fit_frames(self, qpos_init: np.ndarray, targets: FitTargets, history, iterations: int,
-                   tolerance: float = 1e-3, damping_increase: float = 4.0) -> FitResult:
+                   tolerance: float = LM_TOLERANCE, damping_increase: float = 4.0) -> FitResult:
         """Fit K independent frames side by side (qpos_init (K, nq), targets of K frames), each with its own
         past (history: per temporal signal (K, h, n) values of the frames already fitted, or None): one
         Levenberg-Marquardt per frame, batched, each frame with its own damping and stopping as
-        `_levenberg_marquardt` does, its damping multiplied by `damping_increase` after a rejected step. The
+        `fit_offline` does, its damping multiplied by `damping_increase` after a rejected step. The
         online fit is K = 1; the offline fit's initial pass runs many causal streams at once. Returns the poses,
         the most steps any frame took, the summed cost and the temporal signals' values at the result."""
         q = np.array(qpos_init, dtype=float)
@@ -465,33 +574,6 @@ def _triangular_solve(L: np.ndarray, b: np.ndarray, transpose: int = 0) -> np.nd
     if info:
         raise LinAlgError("singular triangular factor")
     return x
-
-
-def _levenberg_marquardt(system_at, solve, integrate, q0, iterations, damping, tolerance=1e-3):
-    """Generic LM on a manifold: system_at(q) -> (cost, ...); solve(system, damping) -> step. Stops after
-    `iterations` accepted steps or when a step lowers the cost by less than `tolerance` (relative)."""
-    q = q0
-    system = system_at(q)
-    done = 0
-    for done in range(1, iterations + 1):
-        improved = False
-        while damping < 1e8:
-            try:
-                step = solve(system, damping)
-            except (LinAlgError, np.linalg.LinAlgError):
-                damping *= 10
-                continue
-            q_new = integrate(q, step)
-            system_new = system_at(q_new)
-            if system_new[0] < system[0]:
-                decrease = (system[0] - system_new[0]) / max(system[0], 1e-12)
-                q, system, improved = q_new, system_new, True
-                damping = max(damping / 3, 1e-7)
-                break
-            damping *= 4
-        if not improved or decrease < tolerance:
-            break
-    return FitResult(q, done, float(system[0]))
 
 
 def root_orientation(targets_3d: np.ndarray) -> np.ndarray:

@@ -16,10 +16,12 @@ from ..body.model import build_body_model
 from ..camera import Camera, Floor, world_from_floor
 from ..config import Settings
 from ..detect.foot_swaps import CausalFootSwaps, find_foot_swaps, swap_feet, undo_foot_swaps
+from ..landmarks import NUM_LANDMARKS
 from ..motion import Observations
 from .calibration import calibrate, resolve_height
 from .fit import FitTargets, KinematicFitter, initial_qpos
-from .stage import estimate_floor, make_targets, move_world_to_floor, raw_depth, refine_lengths, smooth_depth
+from .floor import estimate_floor, move_world_to_floor
+from .targets import make_targets, raw_depth, refine_lengths, smooth_depth
 
 FIRST_FRAME_ITERATIONS = 60  # the first frame starts from a generic pose and needs more steps
 WARMUP_SECONDS = 3.0  # held back to calibrate and find the floor when body.calibration_frames is 0 (all: offline
@@ -161,6 +163,17 @@ class OnlineFitter:
         if swapped:
             self.foot_swap_frames.append(index)
         return [(index, q)]
+
+    def skip(self) -> list[tuple[int, np.ndarray]]:
+        """A frame that is not fitted (live capture dropped it): during the warm-up it is held as unseen; after,
+        its pose is the constant-velocity prediction the fit of an unseen frame starts from, at a fraction of the
+        fit's cost, and the past moves on by it."""
+        if self.body is None:
+            return self.push(np.zeros((NUM_LANDMARKS, 3)), np.zeros((NUM_LANDMARKS, 3)), False)
+        index, self._frames = self._frames, self._frames + 1
+        q = predicted_pose(self.fitter, self._past)
+        self._past = CausalPast.of(self.fitter, self._past.poses[-1:] + [q])
+        return [(index, q[0])]
 
     def finish(self) -> list[tuple[int, np.ndarray]]:
         """End of stream: fits what the warm-up still holds (a clip shorter than the warm-up)."""

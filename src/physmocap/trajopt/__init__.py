@@ -1,7 +1,8 @@
 """Physics by trajectory optimisation: Rempe et al. 2020, "Contact and Human Dynamics from Monocular Video"
 (section 3.1 and appendices B-C), with CasADi and IPOPT (MUMPS, exact derivatives).
 
-Use after the offline kinematic stage and the centred contact network:
+Use after the offline kinematic stage, the centred contact network and the B.4 refinement
+(kinematics/refine.py, which offline PhysCap starts from too):
 
     refined = refine_kinematics(obs, motion, contacts, settings.fit, settings_trajopt,
                                 keep_floor=settings.camera.floor is not None)      # B.4: three-stage fit
@@ -14,11 +15,10 @@ Use after the offline kinematic stage and the centred contact network:
 
 Modules: reduced (B.5 inputs), phases (contact phases), splines (Hermite cubics as sparse sampling maps),
 problem (named variable sets, constraint sets and cost terms; IPOPT), formulation (the centroidal problem of
-one window), solve (the staged solve), ik (C.4 full-body output through the kinematic fitter), kinematic
-(B.4), stage (windows, run_trajopt).
+one window), solve (the staged solve), ik (C.4 full-body output through the kinematic fitter), stage
+(windows, run_trajopt).
 """
 
-from .kinematic import RefinedKinematics, refine_kinematics
 from .stage import TrajoptMotion, WindowReport, run_trajopt
 
-__all__ = ["RefinedKinematics", "TrajoptMotion", "WindowReport", "refine_kinematics", "run_trajopt"]
+__all__ = ["TrajoptMotion", "WindowReport", "run_trajopt"]

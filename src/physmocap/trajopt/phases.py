@@ -49,9 +49,9 @@ def split_drifting(flags: np.ndarray, points: np.ndarray, limit: float, gap: int
     farther than `limit` from the part's median position. A contact phase holds its point still (no slip), so a
     foot that shuffles or pivots while labelled in contact (the motion capture of CMU subject 131: a toe 25 cm
     in 3 s) needs a new phase, not one position for all. The gap goes where the two parts' positions scatter
-    least about their means, among the frames in which another point stays in contact (the body keeps a support:
-    a whole-body flight the input does not fly would launch it); runs with no such place stay whole. The parts
-    keep at least `gap` frames. limit 0: flags unchanged."""
+    least about their means, among the frames in which another point stays in contact, from the frame before to
+    the frame after (the body keeps a support: a whole-body flight the input does not fly would launch it); runs
+    with no such place stay whole. The parts keep at least `gap` frames. limit 0: flags unchanged."""
     flags = np.asarray(flags, bool).copy()
     if limit <= 0:
         return flags
@@ -69,7 +69,9 @@ def split_drifting(flags: np.ndarray, points: np.ndarray, limit: float, gap: int
 
         lo = np.arange(gap, b - a - 2 * gap + 1)
         others = np.delete(flags[a:b], i, axis=1).any(axis=1)
-        supported = np.array([others[k:k + gap].all() for k in lo], bool)
+        # Supported from the frame before the gap to the frame after: a support whose own phase began or ended
+        # at the gap would carry no force there (forces fade to zero where a phase meets a flight).
+        supported = np.array([others[k - 1:k + gap + 1].all() for k in lo], bool)
         if not supported.any():
             return
         cost = np.where(supported, [scatter(0, k) + scatter(k + gap, b - a) for k in lo], np.inf)
@@ -129,3 +131,49 @@ def segment_count(duration: float, minimum: int, per_seconds: float, longest: fl
     if np.isfinite(longest) and longest > 0:
         count = max(count, int(np.ceil(duration / longest - 1e-9)))
     return count
+
+
+def flight_support(com_height: np.ndarray, times: np.ndarray, start: int, stop: int, gravity: float) -> float:
+    """The mean vertical force, in body weights, that a COM height path (T,) m at `times` (T,) s needs over the
+    flight of frames [start, stop): 1 + z''/g, z'' the curvature of the parabola fitted to the flight and the two
+    frames around it (its take-off and landing). A free fall needs 0; a body held up, 1. nan for fewer than 3
+    frames."""
+    lo, hi = max(start - 1, 0), min(stop + 1, len(com_height))
+    if hi - lo < 3:
+        return float("nan")
+    t = times[lo:hi] - times[lo]
+    return 1.0 + 2.0 * float(np.polyfit(t, com_height[lo:hi], 2)[0]) / gravity
+
+
+def support_held_flights(flags: np.ndarray, com: np.ndarray, points: np.ndarray, times: np.ndarray,
+                         gravity: float, max_support: float) -> tuple[np.ndarray, list[tuple]]:
+    """(T, P) contact flags in which every whole-body flight (no point in contact; not at the clip's first or
+    last frame) that the input motion does not fall through is given back a support: a flight whose COM (T, 3)
+    needs more than `max_support` body weights (`flight_support`) is the labels' error (the body is held up), and
+    physics would have to launch and land it with forces the motion never shows. The support is the point, of
+    those in contact on the frame before or after the flight, nearest below the COM on average (points (T, P, 3);
+    a support far to one side would turn the body); its contact continues through the flight. Returns the flags
+    and (start, stop, point, support) of each relabelled flight, [start, stop) the frames put in contact."""
+    flags = np.asarray(flags, bool).copy()
+    changed = []
+    starts, lengths = runs(flags.any(axis=1))
+    for s, n in zip(starts, lengths):
+        if flags[s].any() or s == 0 or s + n == len(flags):
+            continue  # a flight at either end of the clip has no take-off or landing in it to judge it by
+        support = flight_support(com[:, 2], times, int(s), int(s + n), gravity)
+        if not support > max_support:
+            continue
+        candidates = flags[s - 1] | flags[s + n]
+        reach = np.linalg.norm(points[s:s + n, :, :2] - com[s:s + n, None, :2], axis=-1).mean(axis=0)
+        point = int(np.argmin(np.where(candidates, reach, np.inf)))
+        # The contact bridges to the point's own contacts before and after when they resume within the
+        # flight's length: a hand-over from one point to another with no frame of both would again leave
+        # the body a moment without force (each force fades to zero where its phase meets a flight).
+        a, b = int(s), int(s + n)
+        before = np.flatnonzero(flags[max(0, a - n):a, point])
+        after = np.flatnonzero(flags[b:b + n, point])
+        a = max(0, a - n) + int(before[-1]) + 1 if len(before) else a
+        b = b + int(after[0]) if len(after) else b
+        flags[a:b, point] = True
+        changed.append((a, b, point, support))
+    return flags, changed

@@ -119,6 +119,43 @@ def interrupts_noted():
         signal.signal(signal.SIGINT, previous)
 
 
+class IterationLimit(ca.Callback):
+    """IPOPT's iteration callback that stops a run after `limit` iterations: one solver serves runs with
+    different limits (IPOPT's own max_iter is fixed when the solver is built)."""
+
+    def __init__(self, variables: int, constraints: int):
+        ca.Callback.__init__(self)
+        self.variables, self.constraints = variables, constraints
+        self.limit, self.count = None, 0
+        self.construct("iteration_limit", {})
+
+    def get_n_in(self):
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self):
+        return 1
+
+    def get_name_in(self, i):
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i):
+        return "stop"
+
+    def get_sparsity_in(self, i):
+        name = ca.nlpsol_out(i)
+        if name == "f":
+            return ca.Sparsity.scalar()
+        if name in ("x", "lam_x"):
+            return ca.Sparsity.dense(self.variables)
+        if name in ("g", "lam_g"):
+            return ca.Sparsity.dense(self.constraints)
+        return ca.Sparsity(0, 0)
+
+    def eval(self, arg):
+        self.count += 1  # called once for the starting point too
+        return [int(self.limit is not None and self.count > self.limit)]
+
+
 class Program:
     """The program of the given pieces, with its IPOPT solver built once. x: the variable vector (a CasADi
     symbol, SX or MX), the variable sets laid out along it in order."""
@@ -146,7 +183,9 @@ class Program:
         self.f = sum((c.value for c in costs), zero)
         self.lbg = np.concatenate([c.bounds()[0] for c in constraints]) if constraints else np.zeros(0)
         self.ubg = np.concatenate([c.bounds()[1] for c in constraints]) if constraints else np.zeros(0)
-        options = {"ipopt": dict(ipopt_options), "print_time": False, "error_on_fail": False}
+        self.iteration_limit = IterationLimit(int(x.shape[0]), int(self.g.shape[0]))
+        options = {"ipopt": dict(ipopt_options), "print_time": False, "error_on_fail": False,
+                   "iteration_callback": self.iteration_limit}
         options["ipopt"].setdefault("print_level", 0)
         options["ipopt"].setdefault("sb", "yes")
         if isinstance(x, ca.SX):
@@ -190,9 +229,11 @@ class Program:
         return (np.concatenate([v.lower for v in self.variables]), np.concatenate([v.upper for v in self.variables]))
 
     def solve(self, x0: np.ndarray, fixed: tuple[str, ...] = (), relaxed: tuple[str, ...] = (),
-              lower: np.ndarray | None = None, upper: np.ndarray | None = None) -> Solution:
+              lower: np.ndarray | None = None, upper: np.ndarray | None = None,
+              max_iterations: int | None = None) -> Solution:
         """Solve from x0 (n,), with the variable sets named in `fixed` held at their x0 values and the
-        constraint sets named in `relaxed` switched off. lower/upper override the variable bounds."""
+        constraint sets named in `relaxed` switched off. lower/upper override the variable bounds;
+        max_iterations stops this run sooner than the solver's own limit (status Maximum_Iterations_Exceeded)."""
         lbx, ubx = self.bounds()
         if lower is not None:
             lbx = lower.copy()
@@ -210,6 +251,7 @@ class Program:
                 lbg[sl], ubg[sl] = -INF, INF
                 active[sl] = False
         start = time.perf_counter()
+        self.iteration_limit.limit, self.iteration_limit.count = max_iterations, 0
         with interrupts_noted() as interrupted:
             out = self.solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
         if interrupted:  # Ctrl-C inside IPOPT: the run stops, this solve's result is not used
@@ -222,6 +264,8 @@ class Program:
         violation = float(violation[active].max()) if active.any() else 0.0
         costs = [float(c) for c in self.cost_values.call([x])] if self.costs else []
         status = str(stats.get("return_status", "unknown"))
+        if max_iterations is not None and status == "User_Requested_Stop" and self.iteration_limit.count > max_iterations:
+            status = "Maximum_Iterations_Exceeded"  # stopped by max_iterations, not by the user
         return Solution(x, {v.name: x[self.var_slices[v.name]] for v in self.variables}, float(out["f"]),
                         {c.name: v for c, v in zip(self.costs, costs)}, status, status in CONVERGED_STATUSES,
                         int(stats.get("iter_count", -1)), seconds, violation)

@@ -6,7 +6,8 @@
    now also pays for changed durations) is lower than after stage 2.
 
 A window converges when stage 2 converges; otherwise its result must not be used (the caller keeps the
-kinematic motion there and says so).
+kinematic motion there and says so). The stages share the window's budget of IPOPT iterations
+(settings.max_iterations), stage 1 at most half of it: its point only starts stage 2, converged or not.
 """
 
 from __future__ import annotations
@@ -146,27 +147,31 @@ def _schedule_from(problem: WindowProblem, x_durations: np.ndarray) -> list[list
     return out
 
 
-def solve_window(window: Window, settings: TrajoptSettings) -> WindowResult:
-    """Stages 1-3 on one window."""
+def solve_window(window: Window, settings: TrajoptSettings, budget: int | None = None) -> WindowResult:
+    """Stages 1-3 on one window, within `budget` IPOPT iterations in all (None: settings.max_iterations)."""
     start = time.perf_counter()
+    budget = settings.max_iterations if budget is None else budget
     problem = build_window_problem(window, settings)
     program = _program(problem, settings)
     build = time.perf_counter() - start
     stages = []
-    fit = program.solve(program.initial(), fixed=problem.force_set_names, relaxed=("dynamics",))
+    # Half the budget at most: a fit cut short starts the dynamics worse (docs/decisions/trajopt-long-clips.md).
+    fit = program.solve(program.initial(), fixed=problem.force_set_names, relaxed=("dynamics",),
+                        max_iterations=max(1, budget // 2))
     stages.append(_report("fit", fit))
     x0 = _force_guess(problem, program, fit.x)
-    dyn = program.solve(x0)
+    dyn = program.solve(x0, max_iterations=max(1, budget - fit.iterations))
     stages.append(_report("dynamics", dyn))
     chosen, chosen_problem, x = "dynamics", problem, dyn.x
     phases = window.phases
-    if dyn.converged and settings.optimize_durations:
+    left = budget - fit.iterations - dyn.iterations
+    if dyn.converged and settings.optimize_durations and left > 0:
         t = time.perf_counter()
         dproblem = build_window_problem(window, settings, durations=True)
         if dproblem.durations.set.size:
             dprogram = _program(dproblem, settings)
             build += time.perf_counter() - t
-            dur = dprogram.solve(np.concatenate([dyn.x, dproblem.durations.set.initial]))
+            dur = dprogram.solve(np.concatenate([dyn.x, dproblem.durations.set.initial]), max_iterations=left)
             stages.append(_report("durations", dur))
             if dur.converged and dur.objective < dyn.objective:
                 chosen, chosen_problem, x = "durations", dproblem, dur.x

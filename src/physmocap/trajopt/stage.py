@@ -23,12 +23,12 @@ from typing import Callable
 
 import numpy as np
 
-from ..body.model import BodyModel
+from ..body.model import CONTACT_POINTS, BodyModel
 from ..config import TrajoptSettings
 from ..motion import frame_ranges
 from .formulation import Window
 from .ik import IkTargets, ik_targets, solve_ik
-from .phases import clean_flags, contact_phases, split_drifting
+from .phases import clean_flags, contact_phases, split_drifting, support_held_flights
 from .reduced import boundary_velocity, reduced_motion
 from .solve import StageReport, solve_window
 
@@ -39,6 +39,10 @@ log = logging.getLogger("physmocap")
 # physics could only be met far from the observations, typically because of wrong contact labels (ours).
 DEPARTURE_COM, DEPARTURE_FEET = 0.10, 0.15  # m
 MIN_FRAMES = 3  # a run of valid frames shorter than this keeps the kinematic motion
+# A whole-body flight of the labels whose input COM needs more than this vertical force on average (body weights;
+# 0 in a free fall, 1 standing) is not a flight (phases.support_held_flights); chosen on validation clips of CMU
+# subjects 1, 2, 5, 7 (docs/decisions/trajopt-false-flights.md); 0 .. 1
+FLIGHT_MAX_SUPPORT = 0.5
 
 
 @dataclass
@@ -212,6 +216,7 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     reduced = reduced_motion(body, qpos_kin, fps)
     min_frames = max(1, math.ceil(settings.min_phase_seconds * fps - 1e-9))
     flags = np.stack([clean_flags(contacts[:, i], min_frames) for i in range(4)], axis=1) & valid[:, None]
+    flags = _support_held_flights(flags, reduced, valid, settings)
     flags = split_drifting(flags, reduced.feet[..., :2], settings.contact_drift, min_frames)
     out = TrajoptMotion(
         qpos=qpos_kin.copy(), grf=np.zeros((T, 4, 3)), residual=np.zeros((T, 6)), contacts=flags.copy(),
@@ -248,6 +253,21 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     return out
 
 
+def _support_held_flights(flags: np.ndarray, reduced, valid: np.ndarray, settings: TrajoptSettings) -> np.ndarray:
+    """The flags with each whole-body flight that the input's COM does not fall through given back a support
+    (phases.support_held_flights), within each run of valid frames; each one logged."""
+    flags = flags.copy()
+    for first, end in valid_runs(valid):
+        flags[first:end], changed = support_held_flights(
+            flags[first:end], reduced.com[first:end], reduced.feet[first:end], reduced.times[first:end],
+            settings.gravity, FLIGHT_MAX_SUPPORT)
+        for start, stop, point, support in changed:
+            log.warning("trajopt: around frames %d-%d the labels give a flight, but the motion's centre of mass needs "
+                        "%.0f%% of body weight there: the %s is kept in contact over these frames.", first + start,
+                        first + stop - 1, 100 * support, CONTACT_POINTS[point].replace("_", " "))
+    return flags
+
+
 def _solve_run(out: TrajoptMotion, reduced, flags: np.ndarray, first: int, end: int, fps: float,
                settings: TrajoptSettings, progress) -> None:
     """The windows of frames [first, end), each starting where the previous one arrived; results into `out`."""
@@ -269,13 +289,15 @@ def _solve_run(out: TrajoptMotion, reduced, flags: np.ndarray, first: int, end: 
             freeze_after=reduced.times[keep] if keep < end else np.inf)
         result = solve_window(window, settings)
         restarted = False
-        if not result.converged and window.start is not None:
+        left = settings.max_iterations - sum(st.iterations for st in result.stages)
+        if not result.converged and window.start is not None and left > 0:
             # No physical continuation of the previous window's state: solve this window afresh (its start
-            # velocity the input's), breaking continuity at the junction rather than losing the window.
+            # velocity the input's) with what is left of its budget, breaking continuity at the junction rather
+            # than losing the window.
             retry = solve_window(dataclasses.replace(
                 window, start=None,
                 start_velocity=boundary_velocity(reduced.com[start:end], fps, settings.boundary_frames, end=False)),
-                settings)
+                settings, left)
             retry.stages = result.stages + [dataclasses.replace(st, name=f"restart {st.name}") for st in retry.stages]
             result, restarted = retry, True
             if result.converged:

@@ -17,6 +17,7 @@ import dataclasses
 import logging
 import math
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -24,11 +25,15 @@ from ..body import kinematics as kin
 from ..body.model import CONTACT_POINTS
 from ..camera import Floor, tangent_basis
 from ..config import FitSettings, TrajoptSettings
-from ..kinematics.fit import KinematicFitter
 from ..detect.foot_swaps import find_foot_swaps, undo_foot_swaps
-from ..kinematics.stage import (KinematicMotion, hold_outside_valid, landmark_depth_scale, make_targets,
-                                move_world_to_floor, raw_depth, reprojection_errors, smooth_depth)
 from ..motion import Observations
+from .fit import KinematicFitter
+from .floor import move_world_to_floor
+from .stage import KinematicMotion, hold_outside_valid, reprojection_errors
+from .targets import landmark_depth_scale, make_targets, raw_depth, smooth_depth
+
+if TYPE_CHECKING:
+    from ..stages import ProgressFactory
 
 log = logging.getLogger("physmocap")
 
@@ -193,14 +198,16 @@ def fitted_observations(obs: Observations, motion: KinematicMotion, fit: FitSett
 
 
 def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.ndarray, fit: FitSettings,
-                      settings: TrajoptSettings, keep_floor: bool = False) -> RefinedKinematics:
+                      settings: TrajoptSettings, keep_floor: bool = False,
+                      progress: ProgressFactory | None = None) -> RefinedKinematics:
     """Rempe's three-stage kinematic optimisation (B.4) from an offline kinematic motion.
 
     obs: the detector's observations; motion: the kinematic stage's result (offline fit, world on its floor);
     contacts: (T, 4) bool flags (l heel, l toe, r heel, r toe) from the contact stage; fit: the fit's settings;
     settings: the trajopt settings (weights of the optional terms, outlier distance); keep_floor: keep
     motion.floor (e.g. a floor given by the user) instead of refitting it, still relabelling the contacts far
-    from it.
+    from it. progress: a display for each of the two fits, "refine 1/2" and "refine 2/2", counted in frame passes
+    (see KinematicFitter.fit_offline).
     """
     start = time.perf_counter()
     body, camera, fps = motion.body, motion.camera, obs.fps
@@ -217,9 +224,12 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
         t = make_targets(obs.keypoints_2d, obs.landmarks_3d, obs.valid, depth, cam, motion.calibration, fit)
         return dataclasses.replace(t, contacts=flags.astype(float), floor=floor)
 
+    def bar(fitter, name):
+        return progress(name, fitter.planned_passes(obs.num_frames), "frame passes") if progress else None
+
     # 1. Contacts still, no floor.
-    qpos = KinematicFitter(body, camera, contact_fit_settings(fit, settings, False), fps).fit_offline(
-        motion.qpos, targets_in(camera, contacts, None)).qpos
+    fitter = KinematicFitter(body, camera, contact_fit_settings(fit, settings, False), fps)
+    qpos = fitter.fit_offline(motion.qpos, targets_in(camera, contacts, None), bar(fitter, "refine 1/2")).qpos
     # 2. The floor through the contact points (camera frame), outliers relabelled.
     soles = camera.to_camera(kin.forward_kinematics(body, qpos).points[:, body.point_index(CONTACT_POINTS)])
     floor = motion.floor
@@ -252,8 +262,8 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
         kept |= resting
     # 3. Again, with the feet in contact on the floor (z = 0 in the new world).
     fitter = KinematicFitter(body, camera, contact_fit_settings(fit, settings, True), fps)
-    qpos = hold_outside_valid(fitter.fit_offline(qpos, targets_in(camera, kept, np.array([0.0, 0.0, 1.0, 0.0]))).qpos,
-                              obs.valid)
+    on_floor = targets_in(camera, kept, np.array([0.0, 0.0, 1.0, 0.0]))
+    qpos = hold_outside_valid(fitter.fit_offline(qpos, on_floor, bar(fitter, "refine 2/2")).qpos, obs.valid)
     seconds = time.perf_counter() - start
     refined = dataclasses.replace(motion, camera=camera, floor=floor, qpos=qpos,
                                   reprojection_error=reprojection_errors(body, camera, qpos, raw),

@@ -10,7 +10,7 @@ from physmocap.camera import Camera
 from physmocap.config import FitSettings, Settings, TrajoptSettings
 from physmocap.kinematics.stage import fit_motion
 from physmocap.trajopt.ik import ik_targets, solve_ik
-from physmocap.trajopt.kinematic import (false_flights, fit_contact_floor, fitted_observations, refine_kinematics,
+from physmocap.kinematics.refine import (false_flights, fit_contact_floor, fitted_observations, refine_kinematics,
                                          resting_points, slipping_contacts, tilt_axes)
 from physmocap.trajopt.reduced import reduced_motion
 from test_fit import observe
@@ -68,6 +68,27 @@ def test_refine_puts_contacts_on_a_refitted_floor_and_drops_outliers(body, camer
     assert np.degrees(np.arccos(np.clip(m.camera.R[:, 2] @ camera.R[:, 2], -1, 1))) < 3.0
     # The pose stays as close to the observations as before.
     assert np.nanmedian(m.reprojection_error) < np.nanmedian(motion.reprojection_error) + 1.0
+
+
+def test_refine_reports_the_progress_of_both_fits(body, camera, monkeypatch):
+    from physmocap.kinematics import fit as fit_module
+
+    monkeypatch.setattr(fit_module, "ASSEMBLY_FRAMES", 8)  # progress within each pass too
+    obs = observe(body, one_leg_stance(body, 20), camera)
+    motion = fit_motion(obs, Settings().replace("body", height=body.height, mass=body.mass))
+    bars = {}
+
+    def factory(name, total, unit="frames"):
+        bars[name] = (unit, total, [])
+        return lambda done, total_now: bars[name][2].append((done, total_now))
+
+    refine_kinematics(obs, motion, np.ones((20, 4), bool), FitSettings(), TrajoptSettings(), progress=factory)
+    assert list(bars) == ["refine 1/2", "refine 2/2"]
+    for unit, planned, calls in bars.values():
+        done = [d for d, _ in calls]
+        assert unit == "frame passes" and planned == 20 * (FitSettings().offline_iterations + 1)
+        assert done == sorted(done) and len(set(done)) > 3 and calls[-1] == (done[-1], done[-1])
+        assert all(d < total for d, total in calls[:-1])
 
 
 def test_ik_reaches_the_contact_points_and_keeps_the_upper_body(body):

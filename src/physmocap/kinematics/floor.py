@@ -1,0 +1,94 @@
+"""The floor under the fitted person: a plane through the feet pulled towards the person's own vertical posture,
+with its confidence, and the motion re-expressed in the world whose z = 0 plane it is."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from ..body import kinematics as kin
+from ..body.model import CONTACT_POINTS, BodyModel
+from ..body.rotations import unit_vectors
+from ..camera import Camera, Floor, angle_degrees, fit_floor, robust_offset, world_from_floor
+
+log = logging.getLogger("physmocap")
+
+# The floor (estimate_floor; chosen on the validation clips of benchmarks/bench_floor_height.py, see
+# docs/decisions/floor-posture-prior.md).
+FLOOR_PRIOR_WEIGHT = 0.02  # fit_floor's pull towards the posture vertical (0.05 before the posture prior)
+FEET_ONLY_PRIOR_WEIGHT = 0.002  # the same for the plane of the feet alone, against which the posture is checked
+FLOOR_AGREEMENT = 10.0  # degrees: the feet's plane may lean this far from the posture before it is not trusted
+FLOOR_BOOTSTRAP_DRAWS = 16
+FLOOR_OUTLIER_DISTANCE = 0.10  # m: foot points farther from the floor are its outliers
+
+
+def move_world_to_floor(qpos: np.ndarray, camera: Camera, floor: Floor, anchor_frame: int):
+    """Re-express a motion in the world whose z = 0 plane is `floor` (camera frame), origin on the floor
+    below the pelvis of `anchor_frame`. Returns (qpos, camera) in the new world."""
+    R_new, t_new = world_from_floor(floor, camera.to_camera(qpos[anchor_frame, :3]))
+    # old world -> camera -> new world
+    qpos = kin.rigid_transform_qpos(qpos, R_new.T @ camera.R, R_new.T @ (camera.t - t_new))
+    return qpos, camera.with_extrinsics(R_new, t_new)
+
+def posture_vertical(body: BodyModel, qpos: np.ndarray, camera: Camera, valid: np.ndarray) -> np.ndarray:
+    """(3,) the person's own vertical in the camera frame: per frame the unit axis from the middle of the four
+    sole points to the centre of mass, its median over the valid frames. A body cannot keep its centre of mass
+    away from above its support for long (it would fall), so over a clip this axis leans as little as the
+    posture does, whichever way the person turns."""
+    pose = kin.forward_kinematics(body, qpos)
+    com = camera.to_camera(kin.center_of_mass(body, pose))
+    soles = camera.to_camera(pose.points[:, body.point_index(CONTACT_POINTS)])
+    return unit_vectors(np.median(unit_vectors(com - soles.mean(axis=1))[valid], axis=0))
+
+def floor_tilt_spread(points: np.ndarray, frames: np.ndarray, up: np.ndarray, fitted: np.ndarray,
+                      fps: float, draws: int = FLOOR_BOOTSTRAP_DRAWS, seed: int = 0) -> float:
+    """Degrees, RMS angle to `fitted` of the normals that estimate_floor's fit finds on resamplings of the foot
+    points (points (N, 3), camera frame; frames (N,) the frame of each) by blocks of one second (a still foot
+    gives many nearly equal points, which are one piece of evidence, not many); 90 with under two blocks."""
+    block = np.asarray(frames) // max(1, int(round(fps)))
+    blocks = np.unique(block)
+    if len(blocks) < 2:
+        return 90.0
+    rng = np.random.default_rng(seed)
+    angles = []
+    for _ in range(draws):
+        sample = np.concatenate([points[block == b] for b in rng.choice(blocks, len(blocks))])
+        angles.append(angle_degrees(fit_floor(sample, up, prior_weight=FLOOR_PRIOR_WEIGHT)[0].normal, fitted))
+    return float(np.sqrt(np.mean(np.square(angles))))
+
+def estimate_floor(body: BodyModel, qpos: np.ndarray, camera: Camera, fps: float, valid: np.ndarray) -> Floor:
+    """Floor from the feet and the person's posture, in the camera frame, when no contact labels exist yet.
+
+    A robust (Huber) plane through the lowest sole point of each frame while it is slow, its tilt pulled
+    towards the person's own vertical (`posture_vertical`) with FLOOR_PRIOR_WEIGHT. Its confidence: the share of
+    those points within FLOOR_OUTLIER_DISTANCE of it, the spread of its normal under a bootstrap over seconds
+    (`floor_tilt_spread`), and the angle between the vertical and the plane the feet alone give (nearly free of
+    the prior). Beyond FLOOR_AGREEMENT degrees the feet say something no posture explains (points taken from a
+    lifted foot, a wrong depth) and the floor is not trusted: it is then level with the posture, through the
+    same points, a warning is logged and Floor.trusted says so."""
+    pts = camera.to_camera(kin.forward_kinematics(body, qpos).points)
+    up = posture_vertical(body, qpos, camera, valid)
+    soles = pts[:, body.point_index(CONTACT_POINTS)]  # (T, 4, 3)
+    height = soles @ up
+    lowest = height <= height.min(axis=1, keepdims=True) + 0.03
+    speed = np.zeros(soles.shape[:2])
+    speed[1:] = np.linalg.norm(np.diff(soles, axis=0), axis=2) * fps
+    slow = speed <= np.percentile(speed[valid], 50)
+    chosen = lowest & slow & valid[:, None]
+    if chosen.sum() < 8:
+        chosen = lowest & valid[:, None]
+    points, frames = soles[chosen], np.nonzero(chosen)[0]
+    floor, _ = fit_floor(points, up, prior_weight=FLOOR_PRIOR_WEIGHT)
+    feet_only, _ = fit_floor(points, up, prior_weight=FEET_ONLY_PRIOR_WEIGHT)
+    disagreement = angle_degrees(feet_only.normal, up)
+    spread = floor_tilt_spread(points, frames, up, floor.normal, fps)
+    if disagreement <= FLOOR_AGREEMENT:
+        normal, offset, source, trusted = floor.normal, floor.offset, "feet and posture", True
+    else:
+        normal, offset, source, trusted = up, robust_offset(points, up), "posture", False
+        log.warning("The floor through the feet is tilted %.0f degrees from the person's posture (more than %.0f): "
+                    "it cannot be trusted, and the floor is taken level with the posture instead; give it with "
+                    "--floor if it is known.", disagreement, FLOOR_AGREEMENT)
+    inliers = float(np.mean(np.abs(points @ normal + offset) < FLOOR_OUTLIER_DISTANCE))
+    return Floor(normal, offset, inliers, spread, disagreement, trusted, source)
