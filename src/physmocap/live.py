@@ -6,13 +6,13 @@ On two cores the throughput is set by the slowest stage, not their sum.
 
 The drop policy (`drop_stale_frames`, on for `physmocap live`): from the end of the calibration warm-up on, a stage
 that falls behind skips to the newest frame that has reached it, so that the latency from a frame's arrival to its
-pose stays bounded. The detector takes the
-newest arrived frame (older ones were read and are discarded); the fit takes the newest detection (older ones are
-discarded). A skipped frame stays in the result on the frame grid, invalid with reason DROPPED_REASON: its pose is
-the causal fit's constant-velocity prediction (OnlineFitter.skip), its contacts are the network's for an unseen
-frame (none) and the physics steps through it, so every stage keeps its time step of 1 / fps, and a dropped frame
-costs the fit thread a few milliseconds, a fraction of a fitted one. Without the policy every frame is processed and the lag grows for as long as
-the pipeline is slower than the source. A file fed as fast as possible (realtime=False) is never dropped: its
+pose stays bounded. The detector takes the newest arrived frame (older ones were read and are discarded); the fit
+takes the newest detection (older ones are discarded). A skipped frame stays in the result on the frame grid,
+invalid with reason DROPPED_REASON: its pose is the causal fit's constant-velocity prediction (OnlineFitter.skip),
+its contacts are the network's for an unseen frame (none) and the physics steps through it, so every stage keeps
+its time step of 1 / fps, and a dropped frame costs the fit thread a few milliseconds, a fraction of a fitted one.
+Without the policy every frame is processed and the lag grows for as long as the pipeline is slower than the
+source. A file fed as fast as possible (realtime=False) is never dropped: its
 reader waits for the pipeline.
 """
 
@@ -30,9 +30,9 @@ import cv2
 import numpy as np
 
 from .config import Settings
+from .contacts.baselines import CAUSAL_SIZE_WINDOW, velocity_2d
 from .contacts.features import CAUSAL_WINDOW
 from .contacts.footlock import lock_feet
-from .contacts.baselines import CAUSAL_SIZE_WINDOW, velocity_2d
 from .contacts.networks import NUM_OUTPUTS
 from .contacts.predict import load_weights, network_probabilities
 from .dynamics.stage import PhysicsMotion, PhysicsStream, onto_refined_floor

@@ -106,7 +106,8 @@ def _frame_lengths(landmarks: np.ndarray) -> dict[str, np.ndarray]:
         return np.sqrt(np.maximum(np.einsum("ti,ti->t", v, v) - along_up**2 - side**2, 0.0))
 
     hand_mid = lambda side: 0.5 * (P[:, LM[f"{side}_index"]] + P[:, LM[f"{side}_pinky"]])  # noqa: E731
-    hands = np.stack([np.linalg.norm(hand_mid(side) - P[:, LM[f"{side}_wrist"]], axis=-1) for side in ("left", "right")])
+    hands = np.stack([np.linalg.norm(hand_mid(side) - P[:, LM[f"{side}_wrist"]], axis=-1)
+                      for side in ("left", "right")])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # frames where neither hand is seen
         hand = np.nanmean(hands, axis=0)

@@ -20,8 +20,8 @@ Variables are steps in MuJoCo's velocity space applied on the manifold.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import mujoco
 import numpy as np
@@ -83,7 +83,7 @@ class FitTargets:
     contacts: np.ndarray | None = None
     floor: np.ndarray | None = None
 
-    def frames(self, sl: slice | np.ndarray) -> "FitTargets":
+    def frames(self, sl: slice | np.ndarray) -> FitTargets:
         return FitTargets(self.keypoints[sl], self.weight_2d[sl], self.targets_3d[sl], self.weight_3d[sl],
                           self.depth[sl], None if self.contacts is None else self.contacts[sl], self.floor)
 
@@ -492,7 +492,7 @@ class KinematicFitter:
         g = (Jt @ r[..., None])[..., 0]
         cost = np.einsum("km,km->k", r, r)
         signals = self.temporal_signals(points, jac, qpos)
-        for (values, jacobians, coeffs), past in zip(signals, history or [None] * len(signals)):
+        for (values, jacobians, coeffs), past in zip(signals, history or [None] * len(signals), strict=True):
             if past is None or past.shape[1] < len(coeffs) - 1:
                 continue
             rho = coeffs[-1] * values + np.einsum("j,kjn->kn", coeffs[:-1], past[:, 1 - len(coeffs):])
@@ -540,7 +540,7 @@ class KinematicFitter:
                 q, cost, g, H, signals = q_new, c_new, g_new, H_new, s_new
             else:
                 q[won], cost[won], g[won], H[won] = q_new[better], c_new[better], g_new[better], H_new[better]
-                for values, new in zip(signals, s_new):
+                for values, new in zip(signals, s_new, strict=True):
                     values[won] = new[better]
             steps[won] += 1
             damping[won] = np.maximum(damping[won] / 3, 1e-7)

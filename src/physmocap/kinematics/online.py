@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import dataclasses
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import mujoco
 import numpy as np
@@ -48,12 +48,12 @@ class CausalPast:
     signals: list[np.ndarray]
 
     @staticmethod
-    def of(fitter: KinematicFitter, poses: list[np.ndarray]) -> "CausalPast":
+    def of(fitter: KinematicFitter, poses: list[np.ndarray]) -> CausalPast:
         """The past made of fitted poses (each (K, nq)), e.g. after the world has moved."""
         values = [fitter.signal_values(q) for q in poses]
-        return CausalPast(list(poses), [np.stack(v, axis=1) for v in zip(*values)])
+        return CausalPast(list(poses), [np.stack(v, axis=1) for v in zip(*values, strict=True)])
 
-    def rows(self, rows: np.ndarray) -> "CausalPast":
+    def rows(self, rows: np.ndarray) -> CausalPast:
         return CausalPast([q[rows] for q in self.poses], [v[rows] for v in self.signals])
 
 
@@ -84,7 +84,7 @@ def causal_step(fitter: KinematicFitter, targets: FitTargets, past: CausalPast, 
         result = fitter.fit_frames(start, targets, past.signals, iterations, damping_increase=damping_increase)
     signals = [v[:, None] for v in result.signals]
     if past.signals:
-        signals = [np.concatenate([h[:, -1:], v], axis=1) for h, v in zip(past.signals, signals)]
+        signals = [np.concatenate([h[:, -1:], v], axis=1) for h, v in zip(past.signals, signals, strict=True)]
     return result.qpos, CausalPast(past.poses[-1:] + [result.qpos], signals)
 
 
@@ -96,7 +96,8 @@ def fit_streams(fitter: KinematicFitter, targets: FitTargets, valid: np.ndarray,
     extrapolated. valid: (T,) bool, at least one frame; returns qpos (T, nq)."""
     frames = np.flatnonzero(valid)
     gap_ends = np.flatnonzero(np.diff(frames, prepend=-2) > 1)  # positions in `frames` where a run begins
-    starts = np.concatenate([np.arange(a, b, chunk) for a, b in zip(gap_ends, np.append(gap_ends[1:], len(frames)))])
+    run_ends = np.append(gap_ends[1:], len(frames))
+    starts = np.concatenate([np.arange(a, b, chunk) for a, b in zip(gap_ends, run_ends, strict=True)])
     ends = np.append(starts[1:], len(frames))
     fitted = np.zeros((len(frames), fitter.body.nq))
     past, rows = CausalPast([], []), np.arange(len(starts))
@@ -225,7 +226,7 @@ class OnlineFitter:
             qpos, self.camera = move_world_to_floor(qpos, self.camera, self.floor, first)
             self.fitter = KinematicFitter(self.body, self.camera, s.fit, self.fps)
             self._past = CausalPast.of(self.fitter, [q[None] for q in qpos[-2:]])
-        return list(zip(range(first_index, first_index + len(qpos)), qpos))
+        return list(enumerate(qpos, start=first_index))
 
     def _fit_held(self, k2: np.ndarray, k3: np.ndarray, valid: np.ndarray, depth: np.ndarray,
                   first: int) -> list[tuple[np.ndarray, bool]]:

@@ -117,7 +117,7 @@ def false_flights(body, qpos: np.ndarray, fps: float, contacts: np.ndarray, vali
     airborne = ~contacts.any(axis=1) & valid
     edges = np.flatnonzero(np.diff(np.concatenate([[0], airborne.astype(int), [0]])))
     T = len(qpos)
-    for a, b in zip(edges[::2], edges[1::2]):
+    for a, b in zip(edges[::2], edges[1::2], strict=True):
         lo, hi = max(a - 1, 0), min(b, T - 1)
         if hi - lo < 2:
             continue
@@ -164,7 +164,7 @@ def clean_runs(flags: np.ndarray, min_frames: int) -> np.ndarray:
     """flags without the runs of True shorter than min_frames."""
     edges = np.flatnonzero(np.diff(np.concatenate([[0], flags.astype(int), [0]])))
     out = np.zeros_like(flags, dtype=bool)
-    for a, b in zip(edges[::2], edges[1::2]):
+    for a, b in zip(edges[::2], edges[1::2], strict=True):
         out[a:b] = b - a >= min_frames
     return out
 

@@ -77,7 +77,7 @@ class KinematicMotion:
                     floor_trusted=np.bool_(self.floor.trusted), floor_source=np.str_(self.floor.source))
 
     @classmethod
-    def from_arrays(cls, arrays) -> "KinematicMotion":
+    def from_arrays(cls, arrays) -> KinematicMotion:
         """The motion `to_arrays` gave (a KeyError names a missing array)."""
         import json
 

@@ -93,16 +93,17 @@ def refine_lengths(body: BodyModel, camera: Camera, qpos: np.ndarray, targets: F
     n = len(REFINED_LENGTHS)
     normal, rhs = np.zeros((n, n)), np.zeros(n)
     metres_per_pixel = (targets.depth / camera.focal)[:, None, None]
-    for side in ("left", "right"):
-        def point(name):
-            return points[:, body.point_index([f"{side}_{name}"])[0]]
 
-        forward = unit_vectors(point("toe") - point("heel"))
-        heel = point("heel") - point("ankle")
+    def point(side: str, name: str) -> np.ndarray:
+        return points[:, body.point_index([f"{side}_{name}"])[0]]
+
+    for side in ("left", "right"):
+        forward = unit_vectors(point(side, "toe") - point(side, "heel"))
+        heel = point(side, "heel") - point(side, "ankle")
         down = unit_vectors(heel - np.einsum("ti,ti->t", heel, forward)[:, None] * forward)
-        offsets = [(first, second, [(name, unit_vectors(point(second) - point(first)))]) for name, first, second in (
-            ("thigh", "hip", "knee"), ("shank", "knee", "ankle"), ("upper_arm", "shoulder", "elbow"),
-            ("forearm", "elbow", "wrist"))]
+        offsets = [(first, second, [(name, unit_vectors(point(side, second) - point(side, first)))])
+                   for name, first, second in (("thigh", "hip", "knee"), ("shank", "knee", "ankle"),
+                                               ("upper_arm", "shoulder", "elbow"), ("forearm", "elbow", "wrist"))]
         offsets += [("ankle", "heel", [("heel_back", -forward), ("ankle_height", down)]),
                     ("ankle", "toe", [("toe_front", forward), ("ankle_height", down)])]
         for first, second, terms in offsets:
@@ -111,7 +112,7 @@ def refine_lengths(body: BodyModel, camera: Camera, qpos: np.ndarray, targets: F
             axes = np.stack([axis for _, axis in terms], axis=1)  # (T, k, 3)
             seen = targets.targets_3d[:, b] - targets.targets_3d[:, a]
             # Each axis in the image: pixels per metre at the segment's middle, times metres per pixel.
-            jac = camera.projection_jacobian(0.5 * (point(first) + point(second)))  # (T, 2, 3)
+            jac = camera.projection_jacobian(0.5 * (point(side, first) + point(side, second)))  # (T, 2, 3)
             pixels = np.einsum("tij,tkj->tki", jac, axes) * metres_per_pixel
             rows = [(targets.weight_3d[:, a] * targets.weight_3d[:, b], axes, seen),
                     (targets.weight_2d[:, a] * targets.weight_2d[:, b], pixels,
@@ -124,7 +125,7 @@ def refine_lengths(body: BodyModel, camera: Camera, qpos: np.ndarray, targets: F
         solved = np.linalg.solve(normal, rhs)
     except np.linalg.LinAlgError:
         return calibration
-    for name, value in zip(REFINED_LENGTHS, solved):
+    for name, value in zip(REFINED_LENGTHS, solved, strict=True):
         if plausible_length(name, value / height):
             values[name] = float(value)
             replaced.discard(name)

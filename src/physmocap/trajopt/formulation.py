@@ -115,7 +115,7 @@ def frame_sample_times(frames: np.ndarray, interval: float) -> np.ndarray:
     return np.concatenate([inner.ravel(), frames[-1:]])
 
 
-def free_times(window: "Window", times: np.ndarray) -> np.ndarray:
+def free_times(window: Window, times: np.ndarray) -> np.ndarray:
     """`times` without the window's first instant when the window continues another: its state there is the
     previous window's, fixed, and a kinematic constraint on fixed values (sampled elsewhere before) could be
     unsatisfiable."""
@@ -415,7 +415,7 @@ class DurationVariables:
     def __init__(self, moves: list[np.ndarray], phases: list[list[Phase]]):
         self.index: list[list[int | None]] = []
         nominal, lower, upper = [], [], []
-        for point_phases, point_moves in zip(phases, moves):
+        for point_phases, point_moves in zip(phases, moves, strict=True):
             row = []
             for j, p in enumerate(point_phases[1:], start=1):
                 if point_moves[j] <= 0:
@@ -434,7 +434,7 @@ class DurationVariables:
     def boundaries(self, point: int, phases: list[Phase], x=None) -> list:
         """Phase boundary times of one point: floats, or entries of x (the program's variables)."""
         out = [phases[0].start]
-        for p, k in zip(phases[1:], self.index[point]):
+        for p, k in zip(phases[1:], self.index[point], strict=True):
             out.append(p.start if k is None or x is None else x[self.offset + k])
         return out + [phases[-1].end]
 
@@ -493,7 +493,7 @@ def build_window_problem(window: Window, settings: TrajoptSettings, durations: b
     contacts = np.stack([flags_from_phases(p, red.times) for p in window.phases], axis=1)
     shares = support_shares(contacts)
     moves = [boundary_moves(p, settings, window.freeze_after) for p in window.phases]
-    fixed = [Schedule(p, m) for p, m in zip(window.phases, moves)]
+    fixed = [Schedule(p, m) for p, m in zip(window.phases, moves, strict=True)]
     com = ComVariables(window, settings.com_interval, 0)
     offset = com.set.size
     feet, forces = [], []

@@ -82,7 +82,7 @@ def split_drifting(flags: np.ndarray, points: np.ndarray, limit: float, gap: int
 
     for i in range(flags.shape[1]):
         starts, lengths = runs(flags[:, i])
-        for s, n in zip(starts, lengths):
+        for s, n in zip(starts, lengths, strict=True):
             if flags[s, i]:
                 split(i, int(s), int(s + n))
     return flags
@@ -103,7 +103,7 @@ def contact_phases(flags: np.ndarray, times: np.ndarray) -> list[Phase]:
     """(T,) bool flags of one contact point at frame times (T,) seconds -> its phases, in time order."""
     starts, lengths = runs(flags)
     phases = []
-    for s, n in zip(starts, lengths):
+    for s, n in zip(starts, lengths, strict=True):
         last = s + n - 1
         start = times[0] if s == 0 else 0.5 * (times[s - 1] + times[s])
         end = times[-1] if last == len(times) - 1 else 0.5 * (times[last] + times[last + 1])
@@ -157,7 +157,7 @@ def support_held_flights(flags: np.ndarray, com: np.ndarray, points: np.ndarray,
     flags = np.asarray(flags, bool).copy()
     changed = []
     starts, lengths = runs(flags.any(axis=1))
-    for s, n in zip(starts, lengths):
+    for s, n in zip(starts, lengths, strict=True):
         if flags[s].any() or s == 0 or s + n == len(flags):
             continue  # a flight at either end of the clip has no take-off or landing in it to judge it by
         support = flight_support(com[:, 2], times, int(s), int(s + n), gravity)

@@ -33,7 +33,7 @@ class VariableSet:
     symbols: object = None
 
     @staticmethod
-    def create(name: str, size: int) -> "VariableSet":
+    def create(name: str, size: int) -> VariableSet:
         return VariableSet(name, size, np.full(size, -INF), np.full(size, INF), np.zeros(size))
 
 
@@ -264,8 +264,9 @@ class Program:
         violation = float(violation[active].max()) if active.any() else 0.0
         costs = [float(c) for c in self.cost_values.call([x])] if self.costs else []
         status = str(stats.get("return_status", "unknown"))
-        if max_iterations is not None and status == "User_Requested_Stop" and self.iteration_limit.count > max_iterations:
+        if (max_iterations is not None and status == "User_Requested_Stop"
+                and self.iteration_limit.count > max_iterations):
             status = "Maximum_Iterations_Exceeded"  # stopped by max_iterations, not by the user
         return Solution(x, {v.name: x[self.var_slices[v.name]] for v in self.variables}, float(out["f"]),
-                        {c.name: v for c, v in zip(self.costs, costs)}, status, status in CONVERGED_STATUSES,
-                        int(stats.get("iter_count", -1)), seconds, violation)
+                        {c.name: v for c, v in zip(self.costs, costs, strict=True)}, status,
+                        status in CONVERGED_STATUSES, int(stats.get("iter_count", -1)), seconds, violation)

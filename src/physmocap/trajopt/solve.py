@@ -101,7 +101,7 @@ def _force_guess(problem: WindowProblem, program: Program, x: np.ndarray) -> np.
     for force in problem.forces:
         lower, upper = force.set.lower, force.set.upper
         base = program.var_slices[force.set.name].start
-        for t, a in zip(force.node_times, force.value_index):
+        for t, a in zip(force.node_times, force.value_index, strict=True):
             local = a - base
             if lower[local + 2] == upper[local + 2]:  # held: zero where the phase meets a flight, or a start
                 continue
@@ -141,7 +141,7 @@ def _schedule_from(problem: WindowProblem, x_durations: np.ndarray) -> list[list
     for i, phases in enumerate(problem.window.phases):
         row = problem.durations.index[i]
         bounds = [phases[0].start] + [p.start if k is None else float(x_durations[k])
-                                      for p, k in zip(phases[1:], row)]
+                                      for p, k in zip(phases[1:], row, strict=True)]
         bounds.append(phases[-1].end)
         out.append([Phase(p.contact, bounds[j], bounds[j + 1]) for j, p in enumerate(phases)])
     return out

@@ -42,16 +42,16 @@ class Node:
     derivative: np.ndarray
 
     @staticmethod
-    def at(value_index: int, derivative_index: int) -> "Node":
+    def at(value_index: int, derivative_index: int) -> Node:
         """Value at x[value_index:+3], derivative at x[derivative_index:+3]."""
         return Node(value_index + np.arange(DIM), derivative_index + np.arange(DIM))
 
     @staticmethod
-    def zero() -> "Node":
+    def zero() -> Node:
         return Node(np.full(DIM, -1), np.full(DIM, -1))
 
     @staticmethod
-    def resting(xy_index: int) -> "Node":
+    def resting(xy_index: int) -> Node:
         """(x, y, 0) from x[xy_index:+2], zero derivative: a foot in contact."""
         return Node(np.array([xy_index, xy_index + 1, -1]), np.full(DIM, -1))
 
@@ -122,7 +122,7 @@ class Trajectory:
         weights = hermite_weights((times - t0) / h, h, order)
         rows, cols, vals = [], [], []
         for w, (node_attr, field_name) in zip(weights, (("first", "value"), ("first", "derivative"),
-                                                        ("second", "value"), ("second", "derivative"))):
+                                                        ("second", "value"), ("second", "derivative")), strict=True):
             idx = np.stack([getattr(getattr(self.segments[k], node_attr), field_name) for k in seg])  # (n, DIM)
             r = DIM * np.arange(len(times))[:, None] + np.arange(DIM)
             keep = idx >= 0
@@ -141,7 +141,7 @@ class Trajectory:
         for j in range(1, len(self.segments)):
             for seg, s, sign in ((self.segments[j - 1], 1.0, 1.0), (self.segments[j], 0.0, -1.0)):
                 h = seg.nominal[1] - seg.nominal[0]
-                for w, (node_attr, field_name) in zip(hermite_weights(s, h, order), pairs):
+                for w, (node_attr, field_name) in zip(hermite_weights(s, h, order), pairs, strict=True):
                     idx = getattr(getattr(seg, node_attr), field_name)
                     keep = idx >= 0
                     rows.append(DIM * (j - 1) + np.arange(DIM)[keep])

@@ -18,8 +18,8 @@ import dataclasses
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -72,7 +72,7 @@ class WindowReport:
         return dataclasses.asdict(self)
 
     @classmethod
-    def from_dict(cls, values: dict) -> "WindowReport":
+    def from_dict(cls, values: dict) -> WindowReport:
         return cls(**{**values, "stages": [StageReport(**s) for s in values["stages"]]})
 
     def describe(self) -> str:
@@ -156,7 +156,7 @@ class TrajoptMotion:
         return arrays
 
     @classmethod
-    def from_arrays(cls, arrays) -> "TrajoptMotion":
+    def from_arrays(cls, arrays) -> TrajoptMotion:
         """The motion `to_arrays` gave (a KeyError names a missing array)."""
         import json
 
@@ -189,11 +189,11 @@ def window_ranges(frames: int, fps: float, settings: TrajoptSettings) -> list[tu
 def valid_runs(valid: np.ndarray) -> list[tuple[int, int]]:
     """[start, stop) of every run of valid frames."""
     edges = np.flatnonzero(np.diff(np.concatenate([[0], valid.astype(int), [0]])))
-    return list(zip(edges[::2].tolist(), edges[1::2].tolist()))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
 
 
 def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.ndarray,
-                settings: TrajoptSettings = TrajoptSettings(),
+                settings: TrajoptSettings | None = None,
                 progress: Callable[[int, int], None] | None = None,
                 valid: np.ndarray | None = None) -> TrajoptMotion:
     """Physics by trajectory optimisation (Rempe et al. 2020, 3.1 and C) over a kinematic motion.
@@ -203,13 +203,14 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
         `refine_kinematics` (Rempe B.4) or the offline kinematic fit;
     fps: frames per second; contacts: (T, 4) bool contact flags (l heel, l toe, r heel, r toe), e.g. the
         centred contact network's, relabelled by `refine_kinematics`;
-    settings: TrajoptSettings; progress: called with (frames done, T) after each window;
+    settings: TrajoptSettings (None: the defaults); progress: called with (frames done, T) after each window;
     valid: (T,) bool, frames with observations (None: all). Each run of valid frames is optimised on its own
         (a gap without observations has no contact labels and would read as a long flight); invalid frames
         keep the kinematic motion and count as not converged.
     Returns a TrajoptMotion (see there); never raises for a non-converged solve: it flags the frames.
     """
     start_time = time.perf_counter()
+    settings = TrajoptSettings() if settings is None else settings
     settings.check()
     T = len(qpos_kin)
     valid = np.ones(T, bool) if valid is None else np.asarray(valid, bool)
