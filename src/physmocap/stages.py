@@ -312,7 +312,7 @@ class RefinedMotion:
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         return dict(self.motion.to_arrays(), refined_contacts=np.asarray(self.contacts, bool),
-                    refinement=np.str_(json.dumps(self.report)))
+                    refinement=np.array(json.dumps(self.report)))
 
     @classmethod
     def from_arrays(cls, arrays: Any) -> RefinedMotion:

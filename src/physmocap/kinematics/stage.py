@@ -59,22 +59,22 @@ class KinematicMotion:
         import json
 
         T = len(self.qpos)
-        return dict(qpos=self.qpos, lengths=np.str_(json.dumps(self.body.lengths.__dict__)),
-                    mass=np.float64(self.body.mass), camera_K=self.camera.K, camera_R=self.camera.R,
-                    camera_t=self.camera.t, image_size=np.array(self.camera.image_size), floor=self.floor.plane,
-                    floor_inliers=np.float64(self.floor.inlier_fraction),
+        calibration, floor = self.calibration, self.floor
+        numbers = dict(mass=self.body.mass, floor_inliers=floor.inlier_fraction, seconds=self.seconds,
+                       landmark_scale=calibration.landmark_scale, height=calibration.height,
+                       detector_height=calibration.detector_height, floor_tilt_spread=floor.tilt_spread,
+                       floor_prior_disagreement=floor.prior_disagreement)
+        return dict(qpos=self.qpos, lengths=np.array(json.dumps(self.body.lengths.__dict__)),
+                    camera_K=self.camera.K, camera_R=self.camera.R, camera_t=self.camera.t,
+                    image_size=np.array(self.camera.image_size), floor=floor.plane,
                     reprojection_error=np.full(T, np.nan) if self.reprojection_error is None
-                    else self.reprojection_error, valid=self.valid, seconds=np.float64(self.seconds),
-                    online=np.bool_(self.online), landmark_scale=np.float64(self.calibration.landmark_scale),
-                    frames_used=np.int64(self.calibration.frames_used),
-                    replaced=np.array(self.calibration.replaced, dtype=str),
+                    else self.reprojection_error, valid=self.valid, online=np.array(self.online, dtype=bool),
+                    frames_used=np.array(calibration.frames_used, dtype=np.int64),
+                    replaced=np.array(calibration.replaced, dtype=str),
                     foot_swaps=np.zeros(T, bool) if self.foot_swaps is None else np.asarray(self.foot_swaps, bool),
-                    height=np.float64(self.calibration.height),
-                    detector_height=np.float64(self.calibration.detector_height),
-                    height_source=np.str_(self.calibration.height_source),
-                    floor_tilt_spread=np.float64(self.floor.tilt_spread),
-                    floor_prior_disagreement=np.float64(self.floor.prior_disagreement),
-                    floor_trusted=np.bool_(self.floor.trusted), floor_source=np.str_(self.floor.source))
+                    height_source=np.array(calibration.height_source),
+                    floor_trusted=np.array(floor.trusted, dtype=bool), floor_source=np.array(floor.source),
+                    **{name: np.array(value, dtype=np.float64) for name, value in numbers.items()})
 
     @classmethod
     def from_arrays(cls, arrays) -> KinematicMotion:

@@ -280,7 +280,10 @@ class _Packer:
     """Collects a variable set's entries: initial values and bounds, handing out indices."""
 
     def __init__(self, offset: int):
-        self.offset, self.initial, self.lower, self.upper = offset, [], [], []
+        self.offset = offset
+        self.initial: list[np.ndarray] = []
+        self.lower: list[np.ndarray] = []
+        self.upper: list[np.ndarray] = []
 
     def take(self, values, lower, upper) -> int:
         index = self.offset + sum(len(v) for v in self.initial)
@@ -414,9 +417,11 @@ class DurationVariables:
 
     def __init__(self, moves: list[np.ndarray], phases: list[list[Phase]]):
         self.index: list[list[int | None]] = []
-        nominal, lower, upper = [], [], []
+        nominal: list[float] = []
+        lower: list[float] = []
+        upper: list[float] = []
         for point_phases, point_moves in zip(phases, moves, strict=True):
-            row = []
+            row: list[int | None] = []
             for j, p in enumerate(point_phases[1:], start=1):
                 if point_moves[j] <= 0:
                     row.append(None)
@@ -464,10 +469,10 @@ class WindowProblem:
     def force_set_names(self) -> tuple[str, ...]:
         return tuple(f.set.name for f in self.forces)
 
-    def sample(self, trajectory: Trajectory, times: np.ndarray, order: int = 0) -> ca.SX:
+    def sample(self, trajectory: Trajectory, times: np.ndarray | list[float], order: int = 0) -> ca.SX:
         return trajectory.sample(self.x, times, order)
 
-    def select(self, starts: np.ndarray) -> ca.MX:
+    def select(self, starts: np.ndarray) -> ca.SX:
         """(3, k) the entries x[a:a + 3] for each a in starts (k,), by one sparse product."""
         rows = np.arange(3 * len(starts))
         cols = (np.asarray(starts)[:, None] + np.arange(3)).ravel()

@@ -157,7 +157,7 @@ class Trajectory:
         return [k for k, s in enumerate(self.segments)
                 if s.nominal[0] - s.slack[0] - 1e-9 <= t <= s.nominal[1] + s.slack[1] + 1e-9]
 
-    def sample(self, x, times: np.ndarray, order: int = 0):
+    def sample(self, x, times: np.ndarray | list[float], order: int = 0):
         """(DIM, n) samples at `times` (n,) of the value or a time derivative. Samples that only fixed segments
         can hold are one sparse product with x; the others are built per group of samples with the same
         candidate segments, the segment holding each sample chosen in the expression graph."""

@@ -152,7 +152,7 @@ class TrajoptMotion:
         import json
 
         arrays = {f.name: np.asarray(getattr(self, f.name)) for f in dataclasses.fields(self)}
-        arrays["windows"] = np.str_(json.dumps([w.to_dict() for w in self.windows]))
+        arrays["windows"] = np.array(json.dumps([w.to_dict() for w in self.windows]))
         return arrays
 
     @classmethod
