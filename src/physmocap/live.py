@@ -98,10 +98,11 @@ def _open_source(source) -> tuple[Iterator[tuple[int, np.ndarray]], float, tuple
 
         def camera_frames():
             index, frame = 0, first
-            while frame is not None:
+            while True:
                 yield index, frame
                 ok, frame = capture.read()
-                frame = frame if ok else None
+                if not ok:
+                    return
                 index += 1
         return camera_frames(), fps, (first.shape[1], first.shape[0]), capture.release, True
     from .io.video import iter_frames
@@ -204,7 +205,7 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
         stop.set()
         if reader.ident is None:  # never started, so it will not close the source
             close()
-    if fitter.body is None:
+    if fitter.body is None or fitter.calibration is None or fitter.floor is None:  # the warm-up never ended
         raise InputError(f"{source}: no person was found in any frame.")
     T = len(reasons)
     obs = _observations(keypoints, world, reasons, fps, image_size, str(source),

@@ -12,13 +12,13 @@ import mujoco
 import numpy as np
 
 from ..body import kinematics as kin
-from ..body.model import build_body_model
+from ..body.model import BodyModel, build_body_model
 from ..camera import Camera, Floor, world_from_floor
 from ..config import Settings
 from ..detect.foot_swaps import CausalFootSwaps, find_foot_swaps, swap_feet, undo_foot_swaps
 from ..landmarks import NUM_LANDMARKS
 from ..motion import Observations
-from .calibration import calibrate, resolve_height
+from .calibration import Calibration, calibrate, resolve_height
 from .fit import FitTargets, KinematicFitter, initial_qpos
 from .floor import estimate_floor, move_world_to_floor
 from .targets import make_targets, raw_depth, refine_lengths, smooth_depth
@@ -143,7 +143,10 @@ class OnlineFitter:
         self.camera = Camera.from_settings(image_size, cam.focal, cam.fov,
                                            None if (cam.focal or cam.fov) else camera_K)
         self.warmup = settings.body.calibration_frames or max(1, round(WARMUP_SECONDS * fps))
-        self.body = self.calibration = self.floor = self.fitter = None
+        self.body: BodyModel | None = None  # these four: None until the warm-up ends
+        self.calibration: Calibration | None = None
+        self.floor: Floor | None = None
+        self.fitter: KinematicFitter | None = None
         self._pending: list[tuple[np.ndarray, np.ndarray, bool]] = []
         self._frames = 0
         self._depths: deque[float] = deque(maxlen=DEPTH_WINDOW)
@@ -169,7 +172,7 @@ class OnlineFitter:
         """A frame that is not fitted (live capture dropped it): during the warm-up it is held as unseen; after,
         its pose is the constant-velocity prediction the fit of an unseen frame starts from, at a fraction of the
         fit's cost, and the past moves on by it."""
-        if self.body is None:
+        if self.fitter is None:
             return self.push(np.zeros((NUM_LANDMARKS, 3)), np.zeros((NUM_LANDMARKS, 3)), False)
         index, self._frames = self._frames, self._frames + 1
         q = predicted_pose(self.fitter, self._past)
@@ -238,24 +241,26 @@ class OnlineFitter:
 
     def _fit(self, keypoints_2d: np.ndarray, landmarks_3d: np.ndarray, valid: bool) -> tuple[np.ndarray, bool]:
         """One frame fitted from the past: its pose (nq,) and whether its feet were read swapped."""
-        s = self.settings
+        s, calibration, fitter = self.settings, self.calibration, self.fitter
+        if calibration is None or fitter is None:
+            raise RuntimeError("OnlineFitter._fit ran before the warm-up calibrated the body.")  # a bug
         k2, k3, v = keypoints_2d[None], landmarks_3d[None], np.array([valid])
-        depth = raw_depth(k2, k3, v, self.camera.focal, self.calibration, s.fit.min_confidence)[0]
+        depth = raw_depth(k2, k3, v, self.camera.focal, calibration, s.fit.min_confidence)[0]
         if np.isfinite(depth):
             self._depths.append(float(depth))
         depth = np.array([np.median(self._depths)])
-        q = predicted_pose(self.fitter, self._past) if self._past.poses else None
-        if s.fit.undo_foot_swaps and valid and len(self._past.poses) == 2:
+        q = predicted_pose(fitter, self._past) if self._past.poses else None
+        if s.fit.undo_foot_swaps and valid and q is not None and len(self._past.poses) == 2:
             # Both readings of the feet, scored at the pose the past predicts; the better one is fitted.
             both = make_targets(np.concatenate([k2, swap_feet(k2)]), np.concatenate([k3, swap_feet(k3)]),
-                                np.array([True, True]), np.repeat(depth, 2), self.camera, self.calibration, s.fit)
-            points, jac = self.fitter.evaluate(q)
-            r, _ = self.fitter.frame_terms(np.repeat(q, 2, axis=0), np.repeat(points, 2, axis=0),
+                                np.array([True, True]), np.repeat(depth, 2), self.camera, calibration, s.fit)
+            points, jac = fitter.evaluate(q)
+            r, _ = fitter.frame_terms(np.repeat(q, 2, axis=0), np.repeat(points, 2, axis=0),
                                            np.repeat(jac, 2, axis=0), both)
             swapped = self._foot_swaps.update(*np.sum(r * r, axis=1))
             targets = both.frames(slice(int(swapped), int(swapped) + 1))
         else:
             swapped = False
-            targets = make_targets(k2, k3, v, depth, self.camera, self.calibration, s.fit)
-        q, self._past = causal_step(self.fitter, targets, self._past, s.fit.online_iterations, prediction=q)
+            targets = make_targets(k2, k3, v, depth, self.camera, calibration, s.fit)
+        q, self._past = causal_step(fitter, targets, self._past, s.fit.online_iterations, prediction=q)
         return q[0], swapped

@@ -132,9 +132,12 @@ def _fit_online(obs: Observations, settings: Settings, progress: ProgressFactory
         if bar:
             bar(t + 1, obs.num_frames)
     store(online.finish())
+    if online.body is None or online.calibration is None or online.floor is None or qpos is None:
+        raise ReconstructionError(f"{obs.source}: no frame shows a person to fit.")
     swaps = np.zeros(obs.num_frames, dtype=bool)
     swaps[online.foot_swap_frames] = True
-    return KinematicMotion(online.body, online.calibration, online.camera, online.floor, qpos, None,
+    unmeasured = np.full(obs.num_frames, np.nan)  # fit_motion measures the reprojection errors
+    return KinematicMotion(online.body, online.calibration, online.camera, online.floor, qpos, unmeasured,
                            obs.valid.copy(), 0.0, True, swaps)
 
 
@@ -170,7 +173,8 @@ def _fit_offline(obs: Observations, settings: Settings, progress: ProgressFactor
     floor = (Floor.from_plane(s.camera.floor) if s.camera.floor is not None
              else estimate_floor(body, qpos, camera, obs.fps, obs.valid))
     qpos, camera = move_world_to_floor(qpos, camera, floor, int(np.argmax(obs.valid)))
-    return KinematicMotion(body, calibration, camera, floor, qpos, None, obs.valid.copy(), 0.0, False, swaps)
+    unmeasured = np.full(obs.num_frames, np.nan)  # fit_motion measures the reprojection errors
+    return KinematicMotion(body, calibration, camera, floor, qpos, unmeasured, obs.valid.copy(), 0.0, False, swaps)
 
 
 def hold_outside_valid(qpos: np.ndarray, valid: np.ndarray) -> np.ndarray:
