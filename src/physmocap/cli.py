@@ -10,6 +10,7 @@ import re
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import physmocap  # noqa: F401 - sets single-threaded BLAS before numpy loads
 
@@ -25,6 +26,9 @@ from .errors import (
 )
 from .presets import PRESETS, SMOOTHING_LIMITS
 from .settings_fields import declaration, describe
+
+if TYPE_CHECKING:
+    from .live import LiveReport
 
 EXAMPLES = """\
 examples:
@@ -490,10 +494,7 @@ def cmd_live(args) -> int:
     import json
     import time
 
-    import numpy as np
-
     from .live import stream_capture
-    from .pipeline import write_outputs
 
     settings = settings_from_args(args)
     if args.max_frames is not None and args.max_frames < 1:
@@ -532,7 +533,14 @@ def cmd_live(args) -> int:
     finally:
         if stream is not None:
             stream.close()
-    T = report.observations.num_frames
+    _print_live_report(report)
+    if args.output is not None:
+        _write_live_outputs(args.output, str(source), report, settings)
+    return 0
+
+
+def _print_live_report(report: LiveReport) -> None:
+    """The frames, the latency and the time per frame of each stage of a live capture, on stdout."""
     print(f"live: {report.frames_arrived} frames arrived at {report.observations.fps:.1f} fps, "
           f"{report.frames_processed} processed ({report.frames_per_second:.1f} per second), "
           f"{report.frames_dropped} dropped; true latency from arrival to pose: median "
@@ -540,18 +548,26 @@ def cmd_live(args) -> int:
           f"(after the {report.warmup_frames}-frame calibration warm-up)")
     print(f"per frame: detect {report.detect_ms_per_frame:.1f} ms, fit {report.fit_ms_per_frame:.1f} ms, "
           f"contacts and physics {report.contacts_physics_ms_per_frame:.1f} ms")
-    if args.output is not None:
-        seconds = {"detect": report.detect_ms_per_frame * T / 1000, "kinematics": report.motion.seconds,
-                   "contacts_physics": report.contacts_physics_ms_per_frame * T / 1000}
-        summary = write_outputs(args.output, str(source), report.observations, report.motion, report.contacts,
-                                report.stationary, report.physics, settings, seconds, [])
-        if report.physics is not None and np.any(report.physics.qp_failures):
-            print(f"warning: the physics QP fell back on {int(np.sum(report.physics.qp_failures > 0))} frames")
-        _note_foot_swaps(summary)
-        _warn_strayed(summary, settings)
-        _note_physics_floor_height(summary)
-        print(f"results in {args.output}/: live.jsonl, " + ", ".join(Path(p).name for p in summary.files.values()))
-    return 0
+
+
+def _write_live_outputs(output: Path, source: str, report: LiveReport, settings: Settings) -> None:
+    """A live capture's result.npz, exports and summary.json in `output`, with the notes and warnings of a
+    capture."""
+    import numpy as np
+
+    from .pipeline import write_outputs
+
+    T = report.observations.num_frames
+    seconds = {"detect": report.detect_ms_per_frame * T / 1000, "kinematics": report.motion.seconds,
+               "contacts_physics": report.contacts_physics_ms_per_frame * T / 1000}
+    summary = write_outputs(output, source, report.observations, report.motion, report.contacts,
+                            report.stationary, report.physics, settings, seconds, [])
+    if report.physics is not None and np.any(report.physics.qp_failures):
+        print(f"warning: the physics QP fell back on {int(np.sum(report.physics.qp_failures > 0))} frames")
+    _note_foot_swaps(summary)
+    _warn_strayed(summary, settings)
+    _note_physics_floor_height(summary)
+    print(f"results in {output}/: live.jsonl, " + ", ".join(Path(p).name for p in summary.files.values()))
 
 
 def _note_physics_floor_height(summary) -> None:

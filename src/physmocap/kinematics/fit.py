@@ -159,7 +159,8 @@ class KinematicFitter:
         cam = self.camera
         T, nv, M = len(qpos), self.body.nv, len(self.marker_points)
         n_ball = len(self.ball_vadr)
-        floor_rows = 4 if self._floor_active(targets) else 0
+        floor = self._active_floor(targets)
+        floor_rows = 4 if floor is not None else 0
         r = np.empty((T, self.frame_rows + floor_rows))
         J = np.zeros((T, self.frame_rows + floor_rows, nv))
         mp, mj = points[:, self.marker_points], jac[:, self.marker_points]
@@ -205,17 +206,24 @@ class KinematicFitter:
         below, below_slope = _soft_excess(self.hinge_limits[:, 0] - angles, band)
         r[:, row:row + n_hinge] = wl * (above - below)
         J[:, row + np.arange(n_hinge), self.hinge_vadr] = wl * (above_slope + below_slope)
-        if floor_rows:
-            # Contact position (Rempe B7): c sqrt(w) (n . x + d) for the heel and toe sites.
-            row += n_hinge
-            normal, offset = targets.floor[:3], targets.floor[3]
-            scale = np.sqrt(self.settings.weight_floor) * targets.contacts  # (T, 4)
-            r[:, row:] = scale * (points[:, self.contact_points] @ normal + offset)
-            J[:, row:] = scale[..., None] * (normal @ jac[:, self.contact_points])
+        if floor is not None:
+            self._floor_terms(r[:, row + n_hinge:], J[:, row + n_hinge:], points, jac, *floor)
         return r, J
 
-    def _floor_active(self, targets: FitTargets) -> bool:
-        return self.settings.weight_floor > 0 and targets.floor is not None and targets.contacts is not None
+    def _floor_terms(self, r: np.ndarray, J: np.ndarray, points: np.ndarray, jac: np.ndarray, plane: np.ndarray,
+                     contacts: np.ndarray) -> None:
+        """Contact position (Rempe B7): c sqrt(w) (n . x + d) for the heel and toe sites, written into the
+        residual rows r (T, 4) and their Jacobians J (T, 4, nv)."""
+        normal, offset = plane[:3], plane[3]
+        scale = np.sqrt(self.settings.weight_floor) * contacts  # (T, 4)
+        r[:] = scale * (points[:, self.contact_points] @ normal + offset)
+        J[:] = scale[..., None] * (normal @ jac[:, self.contact_points])
+
+    def _active_floor(self, targets: FitTargets) -> tuple[np.ndarray, np.ndarray] | None:
+        """The floor plane (4,) and contact flags (T, 4) when the contact term applies, else None."""
+        if self.settings.weight_floor > 0 and targets.floor is not None and targets.contacts is not None:
+            return targets.floor, targets.contacts
+        return None
 
     @staticmethod
     def _robust_weight(residuals: np.ndarray, threshold: float) -> np.ndarray:
@@ -357,12 +365,19 @@ class KinematicFitter:
         Pairs of frames make the system block-tridiagonal, solved by block Cholesky in O(T). Each pair's factor
         and its coupling to the next pair take the place of the pair's own blocks of H (three each), so the
         solve needs no memory that grows with the clip beyond H."""
+        y = KinematicFitter._banded_forward(g, H, damping)
+        return KinematicFitter._banded_backward(H, y, g.shape[0], g.shape[1])
+
+    @staticmethod
+    def _banded_forward(g: np.ndarray, H: np.ndarray, damping: float) -> np.ndarray:
+        """_solve_banded's factorisation, pair by pair, with the forward substitution: y (T nv,) with L y = -g;
+        H then holds each pair's factor and its coupling W to the pair before."""
         T, nv = g.shape
         pairs = (T + 1) // 2
         diagonal = np.arange(2 * nv)
         b = -g.ravel()
         y = np.empty(T * nv)
-        previous = None  # the factor of the pair before
+        previous = np.empty((0, 0))  # the factor of the pair before (read from the second pair on)
         for s_ in range(pairs):
             a = 2 * s_
             m = min(2, T - a)  # frames in the pair: the last one of an odd clip is alone
@@ -399,6 +414,12 @@ class KinematicFitter:
                 H[1, a], H[0, a + 1] = L[nv:, :nv], L[nv:, nv:]
             y[a * nv:(a + m) * nv] = _triangular_solve(L, rhs)
             previous = L
+        return y
+
+    @staticmethod
+    def _banded_backward(H: np.ndarray, y: np.ndarray, T: int, nv: int) -> np.ndarray:
+        """_solve_banded's backward substitution through the factors _banded_forward left in H: x (T, nv)."""
+        pairs = (T + 1) // 2
         x = np.empty(T * nv)
         L = np.zeros((2 * nv, 2 * nv))  # lower triangle read only
         for s_ in range(pairs - 1, -1, -1):

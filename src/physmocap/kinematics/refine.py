@@ -23,7 +23,7 @@ import numpy as np
 
 from ..body import kinematics as kin
 from ..body.model import CONTACT_POINTS
-from ..camera import Floor, tangent_basis
+from ..camera import Camera, Floor, tangent_basis
 from ..config import FitSettings, TrajoptSettings
 from ..detect.foot_swaps import find_foot_swaps, undo_foot_swaps
 from ..motion import Observations
@@ -197,6 +197,29 @@ def fitted_observations(obs: Observations, motion: KinematicMotion, fit: FitSett
     return obs
 
 
+def _contact_floor(soles: np.ndarray, contacts: np.ndarray, valid: np.ndarray, camera: Camera, floor: Floor,
+                   keep_floor: bool, settings: TrajoptSettings) -> tuple[Floor, np.ndarray]:
+    """B.4's second step: the floor through the contact points `soles` (T, 4, 3, camera frame) unless
+    keep_floor (or too few contacts, or it would sink the feet: then `floor`), and the contacts (T, 4) kept as
+    its inliers."""
+    kept = contacts.copy()
+    if contacts.sum() >= MIN_FLOOR_POINTS:
+        if not keep_floor:
+            fitted, _ = fit_contact_floor(soles[contacts], camera.R[:, 2], settings.floor_outlier_distance,
+                                          settings.floor_roll_prior, settings.floor_pitch_prior)
+            # A floor that many feet would sink through is made of wrong labels (feet labelled in contact in
+            # the air): keep the kinematic stage's floor, fitted to the lowest slow foot points, instead (ours).
+            sunk = np.percentile(fitted.height(soles[valid].reshape(-1, 3)), SINK_PERCENTILE)
+            if sunk > -SINK_DEPTH:
+                floor = fitted
+            else:
+                log.info("trajopt: the floor through the labelled contacts lies above %.0f%% of the foot points "
+                         "(by %.0f cm); the kinematic floor is kept.", SINK_PERCENTILE, -100 * sunk)
+        inliers = np.abs(floor.height(soles[contacts])) < settings.floor_outlier_distance
+        kept[contacts] = inliers
+    return floor, kept
+
+
 def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.ndarray, fit: FitSettings,
                       settings: TrajoptSettings, keep_floor: bool = False,
                       progress: ProgressFactory | None = None) -> RefinedKinematics:
@@ -232,22 +255,7 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
     qpos = fitter.fit_offline(motion.qpos, targets_in(camera, contacts, None), bar(fitter, "refine 1/2")).qpos
     # 2. The floor through the contact points (camera frame), outliers relabelled.
     soles = camera.to_camera(kin.forward_kinematics(body, qpos).points[:, body.point_index(CONTACT_POINTS)])
-    floor = motion.floor
-    kept = contacts.copy()
-    if contacts.sum() >= MIN_FLOOR_POINTS:
-        if not keep_floor:
-            fitted, _ = fit_contact_floor(soles[contacts], camera.R[:, 2], settings.floor_outlier_distance,
-                                          settings.floor_roll_prior, settings.floor_pitch_prior)
-            # A floor that many feet would sink through is made of wrong labels (feet labelled in contact in
-            # the air): keep the kinematic stage's floor, fitted to the lowest slow foot points, instead (ours).
-            sunk = np.percentile(fitted.height(soles[obs.valid].reshape(-1, 3)), SINK_PERCENTILE)
-            if sunk > -SINK_DEPTH:
-                floor = fitted
-            else:
-                log.info("trajopt: the floor through the labelled contacts lies above %.0f%% of the foot points "
-                         "(by %.0f cm); the kinematic floor is kept.", SINK_PERCENTILE, -100 * sunk)
-        inliers = np.abs(floor.height(soles[contacts])) < settings.floor_outlier_distance
-        kept[contacts] = inliers
+    floor, kept = _contact_floor(soles, contacts, obs.valid, camera, motion.floor, keep_floor, settings)
     anchor = int(np.argmax(obs.valid))
     qpos, camera = move_world_to_floor(qpos, camera, floor, anchor)
     removed = labelled & ~kept

@@ -269,6 +269,23 @@ def _support_held_flights(flags: np.ndarray, reduced, valid: np.ndarray, setting
     return flags
 
 
+def _measure_departure(report: WindowReport, result, red, n: int, limit: float | None) -> None:
+    """The converged window's mean distance from the kinematic motion over its n kept frames (COM, feet, m) into
+    `report`, departed when the COM's is over `limit`; a warning when it is over the limit or large."""
+    start, keep = report.start, report.keep
+    report.com_departure = float(np.linalg.norm(result.com[:n] - red.com[:n], axis=-1).mean())
+    report.feet_departure = float(np.linalg.norm(result.feet[:n] - red.feet[:n], axis=-1).mean())
+    report.departed = limit is not None and report.com_departure > limit
+    if limit is not None and report.departed:
+        log.warning("trajopt: on frames %d-%d the optimised motion departs from the kinematic one by %.0f cm "
+                    "(COM) on average, more than trajopt.reject_departure (%.0f cm): not used, the kinematic "
+                    "motion is kept there.", start, keep - 1, 100 * report.com_departure, 100 * limit)
+    elif report.com_departure > DEPARTURE_COM or report.feet_departure > DEPARTURE_FEET:
+        log.warning("trajopt: on frames %d-%d the physical motion departs from the kinematic one by %.0f cm "
+                    "(COM) and %.0f cm (feet) on average: the contact labels may be wrong there.", start,
+                    keep - 1, 100 * report.com_departure, 100 * report.feet_departure)
+
+
 def _solve_run(out: TrajoptMotion, reduced, flags: np.ndarray, first: int, end: int, fps: float,
                settings: TrajoptSettings, progress) -> None:
     """The windows of frames [first, end), each starting where the previous one arrived; results into `out`."""
@@ -311,18 +328,7 @@ def _solve_run(out: TrajoptMotion, reduced, flags: np.ndarray, first: int, end: 
                                         time.perf_counter() - t0, restarted=restarted))
         report = out.windows[-1]
         if result.converged:
-            report.com_departure = float(np.linalg.norm(result.com[:n] - red.com[:n], axis=-1).mean())
-            report.feet_departure = float(np.linalg.norm(result.feet[:n] - red.feet[:n], axis=-1).mean())
-            limit = settings.reject_departure
-            report.departed = limit is not None and report.com_departure > limit
-            if report.departed:
-                log.warning("trajopt: on frames %d-%d the optimised motion departs from the kinematic one by %.0f cm "
-                            "(COM) on average, more than trajopt.reject_departure (%.0f cm): not used, the kinematic "
-                            "motion is kept there.", start, keep - 1, 100 * report.com_departure, 100 * limit)
-            elif report.com_departure > DEPARTURE_COM or report.feet_departure > DEPARTURE_FEET:
-                log.warning("trajopt: on frames %d-%d the physical motion departs from the kinematic one by %.0f cm "
-                            "(COM) and %.0f cm (feet) on average: the contact labels may be wrong there.", start,
-                            keep - 1, 100 * report.com_departure, 100 * report.feet_departure)
+            _measure_departure(report, result, red, n, settings.reject_departure)
         if result.converged and not report.departed:
             out.converged[kept] = True
             out.com[kept], out.euler[kept], out.feet[kept] = result.com[:n], result.euler[:n], result.feet[:n]
