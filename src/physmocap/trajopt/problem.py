@@ -11,6 +11,7 @@ from __future__ import annotations
 import signal
 import threading
 import time
+from typing import Any
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
@@ -126,7 +127,8 @@ class IterationLimit(ca.Callback):
     def __init__(self, variables: int, constraints: int):
         ca.Callback.__init__(self)
         self.variables, self.constraints = variables, constraints
-        self.limit, self.count = None, 0
+        self.limit: int | None = None
+        self.count = 0
         self.construct("iteration_limit", {})
 
     def get_n_in(self):
@@ -184,7 +186,7 @@ class Program:
         self.lbg = np.concatenate([c.bounds()[0] for c in constraints]) if constraints else np.zeros(0)
         self.ubg = np.concatenate([c.bounds()[1] for c in constraints]) if constraints else np.zeros(0)
         self.iteration_limit = IterationLimit(int(x.shape[0]), int(self.g.shape[0]))
-        options = {"ipopt": dict(ipopt_options), "print_time": False, "error_on_fail": False,
+        options: dict[str, Any] = {"ipopt": dict(ipopt_options), "print_time": False, "error_on_fail": False,
                    "iteration_callback": self.iteration_limit}
         options["ipopt"].setdefault("print_level", 0)
         options["ipopt"].setdefault("sb", "yes")
@@ -246,10 +248,10 @@ class Program:
         lbg, ubg = self.lbg.copy(), self.ubg.copy()
         active = np.ones(len(lbg), bool)
         for name in relaxed:
-            sl = self.con_slices.get(name)
-            if sl is not None:
-                lbg[sl], ubg[sl] = -INF, INF
-                active[sl] = False
+            rows = self.con_slices.get(name)
+            if rows is not None:
+                lbg[rows], ubg[rows] = -INF, INF
+                active[rows] = False
         start = time.perf_counter()
         self.iteration_limit.limit, self.iteration_limit.count = max_iterations, 0
         with interrupts_noted() as interrupted:

@@ -51,7 +51,7 @@ class ReducedMotion:
     def num_frames(self) -> int:
         return len(self.times)
 
-    def frames(self, sl: slice) -> ReducedMotion:
+    def frames(self, sl: slice | np.ndarray) -> ReducedMotion:
         return ReducedMotion(self.times[sl], self.com[sl], self.rotation[sl], self.euler[sl], self.inertia[sl],
                              self.feet[sl], self.hips[sl], self.mass, self.foot_length, self.leg_length,
                              self.internal_torque[sl])
