@@ -11,9 +11,9 @@ from __future__ import annotations
 import signal
 import threading
 import time
-from typing import Any
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from typing import Any
 
 import casadi as ca
 import numpy as np
