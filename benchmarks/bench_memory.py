@@ -29,6 +29,9 @@ import time
 from pathlib import Path
 
 import physmocap  # noqa: F401 - first: single-threaded BLAS, as the command line runs
+
+# isort: split
+
 import numpy as np
 
 BENCHMARKS = Path(__file__).resolve().parent
@@ -92,9 +95,9 @@ def count_passes(observations: Path, frames: int) -> dict[str, float]:
     counts: 1 + accepted steps + 2 per rejected step (the rejected step's pass and the system assembled again)."""
     from physmocap.config import Settings
     from physmocap.contacts.predict import predict_contacts
+    from physmocap.kinematics.refine import refine_kinematics
     from physmocap.kinematics.stage import fit_motion
     from physmocap.motion import Observations
-    from physmocap.kinematics.refine import refine_kinematics
 
     obs = looped(Observations.load(observations), frames)
     done: dict[str, int] = {}

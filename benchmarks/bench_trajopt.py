@@ -31,6 +31,8 @@ from __future__ import annotations
 
 import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
 
+# isort: split
+
 import argparse
 import dataclasses
 import json
@@ -57,10 +59,10 @@ from physmocap.contacts.predict import predict_contacts  # noqa: E402
 from physmocap.dynamics.stage import run_physcap  # noqa: E402
 from physmocap.evaluation import score_against_truth, to_truth_world  # noqa: E402
 from physmocap.io.atomic import write_text  # noqa: E402
+from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
 from physmocap.kinematics.stage import fit_motion  # noqa: E402
 from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
 from physmocap.mocap.synthetic import make_observations, random_camera, resample  # noqa: E402
-from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
 from physmocap.trajopt import run_trajopt  # noqa: E402
 
 METHODS = ("kinematic offline", "kinematic refined (B.4)", "physcap on offline", "trajopt",
@@ -262,7 +264,7 @@ def flights(fps_values: list[float]) -> list[dict]:
             sites = truth["joints_world"][:, [names.index(n) for n in CONTACT_POINTS]]
             true_contact = contact_labels(sites, fps).any(axis=1)
             edges = np.flatnonzero(np.diff(np.concatenate([[1], flags.any(axis=1).astype(int), [1]])))
-            for a, b in zip(edges[::2], edges[1::2]):
+            for a, b in zip(edges[::2], edges[1::2], strict=True):
                 heights = red.feet[a:b, :, 2].mean(axis=0)
                 lowest = int(np.argmin(heights))
                 xy = red.feet[a:b, lowest, :2]
@@ -453,7 +455,7 @@ def summarise(cases: list[dict]) -> dict:
 def flight_forces(flight: dict) -> str:
     """'n: 0, 41t, ...' for the per-case table: trajopt's force in each true flight frame, t where it touches."""
     forces = [f"{f:.0f}{'t' if t else ''}" for f, t in zip(flight["flight_trajopt_percent_bw"],
-                                                          flight["flight_touching"])]
+                                                          flight["flight_touching"], strict=True)]
     return f"{flight['frames']}" + (": " + ", ".join(forces) if forces else "")
 
 

@@ -99,7 +99,7 @@ def test_temporal_signal_jacobians_match_finite_differences(body, camera):
         step[:, k] = eps
         plus = fitter.temporal_signals(*fitter.evaluate(fitter.integrate(q, step)))
         minus = fitter.temporal_signals(*fitter.evaluate(fitter.integrate(q, -step)))
-        for (v, J, _), (vp, _, _), (vm, _, _) in zip(signals, plus, minus):
+        for (_, J, _), (vp, _, _), (vm, _, _) in zip(signals, plus, minus, strict=True):
             assert np.allclose((vp - vm) / (2 * eps), J[..., k], atol=1e-7)
 
 

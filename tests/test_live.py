@@ -4,10 +4,10 @@ import time
 import numpy as np
 import pytest
 
+from conftest import DEMO_VIDEO
 from physmocap.config import Settings
 from physmocap.kinematics.stage import fit_motion
 from physmocap.live import DROPPED_REASON, WARNING_INTERVAL_SECONDS, stream_capture
-from conftest import DEMO_VIDEO
 
 
 def test_streaming_capture_equals_the_causal_fit_of_the_same_detections():

@@ -8,10 +8,17 @@ from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
 from physmocap.camera import Camera
 from physmocap.config import FitSettings, Settings, TrajoptSettings
+from physmocap.kinematics.refine import (
+    false_flights,
+    fit_contact_floor,
+    fitted_observations,
+    refine_kinematics,
+    resting_points,
+    slipping_contacts,
+    tilt_axes,
+)
 from physmocap.kinematics.stage import fit_motion
 from physmocap.trajopt.ik import ik_targets, solve_ik
-from physmocap.kinematics.refine import (false_flights, fit_contact_floor, fitted_observations, refine_kinematics,
-                                         resting_points, slipping_contacts, tilt_axes)
 from physmocap.trajopt.reduced import reduced_motion
 from test_fit import observe
 

@@ -2,6 +2,7 @@
 the solutions against physics (Newton at every frame, forces in the pyramid, still feet, ballistic flight)."""
 
 import dataclasses
+import itertools
 import logging
 import signal
 import subprocess
@@ -14,20 +15,34 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from conftest import DEMO_VIDEO
 from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
 from physmocap.config import TrajoptSettings
 from physmocap.errors import InputError
-from physmocap.trajopt.formulation import (Window, acceleration_continuity, angular_velocity, build_window_problem,
-                                          euler_torque, frame_sample_times, phase_layout, rotate)
-from physmocap.trajopt.phases import (clean_flags, contact_phases, flags_from_phases, flight_support,
-                                     segment_count, split_drifting, support_held_flights)
+from physmocap.trajopt.formulation import (
+    Window,
+    acceleration_continuity,
+    angular_velocity,
+    build_window_problem,
+    euler_torque,
+    frame_sample_times,
+    phase_layout,
+    rotate,
+)
+from physmocap.trajopt.phases import (
+    clean_flags,
+    contact_phases,
+    flags_from_phases,
+    flight_support,
+    segment_count,
+    split_drifting,
+    support_held_flights,
+)
 from physmocap.trajopt.problem import ConstraintSet, CostTerm, Program, VariableSet
-from physmocap.trajopt.reduced import (boundary_velocity, euler_to_matrix, matrix_to_euler, reduced_motion,
-                                       world_inertia)
+from physmocap.trajopt.reduced import boundary_velocity, euler_to_matrix, matrix_to_euler, reduced_motion, world_inertia
 from physmocap.trajopt.splines import Node, Segment, Trajectory, hermite_weights
 from physmocap.trajopt.stage import run_trajopt, window_ranges
-from conftest import DEMO_VIDEO
 
 FPS = 30.0
 G = 9.81
@@ -218,8 +233,8 @@ def test_drifting_contact_split_where_the_point_moves_with_a_support_kept():
     out = split_drifting(flags, points, 0.03, 2)
     starts = np.flatnonzero(np.diff(np.r_[0, out[:, 1].astype(int)]) == 1)
     ends = np.flatnonzero(np.diff(np.r_[out[:, 1].astype(int), 0]) == -1) + 1
-    assert len(starts) > 2 and all(b - a >= 2 for a, b in zip(starts, ends))
-    for a, b in zip(starts, ends):
+    assert len(starts) > 2 and all(b - a >= 2 for a, b in zip(starts, ends, strict=True))
+    for a, b in zip(starts, ends, strict=True):
         part = points[a:b, 1]
         assert np.linalg.norm(part - np.median(part, axis=0), axis=1).max() <= 0.03
 
@@ -332,7 +347,7 @@ def test_internal_torque_is_the_limbs_share_of_the_angular_momentum_rate(body):
     total = np.gradient(np.array(momentum), axis=0) * FPS
     R = red.rotation
     w = 0.5 * np.stack([(dR @ r.T)[[2, 0, 1], [1, 2, 0]] - (dR @ r.T)[[1, 2, 0], [2, 0, 1]]
-                        for dR, r in zip(np.gradient(R, axis=0) * FPS, R)])
+                        for dR, r in zip(np.gradient(R, axis=0) * FPS, R, strict=True)])
     inertia = R @ red.inertia @ R.transpose(0, 2, 1)
     rigid_part = np.einsum("tij,tj->ti", inertia, np.gradient(w, axis=0) * FPS) + np.cross(
         w, np.einsum("tij,tj->ti", inertia, w))
@@ -394,7 +409,7 @@ def test_window_ranges_cover_the_clip_with_overlap():
     s = TrajoptSettings(window_seconds=2.0, window_overlap=0.5)
     ranges = window_ranges(301, FPS, s)
     assert ranges[0][0] == 0 and ranges[-1][1] == 300 and ranges[-1][2] == 301
-    for (a, b, keep), (a2, _, _) in zip(ranges[:-1], ranges[1:]):
+    for (a, b, keep), (a2, _, _) in itertools.pairwise(ranges):
         assert keep == a2 and b - keep >= 14 and b - a <= 60
     assert window_ranges(50, FPS, s) == [(0, 49, 50)]
 
