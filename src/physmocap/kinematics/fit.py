@@ -466,7 +466,7 @@ class KinematicFitter:
             def report(frames):
                 # A pass's end is reported by the next pass or by the fit's end: a rejected last step adds
                 # passes, and a display must not close before they are done.
-                if frames < T:
+                if frames < T and progress is not None:  # only handed on with a progress display
                     progress(passed + frames, planned)
 
             cost, g, _ = self._offline_system(q, targets, band, report if progress else None)
