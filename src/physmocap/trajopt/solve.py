@@ -19,7 +19,7 @@ import casadi as ca
 import numpy as np
 
 from ..config import TrajoptSettings
-from .formulation import Window, WindowProblem, WindowStart, build_window_problem
+from .formulation import DurationVariables, Window, WindowProblem, WindowStart, build_window_problem
 from .phases import Phase
 from .problem import Program, Solution
 
@@ -135,11 +135,12 @@ def _outputs(problem: WindowProblem):
     return frames, state
 
 
-def _schedule_from(problem: WindowProblem, x_durations: np.ndarray) -> list[list[Phase]]:
+def _schedule_from(window_phases: list[list[Phase]], durations: DurationVariables,
+                   x_durations: np.ndarray) -> list[list[Phase]]:
     """The phases with the optimised boundary times."""
     out = []
-    for i, phases in enumerate(problem.window.phases):
-        row = problem.durations.index[i]
+    for i, phases in enumerate(window_phases):
+        row = durations.index[i]
         bounds = [phases[0].start] + [p.start if k is None else float(x_durations[k])
                                       for p, k in zip(phases[1:], row, strict=True)]
         bounds.append(phases[-1].end)
@@ -168,14 +169,15 @@ def solve_window(window: Window, settings: TrajoptSettings, budget: int | None =
     if dyn.converged and settings.optimize_durations and left > 0:
         t = time.perf_counter()
         dproblem = build_window_problem(window, settings, durations=True)
-        if dproblem.durations.set.size:
+        durations = dproblem.durations  # set: built with durations=True
+        if durations is not None and durations.set.size:
             dprogram = _program(dproblem, settings)
             build += time.perf_counter() - t
-            dur = dprogram.solve(np.concatenate([dyn.x, dproblem.durations.set.initial]), max_iterations=left)
+            dur = dprogram.solve(np.concatenate([dyn.x, durations.set.initial]), max_iterations=left)
             stages.append(_report("durations", dur))
             if dur.converged and dur.objective < dyn.objective:
                 chosen, chosen_problem, x = "durations", dproblem, dur.x
-                phases = _schedule_from(dproblem, dur.values["durations"])
+                phases = _schedule_from(dproblem.window.phases, durations, dur.values["durations"])
     frames_fn, state_fn = _outputs(chosen_problem)
     com, acc, euler, feet, forces = (np.asarray(v) for v in frames_fn(x))
     n = window.reduced.num_frames
