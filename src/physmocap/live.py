@@ -137,44 +137,9 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
     detection_handoff = _Handoff(keep_newest=False)
     reader = _SourceThread(frames, fps, close, scheduled, max_frames, frame_handoff, stop)
     detector = _DetectionThread(frame_handoff, detection_handoff, fps, image_size, settings, stop)
-    fitter = OnlineFitter(settings, fps, image_size)
-    after = _AfterFit(settings, fps)
-    warning = _FallingBehind(fps, paced and drop_stale_frames) if paced else None
-    keypoints: list[np.ndarray] = []
-    world: list[np.ndarray] = []
-    reasons: list[str] = []
-    arrivals: dict[int, float] = {}  # perf_counter of each processed frame's arrival
-    fit_seconds = 0.0
-    dropped = 0  # frames so far that a stage skipped
-    nothing = np.zeros((NUM_LANDMARKS, 3))
-
-    def deliver(results, fitted_straight_away: bool):
-        for index, q in results:
-            final, details = after.push(index, q, fitter.body, keypoints, reasons)
-            if index in arrivals:
-                after.latency[index] = details["latency_s"] = time.perf_counter() - arrivals[index]
-                if warning and fitted_straight_away:
-                    warning.check(index, details["latency_s"], len(reasons), dropped)
-                if on_pose:
-                    on_pose(index, final, details)
-
-    def add(index, kp, wl, reason, arrival):
-        nonlocal fit_seconds, dropped
-        keypoints.append(kp)
-        world.append(wl)
-        reasons.append(reason)
-        if arrival is None:
-            dropped += 1
-        else:
-            arrivals[index] = arrival
-        calibrated = fitter.body is not None  # else the frame may be held by the warm-up
-        t0 = time.perf_counter()
-        results = fitter.push(kp, wl, reason == "") if arrival is not None else fitter.skip()
-        fit_seconds += time.perf_counter() - t0
-        if not calibrated and fitter.body is not None:
-            frame_handoff.keep_newest = detection_handoff.keep_newest = paced and drop_stale_frames
-        deliver(results, calibrated)
-
+    loop = _FitLoop(OnlineFitter(settings, fps, image_size), _AfterFit(settings, fps),
+                    _FallingBehind(fps, paced and drop_stale_frames) if paced else None, on_pose,
+                    (frame_handoff, detection_handoff), paced and drop_stale_frames)
     detector.start()
     try:
         detector.ready.wait()
@@ -183,37 +148,99 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
         item = detection_handoff.take()
         while item is not None:
             index, arrival, kp, wl, reason = item
-            gap = index - len(reasons)
-            for skipped in range(len(reasons), index):  # frames a stage skipped, kept on the grid
-                add(skipped, nothing, nothing, DROPPED_REASON, None)
+            gap = index - len(loop.reasons)
+            for skipped in range(len(loop.reasons), index):  # frames a stage skipped, kept on the grid
+                loop.skip(skipped)
             # A detection that came while those were predicted is taken instead while the gaps shrink; when
             # predicting a gap takes longer than the gap lasted, the next would only grow, and this one is fitted.
             if (newer := detection_handoff.waiting_index()) is not None and newer - index < gap:
                 item = detection_handoff.take_newer()
                 continue
             # as the observations file keeps them (stages.as_stored)
-            add(index, stored_precision(kp), stored_precision(wl), reason, arrival)
+            loop.add(index, stored_precision(kp), stored_precision(wl), reason, arrival)
             item = detection_handoff.take()
         detector.join()
         reader.join()
-        t0 = time.perf_counter()
-        results = fitter.finish()
-        fit_seconds += time.perf_counter() - t0
-        deliver(results, False)
+        loop.finish()
         wall = time.perf_counter() - started
     finally:
         stop.set()
         if reader.ident is None:  # never started, so it will not close the source
             close()
+    return _live_report(str(source), loop, detector, fps, image_size, wall, paced and drop_stale_frames,
+                        frame_handoff.dropped, detection_handoff.dropped)
+
+
+class _FitLoop:
+    """stream_capture's calling thread: each detection (or frame a stage skipped) into the causal fit, and each
+    pose that becomes ready through contacts and physics (`after`) to on_pose; the frames' inputs as they came."""
+
+    def __init__(self, fitter: OnlineFitter, after: _AfterFit, warning: _FallingBehind | None,
+                 on_pose: Callable[[int, np.ndarray, dict], None] | None, handoffs: tuple[_Handoff, _Handoff],
+                 drop_stale_frames: bool):
+        self.fitter, self.after, self.warning, self.on_pose = fitter, after, warning, on_pose
+        self.handoffs, self.drop_stale_frames = handoffs, drop_stale_frames  # the handoffs drop from the warm-up's end
+        self.keypoints: list[np.ndarray] = []
+        self.world: list[np.ndarray] = []
+        self.reasons: list[str] = []
+        self.arrivals: dict[int, float] = {}  # perf_counter of each processed frame's arrival
+        self.fit_seconds = 0.0
+        self.dropped = 0  # frames so far that a stage skipped
+
+    def deliver(self, results: list[tuple[int, np.ndarray]], fitted_straight_away: bool) -> None:
+        for index, q in results:
+            final, details = self.after.push(index, q, self.fitter.body, self.keypoints, self.reasons)
+            if index in self.arrivals:
+                self.after.latency[index] = details["latency_s"] = time.perf_counter() - self.arrivals[index]
+                if self.warning and fitted_straight_away:
+                    self.warning.check(index, details["latency_s"], len(self.reasons), self.dropped)
+                if self.on_pose:
+                    self.on_pose(index, final, details)
+
+    def add(self, index: int, kp: np.ndarray, wl: np.ndarray, reason: str, arrival: float | None) -> None:
+        self.keypoints.append(kp)
+        self.world.append(wl)
+        self.reasons.append(reason)
+        if arrival is None:
+            self.dropped += 1
+        else:
+            self.arrivals[index] = arrival
+        calibrated = self.fitter.body is not None  # else the frame may be held by the warm-up
+        t0 = time.perf_counter()
+        results = self.fitter.push(kp, wl, reason == "") if arrival is not None else self.fitter.skip()
+        self.fit_seconds += time.perf_counter() - t0
+        if not calibrated and self.fitter.body is not None:
+            for handoff in self.handoffs:
+                handoff.keep_newest = self.drop_stale_frames
+        self.deliver(results, calibrated)
+
+    def skip(self, index: int) -> None:
+        """A frame a stage skipped, kept on the grid: unseen, its pose predicted."""
+        nothing = np.zeros((NUM_LANDMARKS, 3))
+        self.add(index, nothing, nothing, DROPPED_REASON, None)
+
+    def finish(self) -> None:
+        """End of stream: what the warm-up still holds fitted and delivered."""
+        t0 = time.perf_counter()
+        results = self.fitter.finish()
+        self.fit_seconds += time.perf_counter() - t0
+        self.deliver(results, False)
+
+
+def _live_report(source: str, loop: _FitLoop, detector: _DetectionThread, fps: float, image_size: tuple[int, int],
+                 wall: float, drop_stale_frames: bool, dropped_before_detection: int,
+                 dropped_before_fit: int) -> LiveReport:
+    """The motion, contacts, physics and figures of a finished stream (see LiveReport)."""
+    fitter, after = loop.fitter, loop.after
     if fitter.body is None or fitter.calibration is None or fitter.floor is None:  # the warm-up never ended
         raise InputError(f"{source}: no person was found in any frame.")
-    T = len(reasons)
-    obs = _observations(keypoints, world, reasons, fps, image_size, str(source),
+    T = len(loop.reasons)
+    obs = _observations(loop.keypoints, loop.world, loop.reasons, fps, image_size, source,
                         detector.seconds / max(detector.detected, 1))
     q = np.stack([after.qpos[i] for i in range(T)])
     motion = KinematicMotion(fitter.body, fitter.calibration, fitter.camera, fitter.floor, q,
-                             reprojection_errors(fitter.body, fitter.camera, q, obs), obs.valid.copy(), fit_seconds,
-                             True)
+                             reprojection_errors(fitter.body, fitter.camera, q, obs), obs.valid.copy(),
+                             loop.fit_seconds, True)
     physics = after.physics_motion(T)
     if physics is not None:  # both on the floor the physics refined, which becomes z = 0
         motion, physics = onto_refined_floor(motion, physics)
@@ -221,10 +248,10 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
     steady = np.array([after.latency[i] for i in range(warmup, T) if i in after.latency]) * 1000
     contacts, stationary = after.contact_flags(T)
     median, p95 = (float(np.median(steady)), float(np.percentile(steady, 95))) if len(steady) else (np.nan, np.nan)
-    return LiveReport(obs, motion, contacts, stationary, physics, wall, len(arrivals) / wall, median, p95, warmup,
-                      detector.seconds / max(detector.detected, 1) * 1000, fit_seconds / max(T, 1) * 1000,
-                      after.seconds / max(T, 1) * 1000, paced and drop_stale_frames, T,
-                      frame_handoff.dropped, detection_handoff.dropped)
+    return LiveReport(obs, motion, contacts, stationary, physics, wall, len(loop.arrivals) / wall, median, p95,
+                      warmup, detector.seconds / max(detector.detected, 1) * 1000, loop.fit_seconds / max(T, 1) * 1000,
+                      after.seconds / max(T, 1) * 1000, drop_stale_frames, T, dropped_before_detection,
+                      dropped_before_fit)
 
 
 def _observations(keypoints: list[np.ndarray], world: list[np.ndarray], reasons: list[str], fps: float,
