@@ -128,6 +128,9 @@ class PhysicsSettings(Section):
                                               "contact gives that flags a frame (None: not checked)")
     unexplained_time: float = setting(0.2, "s", (0.01, 2.0), "time constant of that force's average")
     unexplained_blend: float = setting(0.2, "s", (0.0, 2.0), "output passes to the kinematic motion and back over it")
+    start_drop_time: float | None = setting(0.5, "s", (0.01, 10.0), "a target starting with its feet above the floor "
+                                            "(under contact_height) is lowered onto it; the drop fades with this time "
+                                            "constant (None: off)")
 
 
 TRAJOPT_CONSTRAINTS: tuple[str, ...] = ("dynamics", "acceleration_continuity", "velocity_boundaries", "foot_length",
