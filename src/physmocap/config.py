@@ -87,7 +87,7 @@ class PhysicsSettings(Section):
     kp_root_translation: float = setting(1000.0, "1/s^2", (0.0, 1e4), "stiffness of the root's position")
     kd_root_translation: float = setting(80.0, "1/s", (0.0, 1e4), "damping of the root's position")
     kp_root_horizontal: float | None = setting(250.0, "1/s^2", (0.0, 1e4), "stiffness of its horizontal position "
-                                               "(ours; None: kp_root_translation): less passes fit noise to the forces")
+                                               "(ours; None: kp_root_translation): stiffer passes fit noise to forces")
     kd_root_horizontal: float | None = setting(32.0, "1/s", (0.0, 1e4), "damping of its horizontal position (None: "
                                                "kd_root_translation)")
     acceleration_feedforward: float = setting(0.5, "", (0.0, 1.0), "share of the kinematic acceleration fed "

@@ -263,6 +263,8 @@ class PhysicsStream:
             self._drop = lowest if 0.0 < lowest < self.settings.contact_height else 0.0
         else:
             self._drop = min(self._drop * self._drop_keep, max(lowest, 0.0))
+            if self._drop < 1e-4:  # m: gone; the next frames skip the kinematics
+                self._drop = 0.0
         target = q_kin.copy()
         target[2] -= self._drop
         return target
