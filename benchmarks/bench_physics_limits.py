@@ -310,6 +310,7 @@ def part_methods(clips, seeds, methods=METHODS, walking=WALKING, overrides=None)
                 com = to_truth_world(kin.center_of_mass(motion.body, pose), motion.camera.R, motion.camera.t, truth)
                 row = score_against_truth(points, motion.body.point_names, com, truth, motion.body.mass, grf,
                                           residual)
+                row.update(grf_horizontal_components(grf, motion.body.mass))
                 row.update(method=method, clip=name.split("/")[-1], seed=seed,
                            jitter=metrics.mean_acceleration(pose.points, fps),
                            flagged_percent=0.0 if flagged is None else 100 * float(np.mean(flagged)),
@@ -328,6 +329,20 @@ def part_methods(clips, seeds, methods=METHODS, walking=WALKING, overrides=None)
         summary[method]["grf_mean_percent_bw_walking"] = float(np.nanmean(
             [r["grf_mean_percent_bw"] for r in sel if r["clip"] in walking]))
     return dict(rows=rows, summary=summary)
+
+
+def grf_horizontal_components(grf, mass: float) -> dict:
+    """% BW: the mean over frames of the net contact force's vertical component, of its horizontal magnitude, and
+    of that magnitude after a 9-frame moving average (what the horizontal force does beyond frame-to-frame
+    chatter: docs/decisions/physics-grf-chatter.md); nan without forces."""
+    if grf is None:
+        return dict(grf_vertical_percent_bw=float("nan"), grf_horizontal_percent_bw=float("nan"),
+                    grf_horizontal_9_frames_percent_bw=float("nan"))
+    net = 100 * grf.sum(axis=1) / (mass * GRAVITY)
+    averaged = np.stack([np.convolve(net[:, i], np.ones(9) / 9, "valid") for i in range(2)], axis=1)
+    return dict(grf_vertical_percent_bw=float(net[:, 2].mean()),
+                grf_horizontal_percent_bw=float(np.linalg.norm(net[:, :2], axis=1).mean()),
+                grf_horizontal_9_frames_percent_bw=float(np.linalg.norm(averaged, axis=1).mean()))
 
 
 SPEED_RATES = (25.0, 30.0, 60.0)
@@ -423,15 +438,18 @@ def markdown(out: dict) -> str:
     if "methods" in out:
         lines += ["**Offline methods**", "", "| method | root-rel. mm | Procrustes mm | global root mm | "
                   "skate % | float % | penetr. % | jitter m/s² | e_smooth mm | GRF mean % BW | GRF mean walks % BW "
-                  "| GRF max % BW | ballistic % BW | flagged % | s per s of video |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "| GRF max % BW | ballistic % BW | GRF vertical / horizontal / horizontal 9-frame % BW | flagged % | "
+                  "s per s of video |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for method, s in out["methods"]["summary"].items():
             lines.append(
                 f"| {method} | {s['mpjpe_root_mm']:.1f} | {s['mpjpe_procrustes_mm']:.1f} | {s['global_root_mm']:.1f} "
                 f"| {s['skate_percent']:.1f} | {s['floating_percent']:.1f} | {s['penetration_percent']:.2f} | "
                 f"{s['jitter']:.2f} | {s['e_smooth_mm']:.2f} | {s['grf_mean_percent_bw']:.1f} | "
                 f"{s['grf_mean_percent_bw_walking']:.1f} | {s['grf_max_percent_bw']:.0f} | "
-                f"{s['grf_ballistic_percent_bw']:.1f} | {s['flagged_percent']:.2f} | {s['seconds_per_second']:.2f} |")
+                f"{s['grf_ballistic_percent_bw']:.1f} | {s['grf_vertical_percent_bw']:.1f} / "
+                f"{s['grf_horizontal_percent_bw']:.1f} / {s['grf_horizontal_9_frames_percent_bw']:.1f} | "
+                f"{s['flagged_percent']:.2f} | {s['seconds_per_second']:.2f} |")
         lines.append("")
     return "\n".join(lines)
 

@@ -103,7 +103,22 @@ def score(result_path: Path) -> dict:
                 feet_only_kinematic_reprojection_px=float(np.median(result["reprojection_error"][measured])),
                 slide_median_cm=float(np.median(physics_slide)) if physics_slide.size else float("nan"),
                 kinematic_slide_median_cm=float(np.median(kinematic_slide)) if kinematic_slide.size else float("nan"),
-                physics_deviation_mm=1000 * float(result["physics_deviation"][valid].mean()))
+                physics_deviation_mm=1000 * float(result["physics_deviation"][valid].mean()),
+                **grf_means(result["grf"][explained], weight))
+
+
+def grf_means(grf: np.ndarray, weight: float) -> dict:
+    """% BW over the given frames: the mean magnitude of the net contact force (Rempe et al.'s GRF mean), its mean
+    vertical component and horizontal magnitude, and that magnitude after a 9-frame moving average (the horizontal
+    force without its frame-to-frame chatter: docs/decisions/physics-grf-chatter.md)."""
+    net = 100 * grf.sum(axis=1) / weight
+    if len(net) < 9:
+        return {}
+    averaged = np.stack([np.convolve(net[:, i], np.ones(9) / 9, "valid") for i in range(2)], axis=1)
+    return dict(grf_mean_percent_bw=float(np.linalg.norm(net, axis=1).mean()),
+                grf_vertical_percent_bw=float(net[:, 2].mean()),
+                grf_horizontal_percent_bw=float(np.linalg.norm(net[:, :2], axis=1).mean()),
+                grf_horizontal_9_frames_percent_bw=float(np.linalg.norm(averaged, axis=1).mean()))
 
 
 def run_video(video: Path, out: Path, physics: str, config: str | None = None) -> dict:
@@ -144,8 +159,9 @@ def main(argv=None) -> dict:
     Path(args.json).write_text(json.dumps(out, indent=1))
     lines = [f"| video | exit | wall s | frames (fps) | flagged | largest contact force BW | largest residual BW | "
              f"all finite | jitter m/s² (kinematic input) | feet-only jitter m/s² (input) | feet-only reprojection "
-             f"px, median (input) | foot slide in contact cm/frame, median (input) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             f"px, median (input) | foot slide in contact cm/frame, median (input) | feet-only GRF mean / vertical / "
+             f"horizontal / horizontal 9-frame % BW |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if "frames" in r:
             lines.append(f"| {r['video']} | {r['exit_code']} | {r['wall_s']:.0f} | {r['frames']} ({r['fps']:.0f}) | "
@@ -154,9 +170,11 @@ def main(argv=None) -> dict:
                          f"({r['kinematic_jitter']:.1f}) | {r['feet_only_jitter']:.1f} "
                          f"({r['feet_only_kinematic_jitter']:.1f}) | {r['feet_only_reprojection_px']:.1f} "
                          f"({r['feet_only_kinematic_reprojection_px']:.1f}) | {r['slide_median_cm']:.2f} "
-                         f"({r['kinematic_slide_median_cm']:.2f}) |")
+                         f"({r['kinematic_slide_median_cm']:.2f}) | {r.get('grf_mean_percent_bw', np.nan):.0f} / "
+                         f"{r.get('grf_vertical_percent_bw', np.nan):.0f} / {r.get('grf_horizontal_percent_bw', np.nan):.0f}"
+                         f" / {r.get('grf_horizontal_9_frames_percent_bw', np.nan):.0f} |")
         else:
-            lines.append(f"| {r['video']} | {r['exit_code']} | {r['wall_s']:.0f} | {r['last_line']} | | | | | | | | |")
+            lines.append(f"| {r['video']} | {r['exit_code']} | {r['wall_s']:.0f} | {r['last_line']} | | | | | | | | | |")
     Path(args.json).with_suffix(".md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     return out

@@ -407,7 +407,7 @@ def test_physics_smooths_a_jittery_target_instead_of_passing_the_jitter_on(body)
 
 def test_the_derivative_term_tracks_a_share_of_the_rotational_velocity_and_all_of_the_translation(body):
     """Eq. (4) with rotation_velocity_share s: kd (s qd_kin - qd) on the root's orientation and the joints,
-    kd (qd_kin - qd) on the root's translation."""
+    kd (qd_kin - qd) on the root's translation (its own kd horizontally)."""
     share = 0.25
     settings = PhysicsSettings(rotation_velocity_share=share, acceleration_feedforward=0.0)
     tracker = PhysCapTracker(body, settings, FPS)
@@ -415,6 +415,24 @@ def test_the_derivative_term_tracks_a_share_of_the_rotational_velocity_and_all_o
     qvel, qd_kin = rng.normal(0.0, 0.2, body.nv), rng.normal(0.0, 0.2, body.nv)
     tracker.reset(body.rest_qpos, qvel)
     desired = tracker.desired_acceleration(body.rest_qpos, qd_kin, np.zeros(body.nv))
-    np.testing.assert_allclose(desired[:3], settings.kd_root_translation * (qd_kin[:3] - qvel[:3]), atol=1e-9)
+    np.testing.assert_allclose(desired[:2], settings.kd_root_horizontal * (qd_kin[:2] - qvel[:2]), atol=1e-9)
+    np.testing.assert_allclose(desired[2], settings.kd_root_translation * (qd_kin[2] - qvel[2]), atol=1e-9)
     np.testing.assert_allclose(desired[3:6], settings.kd_root_rotation * (share * qd_kin[3:6] - qvel[3:6]), atol=1e-9)
     np.testing.assert_allclose(desired[6:], settings.kd_joint * (share * qd_kin[6:] - qvel[6:]), atol=1e-9)
+
+
+def test_a_root_shaken_sideways_by_fit_noise_gets_smaller_horizontal_forces_than_the_stiff_root_gave(body):
+    """kp_root_horizontal: a target whose root jumps 1 cm sideways from frame to frame (a fit's noise) is followed
+    less, so the horizontal contact forces that would carry the shake are smaller than with the stiff root's gains
+    (kp_root_translation), and the character shakes less."""
+    frames = 60
+    q = standing(body, frames)
+    q[:, 0] += 0.01 * (-1.0) ** np.arange(frames)
+    contacts = np.ones((frames, 4), bool)
+    force, sway = {}, {}
+    for stiff in (False, True):
+        settings = PhysicsSettings(kp_root_horizontal=None, kd_root_horizontal=None) if stiff else PhysicsSettings()
+        tracker, outputs, records = track(body, q, contacts, settings)
+        force[stiff] = np.abs(np.array([f.contact_forces.sum(axis=0)[0] for f in outputs[10:]])).mean()
+        sway[stiff] = np.ptp([r.qpos[0] for r in records[len(records) // 2:]])
+    assert force[False] < 0.75 * force[True] and sway[False] < sway[True]

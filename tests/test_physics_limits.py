@@ -240,3 +240,23 @@ def test_every_number_in_the_result_file_is_finite_with_personless_frames(body, 
         measured = result["reprojection_measured"]
         assert not measured[gone].any() and measured[~gone].all()
         assert (result["reprojection_error"][measured] > 0).all()
+
+
+def test_a_start_hovering_above_the_floor_begins_on_it_instead_of_falling(body):
+    """The fit's first frames hover 7 cm above the floor and come down over 8 frames with no contact labelled (as
+    B.4 leaves a real clip's start): the character starts on the floor and follows the feet down, instead of
+    falling onto it and landing at several body weights."""
+    fps, frames = 60.0, 60
+    q = standing(body, frames)
+    q[:, 2] += np.clip(0.07 * (1 - np.arange(frames) / 8), 0.0, None)
+    contacts = np.ones((frames, 4), bool)
+    contacts[:8] = False
+    weight = body.mass * G
+    for settings, bound in ((PhysicsSettings(start_drop_time=None), None), (PhysicsSettings(), 1.2)):
+        physics = run_physcap(body, q, fps, contacts, np.zeros(frames, bool), settings, refined_input=True)
+        largest = np.linalg.norm(physics.grf.sum(axis=1), axis=-1).max() / weight
+        soles = kin.forward_kinematics(body, physics.qpos).points[:, body.point_index(CONTACT_POINTS), 2]
+        if bound is None:
+            assert largest > 3.0 and soles[0].min() > 0.05  # the fall this guards against
+        else:
+            assert largest < bound and np.abs(soles[:10].min(axis=1)).max() < 0.005

@@ -92,6 +92,10 @@ class PhysicsSettings(Section):
     kd_root_rotation: float = setting(70.0, "1/s", (0.0, 1e4), "damping of the root's orientation (paper 30)")
     kp_root_translation: float = setting(1000.0, "1/s^2", (0.0, 1e4), "stiffness of the root's position")
     kd_root_translation: float = setting(80.0, "1/s", (0.0, 1e4), "damping of the root's position")
+    kp_root_horizontal: float | None = setting(250.0, "1/s^2", (0.0, 1e4), "stiffness of its horizontal position "
+                                               "(ours; None: kp_root_translation): stiffer passes fit noise to forces")
+    kd_root_horizontal: float | None = setting(32.0, "1/s", (0.0, 1e4), "damping of its horizontal position (None: "
+                                               "kd_root_translation)")
     acceleration_feedforward: float = setting(0.5, "", (0.0, 1.0), "share of the kinematic acceleration fed "
                                               "forward in eq. (4) (paper 1): a per-frame fit's is half noise")
     velocity_smoothing: float = setting(0.03, "s", (0.0, 1.0), "time constant smoothing the kinematic velocity of "
@@ -134,6 +138,9 @@ class PhysicsSettings(Section):
                                               "contact gives that flags a frame (None: not checked)")
     unexplained_time: float = setting(0.2, "s", (0.01, 2.0), "time constant of that force's average")
     unexplained_blend: float = setting(0.2, "s", (0.0, 2.0), "output passes to the kinematic motion and back over it")
+    start_drop_time: float | None = setting(0.5, "s", (0.01, 10.0), "a target starting with its feet above the floor "
+                                            "(under contact_height) is lowered onto it; the drop fades with this time "
+                                            "constant (None: off)")
 
 
 TRAJOPT_CONSTRAINTS: tuple[str, ...] = ("dynamics", "acceleration_continuity", "velocity_boundaries", "foot_length",

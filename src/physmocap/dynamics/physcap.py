@@ -86,6 +86,12 @@ class PhysCapTracker:
         self.kp = np.full(nv, settings.kp_joint)
         self.kd = np.full(nv, settings.kd_joint)
         self.kp[:3], self.kd[:3] = settings.kp_root_translation, settings.kd_root_translation
+        # The root's horizontal position: the fit's noise there, tracked stiffly, became frame-to-frame horizontal
+        # contact forces (docs/decisions/physics-grf-chatter.md); its height stays stiff for take-offs and landings.
+        if settings.kp_root_horizontal is not None:
+            self.kp[:2] = settings.kp_root_horizontal
+        if settings.kd_root_horizontal is not None:
+            self.kd[:2] = settings.kd_root_horizontal
         self.kp[3:6], self.kd[3:6] = settings.kp_root_rotation, settings.kd_root_rotation
         # kd times the share of the kinematic velocity in the derivative term (settings.rotation_velocity_share)
         self.kd_target = self.kd.copy()

@@ -110,6 +110,11 @@ class PhysicsStream:
         self._blend_rate = 1.0 / max(fps * settings.unexplained_blend, 1.0)
         self._blend_step = np.zeros(body.nv)
         self._deviation_data = mujoco.MjData(model)
+        # The start's drop onto the floor (m; None before the first frame) and the share of it kept per frame
+        # (settings.start_drop_time)
+        self._drop: float | None = None
+        self._drop_keep = (math.exp(-1.0 / (fps * settings.start_drop_time))
+                           if settings.start_drop_time is not None else 0.0)
 
     @property
     def floor_plane(self) -> np.ndarray | None:
@@ -125,6 +130,8 @@ class PhysicsStream:
             q_kin = self.floor.to_physics(q_kin)
         if self._lift_share:
             q_kin = self._target_on_floor(q_kin, contacts)
+        if self._drop_keep:
+            q_kin = self._start_on_floor(q_kin)
         # Backward differences (as kinematic_derivatives), the velocity smoothed causally from the second one on
         # (settings.velocity_smoothing); no acceleration before the third frame.
         velocity, acceleration = np.zeros(self.body.nv), np.zeros(self.body.nv)
@@ -240,6 +247,27 @@ class PhysicsStream:
             depth = -data.site_xpos[self.tracker.sites[near], 2].min()
             self._lift += self._lift_share * (max(depth, 0.0) - self._lift)
         target[2] += self._lift
+        return target
+
+    def _start_on_floor(self, q_kin: np.ndarray) -> np.ndarray:
+        """q_kin lowered by the drop: on the first frame, the height of the target's lowest sole point where that
+        lies above the floor but within contact_height (a fit whose first frames hover, not a start in flight: the
+        character would fall onto the floor and land hard); afterwards never more than the lowest point's height
+        (the target coming down itself), fading with start_drop_time (a target that never comes down). A copy."""
+        if self._drop == 0.0:
+            return q_kin
+        data, model = self.tracker.target_data, self.tracker.model
+        data.qpos[:] = q_kin
+        mujoco.mj_kinematics(model, data)
+        lowest = float(data.site_xpos[self.tracker.sites, 2].min())
+        if self._drop is None:
+            self._drop = lowest if 0.0 < lowest < self.settings.contact_height else 0.0
+        else:
+            self._drop = min(self._drop * self._drop_keep, max(lowest, 0.0))
+            if self._drop < 1e-4:  # m: gone; the next frames skip the kinematics
+                self._drop = 0.0
+        target = q_kin.copy()
+        target[2] -= self._drop
         return target
 
     def root_speed(self) -> float:
