@@ -45,11 +45,11 @@ from physmocap.contacts.noise import MEDIAPIPE_NOISE  # noqa: E402
 from physmocap.contacts.predict import predict_contacts  # noqa: E402
 from physmocap.dynamics.stage import run_physcap  # noqa: E402
 from physmocap.io.atomic import write_text  # noqa: E402
+from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
 from physmocap.kinematics.stage import fit_motion  # noqa: E402
 from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
 from physmocap.mocap.synthetic import landmarks_from_clip, make_observations, random_camera, resample  # noqa: E402
 from physmocap.motion import Observations  # noqa: E402
-from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
 
 VALIDATION_CLIPS = (
     "cmu_raw_cgspeed/02_01.bvh", "cmu_iclone_cc3_retarget/007_04.bvh", "cmu_iclone_cc3_retarget/002_04.bvh",

@@ -40,10 +40,10 @@ from physmocap.contacts.noise import MEDIAPIPE_NOISE  # noqa: E402
 from physmocap.contacts.predict import predict_contacts  # noqa: E402
 from physmocap.dynamics.stage import run_physcap  # noqa: E402
 from physmocap.evaluation import score_against_truth, to_truth_world  # noqa: E402
+from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
 from physmocap.kinematics.stage import fit_motion  # noqa: E402
 from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
 from physmocap.mocap.synthetic import NoiseModel, make_observations, random_camera, resample  # noqa: E402
-from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
 
 DEFAULTS = PhysicsSettings()
 DEPARTURES = (  # label, {field: the paper's value (or the nearest setting where the paper has none)}; in order

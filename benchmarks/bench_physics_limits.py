@@ -33,6 +33,8 @@ from __future__ import annotations
 
 import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
 
+# isort: split
+
 import argparse
 import dataclasses
 import json
@@ -57,10 +59,10 @@ from physmocap.contacts.noise import MEDIAPIPE_NOISE  # noqa: E402
 from physmocap.contacts.predict import predict_contacts  # noqa: E402
 from physmocap.dynamics.stage import run_physcap  # noqa: E402
 from physmocap.evaluation import score_against_truth, to_truth_world  # noqa: E402
+from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
 from physmocap.kinematics.stage import fit_motion  # noqa: E402
 from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
 from physmocap.mocap.synthetic import NoiseModel, make_observations, random_camera, resample  # noqa: E402
-from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
 from physmocap.trajopt import run_trajopt  # noqa: E402
 
 CACHE = Path(tempfile.gettempdir()) / "physmocap_bench_physics_limits"
@@ -158,7 +160,7 @@ def resample_motion(body, qpos: np.ndarray, fps: float, new_fps: float) -> tuple
     lower = np.minimum(np.floor(position + 1e-9).astype(int), len(qpos) - 2)
     out = np.empty((len(times), qpos.shape[1]))
     step = np.zeros(model.nv)
-    for k, (i, w) in enumerate(zip(lower, position - lower)):
+    for k, (i, w) in enumerate(zip(lower, position - lower, strict=True)):
         mujoco.mj_differentiatePos(model, step, 1.0, qpos[i], qpos[i + 1])
         out[k] = qpos[i]
         mujoco.mj_integratePos(model, out[k], step, float(w))
@@ -259,7 +261,7 @@ def part_online(clips, seeds, physics_settings=None) -> dict:
                                  kinematic_jitter=metrics.mean_acceleration(joints_kin, fps),
                                  flagged_percent=100 * float(physics.unexplained.mean())))
                 print("online", {k: v for k, v in rows[-1].items() if "slides" not in k},
-                      "median slide %.2f cm" % np.median(slide), flush=True)
+                      f"median slide {np.median(slide):.2f} cm", flush=True)
     summary = {}
     for calibrated in (False, True):
         sel = [r for r in rows if r["calibrated"] == calibrated]
@@ -319,8 +321,8 @@ def part_methods(clips, seeds, methods=METHODS, walking=WALKING, overrides=None)
                                              / (motion.body.mass * GRAVITY)),
                            seconds_per_second=seconds / (len(qpos) / fps))
                 rows.append(row)
-                print("methods", method, row["clip"], seed, "root-rel %.1f skate %.1f float %.1f" % (
-                    row["mpjpe_root_mm"], row["skate_percent"], row["floating_percent"]), flush=True)
+                print("methods", method, row["clip"], seed, f"root-rel {row['mpjpe_root_mm']:.1f} skate "
+                      f"{row['skate_percent']:.1f} float {row['floating_percent']:.1f}", flush=True)
     summary = {}
     for method in methods:
         sel = [r for r in rows if r["method"] == method]

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
 
+# isort: split
+
 import argparse
 import json
 import os
@@ -157,10 +159,10 @@ def main(argv=None) -> dict:
     out = dict(physics=args.physics, rows=rows, load_average=os.getloadavg()[0])
     RESULTS.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(out, indent=1))
-    lines = [f"| video | exit | wall s | frames (fps) | flagged | largest contact force BW | largest residual BW | "
-             f"all finite | jitter m/s² (kinematic input) | feet-only jitter m/s² (input) | feet-only reprojection "
-             f"px, median (input) | foot slide in contact cm/frame, median (input) | feet-only GRF mean / vertical / "
-             f"horizontal / horizontal 9-frame % BW |",
+    lines = ["| video | exit | wall s | frames (fps) | flagged | largest contact force BW | largest residual BW | "
+             "all finite | jitter m/s² (kinematic input) | feet-only jitter m/s² (input) | feet-only reprojection "
+             "px, median (input) | foot slide in contact cm/frame, median (input) | feet-only GRF mean / vertical / "
+             "horizontal / horizontal 9-frame % BW |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if "frames" in r:

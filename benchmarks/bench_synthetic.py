@@ -42,11 +42,11 @@ from physmocap.contacts.predict import predict_contacts  # noqa: E402
 from physmocap.dynamics.stage import run_physcap  # noqa: E402
 from physmocap.evaluation import score_against_truth, to_truth_world, truth_grf_statistics  # noqa: E402
 from physmocap.kinematics.calibration import measure_lengths  # noqa: E402
+from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
 from physmocap.kinematics.stage import fit_motion  # noqa: E402
 from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
 from physmocap.mocap.synthetic import NoiseModel, make_observations, random_camera, resample  # noqa: E402
 from physmocap.result import build_result  # noqa: E402
-from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
 from physmocap.viz.plots import write_plots  # noqa: E402
 
 # Only the contact networks' held-out CMU subjects (6 and 131, physmocap.contacts.dataset.TEST_SUBJECTS), since

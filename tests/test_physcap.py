@@ -5,13 +5,13 @@ import numpy as np
 import pytest
 
 from physmocap.body import kinematics as kin
+from physmocap.body.kinematics import rigid_transform_qpos
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
+from physmocap.body.rotations import quat_exp, quat_multiply
 from physmocap.config import PhysicsSettings
 from physmocap.dynamics.balance import inside_support
 from physmocap.dynamics.physcap import PhysCapTracker
-from physmocap.body.rotations import quat_exp, quat_multiply
 from physmocap.dynamics.stage import PhysicsStream, kinematic_derivatives, run_physcap
-from physmocap.body.kinematics import rigid_transform_qpos
 
 FPS = 25.0
 G = 9.81
@@ -22,12 +22,12 @@ def body():
     return build_body_model(template_lengths(1.75), 72.0)
 
 
-def track(body, qpos_kin, contacts, settings=PhysicsSettings(), stationary=None):
+def track(body, qpos_kin, contacts, settings=None, stationary=None):
     """Run the tracker over a kinematic motion, keeping every integration step."""
     velocity, acceleration = kinematic_derivatives(body, qpos_kin, FPS)
-    tracker = PhysCapTracker(body, settings, FPS, record=True)
+    tracker = PhysCapTracker(body, settings or PhysicsSettings(), FPS, record=True)
     tracker.reset(qpos_kin[0], velocity[0])
-    frames = [tracker.track(q, v, a, c) for q, v, a, c in zip(qpos_kin, velocity, acceleration, contacts)]
+    frames = [tracker.track(q, v, a, c) for q, v, a, c in zip(qpos_kin, velocity, acceleration, contacts, strict=True)]
     return tracker, frames, [r for f in frames for r in f.records]
 
 
@@ -127,7 +127,7 @@ def test_a_flat_foot_fitted_tilted_is_turned_flat_before_the_lift(body):
     assert abs(fitted[0] - fitted[1]) > 0.02  # the fitted heel and toe of the left foot differ by centimetres
     for flatten in (True, False):
         stream = PhysicsStream(body, PhysicsSettings(flatten_feet=flatten), FPS)
-        targets = np.array([stream._target_on_floor(frame, c) for frame, c in zip(q, contacts)])
+        targets = np.array([stream._target_on_floor(frame, c) for frame, c in zip(q, contacts, strict=True)])
         heights = kin.forward_kinematics(body, targets[-5:]).points[:, sole, 2]
         tilt = np.abs(heights[:, 0] - heights[:, 1])
         assert np.all(heights > -1e-3)  # lifted out of the floor either way
@@ -141,7 +141,7 @@ def test_flight_has_no_contact_force_and_a_ballistic_centre_of_mass(body):
     q, in_air = jump(body)
     contacts = np.repeat(~in_air[:, None], 4, axis=1)
     tracker, frames, records = track(body, q, contacts)
-    flight = [f for f, air in zip(frames, in_air) if air]
+    flight = [f for f, air in zip(frames, in_air, strict=True) if air]
     assert all(np.all(f.contact_forces == 0) for f in flight[1:])
     # Newton for the whole body: m a_com = m g + root residual force, with no contact force in the air.
     air_steps = [i for i, r in enumerate(records) if not r.active.any() and 0 < i < len(records) - 1]
@@ -149,7 +149,8 @@ def test_flight_has_no_contact_force_and_a_ballistic_centre_of_mass(body):
     dt = tracker.dt
     for i in air_steps[2:-2]:
         accel = (com[i + 1] - 2 * com[i] + com[i - 1]) / dt**2
-        expected = np.array([0, 0, -G]) + records[i].torque[:3] / body.mass  # semi-implicit Euler: q_{i+1} - 2 q_i + q_{i-1} = dt^2 qdd_i
+        # semi-implicit Euler: q_{i+1} - 2 q_i + q_{i-1} = dt^2 qdd_i
+        expected = np.array([0, 0, -G]) + records[i].torque[:3] / body.mass
         assert np.linalg.norm(accel - expected) < 0.5
 
 
@@ -171,7 +172,7 @@ def test_stationary_leaning_pose_is_brought_back_to_balance(body):
     feet = final.points[:, body.point_index(CONTACT_POINTS)]
     com = kin.center_of_mass(body, final)
     assert result.corrected.any()
-    assert all(inside_support(c[:2], f[contacts[0], :2]) for c, f in zip(com, feet))
+    assert all(inside_support(c[:2], f[contacts[0], :2]) for c, f in zip(com, feet, strict=True))
 
 
 def test_a_travelling_body_flagged_stationary_is_not_corrected(body):

@@ -106,8 +106,8 @@ def test_at_10_fps_a_jump_stays_finite_and_bounded(body):
 
 def raised(body, fps=30.0, frames=120, start=40, end=80, height=0.3):
     """Standing still, lifted `height` above the floor from frame `start` to `end` (ramps of 12 frames, a step up
-    onto a box) with the feet still called in contact: something other than the floor carries the body. Returns poses and the frames
-    lifted by more than half the height."""
+    onto a box) with the feet still called in contact: something other than the floor carries the body. Returns
+    poses and the frames lifted by more than half the height."""
     q = np.repeat(body.rest_qpos[None], frames, axis=0)
     lift = np.clip(np.minimum(np.arange(frames) - start, end - np.arange(frames)) / 12.0, 0.0, 1.0) * height
     q[:, 2] += lift
@@ -213,8 +213,8 @@ def test_every_number_in_the_result_file_is_finite_with_personless_frames(body, 
     """A run whose observations hold frames without a person (no keypoints, NaN as another detector writes them)
     writes only finite numbers; where the reprojection error could not be measured the file says so in
     reprojection_measured instead of writing NaN."""
-    from physmocap.config import Settings
     from physmocap.camera import Camera
+    from physmocap.config import Settings
     from physmocap.motion import Observations
     from physmocap.pipeline import run_capture
     from test_fit import observe

@@ -8,9 +8,9 @@ import mujoco
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
+from ..body.kinematics import rigid_transform_qpos
 from ..body.model import CONTACT_POINTS, BodyModel
 from ..body.rotations import axis_angle_matrix, quat_exp, quat_log
-from ..body.kinematics import rigid_transform_qpos
 
 UP = np.array([0.0, 0.0, 1.0])
 SMALL_LEAN = np.radians(2.0)  # below this the tilt is done and the legs are straightened instead
@@ -56,7 +56,8 @@ class BalanceCorrector:
         d.qpos[:] = qpos
         mujoco.mj_kinematics(self.model, d)
         mujoco.mj_comPos(self.model, d)
-        return d.subtree_com[1].copy(), d.site_xpos[self.sites].copy(), d.site_xpos[self.neck] - d.site_xpos[self.pelvis]
+        return (d.subtree_com[1].copy(), d.site_xpos[self.sites].copy(),
+                d.site_xpos[self.neck] - d.site_xpos[self.pelvis])
 
     def correct(self, q_kin: np.ndarray, stationary: bool, contacts: np.ndarray) -> tuple[np.ndarray, bool]:
         """The corrected pose for this frame and whether a correction applied."""

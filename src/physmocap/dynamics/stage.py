@@ -12,10 +12,10 @@ import mujoco
 import numpy as np
 
 from ..body import kinematics as kin
+from ..body.kinematics import rigid_transform_qpos
 from ..body.model import BodyModel
 from ..camera import floor_in_camera
 from ..config import PhysicsSettings
-from ..body.kinematics import rigid_transform_qpos
 from ..kinematics.stage import KinematicMotion
 from .balance import BalanceCorrector
 from .floor import FloorRefiner, floor_frame
@@ -54,7 +54,7 @@ class PhysicsMotion:
         return arrays
 
     @classmethod
-    def from_arrays(cls, arrays) -> "PhysicsMotion":
+    def from_arrays(cls, arrays) -> PhysicsMotion:
         """The motion `to_arrays` gave (a KeyError names a missing array)."""
         values = {f.name: arrays[f.name] for f in dataclasses.fields(cls)}
         values["seconds"] = float(values["seconds"])
@@ -100,7 +100,8 @@ class PhysicsStream:
         self._feet = [(foot, model.body_parentid[foot], model.jnt_qposadr[model.body_jntadr[foot]]) for foot in feet]
         self._turn, self._quat = np.zeros(4), np.zeros(4)
         # kinematic root positions of the last stationary_speed_interval, oldest first (the stationary gate)
-        self._roots: deque[np.ndarray] = deque(maxlen=max(1, round(settings.stationary_speed_interval * fps)) + 1)
+        self._root_frames = max(1, round(settings.stationary_speed_interval * fps)) + 1  # the interval's ends
+        self._roots: deque[np.ndarray] = deque(maxlen=self._root_frames)
         self._weight = body.mass * GRAVITY
         # The diagnosis (settings.unexplained_*): the unexplained root force, averaged causally over
         # unexplained_time, and the kinematic motion's share in the output (0: physics, 1: kinematic)
@@ -274,7 +275,7 @@ class PhysicsStream:
         """m/s: the kinematic root's displacement over the last stationary_speed_interval divided by that
         interval (in the first frames, the displacement so far over the whole interval: the flag is believed
         until the root has moved)."""
-        interval = (self._roots.maxlen - 1) / self.fps
+        interval = (self._root_frames - 1) / self.fps
         return float(np.linalg.norm(self._roots[-1] - self._roots[0])) / interval
 
 
@@ -300,12 +301,13 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     start = time.perf_counter()
     T = len(qpos_kin)
     stream = PhysicsStream(body, settings, fps, refine_floor, refined_input)
+    unexplained = np.zeros(T, bool)
     out = PhysicsMotion(qpos_kin.copy(), np.zeros((T, 4, 3)), np.zeros((T, 6)), np.zeros((T, 4), bool),
-                        np.zeros(T, bool), np.zeros(T, int), 0.0, unexplained=np.zeros(T, bool))
+                        np.zeros(T, bool), np.zeros(T, int), 0.0, unexplained=unexplained)
     first = 0 if valid is None or not np.any(valid) else int(np.argmax(valid))
     for t in range(first, T):
         out.qpos[t], frame, out.corrected[t] = stream.push(qpos_kin[t], contacts[t], bool(stationary[t]))
-        out.grf[t], out.residual[t], out.contacts[t], out.qp_failures[t], out.unexplained[t] = (
+        out.grf[t], out.residual[t], out.contacts[t], out.qp_failures[t], unexplained[t] = (
             frame.contact_forces, frame.residual, frame.active, frame.qp_failures, frame.unexplained_flag)
         if progress:
             progress(t + 1, T)
