@@ -82,6 +82,8 @@ def causal_step(fitter: KinematicFitter, targets: FitTargets, past: CausalPast, 
     else:
         start = predicted_pose(fitter, past) if prediction is None else prediction
         result = fitter.fit_frames(start, targets, past.signals, iterations, damping_increase=damping_increase)
+    if result.signals is None:
+        raise RuntimeError("fit_frames returned no temporal signals")
     signals = [v[:, None] for v in result.signals]
     if past.signals:
         signals = [np.concatenate([h[:, -1:], v], axis=1) for h, v in zip(past.signals, signals, strict=True)]

@@ -35,6 +35,7 @@ kinematic stage moves the world there). Times in seconds, absolute (frame k at k
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -743,10 +744,12 @@ def acceleration(problem: WindowProblem) -> CostTerm:
 
 def duration(problem: WindowProblem) -> CostTerm:
     """E_dur (2): w_d sum (T_ij - T_in,ij)^2 over every phase."""
-    s, w = problem.settings, problem.window
-    total = 0
+    s, w, durations = problem.settings, problem.window, problem.durations
+    total: Any = 0  # a CasADi expression once a phase adds to it
+    if durations is None:
+        return CostTerm("duration", total)
     for i, phases in enumerate(w.phases):
-        bounds = problem.durations.boundaries(i, phases, problem.x)
+        bounds = durations.boundaries(i, phases, problem.x)
         for j, p in enumerate(phases):
             total = total + s.weight_duration * (bounds[j + 1] - bounds[j] - p.duration) ** 2
     return CostTerm("duration", total)
@@ -759,7 +762,7 @@ def force_rate(problem: WindowProblem) -> CostTerm:
     the frames' values, not the polynomials' derivative there, which the optimiser could keep at zero at the
     frames and steep between them."""
     s, times = problem.settings, problem.window.reduced.times
-    total = 0
+    total: Any = 0  # a CasADi expression once a force adds to it
     if len(times) < 2:
         return CostTerm("force_rate", total)
     step = ca.DM(1.0 / np.diff(times)).T

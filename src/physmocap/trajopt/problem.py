@@ -74,7 +74,7 @@ class CostTerm:
     """A scalar term of the objective."""
 
     name: str
-    value: object
+    value: Any  # a CasADi scalar expression (SX or MX) in the variable vector
 
 
 @dataclass

@@ -13,6 +13,7 @@ kinematic motion there and says so). The stages share the window's budget of IPO
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -59,10 +60,12 @@ class WindowResult:
     variables: int
     constraints: int
     build_seconds: float
-    _state_at: object = None
+    _state_at: Callable[[float], WindowStart] | None = None
 
     def state_at(self, t: float) -> WindowStart:
         """The optimised state at time t (s), for the next window to start from."""
+        if self._state_at is None:
+            raise RuntimeError("this window result has no solved state (it was never solved)")
         return self._state_at(t)
 
 
