@@ -91,7 +91,11 @@ def build_case(name: str, seed: int, fps: float = FPS, noise: NoiseModel = MEDIA
     key = f"{name.split('/')[0]}_{name.split('/')[-1][:-4]}_{seed}_{fps:g}{'_box' if box else ''}"
     path = CACHE / f"{key}.pkl"
     if path.exists():
-        case = pickle.loads(path.read_bytes())
+        try:
+            case = pickle.loads(path.read_bytes())
+        except (ModuleNotFoundError, AttributeError):  # pickled by an older layout of physmocap: build it again
+            path.unlink()
+            return build_case(name, seed, fps, noise, box, online)
         if not online or "online" in case:
             return case
         return add_online_fits(case, path)
