@@ -644,10 +644,10 @@ def _number(value) -> str:
 
 
 def cmd_train_contacts(args) -> int:
-    from .contacts.train import train_contacts
-
     if not (args.data / "mocap").is_dir():
         raise InputError(f"{args.data}: no mocap/ folder of training data here (give --data).")
+    from .contacts.train import train_contacts  # torch loads only once there is data to train on
+
     train_contacts(args.data, args.out, seed=args.seed)  # the folder is checked by writing: data first
     print(f"weights written to {args.out}")
     return 0

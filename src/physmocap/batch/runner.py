@@ -72,6 +72,7 @@ def run_batch(inputs: list[BatchInput], out_dir: str | os.PathLike, settings: Se
             progress.tick()
     except KeyboardInterrupt:
         engine.stop()
+        _collect_finished_on_disk(tasks, records, order)
         raise
     else:
         engine.close()
@@ -79,6 +80,15 @@ def run_batch(inputs: list[BatchInput], out_dir: str | os.PathLike, settings: Se
         write_tables(out_dir, records)
         progress.close()
     return records
+
+
+def _collect_finished_on_disk(tasks: list[BatchTask], records: list[dict], order: dict[str, int]) -> None:
+    """Runs that wrote their batch.json before Ctrl-C but whose result had not reached this process yet: the
+    table says done, as the next batch will, instead of pending."""
+    for task in tasks:
+        index = order[task.name]
+        if records[index]["status"] == "pending" and (record := finished_record(task)) is not None:
+            records[index] = dict(record, resumed=0)
 
 
 def _prepare(inputs: list[BatchInput], out_dir: Path, settings: Settings, overlay: bool):
