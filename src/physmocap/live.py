@@ -339,7 +339,8 @@ class _SourceThread(threading.Thread):
                     break
                 if self.scheduled:
                     arrival = start + index / self.fps
-                    time.sleep(max(0.0, arrival - time.perf_counter()))
+                    if self.stop.wait(max(0.0, arrival - time.perf_counter())):
+                        break  # stopped while waiting for the frame's time
                 else:
                     arrival = time.perf_counter()
                 self.handoff.put((index, frame, arrival), self.stop)
