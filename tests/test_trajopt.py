@@ -7,7 +7,6 @@ import logging
 import signal
 import subprocess
 import sys
-import time
 
 import casadi as ca
 import mujoco

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..body.rotations import rotation_between
+from ..body.rotations import rotation_between, unit_vectors
 from ..errors import InputError
 
 # The project's named points, in this order everywhere (see DESIGN.md, "The result file").
@@ -317,11 +317,6 @@ class _SkeletonLayout:
     toe_base_above_sole: float
 
 
-def _unit(vectors: np.ndarray) -> np.ndarray:
-    """Normalise along the last axis."""
-    return vectors / np.linalg.norm(vectors, axis=-1, keepdims=True)
-
-
 def _first_child_offset(bvh: BvhData, parent: str) -> np.ndarray:
     """(3,) the first non-zero OFFSET among the children of `parent`: the rest direction of its bone."""
     parent_index = bvh.index(parent)
@@ -356,8 +351,8 @@ def _cmu_layout(bvh: BvhData) -> _SkeletonLayout:
         for part in ("hip", "knee", "ankle", "shoulder", "elbow", "wrist"):
             points[prefix + part] = bvh_prefix + side[part]
     forward, left = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
-    distal = np.stack([_unit(_first_child_offset(bvh, hand)) for hand in hands])
-    thumb = _unit(forward - (distal @ forward)[:, None] * distal)
+    distal = np.stack([unit_vectors(_first_child_offset(bvh, hand)) for hand in hands])
+    thumb = unit_vectors(forward - (distal @ forward)[:, None] * distal)
     return _SkeletonLayout(
         kind="cmu",
         points=points,
@@ -389,9 +384,9 @@ def _cc3_layout(bvh: BvhData) -> _SkeletonLayout:
         for part, bone in (("hip", "Thigh"), ("knee", "Calf"), ("ankle", "Foot"), ("shoulder", "Upperarm"),
                            ("elbow", "Forearm"), ("wrist", "Hand")):
             points[prefix + part] = f"CC_Base_{bvh_side}_{bone}"
-    distal = np.stack([_unit(offsets[f"CC_Base_{s}_Mid1"]) for s in "LR"])
+    distal = np.stack([unit_vectors(offsets[f"CC_Base_{s}_Mid1"]) for s in "LR"])
     thumb = np.stack([offsets[f"CC_Base_{s}_Index1"] - offsets[f"CC_Base_{s}_Pinky1"] for s in "LR"])
-    thumb = _unit(thumb - np.sum(thumb * distal, axis=1, keepdims=True) * distal)
+    thumb = unit_vectors(thumb - np.sum(thumb * distal, axis=1, keepdims=True) * distal)
     return _SkeletonLayout(
         kind="cc3",
         points=points,
@@ -422,8 +417,8 @@ def _asf_layout(bvh: BvhData) -> _SkeletonLayout:
             points[prefix + part] = s + bone
     forward, left = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
     hands = ("lhand", "rhand")
-    distal = np.stack([_unit(_first_child_offset(bvh, hand)) for hand in hands])
-    thumb = _unit(forward - (distal @ forward)[:, None] * distal)
+    distal = np.stack([unit_vectors(_first_child_offset(bvh, hand)) for hand in hands])
+    thumb = unit_vectors(forward - (distal @ forward)[:, None] * distal)
     return _SkeletonLayout(
         kind="cmu_asf", points=points, toe_bases=("ltoes", "rtoes"), foot_left_local=left,
         head_forward_local=forward, head_left_local=left, hands=hands, hand_distal_local=distal,
@@ -447,9 +442,9 @@ def _daz_layout(bvh: BvhData) -> _SkeletonLayout:
         for part, bone in (("hip", "Thigh"), ("knee", "Shin"), ("ankle", "Foot"), ("shoulder", "Shldr"),
                            ("elbow", "ForeArm"), ("wrist", "Hand")):
             points[prefix + part] = s + bone
-    distal = np.stack([_unit(offsets[f"{s}Mid1"]) for s in "lr"])
+    distal = np.stack([unit_vectors(offsets[f"{s}Mid1"]) for s in "lr"])
     thumb = np.stack([offsets[f"{s}Index1"] - offsets[f"{s}Pinky1"] for s in "lr"])
-    thumb = _unit(thumb - np.sum(thumb * distal, axis=1, keepdims=True) * distal)
+    thumb = unit_vectors(thumb - np.sum(thumb * distal, axis=1, keepdims=True) * distal)
     return _SkeletonLayout(
         kind="daz", points=points, toe_bases=("lFoot_End", "rFoot_End"), foot_left_local=np.array([1.0, 0.0, 0.0]),
         head_forward_local=np.array([0.0, 0.0, 1.0]), head_left_local=np.array([1.0, 0.0, 0.0]),
@@ -490,9 +485,9 @@ def _frame_from_axes(rotations: np.ndarray, forward_local: np.ndarray, left_loca
     rotations: (T, 3, 3) local -> world rotations of the segment; forward_local, left_local: (3,) axes in the
     segment's local frame (left is orthogonalised against forward). Returns (T, 3, 3).
     """
-    first = _unit(rotations @ forward_local)
+    first = unit_vectors(rotations @ forward_local)
     second = rotations @ left_local
-    second = _unit(second - np.sum(second * first, axis=1, keepdims=True) * first)
+    second = unit_vectors(second - np.sum(second * first, axis=1, keepdims=True) * first)
     return np.stack([first, second, np.cross(first, second)], axis=2)
 
 
@@ -534,7 +529,7 @@ def sole_sites(
     length = np.linalg.norm(along, axis=1, keepdims=True)
     forward = along / length
     left = foot_left - np.sum(foot_left * forward, axis=1, keepdims=True) * forward
-    dorsal = _unit(np.cross(forward, _unit(left)))
+    dorsal = unit_vectors(np.cross(forward, unit_vectors(left)))
     sole_forward = np.cos(flat_pitch) * forward + np.sin(flat_pitch) * dorsal
     sole_normal = -np.sin(flat_pitch) * forward + np.cos(flat_pitch) * dorsal
     toe = toe_base - toe_base_above_sole * length * sole_normal + TOE_AHEAD_OF_TOE_BASE * length * sole_forward
@@ -599,7 +594,7 @@ def floor_tilt(toe_bases: np.ndarray, fps: float) -> np.ndarray | None:
         spread = 1.4826 * np.median(np.abs(residuals[keep] - centre))
         keep = np.abs(residuals - centre) < max(3.0 * spread, 0.01)
         coefficients = fit(keep)
-    return _unit(np.array([-coefficients[0], -coefficients[1], 1.0]))
+    return unit_vectors(np.array([-coefficients[0], -coefficients[1], 1.0]))
 
 
 def _frames_per_second(frame_time: float) -> float:
