@@ -7,6 +7,8 @@ import physmocap
 from conftest import DEMO_VIDEO
 from physmocap.errors import InputError
 
+pytestmark = pytest.mark.slow  # whole captures through the Python API
+
 
 @pytest.fixture(scope="module")
 def captured(tmp_path_factory):

@@ -205,6 +205,7 @@ def _toml(tmp_path, text):
     return path
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case, make, expected, words", CASES, ids=[
     c.values[0] if hasattr(c, "values") else c[0] for c in CASES])
 def test_bad_input_ends_in_one_sentence(tmp_path, case, make, expected, words):
@@ -218,6 +219,7 @@ def test_bad_input_ends_in_one_sentence(tmp_path, case, make, expected, words):
             assert str(word).lower() in last.lower(), last
 
 
+@pytest.mark.slow
 def test_the_true_floor_given_with_a_negative_number_passes_the_checks(tmp_path):
     obs = save_obs(tmp_path / "o.npz")
     code, _, err = run_cli("capture", "--observations", obs, "-o", tmp_path / "out", "--physics", "none",

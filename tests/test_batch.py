@@ -20,6 +20,8 @@ from physmocap.errors import InputError
 from physmocap.io.video import VideoWriter, iter_frames, probe_video
 from physmocap.result import load_result
 
+pytestmark = pytest.mark.slow  # batches of whole captures
+
 FAST = ("--physics", "none", "--no-overlay")
 CLIP_FRAMES = 40
 

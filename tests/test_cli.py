@@ -12,6 +12,8 @@ from conftest import DEMO_VIDEO
 from physmocap.io.video import VideoWriter
 from physmocap.result import REQUIRED_KEYS, RESULT_POINTS, load_result
 
+pytestmark = pytest.mark.slow  # the command line on real clips
+
 
 def physmocap(*args, cwd=None):
     return subprocess.run([sys.executable, "-m", "physmocap.cli", *map(str, args)], capture_output=True,

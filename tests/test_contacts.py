@@ -243,6 +243,7 @@ def test_numpy_forward_shapes():
     assert centred_forward(centred, centred_inputs).shape == (5, 5, 5)
 
 
+@pytest.mark.slow
 def test_numpy_inference_matches_torch():
     torch = pytest.importorskip("torch")
     from physmocap.contacts.train import TorchCausalNet, TorchCentredNet
@@ -360,6 +361,7 @@ def test_synthetic_sequences_are_deterministic_and_labelled():
         assert not sequence.stationary.any()
 
 
+@pytest.mark.slow
 @needs_shared
 def test_training_runs_a_few_steps(tmp_path):
     pytest.importorskip("torch")
@@ -384,6 +386,7 @@ def test_training_runs_a_few_steps(tmp_path):
     assert all(np.array_equal(first["centred"][k], v) for k, v in np.load(tmp_path / "centred" / "centred.npz").items())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("weight", [1.0, 9.0])
 def test_hard_frame_weight_oversamples_hard_targets(weight):
     pytest.importorskip("torch")
@@ -414,6 +417,7 @@ def test_hard_frame_weight_oversamples_hard_targets(weight):
         assert 0.45 < share < 0.55  # 200 x 9 against 1800 x 1
 
 
+@pytest.mark.slow
 @needs_shared
 def test_shipped_weights_beat_the_heuristics_on_held_out_subjects():
     from physmocap.contacts.dataset import held_out_settings, load_clips, make_sequences

@@ -21,6 +21,8 @@ from physmocap.errors import InputError
 from physmocap.io.video import VideoWriter, iter_frames, trim_video
 from physmocap.landmarks import LANDMARK_INDEX
 
+pytestmark = pytest.mark.slow  # MediaPipe on the demo clip
+
 DEMO = Path(physmocap.__file__).parent / "data" / "demo" / "taiji_demo.mp4"
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 SPORTS2D = SHARED / "data" / "videos" / "sports2d_demo.mp4"

@@ -145,6 +145,7 @@ def test_fit_recovers_a_known_motion_from_its_projections(body, camera, online):
     assert np.allclose(soles[..., 2].min(axis=1), true_soles[..., 2].min(axis=1), atol=0.03)
 
 
+@pytest.mark.slow
 def test_robust_weights_resist_gross_detector_errors(body, camera):
     """A detector that throws one ankle 40 cm off for a few frames should not drag the fitted leg along."""
     truth = walking_motion(body, 40)
@@ -272,6 +273,7 @@ def test_lengths_measured_again_along_the_fitted_axes_lose_the_noise_bias(camera
     assert abs(refined.lengths.standing_height - true.standing_height) < 1e-9
 
 
+@pytest.mark.slow
 def test_online_warmup_measures_the_lengths_again(body, camera):
     """The online fit's warm-up measures the lengths again as the offline fit does: with noisy 3D landmarks the
     arms and the heel come out nearer the truth than the calibration's medians make them."""

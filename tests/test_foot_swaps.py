@@ -52,6 +52,7 @@ def test_whole_body_flip_is_not_a_foot_swap(walk):
     assert not find_foot_swaps(flipped)[40:52].any()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("online", [False, True])
 def test_capture_reports_the_swapped_frames(walk, tmp_path, online):
     """The run's summary.json names and counts the frames whose feet were swapped and undone, offline and online
@@ -71,6 +72,7 @@ def test_capture_reports_the_swapped_frames(walk, tmp_path, online):
     assert "kinematics" in summary.cached_stages
 
 
+@pytest.mark.slow
 def test_terminal_summary_counts_the_swapped_frames(walk, tmp_path, capsys):
     from physmocap.cli import main
 
@@ -88,6 +90,7 @@ def test_causal_reading_changes_only_on_a_clear_difference():
     assert decisions == [False, True, True, False, False]
 
 
+@pytest.mark.slow
 def test_online_fit_reads_swapped_feet_the_right_way_round(body, walk):
     """Swaps inside the warm-up (found as offline) and after it (causal check against the predicted pose): the
     online fit's ankles stay where the clean detections put them."""

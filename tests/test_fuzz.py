@@ -15,6 +15,8 @@ from hypothesis import HealthCheck, event, given, settings, strategies as st
 
 from test_bad_inputs import assert_clean, observation_arrays, run_cli
 
+pytestmark = pytest.mark.slow  # hundreds of generated inputs through the command line
+
 TEMPLATE = observation_arrays(5)
 
 frame_counts = st.integers(0, 5)

@@ -9,6 +9,8 @@ from physmocap.config import Settings
 from physmocap.kinematics.stage import fit_motion
 from physmocap.live import DROPPED_REASON, WARNING_INTERVAL_SECONDS, stream_capture
 
+pytestmark = pytest.mark.slow  # live capture in real time
+
 
 def test_streaming_capture_equals_the_causal_fit_of_the_same_detections():
     settings = Settings(online=True)

@@ -19,6 +19,8 @@ from physmocap.io.opensim import MIN_COP_FORCE, foot_wrenches, write_grf_mot, wr
 from physmocap.result import save_result
 from test_export import synthetic_result
 
+pytestmark = pytest.mark.slow  # OpenSim reads the files back, in processes of its own
+
 # OpenSim (X, Y, Z) = world (x, z, -y).
 WORLD_TO_OPENSIM = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 CONTACTS = ("left_heel", "left_toe", "right_heel", "right_toe")

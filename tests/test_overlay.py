@@ -183,6 +183,7 @@ def test_too_short_video_writes_nothing(body, scene, video, tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_result_figure_writes_a_png(body, scene, tmp_path):
     world, pixels = scene
     clip = world[None] + np.linspace(0.0, 1.0, 6)[:, None, None] * np.array([1.0, 0.5, 0.0])  # walking forward

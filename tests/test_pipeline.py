@@ -20,6 +20,8 @@ from physmocap.pipeline import run_capture
 from physmocap.result import load_result
 from physmocap.run_folder import LOCK_FILE, locked_run_folder
 
+pytestmark = pytest.mark.slow  # whole captures through the stage runner
+
 FRAMES = 48  # of the demo clip's observations: enough for calibration, refinement and physics, and quick
 
 
@@ -128,8 +130,7 @@ def _drop_an_array(path):
     np.savez_compressed(path, **arrays)
 
 
-@pytest.mark.parametrize("damage", [_truncate, pytest.param(_empty, marks=pytest.mark.slow),
-                                    pytest.param(_drop_an_array, marks=pytest.mark.slow)],
+@pytest.mark.parametrize("damage", [_truncate, _empty, _drop_an_array],
                          ids=lambda f: f.__name__.strip("_"))
 def test_a_damaged_cache_of_every_stage_is_rebuilt_to_the_clean_result(short_observations, tmp_path, damage, caplog):
     settings = Settings().replace("physics", method="physcap")
@@ -255,7 +256,7 @@ def test_partial_files_and_stale_outputs_are_removed(demo_folder, tmp_path):
 
 # ---- determinism -------------------------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("online", [False, pytest.param(True, marks=pytest.mark.slow)], ids=["offline", "online"])
+@pytest.mark.parametrize("online", [False, True], ids=["offline", "online"])
 def test_fresh_cached_and_observations_runs_agree(demo_folder, tmp_path, online):
     settings = Settings(online=online).replace("physics", method="none")
     fresh = demo_folder if not online else tmp_path / "fresh"

@@ -182,6 +182,7 @@ def _result_of_capture(obs_path, out):
     return result, json.loads((out / "summary.json").read_text())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["coco_17", "half_missing_first_frames_without_torso"])
 def test_capture_from_another_detectors_observations(walker, tmp_path, case):
     _, obs = walker

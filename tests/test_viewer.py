@@ -15,6 +15,8 @@ from physmocap.io.video import VideoWriter
 from physmocap.viz.viewer import convex_hull_2d, distance_to_polygon, support_polygons, write_viewer
 from test_export import synthetic_result
 
+pytestmark = pytest.mark.slow  # a headless browser opens the viewer
+
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
                  "--disable-component-update", "--no-first-run", "--autoplay-policy=no-user-gesture-required"]
