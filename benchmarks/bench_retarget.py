@@ -10,11 +10,13 @@ large head, long arms) with de Leva's mass distribution and with 40 % of 36.5 kg
 a skinned GLB mannequin. Figures per source x rig x physics: foot skate and penetration on the character (Rempe's
 metrics against the source's contacts), contact point-frames kept, mean bone-direction cosine to the source (rig
 joints), largest bone-length change, mean GRF in the character's body weights, centre-of-mass height over hip
-height, time per frame of the retargeting (IK) and of the physics.
+height, how far the character's path leaves the source's (pelvis along the floor, at the source's size), time per
+frame of the retargeting (IK) and of the physics.
 
     .venv/bin/python benchmarks/bench_retarget.py [--quick] [--trajopt] [--source-physics physcap|none] [--work DIR]
+        [--set test|validation]
 
-Writes benchmarks/results/retarget.json and retarget.md.
+Writes benchmarks/results/retarget.json and retarget.md (retarget_validation.* with --set validation).
 """
 
 from __future__ import annotations
@@ -48,6 +50,9 @@ REPO = Path(__file__).resolve().parents[1]
 TEST_DATA = REPO / "tests" / "data"
 SYNTHETIC = ("cmu_raw_cgspeed/131_01.bvh", "cmu_iclone_cc3_retarget/006_01.bvh")
 REAL = ("hybrik_taiji.mp4", "sports2d_demo.mp4", "intel_highcam_walk_stand.mp4")
+# Where retargeting's own constants are chosen: walks of CMU training subjects 2 and 7, and taiji.
+VALIDATION_SYNTHETIC = ("cmu_raw_cgspeed/02_01.bvh", "cmu_iclone_cc3_retarget/007_01.bvh")
+VALIDATION_REAL = ("hybrik_taiji.mp4",)
 FPS, SECONDS = 30.0, 8.0
 CARTOON = dict(hip_width=0.16, thigh=0.22, shank=0.20, ankle_height=0.05, heel_back=0.03, toe_front=0.12,
                spine_low=0.06, spine_up=0.30, shoulder_width=0.30, upper_arm=0.33, forearm=0.31, hand_length=0.09,
@@ -110,11 +115,12 @@ def real_source(video: str, work: Path, physics: str) -> Path:
     return out / "result.npz"
 
 
-def run(work: Path, quick: bool, trajopt: bool, source_physics: str) -> dict:
+def run(work: Path, quick: bool, trajopt: bool, source_physics: str, validation: bool = False) -> dict:
     rigs = make_rigs(work)
+    synthetic, real = (VALIDATION_SYNTHETIC, VALIDATION_REAL) if validation else (SYNTHETIC, REAL)
     sources = {f"synthetic {Path(n).stem}": synthetic_source(n, work, source_physics)
-               for n in SYNTHETIC[: 1 if quick else None]}
-    sources.update({f"real {Path(v).stem}": real_source(v, work, source_physics) for v in REAL[: 1 if quick else None]})
+               for n in synthetic[: 1 if quick else None]}
+    sources.update({f"real {Path(v).stem}": real_source(v, work, source_physics) for v in real[: 1 if quick else None]})
     methods = ["none", "physcap"] + (["trajopt"] if trajopt else [])
     rows = []
     for source_name, source in sources.items():
@@ -157,8 +163,9 @@ def markdown(data: dict) -> str:
              f"Sources: capture with physics {data['source_physics']}. GRF % BW: mean magnitude of the net force "
              "(Rempe's measure); vertical: its vertical component; residual: the root's vertical residual force.", "",
              "| source | rig | physics | skate % | penetration % | contacts kept % | bone cos | bone length err (m) "
-             "| GRF % BW | vertical | residual | COM / hip height | IK ms/frame | physics ms/frame |",
-             "|" + "---|" * 14]
+             "| GRF % BW | vertical | residual | COM / hip height | path departure mean / max (m) | IK ms/frame "
+             "| physics ms/frame |",
+             "|" + "---|" * 15]
     for r in data["rows"]:
         grf = "- | - | -" if r["grf_mean_percent_bw"] is None else (
             f"{r['grf_mean_percent_bw']:.1f} | {r['grf_vertical_mean_percent_bw']:.1f} | "
@@ -167,6 +174,7 @@ def markdown(data: dict) -> str:
         lines.append(f"| {r['source']} | {r['rig']} | {r['physics']} | {r['skate_percent']:.2f} | "
                      f"{r['penetration_percent']:.2f} | {kept} | {r['bone_cosine_rig']:.4f} | "
                      f"{r['bone_length_error_m']:.1e} | {grf} | {r['com_over_hip_height']:.3f} | "
+                     f"{r['path_departure_mean_m']:.2f} / {r['path_departure_max_m']:.2f} | "
                      f"{r['retarget_ms_per_frame']:.1f} | {r['physics_ms_per_frame']:.1f} |")
     lines += ["", "Centre-of-mass paths (PhysCap), both scaled back to the source's size:", ""]
     for c in data["com_paths"]:
@@ -180,6 +188,9 @@ def markdown(data: dict) -> str:
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="one synthetic clip and one video")
+    parser.add_argument("--set", choices=("test", "validation"), default="test",
+                        help="sources: the test clips and videos, or the validation clips (CMU subjects 2 and 7) and "
+                             "taiji, where retargeting's constants are chosen")
     parser.add_argument("--trajopt", action="store_true",
                         help="also trajectory optimisation (two rigs on two sources; several minutes)")
     parser.add_argument("--source-physics", choices=("physcap", "none"), default=Settings().physics.method,
@@ -187,10 +198,11 @@ def main(argv=None) -> dict:
     parser.add_argument("--work", type=Path, default=Path("/tmp/physmocap_bench_retarget"),
                         help="folder for the sources' runs and the outputs (reused when present)")
     args = parser.parse_args(argv)
-    data = run(args.work, args.quick, args.trajopt, args.source_physics)
+    data = run(args.work, args.quick, args.trajopt, args.source_physics, args.set == "validation")
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "retarget.json").write_text(json.dumps(data, indent=1))
-    (RESULTS / "retarget.md").write_text(markdown(data))
+    stem = "retarget" if args.set == "test" else "retarget_validation"
+    (RESULTS / f"{stem}.json").write_text(json.dumps(data, indent=1))
+    (RESULTS / f"{stem}.md").write_text(markdown(data))
     print(markdown(data))
     return data
 

@@ -285,8 +285,12 @@ def retarget_result(result_path: str | os.PathLike, character_path: str | os.Pat
     grf = outcome.grf
     metrics = retarget_metrics(character, source["joints_world"][frames], outcome.qpos[frames], positions[frames],
                                contacts[frames], fps, None if grf is None else grf[frames])
+    # How far the character's path leaves the capture's (its pelvis at the source's size, along the floor): the
+    # price of feet that stay where the source's slid (solve.follow_planted_feet).
+    departure = np.linalg.norm(final[frames, 0, :2] / retargeted.scale - source["joints_world"][frames, 0, :2], axis=-1)
     metrics.update(retarget_ms_per_frame=1000 * retarget_seconds / T, physics_ms_per_frame=1000 * physics_seconds / T,
-                   physics=physics, scale=retargeted.scale,
+                   physics=physics, scale=retargeted.scale, path_departure_mean_m=float(departure.mean()),
+                   path_departure_max_m=float(departure.max()),
                    residual_vertical_mean_percent_bw=None if grf is None else float(
                        100 * outcome.residual[frames, 2].mean() / (body.mass * GRAVITY)))
     if outcome.simulated is not None and grf is not None:  # the same figures before the feet were planted again
