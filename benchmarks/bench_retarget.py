@@ -155,12 +155,13 @@ def run(work: Path, quick: bool, trajopt: bool, source_physics: str, validation:
                 paths[a] - paths[b], axis=1).mean())
             for a, b in (("cartoon 40% head", "mixamo"), ("cartoon de Leva", "mixamo"),
                          ("cartoon 40% head", "cartoon de Leva"))}))
-    return dict(machine=machine_description(), source_physics=source_physics, rows=rows, com_paths=com)
+    return dict(machine=machine_description(), source_set="validation" if validation else "test",
+                source_physics=source_physics, rows=rows, com_paths=com)
 
 
 def markdown(data: dict) -> str:
     lines = ["# Retargeting (issue 19)", "", f"Machine: {data['machine']}", "",
-             f"Sources: capture with physics {data['source_physics']}. GRF % BW: mean magnitude of the net force "
+             f"Sources ({data.get('source_set', 'test')} set): capture with physics {data['source_physics']}. GRF % BW: mean magnitude of the net force "
              "(Rempe's measure); vertical: its vertical component; residual: the root's vertical residual force.", "",
              "| source | rig | physics | skate % | penetration % | contacts kept % | bone cos | bone length err (m) "
              "| GRF % BW | vertical | residual | COM / hip height | path departure mean / max (m) | IK ms/frame "
