@@ -4,7 +4,8 @@
       character.bvh   the character's own hierarchy, names, offsets and channel orders, animated
       character.glb   (glTF characters) the same mesh, skin and nodes with the animation "physmocap" added
       result.npz      the result contract on the character: its joints, generalised coordinates, forces, mass
-      retarget.json   the character's measurements, the mapping, and the figures of `retarget_metrics`
+      retarget.json   the character's measurements, the mapping, the figures of `retarget_metrics`, the times,
+                      and how far the character's path leaves the capture's (path_departure_*)
 
 Steps: read and map the rig, build the character's body model (character.py), retarget (solve.py), run the
 physics on the character's body model (PhysCap, or trajectory optimisation), move the rig with it (writers.py).
