@@ -10,11 +10,13 @@ large head, long arms) with de Leva's mass distribution and with 40 % of 36.5 kg
 a skinned GLB mannequin. Figures per source x rig x physics: foot skate and penetration on the character (Rempe's
 metrics against the source's contacts), contact point-frames kept, mean bone-direction cosine to the source (rig
 joints), largest bone-length change, mean GRF in the character's body weights, centre-of-mass height over hip
-height, time per frame of the retargeting (IK) and of the physics.
+height, how far the character's path leaves the source's (pelvis along the floor, at the source's size), time per
+frame of the retargeting (IK) and of the physics.
 
     .venv/bin/python benchmarks/bench_retarget.py [--quick] [--trajopt] [--source-physics physcap|none] [--work DIR]
+        [--set test|validation] [--step-adjustment LEG_LENGTHS]
 
-Writes benchmarks/results/retarget.json and retarget.md.
+Writes benchmarks/results/retarget.json and retarget.md (retarget_validation.* with --set validation).
 """
 
 from __future__ import annotations
@@ -34,20 +36,27 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
 from common import MOCAP, RESULTS, VIDEOS, machine_description  # noqa: E402
-from physmocap.body.model import SkeletonLengths, build_body_model, template_lengths  # noqa: E402
+from physmocap.body import kinematics as kin  # noqa: E402
+from physmocap.body.model import CONTACT_POINTS, SkeletonLengths, build_body_model, template_lengths  # noqa: E402
 from physmocap.config import Settings  # noqa: E402
+from physmocap.export import body_from_result  # noqa: E402
 from physmocap.io.bvh_export import write_bvh  # noqa: E402
 from physmocap.io.glb import write_glb  # noqa: E402
+from physmocap.metrics import GRAVITY, foot_contact_errors  # noqa: E402
 from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
 from physmocap.mocap.synthetic import make_observations, random_camera, resample  # noqa: E402
 from physmocap.pipeline import run_capture  # noqa: E402
 from physmocap.result import load_result  # noqa: E402
-from physmocap.retarget import retarget_result  # noqa: E402
+from physmocap.retarget import retarget_result, solve  # noqa: E402
+from physmocap.retarget.solve import contact_runs  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 TEST_DATA = REPO / "tests" / "data"
 SYNTHETIC = ("cmu_raw_cgspeed/131_01.bvh", "cmu_iclone_cc3_retarget/006_01.bvh")
 REAL = ("hybrik_taiji.mp4", "sports2d_demo.mp4", "intel_highcam_walk_stand.mp4")
+# Where retargeting's own constants are chosen: walks of CMU training subjects 2 and 7, and taiji.
+VALIDATION_SYNTHETIC = ("cmu_raw_cgspeed/02_01.bvh", "cmu_iclone_cc3_retarget/007_01.bvh")
+VALIDATION_REAL = ("hybrik_taiji.mp4",)
 FPS, SECONDS = 30.0, 8.0
 CARTOON = dict(hip_width=0.16, thigh=0.22, shank=0.20, ankle_height=0.05, heel_back=0.03, toe_front=0.12,
                spine_low=0.06, spine_up=0.30, shoulder_width=0.30, upper_arm=0.33, forearm=0.31, hand_length=0.09,
@@ -110,11 +119,40 @@ def real_source(video: str, work: Path, physics: str) -> Path:
     return out / "result.npz"
 
 
-def run(work: Path, quick: bool, trajopt: bool, source_physics: str) -> dict:
+def source_feet(result: dict) -> dict:
+    """The source capture's own heel and toe points against its own contact labels, frames with a person: Rempe's
+    skate and penetration, and its contact runs whose point slid more than 10 cm from where it touched down."""
+    body = body_from_result(result)
+    feet = kin.forward_kinematics(body, result["qpos"]).points[:, body.point_index(CONTACT_POINTS)]
+    valid, contacts = np.asarray(result["valid"], bool), np.asarray(result["contacts"], bool)
+    errors = foot_contact_errors(feet[valid], contacts[valid], float(result["fps"]))
+    drifts = [float(np.linalg.norm(feet[s:e, k, :2] - feet[s, k, :2], axis=1).max())
+              for k in range(len(CONTACT_POINTS)) for s, e in contact_runs(contacts[:, k])]
+    return dict(skate_percent=errors["skate_percent"], penetration_percent=errors["penetration_percent"],
+                contact_runs=len(drifts), runs_sliding_over_10cm=sum(d > 0.1 for d in drifts),
+                largest_slide_m=max(drifts, default=0.0))
+
+
+def needed_force_percent_bw(result: dict, frames: int = 9) -> float:
+    """Mean magnitude of the net external force the result's centre of mass needs, m |a + g|, in body weights (%),
+    its path averaged over `frames` frames first so that no frame-to-frame chatter counts; frames with a person."""
+    com = result["center_of_mass"]
+    kernel = np.ones(frames) / frames
+    smooth = np.stack([np.convolve(com[:, i], kernel, "same") for i in range(3)], axis=1)
+    acceleration = np.zeros_like(smooth)
+    acceleration[1:-1] = (smooth[2:] - 2 * smooth[1:-1] + smooth[:-2]) * float(result["fps"]) ** 2
+    keep = np.asarray(result["valid"], bool).copy()
+    keep[:frames], keep[-frames:] = False, False  # the average is cut short at the ends
+    need = acceleration[keep] + np.array([0.0, 0.0, GRAVITY])
+    return float(100 * np.linalg.norm(need, axis=1).mean() / GRAVITY)
+
+
+def run(work: Path, quick: bool, trajopt: bool, source_physics: str, validation: bool = False) -> dict:
     rigs = make_rigs(work)
+    synthetic, real = (VALIDATION_SYNTHETIC, VALIDATION_REAL) if validation else (SYNTHETIC, REAL)
     sources = {f"synthetic {Path(n).stem}": synthetic_source(n, work, source_physics)
-               for n in SYNTHETIC[: 1 if quick else None]}
-    sources.update({f"real {Path(v).stem}": real_source(v, work, source_physics) for v in REAL[: 1 if quick else None]})
+               for n in synthetic[: 1 if quick else None]}
+    sources.update({f"real {Path(v).stem}": real_source(v, work, source_physics) for v in real[: 1 if quick else None]})
     methods = ["none", "physcap"] + (["trajopt"] if trajopt else [])
     rows = []
     for source_name, source in sources.items():
@@ -131,6 +169,7 @@ def run(work: Path, quick: bool, trajopt: bool, source_physics: str) -> dict:
                 hips = result["joints_world"][:, [10, 15], 2].mean()
                 row = dict(source=source_name, rig=rig_name, **report.metrics,
                            com_over_hip_height=float(result["center_of_mass"][:, 2].mean() / hips),
+                           needed_force_percent_bw=needed_force_percent_bw(result),
                            mass_kg=report.character["mass_kg"], height_m=report.character["height_m"],
                            wall_seconds=wall)
                 rows.append(row)
@@ -149,25 +188,39 @@ def run(work: Path, quick: bool, trajopt: bool, source_physics: str) -> dict:
                 paths[a] - paths[b], axis=1).mean())
             for a, b in (("cartoon 40% head", "mixamo"), ("cartoon de Leva", "mixamo"),
                          ("cartoon 40% head", "cartoon de Leva"))}))
-    return dict(machine=machine_description(), source_physics=source_physics, rows=rows, com_paths=com)
+    own = {name: source_feet(load_result(path)) for name, path in sources.items()}
+    return dict(machine=machine_description(), source_set="validation" if validation else "test",
+                source_physics=source_physics, rows=rows, com_paths=com, sources=own)
 
 
 def markdown(data: dict) -> str:
     lines = ["# Retargeting (issue 19)", "", f"Machine: {data['machine']}", "",
-             f"Sources: capture with physics {data['source_physics']}. GRF % BW: mean magnitude of the net force "
-             "(Rempe's measure); vertical: its vertical component; residual: the root's vertical residual force.", "",
+             f"Sources ({data.get('source_set', 'test')} set): capture with physics {data['source_physics']}. "
+             "GRF % BW: mean magnitude of the net force (Rempe's measure); vertical: its vertical component; "
+             "residual: the root's vertical residual force; needed: the mean net external force the character's "
+             "centre of mass needs, its path averaged over 9 frames (no GRF within 95-105% is possible where it is "
+             "outside).", "",
              "| source | rig | physics | skate % | penetration % | contacts kept % | bone cos | bone length err (m) "
-             "| GRF % BW | vertical | residual | COM / hip height | IK ms/frame | physics ms/frame |",
-             "|" + "---|" * 14]
+             "| GRF % BW | vertical | residual | needed | COM / hip height | path departure mean / max (m) "
+             "| IK ms/frame | physics ms/frame |",
+             "|" + "---|" * 16]
     for r in data["rows"]:
-        grf = "- | - | -" if r["grf_mean_percent_bw"] is None else (
+        grf = "- | - | - | -" if r["grf_mean_percent_bw"] is None else (
             f"{r['grf_mean_percent_bw']:.1f} | {r['grf_vertical_mean_percent_bw']:.1f} | "
-            f"{r['residual_vertical_mean_percent_bw']:.1f}")
+            f"{r['residual_vertical_mean_percent_bw']:.1f} | {r['needed_force_percent_bw']:.1f}")
         kept = "-" if r["contact_frames_kept"] is None else f"{100 * r['contact_frames_kept']:.1f}"
         lines.append(f"| {r['source']} | {r['rig']} | {r['physics']} | {r['skate_percent']:.2f} | "
                      f"{r['penetration_percent']:.2f} | {kept} | {r['bone_cosine_rig']:.4f} | "
                      f"{r['bone_length_error_m']:.1e} | {grf} | {r['com_over_hip_height']:.3f} | "
+                     f"{r['path_departure_mean_m']:.2f} / {r['path_departure_max_m']:.2f} | "
                      f"{r['retarget_ms_per_frame']:.1f} | {r['physics_ms_per_frame']:.1f} |")
+    lines += ["", "The sources' own feet (their heel and toe points against their own contact labels, frames with a "
+              "person):", "",
+              "| source | skate % | penetration % | contact runs sliding > 10 cm / all | largest slide (m) |",
+              "|---|---|---|---|---|"]
+    for name, own in data.get("sources", {}).items():
+        lines.append(f"| {name} | {own['skate_percent']:.2f} | {own['penetration_percent']:.2f} | "
+                     f"{own['runs_sliding_over_10cm']} / {own['contact_runs']} | {own['largest_slide_m']:.2f} |")
     lines += ["", "Centre-of-mass paths (PhysCap), both scaled back to the source's size:", ""]
     for c in data["com_paths"]:
         lines.append(f"- {c['source']}: " + "; ".join(f"{k} {v:.1f}" for k, v in c.items() if k != "source"))
@@ -180,17 +233,26 @@ def markdown(data: dict) -> str:
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="one synthetic clip and one video")
+    parser.add_argument("--set", choices=("test", "validation"), default="test",
+                        help="sources: the test clips and videos, or the validation clips (CMU subjects 2 and 7) and "
+                             "taiji, where retargeting's constants are chosen")
     parser.add_argument("--trajopt", action="store_true",
                         help="also trajectory optimisation (two rigs on two sources; several minutes)")
     parser.add_argument("--source-physics", choices=("physcap", "none"), default=Settings().physics.method,
                         help="physics of the sources' capture (default: the pipeline's default)")
+    parser.add_argument("--step-adjustment", type=float, default=None,
+                        help="leg lengths a footstep may land nearer the source's footprint (retarget.solve."
+                             "STEP_ADJUSTMENT, default its value): to choose it on --set validation")
     parser.add_argument("--work", type=Path, default=Path("/tmp/physmocap_bench_retarget"),
                         help="folder for the sources' runs and the outputs (reused when present)")
     args = parser.parse_args(argv)
-    data = run(args.work, args.quick, args.trajopt, args.source_physics)
+    if args.step_adjustment is not None:
+        solve.STEP_ADJUSTMENT = args.step_adjustment
+    data = run(args.work, args.quick, args.trajopt, args.source_physics, args.set == "validation")
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "retarget.json").write_text(json.dumps(data, indent=1))
-    (RESULTS / "retarget.md").write_text(markdown(data))
+    stem = "retarget" if args.set == "test" else "retarget_validation"
+    (RESULTS / f"{stem}.json").write_text(json.dumps(data, indent=1))
+    (RESULTS / f"{stem}.md").write_text(markdown(data))
     print(markdown(data))
     return data
 

@@ -16,7 +16,7 @@ from bvh import Bvh
 from scipy.spatial.transform import Rotation
 
 from physmocap.body import kinematics as kin
-from physmocap.body.model import SkeletonLengths, build_body_model, template_lengths
+from physmocap.body.model import CONTACT_POINTS, JOINT_NAMES, SkeletonLengths, build_body_model, template_lengths
 from physmocap.errors import InputError
 from physmocap.io.bvh_export import write_bvh
 from physmocap.io.glb import write_glb
@@ -26,7 +26,7 @@ from physmocap.retarget import retarget_result
 from physmocap.retarget.character import build_character
 from physmocap.retarget.mapping import load_character_config, map_bones, normalise
 from physmocap.retarget.rig import read_accessor, read_rig
-from physmocap.retarget.solve import solve_feet
+from physmocap.retarget.solve import follow_planted_feet, solve_feet
 from test_export import synthetic_result
 from test_glb import issue_counts, khronos_issues
 
@@ -253,6 +253,58 @@ def _rigs(tmp_path: Path) -> dict[str, Path]:
     return {"mixamo": mixamo_rig(tmp_path / "mixamo.bvh", template_lengths(1.60), prefix="mixamorig:"),
             "daz": DAZ_RIG, "cc3": CC3_RIG,
             "cartoon": mixamo_rig(tmp_path / "cartoon.bvh", SkeletonLengths(**CARTOON))}
+
+
+def test_feet_stay_planted_while_the_source_slides_and_the_pose_stays_the_sources():
+    """A monocular capture's body drifting 3 cm a frame while both feet are labelled in contact (its depth drifts):
+    the character's feet stay on their spots and the whole body stays with them, its pose the source's."""
+    body = build_body_model(template_lengths(1.70), 65.0)
+    frames = 40
+    qpos = np.tile(body.rest_qpos, (frames, 1))
+    qpos[:, 0] += 0.03 * np.arange(frames)
+    contacts = np.ones((frames, 4), bool)
+    solved, spots = solve_feet(body, qpos, contacts)
+    points = kin.forward_kinematics(body, solved).points
+    feet = points[:, body.point_index(CONTACT_POINTS)]
+    assert np.abs(np.diff(feet, axis=0)).max() < 1e-3
+    assert np.allclose(feet[..., :2], spots[..., :2], atol=1e-3)
+    joints = points[:, body.point_index(JOINT_NAMES)]
+    source = kin.forward_kinematics(body, qpos).points[:, body.point_index(JOINT_NAMES)]
+    assert np.allclose(joints - joints[:, :1], source - source[:, :1], atol=1e-3)
+
+
+def test_a_foot_touching_down_heel_after_toe_keeps_its_own_shape():
+    """The toe held while the body drifts, then the heel touches down: the heel's spot is placed from the toe's, so
+    the two spots lie as far apart as the foot's points do (a foot is rigid), not where the body's offset says."""
+    frames = 10
+    points = np.zeros((frames, 4, 3))
+    points[:, :, 0] = [[-0.05, 0.15, -0.05, 0.15]] * frames  # heel, toe of each foot along x
+    points[:, :2, 0] += 0.05 * np.arange(frames)[:, None]  # the left foot slides with the body
+    contacts = np.zeros((frames, 4), bool)
+    contacts[:, 1] = True  # left toe from the start
+    contacts[5:, 0] = True  # left heel from frame 5
+    contacts[:, 3] = True  # right toe, not sliding: the body's offset is the mean of both toes
+    _, spots = follow_planted_feet(points, contacts, step_adjustment=0.0)
+    assert spots[7, 1, 0] - spots[7, 0, 0] == pytest.approx(0.20)
+
+
+def test_the_offset_a_sliding_contact_leaves_returns_over_the_next_steps():
+    """After a contact that slid 0.48 m, each new footstep lands at most step_adjustment nearer the source's own
+    footprint, until the body is back on the source's path."""
+    points = np.zeros((60, 4, 3))
+    points[:25, :, 0] = 0.02 * np.arange(25)[:, None]  # both feet 'held' while they slide 0.48 m with the body
+    points[25:, :, 0] = points[24, :, 0]  # then stepping on the spot
+    contacts = np.zeros((60, 4), bool)
+    contacts[0:25, :] = True
+    for start in range(25, 60, 5):  # one foot, then the other, a frame without contact between
+        side = slice(0, 2) if (start // 5) % 2 else slice(2, 4)
+        contacts[start + 1:start + 5, side] = True
+    offsets, _ = follow_planted_feet(points, contacts, step_adjustment=0.1)
+    assert np.linalg.norm(offsets[24]) == pytest.approx(0.48)
+    distances = np.linalg.norm(offsets[25:], axis=1)
+    assert np.all(np.diff(distances) <= 1e-9)  # never away from the source's path
+    assert np.all(np.diff(distances) >= -0.1 - 1e-9)  # at most one adjustment a step
+    assert distances[-1] < 1e-9
 
 
 @pytest.mark.parametrize("name", ["mixamo", "daz", "cc3", "cartoon"])

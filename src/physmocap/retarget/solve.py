@@ -6,9 +6,18 @@ Both skeletons have the same joints and the same rest directions, so the source'
 scaled give the character the source's bone directions exactly (`scaled_qpos`); only the feet then miss the
 floor or slide where proportions differ (another ankle height, foot length, thigh-to-shank ratio). The IK
 (`solve_feet`) keeps every joint near that pose and puts each contact point, while the source has it in contact,
-on one fixed spot of the floor for the whole contact (its median over the contact), and every contact point on or
-above the floor; hinges stay within their limits. Frames are independent, so all are solved at once
-(Levenberg-Marquardt, one small system per frame).
+on one fixed spot of the floor for the whole contact (where it touched down), and every contact point on or above
+the floor; hinges stay within their limits. Frames are independent, so all are solved at once (Levenberg-Marquardt,
+one small system per frame).
+
+A monocular capture's feet often move along the floor while labelled in contact (its global translation drifts:
+depth, a person walking out of the picture). A foot planted where it touched down and a body that follows the
+source's translation then pull a metre apart, and the IK compromises: the feet slide or sink. So the body's
+horizontal translation follows the planted feet (`follow_planted_feet`): while a contact point is held, the whole
+pose moves with the offset that keeps that point on its spot, and that offset stays until another held contact
+changes it; the pose itself stays the source's. Each new footstep lands up to STEP_ADJUSTMENT leg lengths nearer
+the source's own footprint, so the character returns to the capture's path over the following steps
+(docs/decisions/retarget-follow-planted-feet.md).
 """
 
 from __future__ import annotations
@@ -26,6 +35,8 @@ FLOOR_WEIGHT = 30.0  # a contact point below the floor, pushed up
 IK_ITERATIONS = 12
 STEP_TOLERANCE = 1e-6  # stop once no frame's Gauss-Newton step exceeds this (metres or radians)
 IK_DAMPING = 1e-4  # Levenberg-Marquardt damping relative to the normal matrix's mean diagonal
+SAME_FOOT = (1, 0, 3, 2)  # the other contact point of each contact point's foot (CONTACT_POINTS' order)
+STEP_ADJUSTMENT = 0.2  # leg lengths a footstep may land nearer the source's own footprint (0 ..; 0: never)
 BLEND_FRAMES = 3  # a contact point eases between its planted spot and its free target over this many frames
 
 
@@ -60,16 +71,48 @@ def contact_runs(flags: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(edges[0::2], edges[1::2], strict=True))
 
 
-def planted_spots(points: np.ndarray, contacts: np.ndarray) -> np.ndarray:
-    """(T, 4, 3) the floor spot of each contact point during each of its contacts (median over the contact of its
-    position, on z = 0); nan outside contacts. points: (T, 4, 3); contacts: (T, 4) bool."""
-    out = np.full(points.shape, np.nan)
-    for k in range(points.shape[1]):
-        for start, end in contact_runs(contacts[:, k]):
-            spot = np.median(points[start:end, k], axis=0)
-            spot[2] = 0.0
-            out[start:end, k] = spot
-    return out
+def follow_planted_feet(points: np.ndarray, contacts: np.ndarray,
+                        step_adjustment: float) -> tuple[np.ndarray, np.ndarray]:
+    """The horizontal offset of the whole body (T, 2) that keeps each held contact point on its spot, and the spots
+    (T, 4, 3) on z = 0 (nan outside contacts). points: (T, 4, 3) the contact points of the source pose; contacts:
+    (T, 4) bool; step_adjustment: metres, the most a footstep moves towards the source's own footprint.
+
+    While points are held (in contact on this frame and the one before) the offset is their mean (spot - point);
+    otherwise it keeps its last value. A point touching down beside its foot's held heel or toe takes that point's
+    offset (a foot is rigid); any other touches down at the body's offset less up to `step_adjustment` of it, so
+    the offset a drifting contact leaves returns to zero over the following steps instead of adding up."""
+    T, K = contacts.shape
+    offsets = np.zeros((T, 2))
+    spots = np.full((T, K, 3), np.nan)
+    spot = np.full((K, 2), np.nan)
+    offset = np.zeros(2)
+    for t in range(T):
+        held = contacts[t] & contacts[t - 1] if t > 0 else np.zeros(K, bool)
+        if held.any():
+            offset = (spot[held] - points[t, held, :2]).mean(axis=0)
+        length = float(np.linalg.norm(offset))
+        stepped = offset * max(0.0, 1.0 - step_adjustment / length) if length > 0 else offset
+        for k in np.flatnonzero(contacts[t] & ~held):
+            other = SAME_FOOT[k]
+            spot[k] = points[t, k, :2] + (spot[other] - points[t, other, :2] if held[other] else stepped)
+        offsets[t] = offset
+        spots[t, contacts[t], :2] = spot[contacts[t]]
+        spots[t, contacts[t], 2] = 0.0
+    return offsets, spots
+
+
+def _smooth_offsets(offsets: np.ndarray) -> np.ndarray:
+    """The offsets (T, 2) averaged over 2 BLEND_FRAMES + 1 frames, so that the body eases, rather than jumps, when
+    the held contacts change (the held feet stay on their spots through the IK). The ends are extended by point
+    reflection, which keeps a steady drift exact up to the first and last frame."""
+    width = min(BLEND_FRAMES, len(offsets) - 1)
+    if width < 1:
+        return offsets.copy()
+    head = 2 * offsets[0] - offsets[width:0:-1]
+    tail = 2 * offsets[-1] - offsets[-2:-2 - width:-1]
+    padded = np.concatenate([head, offsets, tail])
+    kernel = np.ones(2 * width + 1) / (2 * width + 1)
+    return np.stack([np.convolve(padded[:, i], kernel, "valid") for i in range(offsets.shape[1])], axis=1)
 
 
 def _blend_weights(contacts: np.ndarray) -> np.ndarray:
@@ -106,9 +149,9 @@ def _extend_spots(spots: np.ndarray, contacts: np.ndarray) -> np.ndarray:
 def solve_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray,
                iterations: int = IK_ITERATIONS) -> tuple[np.ndarray, np.ndarray]:
     """IK of every frame: joints (JOINT_NAMES) towards their positions in `qpos` (T, nq) (a frame whose lowest
-    contact point is below the floor lifted out of it first), contact points (CONTACT_POINTS) in contact (T, 4)
-    onto their planted spots, every contact point on or above z = 0, hinges within their limits. Returns the
-    solved qpos (T, nq) and the planted spots (T, 4, 3)."""
+    contact point is below the floor lifted out of it first, then every frame moved by `follow_planted_feet`),
+    contact points (CONTACT_POINTS) in contact (T, 4) onto their planted spots, every contact point on or above
+    z = 0, hinges within their limits. Returns the solved qpos (T, nq) and the planted spots (T, 4, 3)."""
     joints = body.point_index(JOINT_NAMES)
     feet = body.point_index(CONTACT_POINTS)
     contact_columns = np.array([list(JOINT_NAMES).index(n) for n in CONTACT_POINTS])
@@ -116,7 +159,11 @@ def solve_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray,
     # A frame sunk into the floor is first lifted whole out of it, so that the joints' targets stand on the floor.
     qpos[:, 2] += np.maximum(0.0, -kin.forward_kinematics(body, qpos).points[:, feet, 2].min(axis=1))
     targets = kin.forward_kinematics(body, qpos).points[:, joints]
-    spots = planted_spots(targets[:, contact_columns], contacts)
+    offsets, spots = follow_planted_feet(targets[:, contact_columns], contacts,
+                                         STEP_ADJUSTMENT * leg_length(body.lengths))
+    offsets = _smooth_offsets(offsets)
+    qpos[:, 0:2] += offsets
+    targets[..., :2] += offsets[:, None]
     blend = _blend_weights(contacts)
     eased = _extend_spots(spots, contacts)
     goal = targets.copy()

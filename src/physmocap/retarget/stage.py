@@ -4,7 +4,8 @@
       character.bvh   the character's own hierarchy, names, offsets and channel orders, animated
       character.glb   (glTF characters) the same mesh, skin and nodes with the animation "physmocap" added
       result.npz      the result contract on the character: its joints, generalised coordinates, forces, mass
-      retarget.json   the character's measurements, the mapping, and the figures of `retarget_metrics`
+      retarget.json   the character's measurements, the mapping, the figures of `retarget_metrics`, the times,
+                      and how far the character's path leaves the capture's (path_departure_*)
 
 Steps: read and map the rig, build the character's body model (character.py), retarget (solve.py), run the
 physics on the character's body model (PhysCap, or trajectory optimisation), move the rig with it (writers.py).
@@ -285,8 +286,12 @@ def retarget_result(result_path: str | os.PathLike, character_path: str | os.Pat
     grf = outcome.grf
     metrics = retarget_metrics(character, source["joints_world"][frames], outcome.qpos[frames], positions[frames],
                                contacts[frames], fps, None if grf is None else grf[frames])
+    # How far the character's path leaves the capture's (its pelvis at the source's size, along the floor): the
+    # price of feet that stay where the source's slid (solve.follow_planted_feet).
+    departure = np.linalg.norm(final[frames, 0, :2] / retargeted.scale - source["joints_world"][frames, 0, :2], axis=-1)
     metrics.update(retarget_ms_per_frame=1000 * retarget_seconds / T, physics_ms_per_frame=1000 * physics_seconds / T,
-                   physics=physics, scale=retargeted.scale,
+                   physics=physics, scale=retargeted.scale, path_departure_mean_m=float(departure.mean()),
+                   path_departure_max_m=float(departure.max()),
                    residual_vertical_mean_percent_bw=None if grf is None else float(
                        100 * outcome.residual[frames, 2].mean() / (body.mass * GRAVITY)))
     if outcome.simulated is not None and grf is not None:  # the same figures before the feet were planted again
