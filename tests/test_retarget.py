@@ -307,6 +307,7 @@ def test_the_offset_a_sliding_contact_leaves_returns_over_the_next_steps():
     assert distances[-1] < 1e-9
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["mixamo", "daz", "cc3", "cartoon"])
 def test_motion_on_each_rig_meets_the_targets_and_reads_back(tmp_path, source, name):
     rig_path = _rigs(tmp_path)[name]
@@ -338,6 +339,7 @@ def test_motion_on_each_rig_meets_the_targets_and_reads_back(tmp_path, source, n
     assert set(json.loads(str(result["body_segment_masses"]))) >= {"head", "pelvis"}
 
 
+@pytest.mark.slow
 def test_cartoon_with_a_heavy_head_moves_its_centre_of_mass_differently(tmp_path, source):
     rigs = _rigs(tmp_path)
     toml = tmp_path / "cartoon.toml"
@@ -353,6 +355,7 @@ def test_cartoon_with_a_heavy_head_moves_its_centre_of_mass_differently(tmp_path
     assert com_cartoon[:, 2].mean() / hip_cartoon > com_human[:, 2].mean() / hip_human + 0.2
 
 
+@pytest.mark.slow
 def test_glb_character_gets_its_animation_added_and_reads_back(tmp_path, source):
     body = build_body_model(template_lengths(1.58), 55.0)
     character_file = tmp_path / "mannequin.glb"
@@ -397,6 +400,7 @@ def test_glb_character_gets_its_animation_added_and_reads_back(tmp_path, source)
         assert np.allclose(position, result["rig_joints_world"][frame, k], atol=1e-4), after.nodes[node].name
 
 
+@pytest.mark.slow
 def test_retarget_command_line(tmp_path, source):
     rig = mixamo_rig(tmp_path / "m.bvh")
     run = subprocess.run([sys.executable, "-m", "physmocap.cli", "retarget", str(source), "--character", str(rig),
@@ -415,6 +419,7 @@ def test_retarget_command_line(tmp_path, source):
         assert "bad.bvh" in run.stderr and "no bone found for left_hip" in run.stderr
 
 
+@pytest.mark.slow
 def test_trajectory_optimisation_runs_on_the_characters_body(tmp_path, source):
     toml = tmp_path / "cartoon.toml"
     toml.write_text("[mass]\ntotal = 36.5\n[mass.fractions]\nhead = 0.40\n")
@@ -478,6 +483,7 @@ def blender_like_glb(folder: Path) -> tuple[Path, Path]:
     return character_file, plain
 
 
+@pytest.mark.slow
 def test_glb_with_an_armature_node_and_rest_rotations_moves_its_joints_where_the_result_says(tmp_path, source):
     """As exported by Blender: the skeleton under a rotated, scaled Armature node, bones with rest rotations."""
     character_file, plain = blender_like_glb(tmp_path)
@@ -518,6 +524,7 @@ def test_glb_with_an_armature_node_and_rest_rotations_moves_its_joints_where_the
     assert error.max() < 2e-4, [(n, e) for n, e in zip(character.rig.names, worst, strict=True) if e > 2e-4]
 
 
+@pytest.mark.slow
 def test_khronos_validator_finds_no_new_issue_in_the_characters_glb(tmp_path, source):
     """The Khronos glTF validator on the GLB the retargeting writes (after PhysCap on the character): our skinned
     mannequin has no issue before or after; the Blender-like file has after exactly the issues it had before (the
