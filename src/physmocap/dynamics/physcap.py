@@ -254,7 +254,7 @@ class PhysCapTracker:
         if self.settings.release_distance is None:
             return np.zeros(4, bool)
         offset = target_sites[:, :2] - self.data.site_xpos[self.sites, :2]
-        return np.linalg.norm(offset, axis=1) > self.settings.release_distance
+        return np.sqrt((offset * offset).sum(axis=1)) > self.settings.release_distance
 
     # ---- one video frame ----------------------------------------------------------------------------------
     def track(self, q_kin: np.ndarray, qd_kin: np.ndarray, qdd_kin: np.ndarray,
@@ -284,8 +284,10 @@ class PhysCapTracker:
             bias, heights, touching = self._dynamics()
             if i == 0:  # judged once per frame against the frame's target (per step it split walks further)
                 released = self._released_contacts(target_sites)
+                held = ~released
             predicted = earlier_contacts if (i + 0.5) / n < 0.5 else predicted_contacts
-            active = predicted & (heights < s.contact_height) & ~released  # eq. (5)
+            active = predicted & (heights < s.contact_height)  # eq. (5)
+            active &= held
             if s.foot_lock != "never":  # airborne or swimming motion: the floor does not push back
                 active |= touching
             qdd_des = self._desired_acceleration(target, feedforward, target_damping)
