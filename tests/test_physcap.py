@@ -175,6 +175,34 @@ def test_stationary_leaning_pose_is_brought_back_to_balance(body):
     assert all(inside_support(c[:2], f[contacts[0], :2]) for c, f in zip(com, feet, strict=True))
 
 
+def test_the_support_test_agrees_with_qhull_on_sole_points():
+    """inside_support's own hull (monotone chain) decides as scipy's Qhull did, on random sets of 1-4 sole points
+    and points around them, collinear and coincident sets included (Qhull refuses those: the segment test)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    def qhull_inside(point, support, margin=0.02):
+        try:
+            hull = ConvexHull(support)
+        except QhullError:
+            return None
+        return bool(np.all(hull.equations[:, :2] @ point + hull.equations[:, 2] <= margin))
+
+    rng = np.random.default_rng(3)
+    compared = 0
+    for trial in range(400):
+        support = rng.uniform(-0.3, 0.3, (int(rng.integers(1, 5)), 2))
+        if trial % 10 == 0 and len(support) >= 3:
+            support[2] = support[0] + 0.5 * (support[1] - support[0])  # collinear with the first two
+        if trial % 10 == 1 and len(support) >= 2:
+            support[1] = support[0]  # coincident
+        for point in rng.uniform(-0.4, 0.4, (5, 2)):
+            expected = qhull_inside(point, support) if len(support) >= 3 else None
+            if expected is not None:
+                assert inside_support(point, support) == expected
+                compared += 1
+    assert compared > 500
+
+
 def test_a_travelling_body_flagged_stationary_is_not_corrected(body):
     # The same forward lean, but the whole body glides sideways at 0.5 m/s: the root's speed overrules a
     # stationary flag (the correction would tilt a moving body), until the gate is switched off.
