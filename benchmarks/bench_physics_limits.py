@@ -54,7 +54,7 @@ from common import MOCAP, RESULTS  # noqa: E402
 from physmocap import metrics  # noqa: E402
 from physmocap.body import kinematics as kin  # noqa: E402
 from physmocap.body.model import CONTACT_POINTS  # noqa: E402
-from physmocap.config import Settings  # noqa: E402
+from physmocap.config import PhysicsSettings, Settings  # noqa: E402
 from physmocap.contacts.noise import MEDIAPIPE_NOISE  # noqa: E402
 from physmocap.contacts.predict import predict_contacts  # noqa: E402
 from physmocap.dynamics.stage import run_physcap  # noqa: E402
@@ -96,6 +96,8 @@ def build_case(name: str, seed: int, fps: float = FPS, noise: NoiseModel = MEDIA
         except (ModuleNotFoundError, AttributeError):  # pickled by an older layout of physmocap: build it again
             path.unlink()
             return build_case(name, seed, fps, noise, box, online)
+        # the physics settings of the code under test, not the defaults pickled with the case's fits
+        case["settings"] = dataclasses.replace(case["settings"], physics=PhysicsSettings())
         if not online or "online" in case:
             return case
         return add_online_fits(case, path)

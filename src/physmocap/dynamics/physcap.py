@@ -93,6 +93,13 @@ class PhysCapTracker:
         if settings.kd_root_horizontal is not None:
             self.kd[:2] = settings.kd_root_horizontal
         self.kp[3:6], self.kd[3:6] = settings.kp_root_rotation, settings.kd_root_rotation
+        # Eq. (4)'s feed-forward share per DOF: between frames the target is a chord, whose velocity step at the
+        # frame the damping alone reaches by the interval's end when the acceleration is fed forward at x / (e^x - 1),
+        # x = kd / fps (1 as the interval vanishes, the paper's continuous form): a larger share overshoots the chord
+        # (docs/decisions/physics-video-jitter.md)
+        frame_damping = self.kd / fps
+        self.feedforward = settings.acceleration_feedforward * np.divide(
+            frame_damping, np.expm1(frame_damping), out=np.ones(nv), where=frame_damping > 0.0)
         # kd times the share of the kinematic velocity in the derivative term (settings.rotation_velocity_share)
         self.kd_target = self.kd.copy()
         self.kd_target[3:] *= settings.rotation_velocity_share
@@ -153,13 +160,13 @@ class PhysCapTracker:
 
     def desired_acceleration(self, q_kin, qd_kin, qdd_kin) -> np.ndarray:
         """Eq. (4): PD control towards the kinematic pose; the pose error is taken on the manifold, the
-        kinematic acceleration is fed forward scaled by settings.acceleration_feedforward and the rotational
+        kinematic acceleration is fed forward scaled by self.feedforward and the rotational
         velocities by settings.rotation_velocity_share; bounded by MAX_DESIRED_ACCELERATION."""
-        return self._desired_acceleration(q_kin, self.settings.acceleration_feedforward * qdd_kin,
+        return self._desired_acceleration(q_kin, self.feedforward * qdd_kin,
                                           self.kd_target * qd_kin).copy()
 
     def _desired_acceleration(self, q_kin, feedforward, target_damping) -> np.ndarray:
-        """desired_acceleration with its per-frame terms (acceleration_feedforward qdd_kin, kd_target qd_kin)
+        """desired_acceleration with its per-frame terms (feedforward qdd_kin, kd_target qd_kin)
         given, into a buffer the next call overwrites."""
         error, desired = self._pose_error, self._desired
         mujoco.mj_differentiatePos(self.model, error, 1.0, self.qpos, q_kin)
@@ -277,7 +284,7 @@ class PhysCapTracker:
         target_sites = self.target_data.site_xpos[self.sites].copy()
         height_step = target_sites[:, 2] - self._previous_target_heights
         earlier_contacts = predicted_contacts if self._previous_contacts is None else self._previous_contacts
-        feedforward, target_damping = s.acceleration_feedforward * qdd_kin, self.kd_target * qd_kin
+        feedforward, target_damping = self.feedforward * qdd_kin, self.kd_target * qd_kin
         for i in range(n):
             target[:] = self._previous_target
             mujoco.mj_integratePos(self.model, target, self._target_step, (i + 1) / n)
