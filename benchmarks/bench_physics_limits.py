@@ -18,6 +18,8 @@ MediaPipe-like noise, the true intrinsics and height, 8 s at 30 fps, seeds 0 and
              frames flagged and the physics stage's time.
   speed      frames per CPU second of the physics stage at 25, 30 and 60 fps, this tree against another
              (--against SRC, default ../main/src), in alternating child processes.
+  speed_alternating  the same with the other tree's dynamics package loaded beside this one in one process,
+             alternated run by run (steadier on a busy machine; only the dynamics package may differ).
 
     .venv/bin/python benchmarks/bench_physics_limits.py [--parts framerate diagnosis online methods] [--quick]
         [--set validation] [--methods ROW ...] [--physics NAME=VALUE ...]
@@ -395,6 +397,39 @@ def part_speed(against: str, rounds: int = 3, repeats: int = 3) -> dict:
             for label, runs in seconds.items()} | dict(against=against, load_average=os.getloadavg()[0])
 
 
+def part_speed_alternating(against: str, rounds: int = 7) -> dict:
+    """Frames per CPU second (median and best of `rounds`) of this tree's physics stage and of the dynamics package
+    of the tree whose src folder is `against`, loaded beside it in one process (the rest of physmocap is this
+    tree's) and alternated run by run, so that a busy machine's changing load falls on both alike."""
+    import importlib
+    import importlib.util
+
+    folder = Path(against) / "physmocap" / "dynamics"
+    spec = importlib.util.spec_from_file_location("physmocap.dynamics_against", folder / "__init__.py",
+                                                  submodule_search_locations=[str(folder)])
+    package = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = package
+    spec.loader.exec_module(package)
+    runners = {"this branch": run_physcap, "before": importlib.import_module(f"{spec.name}.stage").run_physcap}
+    case = build_case(CLIPS[0], 0, 60.0, online=False)
+    motion, refined = case["refined"].motion, case["refined"]
+    out: dict = {"this branch": {}, "before": {}, "this branch best": {}, "before best": {}}
+    for fps in SPEED_RATES:
+        qpos, source = resample_motion(motion.body, motion.qpos, 60.0, fps)
+        seconds: dict[str, list[float]] = {label: [] for label in runners}
+        for round_ in range(rounds + 1):  # the first round warms both up
+            for label, run in runners.items():
+                start = time.process_time()
+                run(motion.body, qpos, fps, refined.contacts[source], case["stationary"][source],
+                    case["settings"].physics, refined_input=True)
+                if round_:
+                    seconds[label].append((time.process_time() - start) / len(qpos))
+        for label, runs in seconds.items():
+            out[label][f"{fps:g}"] = 1.0 / float(np.median(runs))
+            out[f"{label} best"][f"{fps:g}"] = 1.0 / float(np.min(runs))
+    return out | dict(against=against, load_average=os.getloadavg()[0], rounds=rounds)
+
+
 # ---- report ---------------------------------------------------------------------------------------------------
 def markdown(out: dict) -> str:
     lines = []
@@ -442,6 +477,17 @@ def markdown(out: dict) -> str:
         for label in ("this branch", "before"):
             name = label if label == "this branch" else f"before ({sp['against']})"
             lines.append(f"| {name} | " + " | ".join(f"{v:.0f}" for v in sp[label].values()) + " |")
+        lines.append("")
+    if "speed_alternating" in out:
+        sp = out["speed_alternating"]
+        lines += [f"**Speed, alternating in one process** (frames per CPU second of the physics stage, median (best) "
+                  f"of {sp['rounds']} runs each; load average {sp['load_average']:.1f})", "",
+                  "| code | " + " | ".join(f"{r} fps" for r in sp["this branch"]) + " |",
+                  "|---|" + "---|" * len(sp["this branch"])]
+        for label in ("this branch", "before"):
+            name = label if label == "this branch" else f"before ({sp['against']})"
+            lines.append(f"| {name} | " + " | ".join(f"{v:.0f} ({sp[label + ' best'][r]:.0f})"
+                                                    for r, v in sp[label].items()) + " |")
         lines.append("")
     if "methods" in out:
         lines += ["**Offline methods**", "", "| method | root-rel. mm | Procrustes mm | global root mm | "
@@ -512,6 +558,8 @@ def main(argv=None) -> dict:
             out[part] = part_methods(clips, seeds, args.methods, walks, settings_overrides(args.physics))
         elif part == "speed":
             out[part] = part_speed(args.against)
+        elif part == "speed_alternating":
+            out[part] = part_speed_alternating(args.against)
         out[part]["minutes"] = (time.perf_counter() - start) / 60
     RESULTS.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(out, indent=1))
