@@ -189,8 +189,10 @@ def part_framerate(clips, overrides=None) -> dict:
             physics = run_physcap(body, qpos, fps, refined.contacts[source], case["stationary"][source],
                                   dataclasses.replace(case["settings"].physics, **(overrides or {})),
                                   refined_input=True)
-            runs[fps] = dict(times=np.arange(len(qpos)) / fps, physics=physics,
-                             points=kin.forward_kinematics(body, physics.qpos).points)
+            points = kin.forward_kinematics(body, physics.qpos).points
+            to_input = np.linalg.norm(points - kin.forward_kinematics(body, qpos).points, axis=-1).mean(axis=1)
+            runs[fps] = dict(times=np.arange(len(qpos)) / fps, physics=physics, points=points,
+                             to_input=to_input[np.arange(len(qpos)) / fps >= 0.5])
         reference = runs[60.0]
         for fps in RATES:
             run, physics = runs[fps], runs[fps]["physics"]
@@ -198,6 +200,11 @@ def part_framerate(clips, overrides=None) -> dict:
                      and np.isclose(reference["times"], time, atol=1e-6).any()]
             match = [int(np.argmin(np.abs(reference["times"] - run["times"][i]))) for i in index]
             distance = np.linalg.norm(run["points"][index] - reference["points"][match], axis=-1).mean(axis=1)
+            # the posture alone (joints relative to the root) and the root's horizontal placement
+            relative = np.linalg.norm((run["points"][index] - run["points"][index, :1])
+                                      - (reference["points"][match] - reference["points"][match, :1]),
+                                      axis=-1).mean(axis=1)
+            root_horizontal = np.linalg.norm(physics.qpos[index, :2] - reference["physics"].qpos[match, :2], axis=-1)
             flagged = getattr(physics, "unexplained", None)
             rows.append(dict(clip=name.split("/")[-1], fps=fps,
                              finite=bool(np.isfinite(physics.qpos).all() and np.isfinite(physics.grf).all()),
@@ -206,6 +213,10 @@ def part_framerate(clips, overrides=None) -> dict:
                              physics_vs_60_mm=1000 * float(distance.mean()),
                              physics_vs_60_p95_mm=1000 * float(np.percentile(distance, 95)),
                              physics_vs_60_max_mm=1000 * float(distance.max()),
+                             root_relative_vs_60_mm=1000 * float(relative.mean()),
+                             root_relative_vs_60_p95_mm=1000 * float(np.percentile(relative, 95)),
+                             root_horizontal_vs_60_mm=1000 * float(root_horizontal.mean()),
+                             physics_vs_own_input_mm=1000 * float(run["to_input"].mean()),
                              common_times=len(index), ms_per_frame=1000 * physics.seconds / len(physics.qpos)))
             print("framerate", rows[-1], flush=True)
     return dict(rows=rows)
@@ -437,11 +448,16 @@ def markdown(out: dict) -> str:
         lines += ["**Same motion at 10, 24, 30, 60 fps** (the 60 fps case's B.4-refined kinematics resampled; "
                   "PhysCap; mean joint distance to the 60 fps run at common times from 0.5 s on)", "",
                   "| clip | fps | finite | largest force BW | flagged % | physics vs 60 fps: mean mm | p95 mm | "
-                  "max mm | ms/frame |", "|---|---|---|---|---|---|---|---|---|"]
+                  "max mm | root-relative mm (p95) | root horizontal mm | physics vs its own input mm | ms/frame |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in out["framerate"]["rows"]:
             lines.append(f"| {r['clip']} | {r['fps']:g} | {r['finite']} | {r['largest_force_bw']:.2f} | "
                          f"{r['flagged_percent']:.1f} | {r['physics_vs_60_mm']:.1f} | "
-                         f"{r['physics_vs_60_p95_mm']:.1f} | {r['physics_vs_60_max_mm']:.1f} | {r['ms_per_frame']:.2f} |")
+                         f"{r['physics_vs_60_p95_mm']:.1f} | {r['physics_vs_60_max_mm']:.1f} | "
+                         f"{r.get('root_relative_vs_60_mm', np.nan):.1f} "
+                         f"({r.get('root_relative_vs_60_p95_mm', np.nan):.1f}) | "
+                         f"{r.get('root_horizontal_vs_60_mm', np.nan):.1f} | "
+                         f"{r.get('physics_vs_own_input_mm', np.nan):.1f} | {r['ms_per_frame']:.2f} |")
         lines.append("")
     if "diagnosis" in out:
         rows = out["diagnosis"]["rows"]
