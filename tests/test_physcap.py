@@ -434,6 +434,24 @@ def test_physics_smooths_a_jittery_target_instead_of_passing_the_jitter_on(body)
     assert shake(smoothed.qpos[10:]) < shake(full_velocity.qpos[10:])
 
 
+def test_the_fed_forward_acceleration_brings_the_damped_velocity_onto_the_chord_by_the_frames_end(body):
+    """Eq. (4)'s feed-forward share per DOF, x / (e^x - 1) with x = kd / fps: the damped velocity
+    v' = f a + kd (v_chord - v), starting a frame interval T behind the new chord's velocity (v_chord - a T),
+    reaches it at the interval's end; the paper's full share as frames get dense, almost none for the stiff joints at
+    10 fps, whose damping alone gets there."""
+    settings = PhysicsSettings()
+    assert np.allclose(PhysCapTracker(body, settings, 1e5).feedforward, settings.acceleration_feedforward, rtol=1e-3)
+    for fps in (10.0, 30.0, 60.0):
+        tracker = PhysCapTracker(body, settings, fps)
+        share, kd, interval, acceleration = tracker.feedforward, tracker.kd, 1.0 / fps, 3.0
+        velocity = np.full(body.nv, -acceleration * interval)  # the chord's velocity is 0
+        steps = 20000
+        for _ in range(steps):
+            velocity += interval / steps * (share * acceleration - kd * velocity)
+        assert np.abs(velocity).max() < 1e-3 * acceleration * interval, fps
+    assert PhysCapTracker(body, settings, 10.0).feedforward[6:].max() < 0.01
+
+
 def test_the_derivative_term_tracks_a_share_of_the_rotational_velocity_and_all_of_the_translation(body):
     """Eq. (4) with rotation_velocity_share s: kd (s qd_kin - qd) on the root's orientation and the joints,
     kd (qd_kin - qd) on the root's translation (its own kd horizontally)."""
