@@ -18,6 +18,8 @@ MediaPipe-like noise, the true intrinsics and height, 8 s at 30 fps, seeds 0 and
              frames flagged and the physics stage's time.
   speed      frames per CPU second of the physics stage at 25, 30 and 60 fps, this tree against another
              (--against SRC, default ../main/src), in alternating child processes.
+  speed_alternating  the same with the other tree's dynamics package loaded beside this one in one process,
+             alternated run by run (steadier on a busy machine; only the dynamics package may differ).
 
     .venv/bin/python benchmarks/bench_physics_limits.py [--parts framerate diagnosis online methods] [--quick]
         [--set validation] [--methods ROW ...] [--physics NAME=VALUE ...]
@@ -54,7 +56,7 @@ from common import MOCAP, RESULTS  # noqa: E402
 from physmocap import metrics  # noqa: E402
 from physmocap.body import kinematics as kin  # noqa: E402
 from physmocap.body.model import CONTACT_POINTS  # noqa: E402
-from physmocap.config import Settings  # noqa: E402
+from physmocap.config import PhysicsSettings, Settings  # noqa: E402
 from physmocap.contacts.noise import MEDIAPIPE_NOISE  # noqa: E402
 from physmocap.contacts.predict import predict_contacts  # noqa: E402
 from physmocap.dynamics.stage import run_physcap  # noqa: E402
@@ -96,6 +98,8 @@ def build_case(name: str, seed: int, fps: float = FPS, noise: NoiseModel = MEDIA
         except (ModuleNotFoundError, AttributeError):  # pickled by an older layout of physmocap: build it again
             path.unlink()
             return build_case(name, seed, fps, noise, box, online)
+        # the physics settings of the code under test, not the defaults pickled with the case's fits
+        case["settings"] = dataclasses.replace(case["settings"], physics=PhysicsSettings())
         if not online or "online" in case:
             return case
         return add_online_fits(case, path)
@@ -185,8 +189,10 @@ def part_framerate(clips, overrides=None) -> dict:
             physics = run_physcap(body, qpos, fps, refined.contacts[source], case["stationary"][source],
                                   dataclasses.replace(case["settings"].physics, **(overrides or {})),
                                   refined_input=True)
-            runs[fps] = dict(times=np.arange(len(qpos)) / fps, physics=physics,
-                             points=kin.forward_kinematics(body, physics.qpos).points)
+            points = kin.forward_kinematics(body, physics.qpos).points
+            to_input = np.linalg.norm(points - kin.forward_kinematics(body, qpos).points, axis=-1).mean(axis=1)
+            runs[fps] = dict(times=np.arange(len(qpos)) / fps, physics=physics, points=points,
+                             to_input=to_input[np.arange(len(qpos)) / fps >= 0.5])
         reference = runs[60.0]
         for fps in RATES:
             run, physics = runs[fps], runs[fps]["physics"]
@@ -194,6 +200,11 @@ def part_framerate(clips, overrides=None) -> dict:
                      and np.isclose(reference["times"], time, atol=1e-6).any()]
             match = [int(np.argmin(np.abs(reference["times"] - run["times"][i]))) for i in index]
             distance = np.linalg.norm(run["points"][index] - reference["points"][match], axis=-1).mean(axis=1)
+            # the posture alone (joints relative to the root) and the root's horizontal placement
+            relative = np.linalg.norm((run["points"][index] - run["points"][index, :1])
+                                      - (reference["points"][match] - reference["points"][match, :1]),
+                                      axis=-1).mean(axis=1)
+            root_horizontal = np.linalg.norm(physics.qpos[index, :2] - reference["physics"].qpos[match, :2], axis=-1)
             flagged = getattr(physics, "unexplained", None)
             rows.append(dict(clip=name.split("/")[-1], fps=fps,
                              finite=bool(np.isfinite(physics.qpos).all() and np.isfinite(physics.grf).all()),
@@ -202,6 +213,10 @@ def part_framerate(clips, overrides=None) -> dict:
                              physics_vs_60_mm=1000 * float(distance.mean()),
                              physics_vs_60_p95_mm=1000 * float(np.percentile(distance, 95)),
                              physics_vs_60_max_mm=1000 * float(distance.max()),
+                             root_relative_vs_60_mm=1000 * float(relative.mean()),
+                             root_relative_vs_60_p95_mm=1000 * float(np.percentile(relative, 95)),
+                             root_horizontal_vs_60_mm=1000 * float(root_horizontal.mean()),
+                             physics_vs_own_input_mm=1000 * float(run["to_input"].mean()),
                              common_times=len(index), ms_per_frame=1000 * physics.seconds / len(physics.qpos)))
             print("framerate", rows[-1], flush=True)
     return dict(rows=rows)
@@ -393,6 +408,39 @@ def part_speed(against: str, rounds: int = 3, repeats: int = 3) -> dict:
             for label, runs in seconds.items()} | dict(against=against, load_average=os.getloadavg()[0])
 
 
+def part_speed_alternating(against: str, rounds: int = 7) -> dict:
+    """Frames per CPU second (median and best of `rounds`) of this tree's physics stage and of the dynamics package
+    of the tree whose src folder is `against`, loaded beside it in one process (the rest of physmocap is this
+    tree's) and alternated run by run, so that a busy machine's changing load falls on both alike."""
+    import importlib
+    import importlib.util
+
+    folder = Path(against) / "physmocap" / "dynamics"
+    spec = importlib.util.spec_from_file_location("physmocap.dynamics_against", folder / "__init__.py",
+                                                  submodule_search_locations=[str(folder)])
+    package = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = package
+    spec.loader.exec_module(package)
+    runners = {"this branch": run_physcap, "before": importlib.import_module(f"{spec.name}.stage").run_physcap}
+    case = build_case(CLIPS[0], 0, 60.0, online=False)
+    motion, refined = case["refined"].motion, case["refined"]
+    out: dict = {"this branch": {}, "before": {}, "this branch best": {}, "before best": {}}
+    for fps in SPEED_RATES:
+        qpos, source = resample_motion(motion.body, motion.qpos, 60.0, fps)
+        seconds: dict[str, list[float]] = {label: [] for label in runners}
+        for round_ in range(rounds + 1):  # the first round warms both up
+            for label, run in runners.items():
+                start = time.process_time()
+                run(motion.body, qpos, fps, refined.contacts[source], case["stationary"][source],
+                    case["settings"].physics, refined_input=True)
+                if round_:
+                    seconds[label].append((time.process_time() - start) / len(qpos))
+        for label, runs in seconds.items():
+            out[label][f"{fps:g}"] = 1.0 / float(np.median(runs))
+            out[f"{label} best"][f"{fps:g}"] = 1.0 / float(np.min(runs))
+    return out | dict(against=against, load_average=os.getloadavg()[0], rounds=rounds)
+
+
 # ---- report ---------------------------------------------------------------------------------------------------
 def markdown(out: dict) -> str:
     lines = []
@@ -400,11 +448,16 @@ def markdown(out: dict) -> str:
         lines += ["**Same motion at 10, 24, 30, 60 fps** (the 60 fps case's B.4-refined kinematics resampled; "
                   "PhysCap; mean joint distance to the 60 fps run at common times from 0.5 s on)", "",
                   "| clip | fps | finite | largest force BW | flagged % | physics vs 60 fps: mean mm | p95 mm | "
-                  "max mm | ms/frame |", "|---|---|---|---|---|---|---|---|---|"]
+                  "max mm | root-relative mm (p95) | root horizontal mm | physics vs its own input mm | ms/frame |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in out["framerate"]["rows"]:
             lines.append(f"| {r['clip']} | {r['fps']:g} | {r['finite']} | {r['largest_force_bw']:.2f} | "
                          f"{r['flagged_percent']:.1f} | {r['physics_vs_60_mm']:.1f} | "
-                         f"{r['physics_vs_60_p95_mm']:.1f} | {r['physics_vs_60_max_mm']:.1f} | {r['ms_per_frame']:.2f} |")
+                         f"{r['physics_vs_60_p95_mm']:.1f} | {r['physics_vs_60_max_mm']:.1f} | "
+                         f"{r.get('root_relative_vs_60_mm', np.nan):.1f} "
+                         f"({r.get('root_relative_vs_60_p95_mm', np.nan):.1f}) | "
+                         f"{r.get('root_horizontal_vs_60_mm', np.nan):.1f} | "
+                         f"{r.get('physics_vs_own_input_mm', np.nan):.1f} | {r['ms_per_frame']:.2f} |")
         lines.append("")
     if "diagnosis" in out:
         rows = out["diagnosis"]["rows"]
@@ -440,6 +493,17 @@ def markdown(out: dict) -> str:
         for label in ("this branch", "before"):
             name = label if label == "this branch" else f"before ({sp['against']})"
             lines.append(f"| {name} | " + " | ".join(f"{v:.0f}" for v in sp[label].values()) + " |")
+        lines.append("")
+    if "speed_alternating" in out:
+        sp = out["speed_alternating"]
+        lines += [f"**Speed, alternating in one process** (frames per CPU second of the physics stage, median (best) "
+                  f"of {sp['rounds']} runs each; load average {sp['load_average']:.1f})", "",
+                  "| code | " + " | ".join(f"{r} fps" for r in sp["this branch"]) + " |",
+                  "|---|" + "---|" * len(sp["this branch"])]
+        for label in ("this branch", "before"):
+            name = label if label == "this branch" else f"before ({sp['against']})"
+            lines.append(f"| {name} | " + " | ".join(f"{v:.0f} ({sp[label + ' best'][r]:.0f})"
+                                                    for r, v in sp[label].items()) + " |")
         lines.append("")
     if "methods" in out:
         lines += ["**Offline methods**", "", "| method | root-rel. mm | Procrustes mm | global root mm | "
@@ -510,6 +574,8 @@ def main(argv=None) -> dict:
             out[part] = part_methods(clips, seeds, args.methods, walks, settings_overrides(args.physics))
         elif part == "speed":
             out[part] = part_speed(args.against)
+        elif part == "speed_alternating":
+            out[part] = part_speed_alternating(args.against)
         out[part]["minutes"] = (time.perf_counter() - start) / 60
     RESULTS.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(out, indent=1))

@@ -175,6 +175,34 @@ def test_stationary_leaning_pose_is_brought_back_to_balance(body):
     assert all(inside_support(c[:2], f[contacts[0], :2]) for c, f in zip(com, feet, strict=True))
 
 
+def test_the_support_test_agrees_with_qhull_on_sole_points():
+    """inside_support's own hull (monotone chain) decides as scipy's Qhull did, on random sets of 1-4 sole points
+    and points around them, collinear and coincident sets included (Qhull refuses those: the segment test)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    def qhull_inside(point, support, margin=0.02):
+        try:
+            hull = ConvexHull(support)
+        except QhullError:
+            return None
+        return bool(np.all(hull.equations[:, :2] @ point + hull.equations[:, 2] <= margin))
+
+    rng = np.random.default_rng(3)
+    compared = 0
+    for trial in range(400):
+        support = rng.uniform(-0.3, 0.3, (int(rng.integers(1, 5)), 2))
+        if trial % 10 == 0 and len(support) >= 3:
+            support[2] = support[0] + 0.5 * (support[1] - support[0])  # collinear with the first two
+        if trial % 10 == 1 and len(support) >= 2:
+            support[1] = support[0]  # coincident
+        for point in rng.uniform(-0.4, 0.4, (5, 2)):
+            expected = qhull_inside(point, support) if len(support) >= 3 else None
+            if expected is not None:
+                assert inside_support(point, support) == expected
+                compared += 1
+    assert compared > 500
+
+
 def test_a_travelling_body_flagged_stationary_is_not_corrected(body):
     # The same forward lean, but the whole body glides sideways at 0.5 m/s: the root's speed overrules a
     # stationary flag (the correction would tilt a moving body), until the gate is switched off.
@@ -404,6 +432,24 @@ def test_physics_smooths_a_jittery_target_instead_of_passing_the_jitter_on(body)
     full_velocity = run_physcap(body, q, FPS, contacts, np.zeros(len(q), bool),
                                 PhysicsSettings(rotation_velocity_share=1.0))
     assert shake(smoothed.qpos[10:]) < shake(full_velocity.qpos[10:])
+
+
+def test_the_fed_forward_acceleration_brings_the_damped_velocity_onto_the_chord_by_the_frames_end(body):
+    """Eq. (4)'s feed-forward share per DOF, x / (e^x - 1) with x = kd / fps: the damped velocity
+    v' = f a + kd (v_chord - v), starting a frame interval T behind the new chord's velocity (v_chord - a T),
+    reaches it at the interval's end; the paper's full share as frames get dense, almost none for the stiff joints at
+    10 fps, whose damping alone gets there."""
+    settings = PhysicsSettings()
+    assert np.allclose(PhysCapTracker(body, settings, 1e5).feedforward, settings.acceleration_feedforward, rtol=1e-3)
+    for fps in (10.0, 30.0, 60.0):
+        tracker = PhysCapTracker(body, settings, fps)
+        share, kd, interval, acceleration = tracker.feedforward, tracker.kd, 1.0 / fps, 3.0
+        velocity = np.full(body.nv, -acceleration * interval)  # the chord's velocity is 0
+        steps = 20000
+        for _ in range(steps):
+            velocity += interval / steps * (share * acceleration - kd * velocity)
+        assert np.abs(velocity).max() < 1e-3 * acceleration * interval, fps
+    assert PhysCapTracker(body, settings, 10.0).feedforward[6:].max() < 0.01
 
 
 def test_the_derivative_term_tracks_a_share_of_the_rotational_velocity_and_all_of_the_translation(body):

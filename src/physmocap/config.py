@@ -96,8 +96,8 @@ class PhysicsSettings(Section):
                                                "(ours; None: kp_root_translation): stiffer passes fit noise to forces")
     kd_root_horizontal: float | None = setting(32.0, "1/s", (0.0, 1e4), "damping of its horizontal position (None: "
                                                "kd_root_translation)")
-    acceleration_feedforward: float = setting(0.5, "", (0.0, 1.0), "share of the kinematic acceleration fed "
-                                              "forward in eq. (4) (paper 1): a per-frame fit's is half noise")
+    acceleration_feedforward: float = setting(1.0, "", (0.0, 1.0), "share of the kinematic acceleration fed "
+                                              "forward in eq. (4) (paper 1), times x / (e^x - 1), x = kd / fps")
     velocity_smoothing: float = setting(0.03, "s", (0.0, 1.0), "time constant smoothing the kinematic velocity of "
                                         "eq. (4), whose noise kd passes on; 0: none")
     rotation_velocity_share: float = setting(0.8, "", (0.0, 1.0), "share of the target's rotational velocity in "

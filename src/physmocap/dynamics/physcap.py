@@ -93,6 +93,13 @@ class PhysCapTracker:
         if settings.kd_root_horizontal is not None:
             self.kd[:2] = settings.kd_root_horizontal
         self.kp[3:6], self.kd[3:6] = settings.kp_root_rotation, settings.kd_root_rotation
+        # Eq. (4)'s feed-forward share per DOF: between frames the target is a chord, whose velocity step at the
+        # frame the damping alone reaches by the interval's end when the acceleration is fed forward at x / (e^x - 1),
+        # x = kd / fps (1 as the interval vanishes, the paper's continuous form): a larger share overshoots the chord
+        # (docs/decisions/physics-video-jitter.md)
+        frame_damping = self.kd / fps
+        self.feedforward = settings.acceleration_feedforward * np.divide(
+            frame_damping, np.expm1(frame_damping), out=np.ones(nv), where=frame_damping > 0.0)
         # kd times the share of the kinematic velocity in the derivative term (settings.rotation_velocity_share)
         self.kd_target = self.kd.copy()
         self.kd_target[3:] *= settings.rotation_velocity_share
@@ -112,18 +119,20 @@ class PhysCapTracker:
         self.bias = np.zeros(nv)
         self.identity = np.eye(nv)
         self._weighted_mass, self._hessian = np.zeros((nv, nv)), np.zeros((nv, nv))
-        self.grf_rows = np.kron(np.eye(4), self.pyramid)  # (16, 12); the first 4k rows, 3k columns for k contacts
-        self._pyramid_upper, self._pyramid_lower = np.full(16, INF), np.zeros(16)  # each row >= 0
-        self.grf_regularisation = 1e-4 * np.eye(12)  # H = A A^T has rank 6: at 1e-6 daqp called 8% of
-        # the demo clip's frames infeasible; 1e-4 N^-2 costs a bias of 1e-4 of the force
+        # H = A A^T has rank 6: at a regularisation of 1e-6 daqp called 8% of the demo clip's frames infeasible;
+        # 1e-4 N^-2 costs a bias of 1e-4 of the force. Per number of active contacts k: (regularisation (3k, 3k),
+        # pyramid rows (4k, 3k), their upper and lower bounds (each row >= 0)), contiguous as daqp takes them.
+        self.grf_problems = [(1e-4 * np.eye(3 * k), np.kron(np.eye(k), self.pyramid), np.full(4 * k, INF),
+                              np.zeros(4 * k)) for k in range(5)]
         self.contact_jacobian = np.zeros((4, 3, nv))
-        self.qpos = np.zeros(self.model.nq)
-        self.qvel = np.zeros(nv)
+        self.qpos, self.qvel = self.data.qpos, self.data.qvel  # the state, where the step's dynamics read it
         self.target_data = mujoco.MjData(self.model)  # kinematics of the frame's target pose
         self._previous_target = np.zeros(self.model.nq)  # the last frame's target: the steps move from it
         self._previous_target_heights = np.zeros(4)  # m, its contact points' heights
         self._previous_contacts: np.ndarray | None = None  # the last frame's predicted contacts (None after a reset)
         self._target_step = np.zeros(nv)
+        self._pose_error, self._desired = np.zeros(nv), np.zeros(nv)  # desired_acceleration's buffers
+        self._weight_column = self.torque_weights[:, None]
         self._no_rows, self._no_bounds = np.zeros((0, nv)), np.zeros(0)
 
     def reset(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
@@ -142,23 +151,31 @@ class PhysCapTracker:
     def _dynamics(self):
         """Mass matrix, bias forces, contact Jacobians, contact heights and floor collisions at the state."""
         d = self.data
-        d.qpos[:] = self.qpos
-        d.qvel[:] = self.qvel
         self._rigid_body_terms(d, collide=True)
         touching = np.zeros(4, bool)
-        hit = self.contact_of_geom[d.contact.geom[:d.ncon].ravel()]
-        touching[hit[hit >= 0]] = True
-        return self.bias, d.site_xpos[self.sites, 2].copy(), touching
+        if d.ncon:
+            hit = self.contact_of_geom[d.contact.geom[:d.ncon].ravel()]
+            touching[hit[hit >= 0]] = True
+        return self.bias, d.site_xpos[self.sites, 2], touching
 
     def desired_acceleration(self, q_kin, qd_kin, qdd_kin) -> np.ndarray:
         """Eq. (4): PD control towards the kinematic pose; the pose error is taken on the manifold, the
-        kinematic acceleration is fed forward scaled by settings.acceleration_feedforward and the rotational
+        kinematic acceleration is fed forward scaled by self.feedforward and the rotational
         velocities by settings.rotation_velocity_share; bounded by MAX_DESIRED_ACCELERATION."""
-        error = np.zeros(self.model.nv)
+        return self._desired_acceleration(q_kin, self.feedforward * qdd_kin,
+                                          self.kd_target * qd_kin).copy()
+
+    def _desired_acceleration(self, q_kin, feedforward, target_damping) -> np.ndarray:
+        """desired_acceleration with its per-frame terms (feedforward qdd_kin, kd_target qd_kin)
+        given, into a buffer the next call overwrites."""
+        error, desired = self._pose_error, self._desired
         mujoco.mj_differentiatePos(self.model, error, 1.0, self.qpos, q_kin)
-        desired = (self.settings.acceleration_feedforward * qdd_kin + self.kp * error + self.kd_target * qd_kin
-                   - self.kd * self.qvel)
-        return np.clip(desired, -MAX_DESIRED_ACCELERATION, MAX_DESIRED_ACCELERATION, out=desired)
+        np.multiply(self.kp, error, out=error)
+        np.add(feedforward, error, out=desired)
+        desired += target_damping
+        desired -= np.multiply(self.kd, self.qvel, out=error)
+        np.maximum(desired, -MAX_DESIRED_ACCELERATION, out=desired)
+        return np.minimum(desired, MAX_DESIRED_ACCELERATION, out=desired)
 
     def ground_reaction_forces(self, qdd_des, bias, active) -> tuple[np.ndarray, bool, np.ndarray]:
         """Eq. (6-7): forces (4, 3) at the active contacts that best produce the root's desired acceleration,
@@ -166,13 +183,13 @@ class PhysCapTracker:
         (6,) the forces leave unexplained (the desired one where no contact is active or the QP failed)."""
         forces = np.zeros((4, 3))
         target = self.mass_matrix[:6] @ qdd_des + bias[:6]
-        if not active.any():
+        k = int(np.count_nonzero(active))
+        if not k:
             return forces, True, target
-        k = int(active.sum())
-        root_rows = self.contact_jacobian[active][:, :, :6].reshape(3 * k, 6)  # (J^T restricted to the root)^T
-        H = root_rows @ root_rows.T + self.grf_regularisation[:3 * k, :3 * k]
-        x, _, exitflag, _ = daqp.solve(H, -root_rows @ target, self.grf_rows[:4 * k, :3 * k],
-                                       self._pyramid_upper[:4 * k], self._pyramid_lower[:4 * k])
+        root_rows = self.contact_jacobian[active, :, :6].reshape(3 * k, 6)  # (J^T restricted to the root)^T
+        regularisation, pyramid, upper, lower = self.grf_problems[k]
+        H = root_rows @ root_rows.T + regularisation
+        x, _, exitflag, _ = daqp.solve(H, -root_rows @ target, pyramid, upper, lower)
         if exitflag != 1:
             return forces, False, target
         forces[active] = x.reshape(k, 3)
@@ -191,33 +208,46 @@ class PhysCapTracker:
         external = self.contact_jacobian.reshape(12, -1).T @ forces.ravel()
         # The objective is 1/2 qdd' H qdd + f' qdd up to a constant and a factor 2: H = I + M W M, built in
         # preallocated buffers (it is rebuilt at every step).
-        np.multiply(W[:, None], M, out=self._weighted_mass)
+        np.multiply(self._weight_column, M, out=self._weighted_mass)
         H = np.matmul(M, self._weighted_mass, out=self._hessian)
         H += self.identity
         f = M @ (W * (bias - external)) - qdd_des
         solved = True
-        if active.any():
+        contacts = [j for j, on in enumerate(active.tolist()) if on]
+        if contacts:
             rows = self.contact_jacobian[active].reshape(-1, nv)  # x, y, z rows of each active contact
-            velocity = rows @ self.qvel
-            slide = np.where(released[active], INF, self.settings.slide_speed).repeat(3)
-            lower, upper = -slide - velocity, slide - velocity
-            # Above the floor: come down at most to the clearance by the end of the step (the step's rotation
-            # may dip the point by less than that); within it: do not descend; below the floor: rise back gently.
-            h, clearance = heights[active], self.settings.floor_clearance
-            normal_speed = np.where(h > clearance, (clearance - h) / dt,
-                                    np.maximum(-h, 0.0) / max(dt, self.settings.penetration_recovery))
-            lower[2::3] = normal_speed - velocity[2::3]
-            if self.settle_contacts:
-                goal = np.maximum(target_heights[active], clearance)
-                settle = np.where(h > goal, (goal - h) / max(dt, self.settings.contact_settle_time), INF)
-                upper[2::3] = np.maximum(settle, normal_speed) - velocity[2::3]
-            else:
-                upper[2::3] = INF
+            velocity = (rows @ self.qvel).tolist()
+            lower, upper = self._velocity_bounds(contacts, velocity, heights.tolist(), released.tolist(),
+                                                 target_heights.tolist())
             qdd, _, exitflag, _ = daqp.solve(H, f, dt * rows, upper, lower)
             solved = exitflag == 1
-        if not active.any() or not solved:
+        if not contacts or not solved:
             qdd = self._unconstrained(H, f)
         return qdd, M @ qdd + bias - external, solved
+
+    def _velocity_bounds(self, contacts: list[int], velocity: list[float], heights: list[float],
+                         released: list[bool], target_heights: list[float]) -> tuple[np.ndarray, np.ndarray]:
+        """Eq. (9)'s bounds (lower, upper) on the x, y, z velocity changes of the active contacts over the step
+        (pose_accelerations), from their velocities (3k,) and the points' heights, release flags and target
+        heights (4,); in Python floats, as numpy's cost per call outweighs the arithmetic on so few values."""
+        s, dt = self.settings, self.dt
+        clearance = s.floor_clearance
+        recovery, settle_time = max(dt, s.penetration_recovery), max(dt, s.contact_settle_time)
+        lower: list[float] = []
+        upper: list[float] = []
+        for index, j in enumerate(contacts):
+            vx, vy, vz = velocity[3 * index:3 * index + 3]
+            slide, h = INF if released[j] else s.slide_speed, heights[j]
+            # Above the floor: come down at most to the clearance by the end of the step (the step's rotation
+            # may dip the point by less than that); within it: do not descend; below the floor: rise back gently.
+            normal_speed = (clearance - h) / dt if h > clearance else max(-h, 0.0) / recovery
+            rise = INF
+            if self.settle_contacts:
+                goal = max(target_heights[j], clearance)
+                rise = max((goal - h) / settle_time if h > goal else INF, normal_speed) - vz
+            lower += (-slide - vx, -slide - vy, normal_speed - vz)
+            upper += (slide - vx, slide - vy, rise)
+        return np.array(lower), np.array(upper)
 
     def _unconstrained(self, H: np.ndarray, f: np.ndarray) -> np.ndarray:
         """argmin 1/2 x'Hx + f'x by daqp's own factorisation: LAPACK's solve for a 40x40 system took 0.6 ms when
@@ -233,7 +263,7 @@ class PhysCapTracker:
         if self.settings.release_distance is None:
             return np.zeros(4, bool)
         offset = target_sites[:, :2] - self.data.site_xpos[self.sites, :2]
-        return np.linalg.norm(offset, axis=1) > self.settings.release_distance
+        return np.sqrt((offset * offset).sum(axis=1)) > self.settings.release_distance
 
     # ---- one video frame ----------------------------------------------------------------------------------
     def track(self, q_kin: np.ndarray, qd_kin: np.ndarray, qdd_kin: np.ndarray,
@@ -256,17 +286,20 @@ class PhysCapTracker:
         target_sites = self.target_data.site_xpos[self.sites].copy()
         height_step = target_sites[:, 2] - self._previous_target_heights
         earlier_contacts = predicted_contacts if self._previous_contacts is None else self._previous_contacts
+        feedforward, target_damping = self.feedforward * qdd_kin, self.kd_target * qd_kin
         for i in range(n):
             target[:] = self._previous_target
             mujoco.mj_integratePos(self.model, target, self._target_step, (i + 1) / n)
             bias, heights, touching = self._dynamics()
             if i == 0:  # judged once per frame against the frame's target (per step it split walks further)
                 released = self._released_contacts(target_sites)
+                held = ~released
             predicted = earlier_contacts if (i + 0.5) / n < 0.5 else predicted_contacts
-            active = predicted & (heights < s.contact_height) & ~released  # eq. (5)
+            active = predicted & (heights < s.contact_height)  # eq. (5)
+            active &= held
             if s.foot_lock != "never":  # airborne or swimming motion: the floor does not push back
                 active |= touching
-            qdd_des = self.desired_acceleration(target, qd_kin, qdd_kin)
+            qdd_des = self._desired_acceleration(target, feedforward, target_damping)
             forces, grf_ok, _ = self.ground_reaction_forces(qdd_des, bias, active)
             qdd, torque, pose_ok = self.pose_accelerations(qdd_des, bias, forces, active, heights, released,
                                                            self._previous_target_heights + (i + 1) / n * height_step)

@@ -173,11 +173,12 @@ class PhysicsStream:
         bound = s.max_force * self._weight
         out_of_bounds = False
         for forces in (frame.contact_forces, frame.residual[:3], frame.residual[3:]):  # torque: bound x 1 m
-            if not np.isfinite(forces).all():
+            total = forces.sum(axis=0) if forces.ndim == 2 else forces
+            size = math.sqrt(total.dot(total))  # np.linalg.norm's own sum, without its checks
+            if not math.isfinite(size):  # a non-finite force (an overflowing sum too, which the bound would zero)
                 forces[:] = 0.0
                 out_of_bounds = True
-            size = float(np.linalg.norm(forces.sum(axis=0) if forces.ndim == 2 else forces))
-            if size > bound:
+            elif size > bound:
                 forces *= bound / size
                 out_of_bounds = True
         unexplained = frame.unexplained[:3] if np.isfinite(frame.unexplained).all() else np.zeros(3)
@@ -204,7 +205,8 @@ class PhysicsStream:
         data = self._deviation_data
         data.qpos[:] = self.tracker.qpos
         mujoco.mj_kinematics(self.tracker.model, data)
-        return float(np.linalg.norm(data.xpos[1:] - self.tracker.target_data.xpos[1:], axis=1).mean())
+        offset = data.xpos[1:] - self.tracker.target_data.xpos[1:]
+        return float(np.sqrt((offset * offset).sum(axis=1)).mean())
 
     def _target_on_floor(self, q_kin: np.ndarray, contacts: np.ndarray) -> np.ndarray:
         """q_kin with each foot whose heel and toe are both predicted in contact turned flat (about the ankle, by
