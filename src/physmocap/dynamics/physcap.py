@@ -70,6 +70,20 @@ class FrameOutput:
     unexplained_flag: bool = False  # set by the stage's diagnosis (stage.PhysicsStream)
 
 
+def tracking_gains(settings: PhysicsSettings, nv: int) -> tuple[np.ndarray, np.ndarray]:
+    """(nv,) kp in 1/s^2 and (nv,) kd in 1/s of eq. (4) per DOF: root translation, root rotation, joints."""
+    kp, kd = np.full(nv, settings.kp_joint), np.full(nv, settings.kd_joint)
+    kp[:3], kd[:3] = settings.kp_root_translation, settings.kd_root_translation
+    # The root's horizontal position: the fit's noise there, tracked stiffly, became frame-to-frame horizontal
+    # contact forces (docs/decisions/physics-grf-chatter.md); its height stays stiff for take-offs and landings.
+    if settings.kp_root_horizontal is not None:
+        kp[:2] = settings.kp_root_horizontal
+    if settings.kd_root_horizontal is not None:
+        kd[:2] = settings.kd_root_horizontal
+    kp[3:6], kd[3:6] = settings.kp_root_rotation, settings.kd_root_rotation
+    return kp, kd
+
+
 class PhysCapTracker:
     """The physics-based character tracking a kinematic motion. One per clip (it holds the state q, qdot)."""
 
@@ -83,16 +97,7 @@ class PhysCapTracker:
         self.data = mujoco.MjData(self.model)
         nv = self.model.nv
         self.substeps, self.dt = integration_steps(settings, fps)
-        self.kp = np.full(nv, settings.kp_joint)
-        self.kd = np.full(nv, settings.kd_joint)
-        self.kp[:3], self.kd[:3] = settings.kp_root_translation, settings.kd_root_translation
-        # The root's horizontal position: the fit's noise there, tracked stiffly, became frame-to-frame horizontal
-        # contact forces (docs/decisions/physics-grf-chatter.md); its height stays stiff for take-offs and landings.
-        if settings.kp_root_horizontal is not None:
-            self.kp[:2] = settings.kp_root_horizontal
-        if settings.kd_root_horizontal is not None:
-            self.kd[:2] = settings.kd_root_horizontal
-        self.kp[3:6], self.kd[3:6] = settings.kp_root_rotation, settings.kd_root_rotation
+        self.kp, self.kd = tracking_gains(settings, nv)
         # Eq. (4)'s feed-forward share per DOF: between frames the target is a chord, whose velocity step at the
         # frame the damping alone reaches by the interval's end when the acceleration is fed forward at x / (e^x - 1),
         # x = kd / fps (1 as the interval vanishes, the paper's continuous form): a larger share overshoots the chord
