@@ -163,8 +163,8 @@ def test_contact_phases_from_flags():
 
 def test_flight_the_motion_does_not_fall_through_keeps_a_support():
     """Labels that lift every point for 7 frames while the body stands (the juggler on one foot, issue 24) keep a
-    support there: of the points in contact beside the flight, the one nearest below the COM. A ballistic flight,
-    and one running to the clip's end, stay flights."""
+    support there: of the points in contact beside the flight, the one nearest below the COM; so does such a
+    flight running to the clip's end (mmhuman3d's last 5 frames). Ballistic flights stay flights."""
     fps, frames = 24.0, 48
     times = np.arange(frames) / fps
     points = np.zeros((frames, 4, 3))
@@ -182,12 +182,15 @@ def test_flight_the_motion_does_not_fall_through_keeps_a_support():
     assert [(a, b, p) for a, b, p, _ in changed] == [(20, 29, 2)] and changed[0][3] > 0.9
     assert out[:, 2].all() and not out[20:27, [0, 1, 3]].any() and np.array_equal(out[:20], flags[:20])
     edge = flags.copy()
-    edge[27:] = False  # a flight to the clip's end has no landing in it: left alone
-    assert support_held_flights(edge, com, points, times, G, 0.5)[1] == []
+    edge[27:] = False  # a flight to the clip's end: its take-off is in the clip, its own frames do not fall
+    out, changed = support_held_flights(edge, com, points, times, G, 0.5)
+    assert [(a, b, p) for a, b, p, _ in changed] == [(20, 48, 2)] and out[20:, 2].all()
     tau = np.clip(times - 19 / fps, 0.0, 8 / fps)  # take-off at frame 19, landing at frame 27
     com[:, 2] = 0.95 + 0.5 * G * (8 / fps) * tau - 0.5 * G * tau ** 2
     assert abs(flight_support(com[:, 2], times, 20, 27, G)) < 1e-6
     assert support_held_flights(flags, com, points, times, G, 0.5)[1] == []
+    com[:, 2] = 0.95 + 0.5 * G * (8 / fps) * (times - 19 / fps) - 0.5 * G * (times - 19 / fps) ** 2
+    assert support_held_flights(edge, com, points, times, G, 0.5)[1] == []  # falling to the clip's end
 
 
 def test_false_flight_is_not_landed_with_a_force_peak(body, caplog):
@@ -446,6 +449,32 @@ def test_frame_samples_hold_every_frame_whatever_the_rate():
         assert np.isin(frames, times).all()
         assert np.diff(times).max() <= 1.0 / 60.0 + 1e-9 and np.diff(times).min() > 0
     assert np.array_equal(frame_sample_times(frames, 0.0), frames)
+
+
+def test_force_limits_hold_wherever_newton_is_held(body):
+    """At 12 fps Newton's equation is held 4 times between frames; limits held at the frames only let the cubics
+    there pull on the floor and push tens of body weights (mmhuman3d_single_person_demo, issue 24)."""
+    fps = 12.0
+    q = sway(body, 24)
+    red = reduced_motion(body, q, fps)
+    flags = np.ones(24, bool)
+    flags[10:14] = False
+    phases = [contact_phases(flags, red.times)] + [contact_phases(np.ones(24, bool), red.times)] * 3
+    settings = TrajoptSettings()
+    problem = build_window_problem(Window(red, phases), settings)
+    limits = problem.constraints["force_limits"]
+    lower, upper = limits.bounds()
+    rows = ca.Function("g", [problem.x], [limits.expression()])
+    x = np.random.default_rng(0).normal(size=int(problem.x.shape[0]))
+    values = np.asarray(rows(x)).ravel()
+    normal = values[(lower == 0.0) & (upper > 0.0)]  # the normal force rows, 0 <= f_z <= f_max
+    samples = frame_sample_times(red.times, settings.linear_dynamics_interval)
+    assert len(samples) == 5 * 23 + 1  # 4 samples between frames
+    for i, force in enumerate(problem.forces):
+        inside = np.logical_or.reduce([(samples >= p.start - 1e-9) & (samples <= p.end + 1e-9)
+                                       for p in phases[i] if p.contact])
+        fz = np.asarray(ca.Function("f", [problem.x], [problem.sample(force.trajectory, samples[inside])])(x))[2]
+        assert np.isin(np.round(fz, 12), np.round(normal, 12)).all()
 
 
 def test_force_rate_cost_is_the_frames_force_differences(body):

@@ -655,20 +655,22 @@ def _pyramid(out: ConstraintSet, f, mu: float) -> None:
 
 def force_limits(problem: WindowProblem) -> ConstraintSet:
     """Pushing, at most f_max, inside the friction pyramid: at every force node (the normal force's limits are
-    variable bounds there) and at every frame in contact (the cubic between nodes could leave them)."""
+    variable bounds there) and wherever Newton's equation is held in contact (frame_sample_times: the frames and
+    between them). Held at the frames only, the cubics between them pulled on the floor and pushed tens of body
+    weights where Newton's equation still read them (12 fps: docs/decisions/trajopt-force-chatter.md)."""
     s, red = problem.settings, problem.window.reduced
     fmax = s.max_force / (red.mass * s.gravity)
     out = ConstraintSet("force_limits", linear=not any(f.trajectory.symbolic_times for f in problem.forces))
+    samples = frame_sample_times(red.times, s.linear_dynamics_interval)
     for i, force in enumerate(problem.forces):
         if not force.any_contact:
             continue
         _pyramid(out, problem.select(np.array(force.value_index)), s.friction)
-        flags = flags_from_phases(problem.window.phases[i], red.times)
-        if force.trajectory.symbolic_times:  # also the frames a contact phase may grow over
-            reach = int(np.ceil(s.max_duration_change * (len(red.times) - 1) / max(red.times[-1] - red.times[0],
-                                                                                   1e-9)))
-            flags = np.convolve(flags, np.ones(2 * reach + 1), mode="same") > 0
-        times = red.times[flags]
+        # Also the samples a contact phase may grow over when its boundaries are free.
+        reach = s.max_duration_change if force.trajectory.symbolic_times else 0.0
+        inside = [(samples >= p.start - reach - 1e-9) & (samples <= p.end + reach + 1e-9)
+                  for p in problem.window.phases[i] if p.contact]
+        times = samples[np.logical_or.reduce(inside)]
         if len(times):
             f = problem.sample(force.trajectory, times)
             _pyramid(out, f, s.friction)
