@@ -38,6 +38,7 @@ import dataclasses
 import json
 import logging
 import os
+import resource
 import statistics
 import sys
 import time
@@ -349,10 +350,17 @@ def loop_indices(frames: int, total: int) -> np.ndarray:
     return np.where(k < frames, k, period - k)
 
 
+def cpu_seconds() -> float:
+    """CPU seconds of this process and of its finished children (the worker processes of parallel windows)."""
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
 def long_scaling(lengths: list[float], settings_trajopt: TrajoptSettings) -> list[dict]:
     """Time against clip length up to minutes: the B.4-refined motion of LONG_CLIP (a dance) looped by
     `loop_indices` to each length, run_trajopt alone; wall and CPU seconds (this process), the load average
-    before and after, and every window's frames, iterations, seconds and restarts."""
+    before and after, and every window's frames, iterations, seconds and restarts; with
+    settings_trajopt.parallel_windows the CPU seconds include the worker processes'."""
     obs, truth, settings = observe(LONG_CLIP, 0, 10.0)
     motion = fit_motion(obs, settings)
     contacts, _, _ = predict_contacts(obs, "centred")
@@ -361,10 +369,10 @@ def long_scaling(lengths: list[float], settings_trajopt: TrajoptSettings) -> lis
     for seconds in lengths:
         idx = loop_indices(len(refined.motion.qpos), int(round(seconds * obs.fps)))
         load_before = os.getloadavg()[0]
-        wall, cpu = time.perf_counter(), time.process_time()
+        wall, cpu = time.perf_counter(), cpu_seconds()
         result = run_trajopt(refined.motion.body, refined.motion.qpos[idx], obs.fps, refined.contacts[idx],
                              settings_trajopt)
-        wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+        wall, cpu = time.perf_counter() - wall, cpu_seconds() - cpu
         windows = [dict(frames=w.stop - w.start + 1, kept=w.keep - w.start, seconds=w.seconds,
                         build_seconds=w.build_seconds, restarted=w.restarted, converged=w.converged,
                         contact_switches=int(np.abs(np.diff(result.contacts[w.start:w.stop + 1].astype(int),
@@ -373,6 +381,7 @@ def long_scaling(lengths: list[float], settings_trajopt: TrajoptSettings) -> lis
                         ipopt_seconds=sum(st.seconds for st in w.stages), variables=w.variables)
                    for w in result.windows]
         out.append(dict(seconds=seconds, frames=len(idx), wall_seconds=wall, cpu_seconds=cpu,
+                        parallel_windows=settings_trajopt.parallel_windows,
                         load_before=load_before, load_after=os.getloadavg()[0], windows=windows,
                         ik_seconds=result.ik_seconds, converged_fraction=float(result.converged.mean())))
         r = out[-1]
@@ -541,13 +550,17 @@ def main(argv=None) -> dict:
                         help="only the whole-body flights of the labels on validation clips, at 24 and 30 fps")
     parser.add_argument("--validation", type=float, nargs="+", metavar="WEIGHT",
                         help="only the validation clips, trajopt with each force_rate weight given")
+    parser.add_argument("--parallel-windows", choices=("on", "off"),
+                        help="trajopt.parallel_windows for the accuracy rows and --long (default: the setting's)")
     args = parser.parse_args(argv)
+    chosen = (TrajoptSettings() if args.parallel_windows is None
+              else TrajoptSettings(parallel_windows=args.parallel_windows == "on"))
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(message)s")
     if args.long:
-        rows = long_scaling(args.long, TrajoptSettings())
+        rows = long_scaling(args.long, chosen)
         fit = scaling_fit([dict(seconds=r["seconds"], wall_seconds=r["cpu_seconds"]) for r in rows])
         print(f"CPU seconds against length: t = {fit['coefficient_seconds']:.2f} L^{fit['exponent']:.2f}")
-        write_text(RESULTS / "trajopt_long.json", json.dumps(dict(
+        write_text(RESULTS / f"trajopt_long{'_parallel' if chosen.parallel_windows else ''}.json", json.dumps(dict(
             machine=machine_description(), revision=git_revision(), rows=rows, cpu_fit=fit), indent=2, default=float))
         return dict(rows=rows)
     if args.window:
@@ -571,7 +584,7 @@ def main(argv=None) -> dict:
     global SCALING_SECONDS
     if args.quick:
         SCALING_SECONDS = SCALING_SECONDS[:3]
-    settings = TrajoptSettings()
+    settings = chosen
     if args.scaling_only:
         out = json.loads(Path(args.json).read_text())
         out["scaling"] = scaling(settings, args.repeats)

@@ -76,7 +76,8 @@ class WindowStart:
 class Window:
     """One window's inputs: the reduced motion at its frames (absolute times), the phases of each contact point
     (covering exactly the window's time span), the velocities the clip's ends must match (None: not a clip end),
-    the start state (None: free) and the time after which phase boundaries stay put (the junction)."""
+    the start state and the end state (None: free; the end state is the next window's start, when windows are
+    solved two at a time) and the time after which phase boundaries stay put (the junction)."""
 
     reduced: ReducedMotion
     phases: list[list[Phase]]
@@ -84,6 +85,7 @@ class Window:
     end_velocity: np.ndarray | None = None
     start: WindowStart | None = None
     freeze_after: float = np.inf
+    end: WindowStart | None = None
 
     @property
     def t0(self) -> float:
@@ -117,12 +119,14 @@ def frame_sample_times(frames: np.ndarray, interval: float) -> np.ndarray:
 
 
 def free_times(window: Window, times: np.ndarray) -> np.ndarray:
-    """`times` without the window's first instant when the window continues another: its state there is the
-    previous window's, fixed, and a kinematic constraint on fixed values (sampled elsewhere before) could be
-    unsatisfiable."""
-    if window.start is None:
-        return times
-    return times[times > window.t0 + 1e-9]
+    """`times` without the window's first instant when the window continues another, and without its last when it
+    must arrive in another's start: the state there is fixed, and a kinematic constraint on fixed values (sampled
+    elsewhere before) could be unsatisfiable."""
+    if window.start is not None:
+        times = times[times > window.t0 + 1e-9]
+    if window.end is not None:
+        times = times[times < window.t1 - 1e-9]
+    return times
 
 
 def interpolate(times: np.ndarray, values: np.ndarray, t) -> np.ndarray:
@@ -208,10 +212,10 @@ class ComVariables:
         ang = interpolate(red.times, red.euler, t)
         ang_rate = interpolate(red.times, rate(red.times, red.euler), t)
         self.set.initial = np.concatenate([pos, vel, ang, ang_rate], axis=1).ravel()
-        if window.start is not None:  # continue from the previous window
-            s = window.start
-            fixed = np.concatenate([s.com, s.com_rate, s.euler, s.euler_rate])
-            self.set.lower[:12] = self.set.upper[:12] = self.set.initial[:12] = fixed
+        for state, at in ((window.start, slice(0, 12)), (window.end, slice(12 * n, 12 * (n + 1)))):
+            if state is not None:  # continue from the previous window, or arrive in the next one's start
+                fixed = np.concatenate([state.com, state.com_rate, state.euler, state.euler_rate])
+                self.set.lower[at] = self.set.upper[at] = self.set.initial[at] = fixed
         base = offset + 12 * np.arange(n + 1)
         self.position = self._trajectory(base, 0)
         self.orientation = self._trajectory(base, 6)
@@ -343,6 +347,16 @@ class FootVariables:
                 self._fix(contact_at[0] - offset, s.feet[index, :2])
             else:
                 self._fix(flight_nodes[(0, 0)] - offset, np.concatenate([s.feet[index], s.feet_rate[index]]))
+        last = len(phases) - 1
+        if window.end is not None:  # arrive where the next window starts
+            s = window.end
+            if not phases[last].contact:
+                self._fix(flight_nodes[(last, self.segment_counts[last])] - offset,
+                          np.concatenate([s.feet[index], s.feet_rate[index]]))
+            elif last > 0 or window.start is None:
+                # A contact held through the whole window keeps the previous window's place: the next window's
+                # fit of the same planted point differs by millimetres, a step at the junction.
+                self._fix(contact_at[last] - offset, s.feet[index, :2])
         contact_nodes = {j: Node.resting(a) for j, a in contact_at.items()}
         segments = []
         for j, p in enumerate(phases):
