@@ -42,6 +42,7 @@ from physmocap.trajopt.phases import (
 from physmocap.trajopt.problem import ConstraintSet, CostTerm, Program, VariableSet
 from physmocap.trajopt.reduced import boundary_velocity, euler_to_matrix, matrix_to_euler, reduced_motion, world_inertia
 from physmocap.trajopt.splines import Node, Segment, Trajectory, hermite_weights
+from physmocap.trajopt import stage
 from physmocap.trajopt.stage import run_trajopt, window_ranges
 
 FPS = 30.0
@@ -581,6 +582,24 @@ def test_long_clips_are_windowed_and_stitched_continuously(body):
     # The sway's sideways force: m a of the input's sine, carried by the feet.
     expected = body.mass * 0.04 * (2 * np.pi * 0.6) ** 2
     assert abs(np.abs(result.grf[..., 1].sum(axis=1)).max() - expected) < 0.3 * expected
+
+
+def test_windows_two_at_a_time_meet_each_other_whoever_solves_them(body, monkeypatch):
+    """parallel_windows: the even windows from free starts, then each odd one from its predecessor's state to its
+    successor's start; the same numbers whether worker processes or this one solve them (issue 23)."""
+    q = sway(body, 100)
+    s = TrajoptSettings(window_seconds=1.5, window_overlap=0.5, contact_drift=0.0, parallel_windows=True)
+    result = run_trajopt(body, q, FPS, np.ones((100, 4), bool), s)
+    assert len(result.windows) == 3 and result.converged.all() and not any(w.restarted for w in result.windows)
+    assert result.windows[1].stop == result.windows[2].start  # the odd window ends where the next one starts
+    step = np.linalg.norm(np.diff(result.com, 2, axis=0), axis=1)
+    junctions = [w.start - 1 for w in result.windows[1:]]
+    assert step[junctions].max() <= 2 * np.delete(step, junctions).max() + 1e-4
+    check_physics(body, result, s)  # contacts held still across the junctions too (no slip)
+    monkeypatch.setattr(stage, "PARALLEL_WORKERS", 10 ** 6)  # more than any machine's cores: all in this process
+    alone = run_trajopt(body, q, FPS, np.ones((100, 4), bool), s)
+    for name in ("qpos", "grf", "com", "feet", "contacts", "converged"):
+        assert np.array_equal(getattr(alone, name), getattr(result, name)), name
 
 
 def test_failure_is_loud_and_keeps_the_kinematic_motion(body, caplog):
