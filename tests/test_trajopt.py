@@ -595,7 +595,13 @@ def test_windows_two_at_a_time_meet_each_other_whoever_solves_them(body, monkeyp
     step = np.linalg.norm(np.diff(result.com, 2, axis=0), axis=1)
     junctions = [w.start - 1 for w in result.windows[1:]]
     assert step[junctions].max() <= 2 * np.delete(step, junctions).max() + 1e-4
-    check_physics(body, result, s)  # contacts held still across the junctions too (no slip)
+    # A contact held through the whole odd window keeps its predecessor's place, while the successor fitted the
+    # same planted point on its own: at that junction the point steps, within how far the input's point strays
+    # (the sway's feet sway along; docs/decisions/trajopt-long-clips.md).
+    feet_step = np.linalg.norm(np.diff(result.feet, axis=0), axis=-1).max(axis=1)
+    odd = result.windows[1]
+    stray = np.linalg.norm(np.ptp(reduced_motion(body, q, FPS).feet[odd.start:odd.stop + 1], axis=0), axis=-1)
+    assert feet_step[junctions[0]] < 1e-6 and feet_step[junctions[1]] <= stray.max()
     monkeypatch.setattr(stage, "PARALLEL_WORKERS", 10 ** 6)  # more than any machine's cores: all in this process
     alone = run_trajopt(body, q, FPS, np.ones((100, 4), bool), s)
     for name in ("qpos", "grf", "com", "feet", "contacts", "converged"):

@@ -77,8 +77,7 @@ class Window:
     """One window's inputs: the reduced motion at its frames (absolute times), the phases of each contact point
     (covering exactly the window's time span), the velocities the clip's ends must match (None: not a clip end),
     the start state and the end state (None: free; the end state is the next window's start, when windows are
-    solved two at a time), the time after which phase boundaries stay put (the junction) and `places`: (point,
-    phase index) -> (x, y) of contact phases held at a given place."""
+    solved two at a time) and the time after which phase boundaries stay put (the junction)."""
 
     reduced: ReducedMotion
     phases: list[list[Phase]]
@@ -87,7 +86,6 @@ class Window:
     start: WindowStart | None = None
     freeze_after: float = np.inf
     end: WindowStart | None = None
-    places: dict[tuple[int, int], np.ndarray] = field(default_factory=dict)
 
     @property
     def t0(self) -> float:
@@ -343,9 +341,6 @@ class FootVariables:
                 flight_nodes[(j, k)] = pack.take(np.concatenate([pos, vel]), [-np.inf, -np.inf, 0.0] + [-np.inf] * 3,
                                                  np.inf)
         self.set = pack.variable_set(f"foot_{POINT_NAMES[index]}")
-        for (point, j), xy in window.places.items():
-            if point == index:
-                self._fix(contact_at[j] - offset, xy)
         if window.start is not None:  # continue from the previous window
             s = window.start
             if phases[0].contact:
@@ -358,7 +353,9 @@ class FootVariables:
             if not phases[last].contact:
                 self._fix(flight_nodes[(last, self.segment_counts[last])] - offset,
                           np.concatenate([s.feet[index], s.feet_rate[index]]))
-            else:
+            elif last > 0 or window.start is None:
+                # A contact held through the whole window keeps the previous window's place: the next window's
+                # fit of the same planted point differs by millimetres, a step at the junction.
                 self._fix(contact_at[last] - offset, s.feet[index, :2])
         contact_nodes = {j: Node.resting(a) for j, a in contact_at.items()}
         segments = []

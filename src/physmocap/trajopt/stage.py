@@ -412,27 +412,6 @@ def _record(out: TrajoptMotion, task: _Task, outcome: _Outcome, reduced, setting
     return True
 
 
-def _junction_places(flags: np.ndarray, reduced, first: int, end: int, start: int, stop: int, phases,
-                     junctions: list[int]) -> dict[tuple[int, int], np.ndarray]:
-    """(point, phase) -> (x, y) for the contact phases of the window [start, stop] that hold a junction frame: the
-    input's median place over the clip's whole contact run (within [first, end)). Windows solved apart then agree
-    where a contact crosses from one to the next, even one held through a whole window between them."""
-    out = {}
-    for f in junctions:
-        if not start <= f <= stop:
-            continue
-        for i in np.flatnonzero(flags[f]):
-            a, b = f, f + 1
-            while a > first and flags[a - 1, i]:
-                a -= 1
-            while b < end and flags[b, i]:
-                b += 1
-            t = reduced.times[f]
-            j = next(j for j, p in enumerate(phases[i]) if p.contact and p.start - 1e-9 <= t <= p.end + 1e-9)
-            out[(int(i), j)] = np.median(reduced.feet[a:b, i, :2], axis=0)
-    return out
-
-
 def _solve_run(out: TrajoptMotion, reduced, flags: np.ndarray, first: int, end: int, fps: float,
                settings: TrajoptSettings, progress, solver: _Solver) -> None:
     """The windows of frames [first, end), results into `out`: one after another, each starting where the previous
@@ -442,21 +421,16 @@ def _solve_run(out: TrajoptMotion, reduced, flags: np.ndarray, first: int, end: 
     T, times = len(flags), reduced.times
     ranges = [(a + first, b + first, c + first) for a, b, c in window_ranges(end - first, fps, settings)]
 
-    alternate = settings.parallel_windows and len(ranges) >= 3
-    junctions = [r[0] for r in ranges[1:]]
-
     def window(start: int, stop: int, keep: int, begin=None, arrive=None) -> Window:
         sl = slice(start, stop + 1)
         red = reduced.frames(sl)
-        phases = [contact_phases(flags[sl, i], red.times) for i in range(4)]
         # The clip's first frame matches the input's velocity, and so does a window starting afresh.
         start_velocity = boundary_velocity(reduced.com[start:end], fps, settings.boundary_frames, end=False)
-        return Window(red, phases, start_velocity=start_velocity,
+        return Window(red, [contact_phases(flags[sl, i], red.times) for i in range(4)],
+                      start_velocity=start_velocity,
                       end_velocity=(boundary_velocity(reduced.com[first:end], fps, settings.boundary_frames,
                                                       end=True) if stop == end - 1 else None),
-                      start=begin, freeze_after=times[keep] if keep < end else np.inf, end=arrive,
-                      places=_junction_places(flags, reduced, first, end, start, stop, phases, junctions)
-                      if alternate else {})
+                      start=begin, freeze_after=times[keep] if keep < end else np.inf, end=arrive)
 
     done = 0
 
@@ -468,7 +442,7 @@ def _solve_run(out: TrajoptMotion, reduced, flags: np.ndarray, first: int, end: 
             progress(first + done, T)
         return usable
 
-    if not alternate:
+    if not (settings.parallel_windows and len(ranges) >= 3):
         state = None
         for start, stop, keep in ranges:
             task = _Task(start, stop, keep, window(start, stop, keep, begin=state),
