@@ -20,6 +20,9 @@ Writes benchmarks/results/trajopt.json and trajopt.md. Other modes (issues 23, 2
     --long 2 5 10 30 ...     time against clip length on a looped dance, wall and CPU seconds, load, every
                              window's frames, iterations, seconds, restarts and contact switches; writes
                              results/trajopt_long.json
+    --compare-parallel 10 15 windows one after another against two at a time (trajopt.parallel_windows), runs
+                             interleaved --repeats times: wall and CPU seconds, differences; writes
+                             results/trajopt_parallel.json
     --window 60 178 297      one window of that looped dance (seconds, first and last frame) from a free start
     --flights                the labels' whole-body flights on validation clips (subjects 1, 2, 5, 7) at 24 and
                              30 fps: the support their COM needs; writes results/trajopt_flights.json
@@ -395,6 +398,49 @@ def long_scaling(lengths: list[float], settings_trajopt: TrajoptSettings) -> lis
     return out
 
 
+def compare_parallel(lengths: list[float], repeats: int) -> list[dict]:
+    """Windows one after another against two at a time (trajopt.parallel_windows) on the looped dance of
+    `long_scaling`, the runs interleaved (off, on, off, on, ...) so that both see the same machine load: median
+    wall and CPU seconds (workers included), the largest difference of the motion's joints and of the optimised
+    COM between the two, and the converged share of each."""
+    obs, truth, settings = observe(LONG_CLIP, 0, 10.0)
+    motion = fit_motion(obs, settings)
+    contacts, _, _ = predict_contacts(obs, "centred")
+    refined = refine_kinematics(obs, motion, contacts, settings.fit, TrajoptSettings())
+    body = refined.motion.body
+    out = []
+    for seconds in lengths:
+        idx = loop_indices(len(refined.motion.qpos), int(round(seconds * obs.fps)))
+        runs = {False: [], True: []}
+        results = {}
+        for _ in range(repeats):
+            for parallel in (False, True):
+                wall, cpu = time.perf_counter(), cpu_seconds()
+                results[parallel] = run_trajopt(body, refined.motion.qpos[idx], obs.fps, refined.contacts[idx],
+                                                TrajoptSettings(parallel_windows=parallel))
+                runs[parallel].append((time.perf_counter() - wall, cpu_seconds() - cpu, os.getloadavg()[0]))
+        joints = [kin.forward_kinematics(body, results[p].qpos).points for p in (False, True)]
+        row = dict(seconds=seconds, windows=len(results[False].windows), runs={str(k): v for k, v in runs.items()},
+                   joint_difference_max_m=float(np.linalg.norm(joints[0] - joints[1], axis=-1).max()),
+                   com_difference_max_m=float(np.nanmax(np.linalg.norm(results[False].com - results[True].com,
+                                                                        axis=-1))),
+                   converged={str(k): float(v.converged.mean()) for k, v in results.items()})
+        for parallel in (False, True):
+            row[f"{'parallel' if parallel else 'sequential'}_wall_seconds"] = statistics.median(
+                r[0] for r in runs[parallel])
+            row[f"{'parallel' if parallel else 'sequential'}_cpu_seconds"] = statistics.median(
+                r[1] for r in runs[parallel])
+        out.append(row)
+        print(f"compare {seconds:.0f} s, {row['windows']} windows: wall {row['sequential_wall_seconds']:.1f} s "
+              f"sequential, {row['parallel_wall_seconds']:.1f} s two at a time "
+              f"({row['sequential_wall_seconds'] / row['parallel_wall_seconds']:.2f}x); CPU "
+              f"{row['sequential_cpu_seconds']:.1f} / {row['parallel_cpu_seconds']:.1f} s; joints differ by at most "
+              f"{1000 * row['joint_difference_max_m']:.0f} mm, COM {1000 * row['com_difference_max_m']:.0f} mm; "
+              f"converged {row['converged']}; load {[round(r[2], 1) for p in runs.values() for r in p]}",
+              flush=True)
+    return out
+
+
 def one_window(seconds: float, first: int, last: int) -> dict:
     """Frames first..last of the looped dance of `long_scaling` (looped to `seconds`) as one window from a free
     start (its start velocity the input's), solved as run_trajopt solves a window: every IPOPT run's status,
@@ -550,6 +596,9 @@ def main(argv=None) -> dict:
                         help="only the whole-body flights of the labels on validation clips, at 24 and 30 fps")
     parser.add_argument("--validation", type=float, nargs="+", metavar="WEIGHT",
                         help="only the validation clips, trajopt with each force_rate weight given")
+    parser.add_argument("--compare-parallel", type=float, nargs="+", metavar="SECONDS",
+                        help="only windows one after another against two at a time on the looped dance, "
+                             "interleaved --repeats times")
     parser.add_argument("--parallel-windows", choices=("on", "off"),
                         help="trajopt.parallel_windows for the accuracy rows and --long (default: the setting's)")
     args = parser.parse_args(argv)
@@ -562,6 +611,11 @@ def main(argv=None) -> dict:
         print(f"CPU seconds against length: t = {fit['coefficient_seconds']:.2f} L^{fit['exponent']:.2f}")
         write_text(RESULTS / f"trajopt_long{'_parallel' if chosen.parallel_windows else ''}.json", json.dumps(dict(
             machine=machine_description(), revision=git_revision(), rows=rows, cpu_fit=fit), indent=2, default=float))
+        return dict(rows=rows)
+    if args.compare_parallel:
+        rows = compare_parallel(args.compare_parallel, args.repeats)
+        write_text(RESULTS / "trajopt_parallel.json", json.dumps(dict(
+            machine=machine_description(), revision=git_revision(), rows=rows), indent=2, default=float))
         return dict(rows=rows)
     if args.window:
         return one_window(args.window[0], int(args.window[1]), int(args.window[2]))

@@ -7,7 +7,6 @@ import logging
 import signal
 import subprocess
 import sys
-import time
 
 import casadi as ca
 import mujoco
@@ -20,6 +19,7 @@ from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
 from physmocap.config import TrajoptSettings
 from physmocap.errors import InputError
+from physmocap.trajopt import stage
 from physmocap.trajopt.formulation import (
     Window,
     acceleration_continuity,
@@ -42,7 +42,6 @@ from physmocap.trajopt.phases import (
 from physmocap.trajopt.problem import ConstraintSet, CostTerm, Program, VariableSet
 from physmocap.trajopt.reduced import boundary_velocity, euler_to_matrix, matrix_to_euler, reduced_motion, world_inertia
 from physmocap.trajopt.splines import Node, Segment, Trajectory, hermite_weights
-from physmocap.trajopt import stage
 from physmocap.trajopt.stage import run_trajopt, window_ranges
 
 FPS = 30.0
