@@ -398,6 +398,14 @@ def long_scaling(lengths: list[float], settings_trajopt: TrajoptSettings) -> lis
     return out
 
 
+def contact_slip(result) -> float:
+    """The largest move (m) of a heel or toe between two consecutive converged frames in which it is in contact:
+    zero when no contact slips, junctions between windows included."""
+    both = result.contacts[1:] & result.contacts[:-1] & (result.converged[1:] & result.converged[:-1])[:, None]
+    moves = np.linalg.norm(np.diff(result.feet, axis=0), axis=-1)
+    return float(moves[both].max()) if both.any() else 0.0
+
+
 def compare_parallel(lengths: list[float], repeats: int) -> list[dict]:
     """Windows one after another against two at a time (trajopt.parallel_windows) on the looped dance of
     `long_scaling`, the runs interleaved (off, on, off, on, ...) so that both see the same machine load: median
@@ -424,7 +432,8 @@ def compare_parallel(lengths: list[float], repeats: int) -> list[dict]:
                    joint_difference_max_m=float(np.linalg.norm(joints[0] - joints[1], axis=-1).max()),
                    com_difference_max_m=float(np.nanmax(np.linalg.norm(results[False].com - results[True].com,
                                                                         axis=-1))),
-                   converged={str(k): float(v.converged.mean()) for k, v in results.items()})
+                   converged={str(k): float(v.converged.mean()) for k, v in results.items()},
+                   slip_max_m={str(k): contact_slip(v) for k, v in results.items()})
         for parallel in (False, True):
             row[f"{'parallel' if parallel else 'sequential'}_wall_seconds"] = statistics.median(
                 r[0] for r in runs[parallel])
@@ -436,7 +445,8 @@ def compare_parallel(lengths: list[float], repeats: int) -> list[dict]:
               f"({row['sequential_wall_seconds'] / row['parallel_wall_seconds']:.2f}x); CPU "
               f"{row['sequential_cpu_seconds']:.1f} / {row['parallel_cpu_seconds']:.1f} s; joints differ by at most "
               f"{1000 * row['joint_difference_max_m']:.0f} mm, COM {1000 * row['com_difference_max_m']:.0f} mm; "
-              f"converged {row['converged']}; load {[round(r[2], 1) for p in runs.values() for r in p]}",
+              f"converged {row['converged']}; largest slip of a contact between frames (m) {row['slip_max_m']}; "
+              f"load {[round(r[2], 1) for p in runs.values() for r in p]}",
               flush=True)
     return out
 
