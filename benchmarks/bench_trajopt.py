@@ -20,6 +20,9 @@ Writes benchmarks/results/trajopt.json and trajopt.md. Other modes (issues 23, 2
     --long 2 5 10 30 ...     time against clip length on a looped dance, wall and CPU seconds, load, every
                              window's frames, iterations, seconds, restarts and contact switches; writes
                              results/trajopt_long.json
+    --compare-parallel 10 15 windows one after another against two at a time (trajopt.parallel_windows), runs
+                             interleaved --repeats times: wall and CPU seconds, differences; writes
+                             results/trajopt_parallel.json
     --window 60 178 297      one window of that looped dance (seconds, first and last frame) from a free start
     --flights                the labels' whole-body flights on validation clips (subjects 1, 2, 5, 7) at 24 and
                              30 fps: the support their COM needs; writes results/trajopt_flights.json
@@ -38,6 +41,7 @@ import dataclasses
 import json
 import logging
 import os
+import resource
 import statistics
 import sys
 import time
@@ -284,7 +288,8 @@ def videos(run_folders: list[str]) -> list[dict]:
     """Trajopt on the B.4-refined motion of each run folder (`physmocap capture VIDEO --physics physcap` or
     `trajopt` leaves it in cache/refined.npz): the largest solved net vertical force against the largest the
     refined motion implies (implied_vertical_force), the alternation, the frames above 400% of body weight, the
-    converged share, the whole-body flights relabelled as supported, and this process's CPU seconds."""
+    converged share, the whole-body flights relabelled as supported, and the CPU seconds of this process and its
+    workers."""
     from physmocap.motion import Observations
     from physmocap.stages import RefinedMotion
 
@@ -296,12 +301,12 @@ def videos(run_folders: list[str]) -> list[dict]:
         body, qpos = refined.motion.body, refined.motion.qpos
         implied = implied_vertical_force(kin.center_of_mass(body, kin.forward_kinematics(body, qpos)), body.mass,
                                          obs.fps)
-        cpu = time.process_time()
+        cpu, wall = cpu_seconds(), time.perf_counter()
         result = run_trajopt(body, qpos, obs.fps, refined.contacts, TrajoptSettings(), valid=obs.valid)
-        cpu = time.process_time() - cpu
+        cpu, wall = cpu_seconds() - cpu, time.perf_counter() - wall
         weight = body.mass * metrics.GRAVITY
         fz = result.grf[..., 2].sum(axis=1)
-        rows.append(dict(video=folder.name, fps=obs.fps, frames=len(qpos), cpu_seconds=cpu,
+        rows.append(dict(video=folder.name, fps=obs.fps, frames=len(qpos), cpu_seconds=cpu, wall_seconds=wall,
                          window_iterations=[sum(st.iterations for st in w.stages) for w in result.windows],
                          frames_over_4bw=int((fz > 4 * weight).sum()),
                          relabelled_flight_frames=int((result.contacts.any(axis=1)
@@ -312,7 +317,8 @@ def videos(run_folders: list[str]) -> list[dict]:
               f" / implied {r['implied_max_percent_bw']:.0f}% BW = {r['ratio']:.2f}, alternation "
               f"{r['alternation_percent_bw']:.0f}% BW, frames > 400% BW {r['frames_over_4bw']}, converged "
               f"{100 * r['converged_fraction']:.0f}%, flight frames given a support {r['relabelled_flight_frames']}, "
-              f"CPU {cpu:.1f} s, IPOPT iterations per window {r['window_iterations']}", flush=True)
+              f"CPU {cpu:.1f} s (workers included), wall {wall:.1f} s, IPOPT iterations per window "
+              f"{r['window_iterations']}", flush=True)
     return rows
 
 
@@ -349,10 +355,17 @@ def loop_indices(frames: int, total: int) -> np.ndarray:
     return np.where(k < frames, k, period - k)
 
 
+def cpu_seconds() -> float:
+    """CPU seconds of this process and of its finished children (the worker processes of parallel windows)."""
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
 def long_scaling(lengths: list[float], settings_trajopt: TrajoptSettings) -> list[dict]:
     """Time against clip length up to minutes: the B.4-refined motion of LONG_CLIP (a dance) looped by
     `loop_indices` to each length, run_trajopt alone; wall and CPU seconds (this process), the load average
-    before and after, and every window's frames, iterations, seconds and restarts."""
+    before and after, and every window's frames, iterations, seconds and restarts; with
+    settings_trajopt.parallel_windows the CPU seconds include the worker processes'."""
     obs, truth, settings = observe(LONG_CLIP, 0, 10.0)
     motion = fit_motion(obs, settings)
     contacts, _, _ = predict_contacts(obs, "centred")
@@ -361,10 +374,10 @@ def long_scaling(lengths: list[float], settings_trajopt: TrajoptSettings) -> lis
     for seconds in lengths:
         idx = loop_indices(len(refined.motion.qpos), int(round(seconds * obs.fps)))
         load_before = os.getloadavg()[0]
-        wall, cpu = time.perf_counter(), time.process_time()
+        wall, cpu = time.perf_counter(), cpu_seconds()
         result = run_trajopt(refined.motion.body, refined.motion.qpos[idx], obs.fps, refined.contacts[idx],
                              settings_trajopt)
-        wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+        wall, cpu = time.perf_counter() - wall, cpu_seconds() - cpu
         windows = [dict(frames=w.stop - w.start + 1, kept=w.keep - w.start, seconds=w.seconds,
                         build_seconds=w.build_seconds, restarted=w.restarted, converged=w.converged,
                         contact_switches=int(np.abs(np.diff(result.contacts[w.start:w.stop + 1].astype(int),
@@ -373,6 +386,7 @@ def long_scaling(lengths: list[float], settings_trajopt: TrajoptSettings) -> lis
                         ipopt_seconds=sum(st.seconds for st in w.stages), variables=w.variables)
                    for w in result.windows]
         out.append(dict(seconds=seconds, frames=len(idx), wall_seconds=wall, cpu_seconds=cpu,
+                        parallel_windows=settings_trajopt.parallel_windows,
                         load_before=load_before, load_after=os.getloadavg()[0], windows=windows,
                         ik_seconds=result.ik_seconds, converged_fraction=float(result.converged.mean())))
         r = out[-1]
@@ -383,6 +397,59 @@ def long_scaling(lengths: list[float], settings_trajopt: TrajoptSettings) -> lis
               f"IPOPT {sum(w['ipopt_seconds'] for w in windows):.1f} s, "
               f"IK {result.ik_seconds:.1f} s, restarts {sum(w['restarted'] for w in windows)}, converged "
               f"{r['converged_fraction']:.2f}", flush=True)
+    return out
+
+
+def contact_slip(result) -> float:
+    """The largest move (m) of a heel or toe between two consecutive converged frames in which it is in contact:
+    zero when no contact slips, junctions between windows included."""
+    both = result.contacts[1:] & result.contacts[:-1] & (result.converged[1:] & result.converged[:-1])[:, None]
+    moves = np.linalg.norm(np.diff(result.feet, axis=0), axis=-1)
+    return float(moves[both].max()) if both.any() else 0.0
+
+
+def compare_parallel(lengths: list[float], repeats: int) -> list[dict]:
+    """Windows one after another against two at a time (trajopt.parallel_windows) on the looped dance of
+    `long_scaling`, the runs interleaved (off, on, off, on, ...) so that both see the same machine load: median
+    wall and CPU seconds (workers included), the largest difference of the motion's joints and of the optimised
+    COM between the two, and the converged share of each."""
+    obs, truth, settings = observe(LONG_CLIP, 0, 10.0)
+    motion = fit_motion(obs, settings)
+    contacts, _, _ = predict_contacts(obs, "centred")
+    refined = refine_kinematics(obs, motion, contacts, settings.fit, TrajoptSettings())
+    body = refined.motion.body
+    out = []
+    for seconds in lengths:
+        idx = loop_indices(len(refined.motion.qpos), int(round(seconds * obs.fps)))
+        runs = {False: [], True: []}
+        results = {}
+        for _ in range(repeats):
+            for parallel in (False, True):
+                wall, cpu = time.perf_counter(), cpu_seconds()
+                results[parallel] = run_trajopt(body, refined.motion.qpos[idx], obs.fps, refined.contacts[idx],
+                                                TrajoptSettings(parallel_windows=parallel))
+                runs[parallel].append((time.perf_counter() - wall, cpu_seconds() - cpu, os.getloadavg()[0]))
+        joints = [kin.forward_kinematics(body, results[p].qpos).points for p in (False, True)]
+        row = dict(seconds=seconds, windows=len(results[False].windows), runs={str(k): v for k, v in runs.items()},
+                   joint_difference_max_m=float(np.linalg.norm(joints[0] - joints[1], axis=-1).max()),
+                   com_difference_max_m=float(np.nanmax(np.linalg.norm(results[False].com - results[True].com,
+                                                                        axis=-1))),
+                   converged={str(k): float(v.converged.mean()) for k, v in results.items()},
+                   slip_max_m={str(k): contact_slip(v) for k, v in results.items()})
+        for parallel in (False, True):
+            row[f"{'parallel' if parallel else 'sequential'}_wall_seconds"] = statistics.median(
+                r[0] for r in runs[parallel])
+            row[f"{'parallel' if parallel else 'sequential'}_cpu_seconds"] = statistics.median(
+                r[1] for r in runs[parallel])
+        out.append(row)
+        print(f"compare {seconds:.0f} s, {row['windows']} windows: wall {row['sequential_wall_seconds']:.1f} s "
+              f"sequential, {row['parallel_wall_seconds']:.1f} s two at a time "
+              f"({row['sequential_wall_seconds'] / row['parallel_wall_seconds']:.2f}x); CPU "
+              f"{row['sequential_cpu_seconds']:.1f} / {row['parallel_cpu_seconds']:.1f} s; joints differ by at most "
+              f"{1000 * row['joint_difference_max_m']:.0f} mm, COM {1000 * row['com_difference_max_m']:.0f} mm; "
+              f"converged {row['converged']}; largest slip of a contact between frames (m) {row['slip_max_m']}; "
+              f"load {[round(r[2], 1) for p in runs.values() for r in p]}",
+              flush=True)
     return out
 
 
@@ -541,14 +608,26 @@ def main(argv=None) -> dict:
                         help="only the whole-body flights of the labels on validation clips, at 24 and 30 fps")
     parser.add_argument("--validation", type=float, nargs="+", metavar="WEIGHT",
                         help="only the validation clips, trajopt with each force_rate weight given")
+    parser.add_argument("--compare-parallel", type=float, nargs="+", metavar="SECONDS",
+                        help="only windows one after another against two at a time on the looped dance, "
+                             "interleaved --repeats times")
+    parser.add_argument("--parallel-windows", choices=("on", "off"),
+                        help="trajopt.parallel_windows for the accuracy rows and --long (default: the setting's)")
     args = parser.parse_args(argv)
+    chosen = (TrajoptSettings() if args.parallel_windows is None
+              else TrajoptSettings(parallel_windows=args.parallel_windows == "on"))
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(message)s")
     if args.long:
-        rows = long_scaling(args.long, TrajoptSettings())
+        rows = long_scaling(args.long, chosen)
         fit = scaling_fit([dict(seconds=r["seconds"], wall_seconds=r["cpu_seconds"]) for r in rows])
         print(f"CPU seconds against length: t = {fit['coefficient_seconds']:.2f} L^{fit['exponent']:.2f}")
-        write_text(RESULTS / "trajopt_long.json", json.dumps(dict(
+        write_text(RESULTS / f"trajopt_long{'_parallel' if chosen.parallel_windows else ''}.json", json.dumps(dict(
             machine=machine_description(), revision=git_revision(), rows=rows, cpu_fit=fit), indent=2, default=float))
+        return dict(rows=rows)
+    if args.compare_parallel:
+        rows = compare_parallel(args.compare_parallel, args.repeats)
+        write_text(RESULTS / "trajopt_parallel.json", json.dumps(dict(
+            machine=machine_description(), revision=git_revision(), rows=rows), indent=2, default=float))
         return dict(rows=rows)
     if args.window:
         return one_window(args.window[0], int(args.window[1]), int(args.window[2]))
@@ -571,7 +650,7 @@ def main(argv=None) -> dict:
     global SCALING_SECONDS
     if args.quick:
         SCALING_SECONDS = SCALING_SECONDS[:3]
-    settings = TrajoptSettings()
+    settings = chosen
     if args.scaling_only:
         out = json.loads(Path(args.json).read_text())
         out["scaling"] = scaling(settings, args.repeats)

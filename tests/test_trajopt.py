@@ -19,6 +19,7 @@ from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
 from physmocap.config import TrajoptSettings
 from physmocap.errors import InputError
+from physmocap.trajopt import stage
 from physmocap.trajopt.formulation import (
     Window,
     acceleration_continuity,
@@ -162,8 +163,8 @@ def test_contact_phases_from_flags():
 
 def test_flight_the_motion_does_not_fall_through_keeps_a_support():
     """Labels that lift every point for 7 frames while the body stands (the juggler on one foot, issue 24) keep a
-    support there: of the points in contact beside the flight, the one nearest below the COM. A ballistic flight,
-    and one running to the clip's end, stay flights."""
+    support there: of the points in contact beside the flight, the one nearest below the COM; so does such a
+    flight running to the clip's end (mmhuman3d's last 5 frames). Ballistic flights stay flights."""
     fps, frames = 24.0, 48
     times = np.arange(frames) / fps
     points = np.zeros((frames, 4, 3))
@@ -181,12 +182,15 @@ def test_flight_the_motion_does_not_fall_through_keeps_a_support():
     assert [(a, b, p) for a, b, p, _ in changed] == [(20, 29, 2)] and changed[0][3] > 0.9
     assert out[:, 2].all() and not out[20:27, [0, 1, 3]].any() and np.array_equal(out[:20], flags[:20])
     edge = flags.copy()
-    edge[27:] = False  # a flight to the clip's end has no landing in it: left alone
-    assert support_held_flights(edge, com, points, times, G, 0.5)[1] == []
+    edge[27:] = False  # a flight to the clip's end: its take-off is in the clip, its own frames do not fall
+    out, changed = support_held_flights(edge, com, points, times, G, 0.5)
+    assert [(a, b, p) for a, b, p, _ in changed] == [(20, 48, 2)] and out[20:, 2].all()
     tau = np.clip(times - 19 / fps, 0.0, 8 / fps)  # take-off at frame 19, landing at frame 27
     com[:, 2] = 0.95 + 0.5 * G * (8 / fps) * tau - 0.5 * G * tau ** 2
     assert abs(flight_support(com[:, 2], times, 20, 27, G)) < 1e-6
     assert support_held_flights(flags, com, points, times, G, 0.5)[1] == []
+    com[:, 2] = 0.95 + 0.5 * G * (8 / fps) * (times - 19 / fps) - 0.5 * G * (times - 19 / fps) ** 2
+    assert support_held_flights(edge, com, points, times, G, 0.5)[1] == []  # falling to the clip's end
 
 
 def test_false_flight_is_not_landed_with_a_force_peak(body, caplog):
@@ -447,6 +451,32 @@ def test_frame_samples_hold_every_frame_whatever_the_rate():
     assert np.array_equal(frame_sample_times(frames, 0.0), frames)
 
 
+def test_force_limits_hold_wherever_newton_is_held(body):
+    """At 12 fps Newton's equation is held 4 times between frames; limits held at the frames only let the cubics
+    there pull on the floor and push tens of body weights (mmhuman3d_single_person_demo, issue 24)."""
+    fps = 12.0
+    q = sway(body, 24)
+    red = reduced_motion(body, q, fps)
+    flags = np.ones(24, bool)
+    flags[10:14] = False
+    phases = [contact_phases(flags, red.times)] + [contact_phases(np.ones(24, bool), red.times)] * 3
+    settings = TrajoptSettings()
+    problem = build_window_problem(Window(red, phases), settings)
+    limits = problem.constraints["force_limits"]
+    lower, upper = limits.bounds()
+    rows = ca.Function("g", [problem.x], [limits.expression()])
+    x = np.random.default_rng(0).normal(size=int(problem.x.shape[0]))
+    values = np.asarray(rows(x)).ravel()
+    normal = values[(lower == 0.0) & (upper > 0.0)]  # the normal force rows, 0 <= f_z <= f_max
+    samples = frame_sample_times(red.times, settings.linear_dynamics_interval)
+    assert len(samples) == 5 * 23 + 1  # 4 samples between frames
+    for i, force in enumerate(problem.forces):
+        inside = np.logical_or.reduce([(samples >= p.start - 1e-9) & (samples <= p.end + 1e-9)
+                                       for p in phases[i] if p.contact])
+        fz = np.asarray(ca.Function("f", [problem.x], [problem.sample(force.trajectory, samples[inside])])(x))[2]
+        assert np.isin(np.round(fz, 12), np.round(normal, 12)).all()
+
+
 def test_force_rate_cost_is_the_frames_force_differences(body):
     q = sway(body, 30)
     red = reduced_motion(body, q, FPS)
@@ -538,7 +568,7 @@ def sway(body, frames):
 
 def test_long_clips_are_windowed_and_stitched_continuously(body):
     q = sway(body, 100)
-    s = TrajoptSettings(window_seconds=1.5, window_overlap=0.5, contact_drift=0.0)
+    s = TrajoptSettings(window_seconds=1.5, window_overlap=0.5, contact_drift=0.0, parallel_windows=False)
     result = run_trajopt(body, q, FPS, np.ones((100, 4), bool), s)
     assert len(result.windows) >= 3 and result.converged.all()
     assert all(w.com_departure < 0.02 for w in result.windows)
@@ -551,6 +581,30 @@ def test_long_clips_are_windowed_and_stitched_continuously(body):
     # The sway's sideways force: m a of the input's sine, carried by the feet.
     expected = body.mass * 0.04 * (2 * np.pi * 0.6) ** 2
     assert abs(np.abs(result.grf[..., 1].sum(axis=1)).max() - expected) < 0.3 * expected
+
+
+def test_windows_two_at_a_time_meet_each_other_whoever_solves_them(body, monkeypatch):
+    """parallel_windows: the even windows from free starts, then each odd one from its predecessor's state to its
+    successor's start; the same numbers whether worker processes or this one solve them (issue 23)."""
+    q = sway(body, 100)
+    s = TrajoptSettings(window_seconds=1.5, window_overlap=0.5, contact_drift=0.0, parallel_windows=True)
+    result = run_trajopt(body, q, FPS, np.ones((100, 4), bool), s)
+    assert len(result.windows) == 3 and result.converged.all() and not any(w.restarted for w in result.windows)
+    assert result.windows[1].stop == result.windows[2].start  # the odd window ends where the next one starts
+    step = np.linalg.norm(np.diff(result.com, 2, axis=0), axis=1)
+    junctions = [w.start - 1 for w in result.windows[1:]]
+    assert step[junctions].max() <= 2 * np.delete(step, junctions).max() + 1e-4
+    # A contact held through the whole odd window keeps its predecessor's place, while the successor fitted the
+    # same planted point on its own: at that junction the point steps, within how far the input's point strays
+    # (the sway's feet sway along; docs/decisions/trajopt-long-clips.md).
+    feet_step = np.linalg.norm(np.diff(result.feet, axis=0), axis=-1).max(axis=1)
+    odd = result.windows[1]
+    stray = np.linalg.norm(np.ptp(reduced_motion(body, q, FPS).feet[odd.start:odd.stop + 1], axis=0), axis=-1)
+    assert feet_step[junctions[0]] < 1e-6 and feet_step[junctions[1]] <= stray.max()
+    monkeypatch.setattr(stage, "PARALLEL_WORKERS", 10 ** 6)  # more than any machine's cores: all in this process
+    alone = run_trajopt(body, q, FPS, np.ones((100, 4), bool), s)
+    for name in ("qpos", "grf", "com", "feet", "contacts", "converged"):
+        assert np.array_equal(getattr(alone, name), getattr(result, name)), name
 
 
 def test_failure_is_loud_and_keeps_the_kinematic_motion(body, caplog):

@@ -205,6 +205,8 @@ class TrajoptSettings(Section):
                                              "input on average are not used (ours; None: all kept)")
     window_seconds: float = setting(4.0, "s", (0.5, 600.0), "long clips are solved in windows this long (ours)")
     window_overlap: float = setting(1.0, "s", (0.0, 300.0), "a window looks beyond what it keeps; <= window_seconds/2")
+    parallel_windows: bool = setting(True, help="solve windows two at a time: the even ones, then the odd ones "
+                                     "between their states (docs/decisions/trajopt-long-clips.md)")
     rotate_upper_body: bool = setting(True, help="C.4: upper body turns with the optimised orientation (ours)")
     ik_feet_weight: float = setting(100.0, "", (0.01, 1e6), "of the heel and toe targets against the upper body's")
     ik_leg_weight: float = setting(1.0, "", (0.0, 1e6), "of the knees' and ankles' offsets (ours; paper 0)")

@@ -76,7 +76,8 @@ class WindowStart:
 class Window:
     """One window's inputs: the reduced motion at its frames (absolute times), the phases of each contact point
     (covering exactly the window's time span), the velocities the clip's ends must match (None: not a clip end),
-    the start state (None: free) and the time after which phase boundaries stay put (the junction)."""
+    the start state and the end state (None: free; the end state is the next window's start, when windows are
+    solved two at a time) and the time after which phase boundaries stay put (the junction)."""
 
     reduced: ReducedMotion
     phases: list[list[Phase]]
@@ -84,6 +85,7 @@ class Window:
     end_velocity: np.ndarray | None = None
     start: WindowStart | None = None
     freeze_after: float = np.inf
+    end: WindowStart | None = None
 
     @property
     def t0(self) -> float:
@@ -117,12 +119,14 @@ def frame_sample_times(frames: np.ndarray, interval: float) -> np.ndarray:
 
 
 def free_times(window: Window, times: np.ndarray) -> np.ndarray:
-    """`times` without the window's first instant when the window continues another: its state there is the
-    previous window's, fixed, and a kinematic constraint on fixed values (sampled elsewhere before) could be
-    unsatisfiable."""
-    if window.start is None:
-        return times
-    return times[times > window.t0 + 1e-9]
+    """`times` without the window's first instant when the window continues another, and without its last when it
+    must arrive in another's start: the state there is fixed, and a kinematic constraint on fixed values (sampled
+    elsewhere before) could be unsatisfiable."""
+    if window.start is not None:
+        times = times[times > window.t0 + 1e-9]
+    if window.end is not None:
+        times = times[times < window.t1 - 1e-9]
+    return times
 
 
 def interpolate(times: np.ndarray, values: np.ndarray, t) -> np.ndarray:
@@ -208,10 +212,10 @@ class ComVariables:
         ang = interpolate(red.times, red.euler, t)
         ang_rate = interpolate(red.times, rate(red.times, red.euler), t)
         self.set.initial = np.concatenate([pos, vel, ang, ang_rate], axis=1).ravel()
-        if window.start is not None:  # continue from the previous window
-            s = window.start
-            fixed = np.concatenate([s.com, s.com_rate, s.euler, s.euler_rate])
-            self.set.lower[:12] = self.set.upper[:12] = self.set.initial[:12] = fixed
+        for state, at in ((window.start, slice(0, 12)), (window.end, slice(12 * n, 12 * (n + 1)))):
+            if state is not None:  # continue from the previous window, or arrive in the next one's start
+                fixed = np.concatenate([state.com, state.com_rate, state.euler, state.euler_rate])
+                self.set.lower[at] = self.set.upper[at] = self.set.initial[at] = fixed
         base = offset + 12 * np.arange(n + 1)
         self.position = self._trajectory(base, 0)
         self.orientation = self._trajectory(base, 6)
@@ -343,6 +347,16 @@ class FootVariables:
                 self._fix(contact_at[0] - offset, s.feet[index, :2])
             else:
                 self._fix(flight_nodes[(0, 0)] - offset, np.concatenate([s.feet[index], s.feet_rate[index]]))
+        last = len(phases) - 1
+        if window.end is not None:  # arrive where the next window starts
+            s = window.end
+            if not phases[last].contact:
+                self._fix(flight_nodes[(last, self.segment_counts[last])] - offset,
+                          np.concatenate([s.feet[index], s.feet_rate[index]]))
+            elif last > 0 or window.start is None:
+                # A contact held through the whole window keeps the previous window's place: the next window's
+                # fit of the same planted point differs by millimetres, a step at the junction.
+                self._fix(contact_at[last] - offset, s.feet[index, :2])
         contact_nodes = {j: Node.resting(a) for j, a in contact_at.items()}
         segments = []
         for j, p in enumerate(phases):
@@ -655,20 +669,22 @@ def _pyramid(out: ConstraintSet, f, mu: float) -> None:
 
 def force_limits(problem: WindowProblem) -> ConstraintSet:
     """Pushing, at most f_max, inside the friction pyramid: at every force node (the normal force's limits are
-    variable bounds there) and at every frame in contact (the cubic between nodes could leave them)."""
+    variable bounds there) and wherever Newton's equation is held in contact (frame_sample_times: the frames and
+    between them). Held at the frames only, the cubics between them pulled on the floor and pushed tens of body
+    weights where Newton's equation still read them (12 fps: docs/decisions/trajopt-force-chatter.md)."""
     s, red = problem.settings, problem.window.reduced
     fmax = s.max_force / (red.mass * s.gravity)
     out = ConstraintSet("force_limits", linear=not any(f.trajectory.symbolic_times for f in problem.forces))
+    samples = frame_sample_times(red.times, s.linear_dynamics_interval)
     for i, force in enumerate(problem.forces):
         if not force.any_contact:
             continue
         _pyramid(out, problem.select(np.array(force.value_index)), s.friction)
-        flags = flags_from_phases(problem.window.phases[i], red.times)
-        if force.trajectory.symbolic_times:  # also the frames a contact phase may grow over
-            reach = int(np.ceil(s.max_duration_change * (len(red.times) - 1) / max(red.times[-1] - red.times[0],
-                                                                                   1e-9)))
-            flags = np.convolve(flags, np.ones(2 * reach + 1), mode="same") > 0
-        times = red.times[flags]
+        # Also the samples a contact phase may grow over when its boundaries are free.
+        reach = s.max_duration_change if force.trajectory.symbolic_times else 0.0
+        inside = [(samples >= p.start - reach - 1e-9) & (samples <= p.end + reach + 1e-9)
+                  for p in problem.window.phases[i] if p.contact]
+        times = samples[np.logical_or.reduce(inside)]
         if len(times):
             f = problem.sample(force.trajectory, times)
             _pyramid(out, f, s.friction)

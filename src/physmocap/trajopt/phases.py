@@ -147,23 +147,29 @@ def flight_support(com_height: np.ndarray, times: np.ndarray, start: int, stop: 
 
 def support_held_flights(flags: np.ndarray, com: np.ndarray, points: np.ndarray, times: np.ndarray,
                          gravity: float, max_support: float) -> tuple[np.ndarray, list[tuple]]:
-    """(T, P) contact flags in which every whole-body flight (no point in contact; not at the clip's first or
-    last frame) that the input motion does not fall through is given back a support: a flight whose COM (T, 3)
-    needs more than `max_support` body weights (`flight_support`) is the labels' error (the body is held up), and
-    physics would have to launch and land it with forces the motion never shows. The support is the point, of
+    """(T, P) contact flags in which every whole-body flight (no point in contact; one at the clip's first or
+    last frame too, judged by its own frames) that the input motion does not fall through is given back a
+    support: a flight whose COM (T, 3) needs more than `max_support` body weights (`flight_support`) is the
+    labels' error (the body is held up), and physics would have to launch and land it with forces the motion
+    never shows. The support is the point, of
     those in contact on the frame before or after the flight, nearest below the COM on average (points (T, P, 3);
     a support far to one side would turn the body); its contact continues through the flight. Returns the flags
     and (start, stop, point, support) of each relabelled flight, [start, stop) the frames put in contact."""
     flags = np.asarray(flags, bool).copy()
     changed = []
     starts, lengths = runs(flags.any(axis=1))
+    none = np.zeros(flags.shape[1], bool)
     for s, n in zip(starts, lengths, strict=True):
-        if flags[s].any() or s == 0 or s + n == len(flags):
-            continue  # a flight at either end of the clip has no take-off or landing in it to judge it by
+        if flags[s].any():
+            continue
+        # At either end of the clip only the take-off or the landing is in it: the flight's own frames still
+        # show whether the COM falls (nan, left alone, for fewer than 3 frames in all).
         support = flight_support(com[:, 2], times, int(s), int(s + n), gravity)
         if not support > max_support:
             continue
-        candidates = flags[s - 1] | flags[s + n]
+        candidates = (flags[s - 1] if s > 0 else none) | (flags[s + n] if s + n < len(flags) else none)
+        if not candidates.any():
+            continue
         reach = np.linalg.norm(points[s:s + n, :, :2] - com[s:s + n, None, :2], axis=-1).mean(axis=0)
         point = int(np.argmin(np.where(candidates, reach, np.inf)))
         # The contact bridges to the point's own contacts before and after when they resume within the

@@ -6,7 +6,10 @@ the next window starts exactly in the state the previous one reached there (COM 
 orientation and its rate; the contact points and forces), so the stitched motion stays continuous in position
 and velocity and obeys the dynamics across the junction, and the overlap lets each window see what follows.
 Time and memory grow linearly with the clip's length. (Blending two independent solutions over the overlap
-instead would break no-slip and the dynamics there.)
+instead would break no-slip and the dynamics there.) With `parallel_windows` (the default) the windows are solved
+two at a time: the even ones from free starts, then each odd one from its predecessor's state to its successor's
+start, so every junction still continues position and velocity (a contact held through a whole odd window may
+step at its end; docs/decisions/trajopt-long-clips.md).
 
 Failures are loud: a window whose dynamics stage IPOPT does not converge keeps the kinematic motion for its
 frames, flagged in `converged`, and is logged as a warning; the next window starts afresh.
@@ -14,11 +17,16 @@ frames, flagged in `converged`, and is logged as a warning; the next window star
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import logging
 import math
+import multiprocessing
+import os
+import signal
 import time
 from collections.abc import Callable
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -26,11 +34,11 @@ import numpy as np
 from ..body.model import CONTACT_POINTS, BodyModel
 from ..config import TrajoptSettings
 from ..motion import frame_ranges
-from .formulation import Window
+from .formulation import Window, WindowStart
 from .ik import IkTargets, ik_targets, solve_ik
 from .phases import clean_flags, contact_phases, split_drifting, support_held_flights
 from .reduced import boundary_velocity, reduced_motion
-from .solve import StageReport, solve_window
+from .solve import StageReport, WindowResult, solve_window
 
 log = logging.getLogger("physmocap")
 
@@ -43,6 +51,7 @@ MIN_FRAMES = 3  # a run of valid frames shorter than this keeps the kinematic mo
 # 0 in a free fall, 1 standing) is not a flight (phases.support_held_flights); chosen on validation clips of CMU
 # subjects 1, 2, 5, 7 (docs/decisions/trajopt-false-flights.md); 0 .. 1
 FLIGHT_MAX_SUPPORT = 0.5
+PARALLEL_WORKERS = 2  # windows solved at a time with settings.parallel_windows (the even, then the odd ones)
 
 
 @dataclass
@@ -224,12 +233,16 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
         converged=np.zeros(T, bool), corrected=np.zeros(T, bool), qp_failures=np.ones(T, int),
         com=np.full((T, 3), np.nan), com_acceleration=np.full((T, 3), np.nan), euler=np.full((T, 3), np.nan),
         feet=np.full((T, 4, 3), np.nan))
-    for first, end in valid_runs(valid):
-        if end - first < MIN_FRAMES:
-            log.warning("trajopt: frames %d-%d are too few to optimise; the kinematic motion is kept there.",
-                        first, end - 1)
-            continue
-        _solve_run(out, reduced, flags, first, end, fps, settings, progress)
+    solver = _Solver(settings)
+    try:
+        for first, end in valid_runs(valid):
+            if end - first < MIN_FRAMES:
+                log.warning("trajopt: frames %d-%d are too few to optimise; the kinematic motion is kept there.",
+                            first, end - 1)
+                continue
+            _solve_run(out, reduced, flags, first, end, fps, settings, progress, solver)
+    finally:
+        solver.close()
     done = out.converged
     ik_start = time.perf_counter()
     if done.any():
@@ -286,61 +299,183 @@ def _measure_departure(report: WindowReport, result, red, n: int, limit: float |
                     keep - 1, 100 * report.com_departure, 100 * report.feet_departure)
 
 
+@dataclass
+class _Task:
+    """One window to solve, picklable for a worker process: frames [start, stop] solved, [start, keep) kept;
+    `retry` is solved afresh, with what is left of the budget, when `window` does not converge (None: no second
+    try); the solved state is wanted at `state_times` (s) for the neighbouring windows."""
+
+    start: int
+    stop: int
+    keep: int
+    window: Window
+    retry: Window | None
+    state_times: tuple[float, ...] = ()
+
+
+@dataclass
+class _Outcome:
+    """A solved task: the result (without its state function, which does not cross processes), whether the retry
+    was kept, the states at the task's state_times (empty if not converged), and wall seconds."""
+
+    result: WindowResult
+    restarted: bool
+    states: list[WindowStart]
+    seconds: float
+
+
+def _solve_task(task: _Task, settings: TrajoptSettings) -> _Outcome:
+    t0 = time.perf_counter()
+    result = solve_window(task.window, settings)
+    restarted = False
+    left = settings.max_iterations - sum(st.iterations for st in result.stages)
+    if not result.converged and task.retry is not None and left > 0:
+        # No physical continuation of the neighbours' states: solve this window afresh (its start velocity the
+        # input's) with what is left of its budget, breaking continuity at the junction rather than losing it.
+        retry = solve_window(task.retry, settings, left)
+        retry.stages = result.stages + [dataclasses.replace(st, name=f"restart {st.name}") for st in retry.stages]
+        result, restarted = retry, True
+    states = [result.state_at(t) for t in task.state_times] if result.converged else []
+    result._state_at = None
+    return _Outcome(result, restarted, states, time.perf_counter() - t0)
+
+
+def _ignore_interrupts() -> None:
+    """A worker leaves Ctrl-C to the parent, which stops the workers (problem.interrupts_noted then stays out)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+class _Solver:
+    """Solves tasks in this process, or two at a time in forked worker processes where settings.parallel_windows
+    is on, this process has at least two cores, can fork (spawned workers would run the caller's script again
+    unless it is guarded by `if __name__ == "__main__":`) and is not itself a worker of another pool (a batch
+    already keeps the cores busy). Where the tasks run does not change their results."""
+
+    def __init__(self, settings: TrajoptSettings):
+        self.settings = settings
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        forks = "fork" in multiprocessing.get_all_start_methods()
+        self.workers = (PARALLEL_WORKERS if settings.parallel_windows and cores >= PARALLEL_WORKERS and forks
+                        and multiprocessing.parent_process() is None else 1)
+        self.pool: concurrent.futures.ProcessPoolExecutor | None = None
+
+    def map(self, tasks: list[_Task]) -> list[_Outcome]:
+        if self.workers <= 1 or len(tasks) <= 1:
+            return [_solve_task(task, self.settings) for task in tasks]
+        if self.pool is None:
+            self.pool = concurrent.futures.ProcessPoolExecutor(
+                self.workers, multiprocessing.get_context("fork"), initializer=_ignore_interrupts)
+        try:
+            return list(self.pool.map(_solve_task, tasks, [self.settings] * len(tasks)))
+        except BrokenProcessPool:
+            log.warning("trajopt: a worker process solving windows two at a time died (killed for memory?); the "
+                        "windows are solved one after another.")
+            self.close()
+            self.workers = 1
+            return [_solve_task(task, self.settings) for task in tasks]
+
+    def close(self) -> None:
+        """Stops the workers, also on Ctrl-C: a window being solved is not waited for."""
+        if self.pool is None:
+            return
+        processes = list(getattr(self.pool, "_processes", {}).values())  # the executor keeps no public handle
+        self.pool.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
+            process.terminate()
+        for process in processes:
+            process.join()
+        self.pool = None
+
+
+def _record(out: TrajoptMotion, task: _Task, outcome: _Outcome, reduced, settings: TrajoptSettings) -> bool:
+    """A solved window's report and, if converged and near its input, its kept frames into `out`; warnings for
+    what went wrong. Returns whether the window's states may start or end its neighbours."""
+    start, stop, keep, result = task.start, task.stop, task.keep, outcome.result
+    if outcome.restarted and result.converged:
+        log.warning("trajopt: frames %d-%d could not continue the neighbouring windows' motion and were solved "
+                    "afresh: the motion may jump at frame %d.", start, keep - 1, start)
+    report = WindowReport(start, stop, keep, result.converged, result.chosen, result.stages, result.variables,
+                          result.constraints, result.build_seconds, outcome.seconds, restarted=outcome.restarted)
+    out.windows.append(report)
+    kept, n = slice(start, keep), keep - start
+    if result.converged:
+        _measure_departure(report, result, reduced.frames(slice(start, stop + 1)), n, settings.reject_departure)
+    if not result.converged:
+        statuses = ", ".join(f"{st.name}: {st.status}" for st in result.stages)
+        log.warning("trajopt: IPOPT did not converge on frames %d-%d (%s); the kinematic motion is kept there.",
+                    start, keep - 1, statuses)
+        return False
+    if report.departed:  # reported by _measure_departure
+        return False
+    out.converged[kept] = True
+    out.com[kept], out.euler[kept], out.feet[kept] = result.com[:n], result.euler[:n], result.feet[:n]
+    out.com_acceleration[kept] = result.com_acceleration[:n]
+    out.grf[kept] = result.forces[:n]
+    out.contacts[kept] = result.contacts[:n]
+    return True
+
+
 def _solve_run(out: TrajoptMotion, reduced, flags: np.ndarray, first: int, end: int, fps: float,
-               settings: TrajoptSettings, progress) -> None:
-    """The windows of frames [first, end), each starting where the previous one arrived; results into `out`."""
-    T = len(flags)
-    run_com = reduced.com[first:end]
-    previous = None
-    for start, stop, keep in window_ranges(end - first, fps, settings):
-        start, stop, keep = start + first, stop + first, keep + first
-        t0 = time.perf_counter()
+               settings: TrajoptSettings, progress, solver: _Solver) -> None:
+    """The windows of frames [first, end), results into `out`: one after another, each starting where the previous
+    one arrived; or, with settings.parallel_windows and three windows or more, two passes: the even windows from
+    free starts, then each odd one from its predecessor's state to its successor's start
+    (docs/decisions/trajopt-long-clips.md)."""
+    T, times = len(flags), reduced.times
+    ranges = [(a + first, b + first, c + first) for a, b, c in window_ranges(end - first, fps, settings)]
+
+    def window(start: int, stop: int, keep: int, begin=None, arrive=None) -> Window:
         sl = slice(start, stop + 1)
         red = reduced.frames(sl)
-        phases = [contact_phases(flags[sl, i], red.times) for i in range(4)]
-        window = Window(
-            red, phases,
-            start_velocity=boundary_velocity(run_com, fps, settings.boundary_frames, end=False),
-            end_velocity=(boundary_velocity(run_com, fps, settings.boundary_frames, end=True)
-                          if stop == end - 1 else None),
-            start=previous.state_at(reduced.times[start]) if previous is not None else None,
-            freeze_after=reduced.times[keep] if keep < end else np.inf)
-        result = solve_window(window, settings)
-        restarted = False
-        left = settings.max_iterations - sum(st.iterations for st in result.stages)
-        if not result.converged and window.start is not None and left > 0:
-            # No physical continuation of the previous window's state: solve this window afresh (its start
-            # velocity the input's) with what is left of its budget, breaking continuity at the junction rather
-            # than losing the window.
-            retry = solve_window(dataclasses.replace(
-                window, start=None,
-                start_velocity=boundary_velocity(reduced.com[start:end], fps, settings.boundary_frames, end=False)),
-                settings, left)
-            retry.stages = result.stages + [dataclasses.replace(st, name=f"restart {st.name}") for st in retry.stages]
-            result, restarted = retry, True
-            if result.converged:
-                log.warning("trajopt: frames %d-%d could not continue the previous window's motion and were solved "
-                            "afresh: the motion may jump at frame %d.", start, keep - 1, start)
-        kept = slice(start, keep)
-        n = keep - start
-        out.windows.append(WindowReport(start, stop, keep, result.converged, result.chosen, result.stages,
-                                        result.variables, result.constraints, result.build_seconds,
-                                        time.perf_counter() - t0, restarted=restarted))
-        report = out.windows[-1]
-        if result.converged:
-            _measure_departure(report, result, red, n, settings.reject_departure)
-        if result.converged and not report.departed:
-            out.converged[kept] = True
-            out.com[kept], out.euler[kept], out.feet[kept] = result.com[:n], result.euler[:n], result.feet[:n]
-            out.com_acceleration[kept] = result.com_acceleration[:n]
-            out.grf[kept] = result.forces[:n]
-            out.contacts[kept] = result.contacts[:n]
-            previous = result
-        else:
-            if not report.departed:  # a departed window was reported above
-                statuses = ", ".join(f"{s.name}: {s.status}" for s in result.stages)
-                log.warning("trajopt: IPOPT did not converge on frames %d-%d (%s); the kinematic motion is kept "
-                            "there.", start, keep - 1, statuses)
-            previous = None
+        # The clip's first frame matches the input's velocity, and so does a window starting afresh.
+        start_velocity = boundary_velocity(reduced.com[start:end], fps, settings.boundary_frames, end=False)
+        return Window(red, [contact_phases(flags[sl, i], red.times) for i in range(4)],
+                      start_velocity=start_velocity,
+                      end_velocity=(boundary_velocity(reduced.com[first:end], fps, settings.boundary_frames,
+                                                      end=True) if stop == end - 1 else None),
+                      start=begin, freeze_after=times[keep] if keep < end else np.inf, end=arrive)
+
+    done = 0
+
+    def record(task: _Task, outcome: _Outcome) -> bool:
+        nonlocal done
+        usable = _record(out, task, outcome, reduced, settings)
+        done += task.keep - task.start
         if progress:
-            progress(keep, T)
+            progress(first + done, T)
+        return usable
+
+    if not (settings.parallel_windows and len(ranges) >= 3):
+        state = None
+        for start, stop, keep in ranges:
+            task = _Task(start, stop, keep, window(start, stop, keep, begin=state),
+                         retry=window(start, stop, keep) if state is not None else None,
+                         state_times=(times[keep],) if keep < end else ())
+            outcome = solver.map([task])[0]
+            state = outcome.states[0] if record(task, outcome) and outcome.states else None
+        return
+    reports: dict[int, WindowReport] = {}
+    states: dict[int, dict[int, WindowStart]] = {}  # window -> frame -> its solved state there
+    even = [k for k in range(len(ranges)) if k % 2 == 0]
+    tasks = {k: _Task(*ranges[k], window(*ranges[k]), retry=None,
+                      state_times=tuple(times[f] for f in (ranges[k][0], ranges[k][2]) if first < f < end))
+             for k in even}
+    for k, outcome in zip(even, solver.map(list(tasks.values())), strict=True):
+        if record(tasks[k], outcome):
+            states[k] = {f: st for f, st in zip((f for f in (ranges[k][0], ranges[k][2]) if first < f < end),
+                                                outcome.states, strict=True)}
+        reports[k] = out.windows.pop()
+    odd = [k for k in range(len(ranges)) if k % 2 == 1]
+    for k in odd:
+        start, stop, keep = ranges[k]
+        begin = states.get(k - 1, {}).get(start)
+        arrive = states.get(k + 1, {}).get(keep)
+        if arrive is not None:  # solved to the next window's start, where it must arrive
+            stop = keep
+        free = window(*ranges[k])
+        tasks[k] = _Task(start, stop, keep, window(start, stop, keep, begin, arrive),
+                         retry=free if begin is not None or arrive is not None else None)
+    for k, outcome in zip(odd, solver.map([tasks[k] for k in odd]), strict=True):
+        record(tasks[k], outcome)
+        reports[k] = out.windows.pop()
+    out.windows.extend(reports[k] for k in range(len(ranges)))
