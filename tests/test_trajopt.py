@@ -193,6 +193,7 @@ def test_flight_the_motion_does_not_fall_through_keeps_a_support():
     assert support_held_flights(edge, com, points, times, G, 0.5)[1] == []  # falling to the clip's end
 
 
+@pytest.mark.slow
 def test_false_flight_is_not_landed_with_a_force_peak(body, caplog):
     """Standing still, the labels say every point flies for 7 frames at 24 fps: physics must not launch and land
     the body (the flight would need about 2.5 body weights at its ends); the lowest point stays in contact."""
@@ -494,6 +495,7 @@ def test_force_rate_cost_is_the_frames_force_differences(body):
     assert np.isclose(cost, expected, rtol=1e-9)
 
 
+@pytest.mark.slow
 def test_forces_at_24_fps_obey_newton_at_every_frame_without_chatter(body):
     """At 24 fps a grid of 1/60 s from the first frame missed every other frame, and there the forces, free,
     chattered up to 5-6 times body weight on slow tai-chi with flickering contact labels (issue 24)."""
@@ -512,6 +514,7 @@ def test_forces_at_24_fps_obey_newton_at_every_frame_without_chatter(body):
     assert np.abs(np.diff(net[:, 2], 2)).max() < 0.2 * weight
 
 
+@pytest.mark.slow
 def test_standing_is_carried_by_the_feet(body):
     q = standing(body, 40)
     result = run_trajopt(body, q, FPS, np.ones((40, 4), bool), QUICK)
@@ -526,6 +529,7 @@ def test_standing_is_carried_by_the_feet(body):
     assert np.all(result.residual == 0) and np.all(result.qp_failures == 0)
 
 
+@pytest.mark.slow
 def test_jump_has_no_force_in_flight_and_a_ballistic_com(body):
     q, in_air = jump(body, frames=50, takeoff=18)
     contacts = np.repeat(~in_air[:, None], 4, axis=1)
@@ -540,6 +544,7 @@ def test_jump_has_no_force_in_flight_and_a_ballistic_com(body):
     assert result.grf[..., 2].sum(axis=1).max() > 1.2 * body.mass * G
 
 
+@pytest.mark.slow
 def test_sliding_sinking_input_is_planted(body):
     """A kinematic motion whose feet slide 20 cm and sink 2 cm while labelled in contact comes out still and
     on the floor, the upper body near the input (the drifting contacts kept whole: contact_drift off)."""
@@ -566,6 +571,7 @@ def sway(body, frames):
     return q
 
 
+@pytest.mark.slow
 def test_long_clips_are_windowed_and_stitched_continuously(body):
     q = sway(body, 100)
     s = TrajoptSettings(window_seconds=1.5, window_overlap=0.5, contact_drift=0.0, parallel_windows=False)
@@ -583,6 +589,7 @@ def test_long_clips_are_windowed_and_stitched_continuously(body):
     assert abs(np.abs(result.grf[..., 1].sum(axis=1)).max() - expected) < 0.3 * expected
 
 
+@pytest.mark.slow
 def test_windows_two_at_a_time_meet_each_other_whoever_solves_them(body, monkeypatch):
     """parallel_windows: the even windows from free starts, then each odd one from its predecessor's state to its
     successor's start; the same numbers whether worker processes or this one solve them (issue 23)."""
@@ -619,6 +626,7 @@ def test_failure_is_loud_and_keeps_the_kinematic_motion(body, caplog):
     assert result.failed_frames == ["0-39"]
 
 
+@pytest.mark.slow
 def test_every_window_keeps_within_its_iteration_budget(body):
     """All IPOPT runs of a window (fit, dynamics, a restart) share settings.max_iterations: on long clips a window
     that wandered to each stage's limit and then restarted cost 20-70 times a converged one (issue 23)."""
@@ -633,6 +641,7 @@ def test_every_window_keeps_within_its_iteration_budget(body):
     assert not result.converged.all()
 
 
+@pytest.mark.slow
 def test_duration_stage_keeps_the_better_solution(body):
     q, in_air = jump(body, frames=40, takeoff=12)
     contacts = np.repeat(~in_air[:, None], 4, axis=1)
@@ -648,6 +657,7 @@ def test_duration_stage_keeps_the_better_solution(body):
     check_physics(body, result, s)
 
 
+@pytest.mark.slow
 def test_durations_program_shares_the_layout(body):
     q, in_air = jump(body, frames=30, takeoff=8, flight=0.3)
     red = reduced_motion(body, q, FPS)
@@ -677,6 +687,7 @@ def test_com_acceleration_may_jump_only_where_a_contact_begins_or_ends(body):
     assert everywhere - rows(s) == 2 * 3 * near.sum()
 
 
+@pytest.mark.slow
 def test_frames_without_observations_split_the_clip(body):
     q = sway(body, 70)
     valid = np.ones(70, bool)
@@ -690,6 +701,7 @@ def test_frames_without_observations_split_the_clip(body):
     assert not tiny.converged.any() and np.array_equal(tiny.qpos, q[:2])
 
 
+@pytest.mark.slow
 def test_a_solution_far_from_the_input_is_not_used(body, caplog):
     """Feet labelled in contact while they slide 40 cm: the converged motion keeps them still, so its centre of
     mass ends far from the input's; beyond reject_departure the window is flagged and the input kept."""
@@ -736,6 +748,7 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
+@pytest.mark.slow
 def test_ctrl_c_inside_the_solver_stops_the_run_and_caches_nothing(tmp_path):
     out = tmp_path / "run"
     capture = ["capture", str(DEMO_VIDEO), "-o", str(out), "--no-overlay"]

@@ -94,14 +94,10 @@ class PhysicsSettings(Section):
     kd_root_translation: float = setting(80.0, "1/s", (0.0, 1e4), "damping of the root's position")
     kp_root_horizontal: float | None = setting(250.0, "1/s^2", (0.0, 1e4), "stiffness of its horizontal position "
                                                "(ours; None: kp_root_translation): stiffer passes fit noise to forces")
-    kd_root_horizontal: float | None = setting(32.0, "1/s", (0.0, 1e4), "damping of its horizontal position (None: "
-                                               "kd_root_translation)")
-    acceleration_feedforward: float = setting(1.0, "", (0.0, 1.0), "share of the kinematic acceleration fed "
-                                              "forward in eq. (4) (paper 1), times x / (e^x - 1), x = kd / fps")
-    velocity_smoothing: float = setting(0.03, "s", (0.0, 1.0), "time constant smoothing the kinematic velocity of "
-                                        "eq. (4), whose noise kd passes on; 0: none")
-    rotation_velocity_share: float = setting(0.8, "", (0.0, 1.0), "share of the target's rotational velocity in "
-                                             "eq. (4) (paper 1), the rest damping the character's own")
+    kd_root_horizontal: float | None = setting(32.0, "1/s", (0.0, 1e4), "its damping (None: kd_root_translation)")
+    acceleration_feedforward: float = setting(1.0, "", (0.0, 1.0), "eq. (4) feed-forward times x/(e^x-1), x = kd/fps")
+    velocity_smoothing: float = setting(0.03, "s", (0.0, 1.0), "smoothing of eq. (4)'s kinematic velocity; 0: none")
+    rotation_velocity_share: float = setting(0.8, "", (0.0, 1.0), "of the rotational velocity eq. (4) tracks (paper 1)")
     contact_height: float = setting(0.1, "m", (0.0, 1.0), "psi of eq. (5): predicted contacts count only below it")
     target_lift_time: float | None = setting(0.1, "s", (0.001, 10.0), "time constant lifting a target whose "
                                              "contacts sink under the floor, which held the body (None: off)")
@@ -116,10 +112,8 @@ class PhysicsSettings(Section):
     foot_lock: str = setting("auto", choices=("auto", "always", "never"), help="contacts: predicted; any sole point "
                              "within contact_height; none and no floor (airborne)")
     penetration_recovery: float = setting(0.1, "s", (1e-3, 1.0), "a point under the floor rises back at depth / this")
-    contact_settle_time: float = setting(0.05, "s", (1e-3, 1.0), "tracking B.4's motion, a held contact point "
-                                         "above its target comes down at (height above it) / this")
-    release_distance: float | None = setting(0.05, "m", (0.0, 1.0), "a contact whose target moved farther along "
-                                             "the floor is released, not dragging the body (None: never)")
+    contact_settle_time: float = setting(0.05, "s", (1e-3, 1.0), "a held point above its target drops at height / this")
+    release_distance: float | None = setting(0.05, "m", (0.0, 1.0), "freed past this slide of its target (None: never)")
     touch_margin: float = setting(0.003, "m", (0.0, 0.1), "sole points this close collide with the floor (eq. 5)")
     floor_clearance: float = setting(0.0005, "m", (0.0, 0.01), "physics floor this far up: turning feet dip under it")
     floor_refit_interval: float | None = setting(3.0, "s", (0.1, 60.0), "between online refits of the floor to the "
@@ -163,8 +157,7 @@ class TrajoptSettings(Section):
     floor_roll_prior: float = setting(0.002, "", (0.0, 10.0), "the same about the view axis, which the image fixes")
     contact_slip_speed: float = setting(1.2, "m/s", (0.0, 100.0), "contacts sliding faster are dropped (ours); 0: off")
     contact_slip_interval: float = setting(0.1, "s", (0.01, 1.0), "over which that and rest_speed are measured")
-    rest_height: float = setting(0.02, "m", (0.0, 0.5), "points lower and slower than rest_speed for "
-                                 "min_phase_seconds become contacts (ours); 0: off")
+    rest_height: float = setting(0.02, "m", (0.0, 0.5), "below this and slower than rest_speed: contact (ours); 0: off")
     rest_speed: float = setting(0.6, "m/s", (0.0, 10.0), "Rempe's label speed (3.2)")
     com_interval: float = setting(0.05, "s", (0.02, 1.0), "between COM polynomial knots (C.1; paper 0.1)")
     segments_per_phase: int = setting(6, "", (1, 50), "least polynomials per foot flight and force phase")
@@ -174,12 +167,10 @@ class TrajoptSettings(Section):
     constraints: tuple[str, ...] = setting(TRAJOPT_CONSTRAINTS, choices=TRAJOPT_CONSTRAINTS, help="sets used (C.2)")
     dynamics_interval: float = setting(0.1, "s", (0.0, 1.0), "between Newton-Euler constraints; 0: every frame")
     internal_momentum: bool = setting(True, help="Euler's equation counts the limbs' momentum about the COM (ours)")
-    linear_dynamics_interval: float = setting(1.0 / 60.0, "s", (0.0, 1.0), "between Newton's equations (ours: "
-                                              "forces free between samples averaged 241% of body weight)")
+    linear_dynamics_interval: float = setting(1.0 / 60.0, "s", (0.0, 1.0), "between Newton samples (ours); 0: frames")
     kinematic_interval: float = setting(0.08, "s", (0.0, 1.0), "between foot- and leg-length constraints")
     floor_interval: float = setting(0.1, "s", (0.0, 1.0), "between above-floor constraints of feet in flight")
-    contact_change_reach: float = setting(2.0, "knot intervals", (0.0, 10.0), "acceleration_continuity skips COM "
-                                          "knots this close to a contact change (ours)")
+    contact_change_reach: float = setting(2.0, "knot intervals", (0.0, 10.0), "COM knots this near a change: only C1")
     boundary_frames: int = setting(5, "frames", (1, 100), "whose mean COM velocity the first and last must match")
     max_force: float = setting(1000.0, "N", (10.0, 1e5), "f_max: largest normal force of one contact point")
     friction: float = setting(0.5, "", (0.05, 2.0), "mu of the friction pyramid")
@@ -198,21 +189,18 @@ class TrajoptSettings(Section):
     optimize_durations: bool = setting(False, help="C.3's last stage, free phase durations (10x the time)")
     max_duration_change: float = setting(0.1, "s", (0.0, 1.0), "each phase boundary may move there (ours)")
     tolerance: float = setting(1e-6, "", (1e-10, 1.0), "IPOPT tol (looser: the COM wiggles, standing forces err)")
-    max_iterations: int = setting(1000, "", (1, 100000), "IPOPT iterations per window, all its stages and a "
-                                  "restart together")
+    max_iterations: int = setting(1000, "", (1, 100000), "IPOPT iterations per window, its stages and restart together")
     max_seconds: float = setting(120.0, "s", (0.1, 1e5), "CPU-time limit of one IPOPT run (not wall: load-proof)")
     reject_departure: float | None = setting(0.3, "m", (0.01, 10.0), "windows whose COM ends farther from the "
                                              "input on average are not used (ours; None: all kept)")
     window_seconds: float = setting(4.0, "s", (0.5, 600.0), "long clips are solved in windows this long (ours)")
     window_overlap: float = setting(1.0, "s", (0.0, 300.0), "a window looks beyond what it keeps; <= window_seconds/2")
-    parallel_windows: bool = setting(True, help="solve windows two at a time: the even ones, then the odd ones "
-                                     "between their states (docs/decisions/trajopt-long-clips.md)")
+    parallel_windows: bool = setting(False, help="solve windows two at a time (docs/decisions/trajopt-long-clips.md)")
     rotate_upper_body: bool = setting(True, help="C.4: upper body turns with the optimised orientation (ours)")
     ik_feet_weight: float = setting(100.0, "", (0.01, 1e6), "of the heel and toe targets against the upper body's")
     ik_leg_weight: float = setting(1.0, "", (0.0, 1e6), "of the knees' and ankles' offsets (ours; paper 0)")
     ik_iterations: int = setting(20, "", (1, 200), "Levenberg-Marquardt iterations of the IK")
-    force_rate: float = setting(1e-5, "(body weights/s)^-2", (0.0, 1e4), "w_f of the force_rate cost (ours; "
-                                "docs/decisions/trajopt-force-chatter.md)")
+    force_rate: float = setting(1e-5, "(body weights/s)^-2", (0.0, 1e4), "w_f of the force_rate cost (ours)")
 
     def check(self):
         super().check()
@@ -231,8 +219,7 @@ class Settings(Section):
     physics: PhysicsSettings = field(default_factory=PhysicsSettings)
     trajopt: TrajoptSettings = field(default_factory=TrajoptSettings)
     online: bool = setting(False, help="causal per-frame fit (live use) instead of the whole clip at once")
-    overlay_width: int = setting(1280, "px", (160, 7680), "overlay.mp4 is drawn at most this wide, 4x faster than "
-                                 "1080p (0: the video's own width)", also=0)
+    overlay_width: int = setting(1280, "px", (160, 7680), "overlay.mp4 at most this wide (0: the video's)", also=0)
 
     def check(self) -> Settings:
         super().check()

@@ -6,10 +6,10 @@ the next window starts exactly in the state the previous one reached there (COM 
 orientation and its rate; the contact points and forces), so the stitched motion stays continuous in position
 and velocity and obeys the dynamics across the junction, and the overlap lets each window see what follows.
 Time and memory grow linearly with the clip's length. (Blending two independent solutions over the overlap
-instead would break no-slip and the dynamics there.) With `parallel_windows` (the default) the windows are solved
+instead would break no-slip and the dynamics there.) With `parallel_windows` (off by default) the windows are solved
 two at a time: the even ones from free starts, then each odd one from its predecessor's state to its successor's
 start, so every junction still continues position and velocity (a contact held through a whole odd window may
-step at its end; docs/decisions/trajopt-long-clips.md).
+step at its end, 11 mm measured: why it is off; docs/decisions/trajopt-long-clips.md).
 
 Failures are loud: a window whose dynamics stage IPOPT does not converge keeps the kinematic motion for its
 frames, flagged in `converged`, and is logged as a warning; the next window starts afresh.
