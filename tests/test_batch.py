@@ -111,7 +111,9 @@ def test_interrupted_batch_resumes_and_redoes_no_finished_run(inputs, tmp_path):
     listing = tmp_path / "inputs.txt"
     listing.write_text(f"# two observations files and a clip\n{inputs['obs']}\nmore.npz\n\n{inputs['clip']}\n")
     command = [sys.executable, "-m", "physmocap.cli", "batch", listing, "-o", out, "--workers", "1", *FAST]
-    batch = subprocess.Popen(list(map(str, command)), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # Ctrl-C as on a terminal: a test run in the background (a shell's `&`) would hand SIGINT on ignored.
+    batch = subprocess.Popen(list(map(str, command)), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 300
     while not list(out.glob("*/batch.json")) and batch.poll() is None and time.monotonic() < deadline:
         time.sleep(0.05)
