@@ -40,7 +40,7 @@ def assert_frame_terms_jacobian(fitter, q, targets, atol=2e-6):
 try:
     from hypothesis import settings as _hypothesis_settings
 
-    _hypothesis_settings.register_profile("ci", max_examples=150, deadline=None, derandomize=True)
+    _hypothesis_settings.register_profile("ci", max_examples=100, deadline=None, derandomize=True)
     _hypothesis_settings.register_profile("long", max_examples=1000, deadline=None)
     _hypothesis_settings.load_profile("ci")
 except ImportError:  # hypothesis is a test dependency; only test_fuzz.py needs it

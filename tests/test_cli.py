@@ -11,6 +11,7 @@ import pytest
 from conftest import DEMO_VIDEO
 from physmocap.io.video import VideoWriter
 from physmocap.result import REQUIRED_KEYS, RESULT_POINTS, load_result
+from test_bad_inputs import run_cli
 
 pytestmark = pytest.mark.slow  # the command line on real clips
 
@@ -150,14 +151,21 @@ def test_nonsense_settings(tmp_path, args, words):
     assert not (tmp_path / "o").exists()
 
 
+def physmocap_in_process(*args):
+    """The command line run in this process (no interpreter and torch start-up), as a CompletedProcess."""
+    code, out, err = run_cli(*args)
+    return subprocess.CompletedProcess(args, code, out, err)
+
+
 def test_train_contacts_on_bad_data_fails_with_one_sentence(tmp_path):
     """Before any training starts: no mocap/ folder, a mocap/ folder without BVH files, a text file named .bvh."""
     out = tmp_path / "weights"
-    assert_clean_failure(physmocap("train-contacts", "--data", tmp_path, "--out", out), "no mocap/ folder")
+    train = ("train-contacts", "--data", tmp_path, "--out", out)
+    assert_clean_failure(physmocap_in_process(*train), "no mocap/ folder")
     (tmp_path / "mocap").mkdir()
-    assert_clean_failure(physmocap("train-contacts", "--data", tmp_path, "--out", out), "no .bvh files")
+    assert_clean_failure(physmocap_in_process(*train), "no .bvh files")
     (tmp_path / "mocap" / "01_01.bvh").write_text("not a motion capture file\n")
-    assert_clean_failure(physmocap("train-contacts", "--data", tmp_path, "--out", out), "01_01.bvh", "not a BVH")
+    assert_clean_failure(physmocap_in_process(*train), "01_01.bvh", "not a BVH")
     assert not out.exists()
 
 

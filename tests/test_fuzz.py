@@ -1,7 +1,7 @@
 """Property-based tests (hypothesis): generated observations files and settings files run through the command line
 in-process always end with a documented exit code, no traceback on stderr and nothing half-written in -o.
 
-CI runs the default profile (a few hundred examples, well under two minutes); `pytest tests/test_fuzz.py
+CI runs the default profile (100 examples per test, well under a minute); `pytest tests/test_fuzz.py
 --hypothesis-profile=long` runs thousands (see BENCHMARKS.md, "Bad inputs (issue 22)")."""
 
 from __future__ import annotations
