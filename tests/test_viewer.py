@@ -11,8 +11,9 @@ import cv2
 import numpy as np
 import pytest
 
+from physmocap.body.support import convex_hull_2d
 from physmocap.io.video import VideoWriter
-from physmocap.viz.viewer import convex_hull_2d, distance_to_polygon, support_polygons, write_viewer
+from physmocap.viz.viewer import distance_to_polygon, support_polygons, write_viewer
 from test_export import synthetic_result
 
 pytestmark = pytest.mark.slow  # a headless browser opens the viewer
@@ -161,7 +162,7 @@ def test_one_minute_clip_opens_in_under_2s_and_plays_at_its_frame_rate(browser, 
 
 
 def test_support_polygon_geometry():
-    square = convex_hull_2d(np.array([[0.0, 0.0], [1.0, 1.0], [1.0, 0.0], [0.0, 1.0], [0.5, 0.5]]))
+    square = np.array(convex_hull_2d(np.array([[0.0, 0.0], [1.0, 1.0], [1.0, 0.0], [0.0, 1.0], [0.5, 0.5]])))
     assert len(square) == 4 and np.cross(square[1] - square[0], square[2] - square[1]) > 0  # counter-clockwise
     assert distance_to_polygon(np.array([0.5, 0.5]), square) == 0.0
     assert distance_to_polygon(np.array([1.5, 0.5]), square) == pytest.approx(0.5)

@@ -12,35 +12,17 @@ import numpy as np
 from ..body.kinematics import rigid_transform_qpos
 from ..body.model import CONTACT_POINTS, BodyModel
 from ..body.rotations import axis_angle_matrix, quat_exp, quat_log
+from ..body.support import convex_hull_2d
 
 UP = np.array([0.0, 0.0, 1.0])
 SMALL_LEAN = np.radians(2.0)  # below this the tilt is done and the legs are straightened instead
-
-
-def convex_hull(points: list[list[float]]) -> list[list[float]]:
-    """The 2D convex hull of a few points, counter-clockwise, without collinear points (Andrew's monotone chain:
-    for the four sole points, a hundred times quicker than Qhull)."""
-    points = sorted(points)
-    if len(points) < 3:
-        return points
-
-    def half(ordered):
-        chain: list[list[float]] = []
-        for p in ordered:
-            while len(chain) >= 2 and ((chain[-1][0] - chain[-2][0]) * (p[1] - chain[-2][1])
-                                       - (chain[-1][1] - chain[-2][1]) * (p[0] - chain[-2][0])) <= 0.0:
-                chain.pop()
-            chain.append(p)
-        return chain[:-1]
-
-    return half(points) + half(points[::-1])
 
 
 def inside_support(point: np.ndarray, support: np.ndarray, margin: float = 0.02) -> bool:
     """Whether the 2D `point` lies in the convex hull of `support` (k, 2), grown by `margin` metres."""
     if len(support) == 0:
         return False
-    hull = convex_hull(support.tolist())
+    hull = convex_hull_2d(support.tolist())
     if len(hull) >= 3:
         x, y = float(point[0]), float(point[1])
         for (ax, ay), (bx, by) in zip(hull, hull[1:] + hull[:1], strict=True):

@@ -21,6 +21,7 @@ import numpy as np
 
 from ..body.kinematics import center_of_mass, forward_kinematics
 from ..body.model import CONTACT_POINTS
+from ..body.support import convex_hull_2d
 from ..export import body_from_result
 from ..io.atomic import write_text
 from ..io.finite import finite_result
@@ -31,25 +32,6 @@ SUPPORT_MARGIN = 0.05  # m: a centre of mass this close to the support polygon s
 GHOST_OFFSET = 1.0  # m beside the final motion, to the right as the video camera sees it
 DATA_PLACEHOLDER = "/*PHYSMOCAP_DATA*/"
 SCRIPT_PLACEHOLDER = "/*PHYSMOCAP_SCRIPT*/"
-
-
-def convex_hull_2d(points: np.ndarray) -> np.ndarray:
-    """(n, 2) points -> (k, 2) hull vertices counter-clockwise (Andrew's monotone chain); fewer than three
-    distinct points come back as they are (a point or a segment)."""
-    unique = np.unique(np.asarray(points, dtype=float), axis=0)
-    if len(unique) < 3:
-        return unique
-
-    def half(sequence: np.ndarray) -> list[np.ndarray]:
-        chain: list[np.ndarray] = []
-        for p in sequence:
-            while len(chain) >= 2 and np.cross(chain[-1] - chain[-2], p - chain[-2]) <= 0:
-                chain.pop()
-            chain.append(p)
-        return chain
-
-    lower, upper = half(unique), half(unique[::-1])
-    return np.array(lower[:-1] + upper[:-1])
 
 
 def distance_to_polygon(point: np.ndarray, polygon: np.ndarray) -> float:
@@ -78,7 +60,7 @@ def support_polygons(contact_points: np.ndarray, contacts: np.ndarray) -> tuple[
     T = len(contact_points)
     vertices, counts = np.zeros((T, 4, 2)), np.zeros(T, dtype=np.uint8)
     for t in range(T):
-        hull = convex_hull_2d(contact_points[t, np.asarray(contacts[t], bool), :2])
+        hull = np.array(convex_hull_2d(contact_points[t, np.asarray(contacts[t], bool), :2]), float).reshape(-1, 2)
         vertices[t, :len(hull)], counts[t] = hull, len(hull)
     return vertices, counts
 
