@@ -457,13 +457,13 @@ def _solve_run(out: TrajoptMotion, reduced, flags: np.ndarray, first: int, end: 
     reports: dict[int, WindowReport] = {}
     states: dict[int, dict[int, WindowStart]] = {}  # window -> frame -> its solved state there
     even = [k for k in range(len(ranges)) if k % 2 == 0]
-    tasks = {k: _Task(*ranges[k], window(*ranges[k]), retry=None,
-                      state_times=tuple(times[f] for f in (ranges[k][0], ranges[k][2]) if first < f < end))
+    # An even window's states where its odd neighbours begin (its start) and end (its keep), inside the run.
+    junctions = {k: [f for f in (ranges[k][0], ranges[k][2]) if first < f < end] for k in even}
+    tasks = {k: _Task(*ranges[k], window(*ranges[k]), retry=None, state_times=tuple(times[f] for f in junctions[k]))
              for k in even}
     for k, outcome in zip(even, solver.map(list(tasks.values())), strict=True):
         if record(tasks[k], outcome):
-            states[k] = {f: st for f, st in zip((f for f in (ranges[k][0], ranges[k][2]) if first < f < end),
-                                                outcome.states, strict=True)}
+            states[k] = dict(zip(junctions[k], outcome.states, strict=True))
         reports[k] = out.windows.pop()
     odd = [k for k in range(len(ranges)) if k % 2 == 1]
     for k in odd:
