@@ -204,16 +204,22 @@ def force_check(grf: np.ndarray, converged: np.ndarray, implied: np.ndarray, mas
                 converged_fraction=float(converged.mean()))
 
 
+def refined_clip(name: str, fps: float, settings_trajopt: TrajoptSettings):
+    """Observations, truth and the B.4-refined motion (the pipeline's trajopt input) of `name`'s first SECONDS at
+    `fps`, seed 0."""
+    obs, truth, settings = observe(name, 0, SECONDS, fps)
+    motion = fit_motion(obs, settings)
+    contacts, _, _ = predict_contacts(obs, "centred")
+    return obs, truth, refine_kinematics(obs, motion, contacts, settings.fit, settings_trajopt)
+
+
 def validation(weights: list[float], fps_values: list[float]) -> list[dict]:
     """Trajopt's accuracy and forces on the validation clips (VALIDATION_CLIPS, subjects the reported test set
     does not hold) at each frame rate, for each force_rate weight: what the weight is chosen on."""
     rows = []
     for name in VALIDATION_CLIPS:
         for fps in fps_values:
-            obs, truth, settings = observe(name, 0, SECONDS, fps)
-            motion = fit_motion(obs, settings)
-            contacts, _, _ = predict_contacts(obs, "centred")
-            refined = refine_kinematics(obs, motion, contacts, settings.fit, TrajoptSettings())
+            obs, truth, refined = refined_clip(name, fps, TrajoptSettings())
             body = refined.motion.body
             names = [str(n) for n in truth["joint_names"]]
             true_com = kin.center_of_mass_from_points(body, truth["joints_world"], names)
@@ -256,11 +262,8 @@ def flights(fps_values: list[float]) -> list[dict]:
     rows = []
     for name in FLIGHT_CLIPS:
         for fps in fps_values:
-            obs, truth, settings = observe(name, 0, SECONDS, fps)
-            motion = fit_motion(obs, settings)
-            contacts, _, _ = predict_contacts(obs, "centred")
             s = TrajoptSettings()
-            refined = refine_kinematics(obs, motion, contacts, settings.fit, s)
+            _, truth, refined = refined_clip(name, fps, s)
             red = reduced_motion(refined.motion.body, refined.motion.qpos, fps)
             min_frames = max(1, int(np.ceil(s.min_phase_seconds * fps - 1e-9)))
             flags = np.stack([clean_flags(refined.contacts[:, i], min_frames) for i in range(4)], axis=1)
