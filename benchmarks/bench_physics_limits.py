@@ -442,6 +442,16 @@ def part_speed_alternating(against: str, rounds: int = 7) -> dict:
 
 
 # ---- report ---------------------------------------------------------------------------------------------------
+def _speed_table(sp: dict, title: str, cell) -> list[str]:
+    """A speed part's table: a row per code version, a column per frame rate; cell(label, rate, median) its text."""
+    rates = list(sp["this branch"])
+    lines = [title, "", "| code | " + " | ".join(f"{r} fps" for r in rates) + " |", "|---|" + "---|" * len(rates)]
+    for label in ("this branch", "before"):
+        name = label if label == "this branch" else f"before ({sp['against']})"
+        lines.append(f"| {name} | " + " | ".join(cell(label, r, v) for r, v in sp[label].items()) + " |")
+    return lines + [""]
+
+
 def markdown(out: dict) -> str:
     lines = []
     if "framerate" in out:
@@ -486,25 +496,15 @@ def markdown(out: dict) -> str:
         lines.append("")
     if "speed" in out:
         sp = out["speed"]
-        lines += [f"**Speed** (frames per CPU second of the physics stage, median of 3 child processes x 3 runs, "
-                  f"alternating; load average {sp['load_average']:.1f})", "",
-                  "| code | " + " | ".join(f"{r} fps" for r in sp["this branch"]) + " |",
-                  "|---|" + "---|" * len(sp["this branch"])]
-        for label in ("this branch", "before"):
-            name = label if label == "this branch" else f"before ({sp['against']})"
-            lines.append(f"| {name} | " + " | ".join(f"{v:.0f}" for v in sp[label].values()) + " |")
-        lines.append("")
+        lines += _speed_table(sp, f"**Speed** (frames per CPU second of the physics stage, median of 3 child "
+                              f"processes x 3 runs, alternating; load average {sp['load_average']:.1f})",
+                              lambda label, rate, v: f"{v:.0f}")
     if "speed_alternating" in out:
         sp = out["speed_alternating"]
-        lines += [f"**Speed, alternating in one process** (frames per CPU second of the physics stage, median (best) "
-                  f"of {sp['rounds']} runs each; load average {sp['load_average']:.1f})", "",
-                  "| code | " + " | ".join(f"{r} fps" for r in sp["this branch"]) + " |",
-                  "|---|" + "---|" * len(sp["this branch"])]
-        for label in ("this branch", "before"):
-            name = label if label == "this branch" else f"before ({sp['against']})"
-            lines.append(f"| {name} | " + " | ".join(f"{v:.0f} ({sp[label + ' best'][r]:.0f})"
-                                                    for r, v in sp[label].items()) + " |")
-        lines.append("")
+        lines += _speed_table(sp, f"**Speed, alternating in one process** (frames per CPU second of the physics "
+                              f"stage, median (best) of {sp['rounds']} runs each; load average "
+                              f"{sp['load_average']:.1f})",
+                              lambda label, rate, v: f"{v:.0f} ({sp[label + ' best'][rate]:.0f})")
     if "methods" in out:
         lines += ["**Offline methods**", "", "| method | root-rel. mm | Procrustes mm | global root mm | "
                   "skate % | float % | penetr. % | jitter m/s² | e_smooth mm | GRF mean % BW | GRF mean walks % BW "
