@@ -273,6 +273,23 @@ def test_feet_stay_planted_while_the_source_slides_and_the_pose_stays_the_source
     assert np.allclose(joints - joints[:, :1], source - source[:, :1], atol=1e-3)
 
 
+def test_a_foot_held_off_its_reach_stays_out_of_the_floor():
+    """Both feet held while the source's right leg swings 1.5 degrees a frame: the held right foot cannot both stay
+    on its spot and follow the pose, and whatever the IK gives up, it is not the floor (a wall)."""
+    body = build_body_model(template_lengths(1.70), 65.0)
+    frames = 30
+    qpos = np.tile(body.rest_qpos, (frames, 1))
+    tab = kin.tables(body)
+    hip = tab.qadr[[b.name for b in body.bodies].index("right_thigh")]
+    angle = -np.radians(1.5) * np.arange(frames)
+    qpos[:, hip:hip + 4] = np.stack([np.cos(angle / 2), 0 * angle, np.sin(angle / 2), 0 * angle], axis=1)
+    solved, spots = solve_feet(body, qpos, np.ones((frames, 4), bool))
+    source_feet = kin.forward_kinematics(body, qpos).points[:, body.point_index(CONTACT_POINTS)]
+    assert np.nanmax(np.linalg.norm(source_feet - spots, axis=-1)) > 0.1  # the pose pulls the foot off its spot
+    feet = kin.forward_kinematics(body, solved).points[:, body.point_index(CONTACT_POINTS)]
+    assert feet[..., 2].min() > -0.002
+
+
 def test_a_foot_touching_down_heel_after_toe_keeps_its_own_shape():
     """The toe held while the body drifts, then the heel touches down: the heel's spot is placed from the toe's, so
     the two spots lie as far apart as the foot's points do (a foot is rigid), not where the body's offset says."""

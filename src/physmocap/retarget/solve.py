@@ -31,7 +31,7 @@ from ..body.model import CONTACT_POINTS, JOINT_NAMES, BodyModel
 
 POSE_WEIGHT = 1.0  # each joint's pull towards the scaled source pose (residual in metres)
 CONTACT_WEIGHT = 30.0  # a contact point's pull to its planted spot; much stronger than the pose, so feet stay put
-FLOOR_WEIGHT = 30.0  # a contact point below the floor, pushed up
+FLOOR_WEIGHT = 1000.0  # a point below the floor, pushed up: a wall, so a contact held off its spot never sinks
 IK_ITERATIONS = 12
 STEP_TOLERANCE = 1e-6  # stop once no frame's Gauss-Newton step exceeds this (metres or radians)
 IK_DAMPING = 1e-4  # Levenberg-Marquardt damping relative to the normal matrix's mean diagonal
