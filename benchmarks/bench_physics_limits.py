@@ -24,8 +24,8 @@ MediaPipe-like noise, the true intrinsics and height, 8 s at 30 fps, seeds 0 and
     .venv/bin/python benchmarks/bench_physics_limits.py [--parts framerate diagnosis online methods] [--quick]
         [--set validation] [--methods ROW ...] [--physics NAME=VALUE ...]
 
---set validation runs parts methods and framerate on the validation clips (CMU training subjects 2, 5, 7), where
-settings are chosen; --physics tries PhysicsSettings values there (e.g. contact_settle_time=0.1).
+--set validation runs parts methods, framerate and online on the validation clips (CMU training subjects 2, 5, 7),
+where settings are chosen; --physics tries PhysicsSettings values there (e.g. contact_settle_time=0.1).
 
 Writes benchmarks/results/physics_limits.json and .md. Fits are cached under the system's temporary folder
 (physmocap_bench_physics_limits) so that parts can be rerun alone.
@@ -546,8 +546,8 @@ def main(argv=None) -> dict:
     parser.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS),
                         help="the rows of part methods")
     parser.add_argument("--physics", nargs="*", default=[], metavar="NAME=VALUE",
-                        help="PhysicsSettings fields for PhysCap in parts methods and framerate (trying settings on "
-                             "validation clips)")
+                        help="PhysicsSettings fields for PhysCap in parts methods, framerate and online (trying "
+                             "settings on validation clips)")
     parser.add_argument("--json", default=str(RESULTS / "physics_limits.json"))
     parser.add_argument("--against", default=str(Path(__file__).resolve().parents[2] / "main" / "src"),
                         help="src folder of the code to time against in part speed (default: ../main/src)")
@@ -569,7 +569,8 @@ def main(argv=None) -> dict:
         elif part == "diagnosis":
             out[part] = part_diagnosis(walking, seeds)
         elif part == "online":
-            out[part] = part_online(clips, seeds)
+            out[part] = part_online(clips, seeds, dataclasses.replace(PhysicsSettings(),
+                                                                      **settings_overrides(args.physics)))
         elif part == "methods":
             out[part] = part_methods(clips, seeds, args.methods, walks, settings_overrides(args.physics))
         elif part == "speed":
