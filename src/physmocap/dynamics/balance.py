@@ -74,7 +74,7 @@ class BalanceCorrector:
             return q_kin, False
         lean = np.arccos(np.clip(spine @ UP / np.linalg.norm(spine), -1.0, 1.0))
         q = q_kin
-        axis = np.cross(spine, UP)
+        axis = np.array([spine[1], -spine[0], 0.0])  # spine x UP
         if np.linalg.norm(axis) > 1e-9:
             axis /= np.linalg.norm(axis)
             tilt = min(self.tilt, lean)
