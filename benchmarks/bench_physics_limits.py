@@ -411,7 +411,8 @@ def part_speed(against: str, rounds: int = 3, repeats: int = 3) -> dict:
 def part_speed_alternating(against: str, rounds: int = 7) -> dict:
     """Frames per CPU second (median and best of `rounds`) of this tree's physics stage and of the dynamics package
     of the tree whose src folder is `against`, loaded beside it in one process (the rest of physmocap is this
-    tree's) and alternated run by run, so that a busy machine's changing load falls on both alike."""
+    tree's; each runs with its own tree's default PhysicsSettings) and alternated run by run, so that a busy
+    machine's changing load falls on both alike."""
     import importlib
     import importlib.util
 
@@ -422,6 +423,13 @@ def part_speed_alternating(against: str, rounds: int = 7) -> dict:
     sys.modules[spec.name] = package
     spec.loader.exec_module(package)
     runners = {"this branch": run_physcap, "before": importlib.import_module(f"{spec.name}.stage").run_physcap}
+    # each tree's own default physics settings (a renamed setting would break the other tree's code)
+    config_spec = importlib.util.spec_from_file_location("physmocap.config_against",
+                                                         Path(against) / "physmocap" / "config.py")
+    config_against = importlib.util.module_from_spec(config_spec)
+    sys.modules[config_spec.name] = config_against
+    config_spec.loader.exec_module(config_against)
+    physics_settings = {"this branch": PhysicsSettings(), "before": config_against.PhysicsSettings()}
     case = build_case(CLIPS[0], 0, 60.0, online=False)
     motion, refined = case["refined"].motion, case["refined"]
     out: dict = {"this branch": {}, "before": {}, "this branch best": {}, "before best": {}}
@@ -432,7 +440,7 @@ def part_speed_alternating(against: str, rounds: int = 7) -> dict:
             for label, run in runners.items():
                 start = time.process_time()
                 run(motion.body, qpos, fps, refined.contacts[source], case["stationary"][source],
-                    case["settings"].physics, refined_input=True)
+                    physics_settings[label], refined_input=True)
                 if round_:
                     seconds[label].append((time.process_time() - start) / len(qpos))
         for label, runs in seconds.items():
