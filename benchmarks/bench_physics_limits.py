@@ -20,6 +20,8 @@ MediaPipe-like noise, the true intrinsics and height, 8 s at 30 fps, seeds 0 and
              (--against SRC, default ../main/src), in alternating child processes.
   speed_alternating  the same with the other tree's dynamics package loaded beside this one in one process,
              alternated run by run (steadier on a busy machine; only the dynamics package may differ).
+  stability  the validation walks' 60 fps B.4 motion resampled, PhysCap with a forced number of equal steps per
+             frame around the PD's stability limit (physcap.stability_limit): what limits the step.
 
     .venv/bin/python benchmarks/bench_physics_limits.py [--parts framerate diagnosis online methods] [--quick]
         [--set validation] [--methods ROW ...] [--physics NAME=VALUE ...]
@@ -59,6 +61,7 @@ from physmocap.body.model import CONTACT_POINTS  # noqa: E402
 from physmocap.config import PhysicsSettings, Settings  # noqa: E402
 from physmocap.contacts.noise import MEDIAPIPE_NOISE  # noqa: E402
 from physmocap.contacts.predict import predict_contacts  # noqa: E402
+from physmocap.dynamics.physcap import stability_limit  # noqa: E402
 from physmocap.dynamics.stage import run_physcap  # noqa: E402
 from physmocap.evaluation import score_against_truth, to_truth_world  # noqa: E402
 from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
@@ -367,6 +370,33 @@ def grf_horizontal_components(grf, mass: float) -> dict:
 
 
 SPEED_RATES = (25.0, 30.0, 60.0)
+# (fps, steps per frame): the default's steps, then steps of 0.020, 0.025, 0.021 and 0.033 s
+STABILITY_CASES = ((10.0, 10), (10.0, 5), (10.0, 4), (24.0, 2), (30.0, 1))
+
+
+def part_stability() -> dict:
+    """PhysCap on the validation walks' 60 fps B.4 motion resampled, with STABILITY_CASES' equal steps (the legacy
+    `iterations` path): step as a share of stability_limit, largest force, frames flagged, distance to the input."""
+    rows = []
+    limit = stability_limit(PhysicsSettings())
+    for name in VALIDATION_CLIPS[:2]:
+        case = build_case(name, 0, 60.0, online=False)
+        motion, refined = case["refined"].motion, case["refined"]
+        for fps, steps in STABILITY_CASES:
+            qpos, source = resample_motion(motion.body, motion.qpos, 60.0, fps)
+            settings = dataclasses.replace(PhysicsSettings(), step_stability_share=None, iterations=steps, step=None)
+            physics = run_physcap(motion.body, qpos, fps, refined.contacts[source], case["stationary"][source],
+                                  settings, refined_input=True)
+            distance = np.linalg.norm(kin.forward_kinematics(motion.body, physics.qpos).points
+                                      - kin.forward_kinematics(motion.body, qpos).points, axis=-1).mean(axis=1)
+            rows.append(dict(clip=name.split("/")[-1], fps=fps, steps=steps, step_ms=1000 / (fps * steps),
+                             share_of_limit=1 / (fps * steps * limit),
+                             finite=bool(np.isfinite(physics.qpos).all() and np.isfinite(physics.grf).all()),
+                             largest_force_bw=largest_force_bw(physics, motion.body.mass),
+                             flagged_percent=100 * float(physics.unexplained.mean()),
+                             to_input_mm=1000 * float(distance.mean())))
+            print("stability", rows[-1], flush=True)
+    return dict(rows=rows, limit_s=limit)
 
 
 def time_physics(repeats: int) -> dict:
@@ -513,6 +543,16 @@ def markdown(out: dict) -> str:
                               f"stage, median (best) of {sp['rounds']} runs each; load average "
                               f"{sp['load_average']:.1f})",
                               lambda label, rate, v: f"{v:.0f} ({sp[label + ' best'][rate]:.0f})")
+    if "stability" in out:
+        lines += [f"**Step against the PD's stability limit** ({1000 * out['stability']['limit_s']:.1f} ms; "
+                  "validation walks, 60 fps B.4 motion resampled)", "",
+                  "| clip | fps | steps | step ms | share of the limit | finite | largest force BW | flagged % | "
+                  "to input mm |", "|---|---|---|---|---|---|---|---|---|"]
+        for r in out["stability"]["rows"]:
+            lines.append(f"| {r['clip']} | {r['fps']:g} | {r['steps']} | {r['step_ms']:.1f} | "
+                         f"{r['share_of_limit']:.2f} | {r['finite']} | {r['largest_force_bw']:.2f} | "
+                         f"{r['flagged_percent']:.1f} | {r['to_input_mm']:.1f} |")
+        lines.append("")
     if "methods" in out:
         lines += ["**Offline methods**", "", "| method | root-rel. mm | Procrustes mm | global root mm | "
                   "skate % | float % | penetr. % | jitter m/s² | e_smooth mm | GRF mean % BW | GRF mean walks % BW "
@@ -583,6 +623,8 @@ def main(argv=None) -> dict:
             out[part] = part_methods(clips, seeds, args.methods, walks, settings_overrides(args.physics))
         elif part == "speed":
             out[part] = part_speed(args.against)
+        elif part == "stability":
+            out[part] = part_stability()
         elif part == "speed_alternating":
             out[part] = part_speed_alternating(args.against)
         out[part]["minutes"] = (time.perf_counter() - start) / 60
