@@ -20,12 +20,14 @@ MediaPipe-like noise, the true intrinsics and height, 8 s at 30 fps, seeds 0 and
              (--against SRC, default ../main/src), in alternating child processes.
   speed_alternating  the same with the other tree's dynamics package loaded beside this one in one process,
              alternated run by run (steadier on a busy machine; only the dynamics package may differ).
+  stability  the validation walks' 60 fps B.4 motion resampled, PhysCap with a forced number of equal steps per
+             frame around the PD's stability limit (physcap.stability_limit): what limits the step.
 
     .venv/bin/python benchmarks/bench_physics_limits.py [--parts framerate diagnosis online methods] [--quick]
         [--set validation] [--methods ROW ...] [--physics NAME=VALUE ...]
 
---set validation runs parts methods and framerate on the validation clips (CMU training subjects 2, 5, 7), where
-settings are chosen; --physics tries PhysicsSettings values there (e.g. contact_settle_time=0.1).
+--set validation runs parts methods, framerate and online on the validation clips (CMU training subjects 2, 5, 7),
+where settings are chosen; --physics tries PhysicsSettings values there (e.g. contact_settle_time=0.1).
 
 Writes benchmarks/results/physics_limits.json and .md. Fits are cached under the system's temporary folder
 (physmocap_bench_physics_limits) so that parts can be rerun alone.
@@ -59,6 +61,7 @@ from physmocap.body.model import CONTACT_POINTS  # noqa: E402
 from physmocap.config import PhysicsSettings, Settings  # noqa: E402
 from physmocap.contacts.noise import MEDIAPIPE_NOISE  # noqa: E402
 from physmocap.contacts.predict import predict_contacts  # noqa: E402
+from physmocap.dynamics.physcap import stability_limit  # noqa: E402
 from physmocap.dynamics.stage import run_physcap  # noqa: E402
 from physmocap.evaluation import score_against_truth, to_truth_world  # noqa: E402
 from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
@@ -367,6 +370,33 @@ def grf_horizontal_components(grf, mass: float) -> dict:
 
 
 SPEED_RATES = (25.0, 30.0, 60.0)
+# (fps, steps per frame): the default's steps, then steps of 0.020, 0.025, 0.021 and 0.033 s
+STABILITY_CASES = ((10.0, 10), (10.0, 5), (10.0, 4), (24.0, 2), (30.0, 1))
+
+
+def part_stability() -> dict:
+    """PhysCap on the validation walks' 60 fps B.4 motion resampled, with STABILITY_CASES' equal steps (the legacy
+    `iterations` path): step as a share of stability_limit, largest force, frames flagged, distance to the input."""
+    rows = []
+    limit = stability_limit(PhysicsSettings())
+    for name in VALIDATION_CLIPS[:2]:
+        case = build_case(name, 0, 60.0, online=False)
+        motion, refined = case["refined"].motion, case["refined"]
+        for fps, steps in STABILITY_CASES:
+            qpos, source = resample_motion(motion.body, motion.qpos, 60.0, fps)
+            settings = dataclasses.replace(PhysicsSettings(), step_stability_share=None, iterations=steps, step=None)
+            physics = run_physcap(motion.body, qpos, fps, refined.contacts[source], case["stationary"][source],
+                                  settings, refined_input=True)
+            distance = np.linalg.norm(kin.forward_kinematics(motion.body, physics.qpos).points
+                                      - kin.forward_kinematics(motion.body, qpos).points, axis=-1).mean(axis=1)
+            rows.append(dict(clip=name.split("/")[-1], fps=fps, steps=steps, step_ms=1000 / (fps * steps),
+                             share_of_limit=1 / (fps * steps * limit),
+                             finite=bool(np.isfinite(physics.qpos).all() and np.isfinite(physics.grf).all()),
+                             largest_force_bw=largest_force_bw(physics, motion.body.mass),
+                             flagged_percent=100 * float(physics.unexplained.mean()),
+                             to_input_mm=1000 * float(distance.mean())))
+            print("stability", rows[-1], flush=True)
+    return dict(rows=rows, limit_s=limit)
 
 
 def time_physics(repeats: int) -> dict:
@@ -411,7 +441,8 @@ def part_speed(against: str, rounds: int = 3, repeats: int = 3) -> dict:
 def part_speed_alternating(against: str, rounds: int = 7) -> dict:
     """Frames per CPU second (median and best of `rounds`) of this tree's physics stage and of the dynamics package
     of the tree whose src folder is `against`, loaded beside it in one process (the rest of physmocap is this
-    tree's) and alternated run by run, so that a busy machine's changing load falls on both alike."""
+    tree's; each runs with its own tree's default PhysicsSettings) and alternated run by run, so that a busy
+    machine's changing load falls on both alike."""
     import importlib
     import importlib.util
 
@@ -422,6 +453,13 @@ def part_speed_alternating(against: str, rounds: int = 7) -> dict:
     sys.modules[spec.name] = package
     spec.loader.exec_module(package)
     runners = {"this branch": run_physcap, "before": importlib.import_module(f"{spec.name}.stage").run_physcap}
+    # each tree's own default physics settings (a renamed setting would break the other tree's code)
+    config_spec = importlib.util.spec_from_file_location("physmocap.config_against",
+                                                         Path(against) / "physmocap" / "config.py")
+    config_against = importlib.util.module_from_spec(config_spec)
+    sys.modules[config_spec.name] = config_against
+    config_spec.loader.exec_module(config_against)
+    physics_settings = {"this branch": PhysicsSettings(), "before": config_against.PhysicsSettings()}
     case = build_case(CLIPS[0], 0, 60.0, online=False)
     motion, refined = case["refined"].motion, case["refined"]
     out: dict = {"this branch": {}, "before": {}, "this branch best": {}, "before best": {}}
@@ -432,7 +470,7 @@ def part_speed_alternating(against: str, rounds: int = 7) -> dict:
             for label, run in runners.items():
                 start = time.process_time()
                 run(motion.body, qpos, fps, refined.contacts[source], case["stationary"][source],
-                    case["settings"].physics, refined_input=True)
+                    physics_settings[label], refined_input=True)
                 if round_:
                     seconds[label].append((time.process_time() - start) / len(qpos))
         for label, runs in seconds.items():
@@ -505,6 +543,16 @@ def markdown(out: dict) -> str:
                               f"stage, median (best) of {sp['rounds']} runs each; load average "
                               f"{sp['load_average']:.1f})",
                               lambda label, rate, v: f"{v:.0f} ({sp[label + ' best'][rate]:.0f})")
+    if "stability" in out:
+        lines += [f"**Step against the PD's stability limit** ({1000 * out['stability']['limit_s']:.1f} ms; "
+                  "validation walks, 60 fps B.4 motion resampled)", "",
+                  "| clip | fps | steps | step ms | share of the limit | finite | largest force BW | flagged % | "
+                  "to input mm |", "|---|---|---|---|---|---|---|---|---|"]
+        for r in out["stability"]["rows"]:
+            lines.append(f"| {r['clip']} | {r['fps']:g} | {r['steps']} | {r['step_ms']:.1f} | "
+                         f"{r['share_of_limit']:.2f} | {r['finite']} | {r['largest_force_bw']:.2f} | "
+                         f"{r['flagged_percent']:.1f} | {r['to_input_mm']:.1f} |")
+        lines.append("")
     if "methods" in out:
         lines += ["**Offline methods**", "", "| method | root-rel. mm | Procrustes mm | global root mm | "
                   "skate % | float % | penetr. % | jitter m/s² | e_smooth mm | GRF mean % BW | GRF mean walks % BW "
@@ -546,8 +594,8 @@ def main(argv=None) -> dict:
     parser.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS),
                         help="the rows of part methods")
     parser.add_argument("--physics", nargs="*", default=[], metavar="NAME=VALUE",
-                        help="PhysicsSettings fields for PhysCap in parts methods and framerate (trying settings on "
-                             "validation clips)")
+                        help="PhysicsSettings fields for PhysCap in parts methods, framerate and online (trying "
+                             "settings on validation clips)")
     parser.add_argument("--json", default=str(RESULTS / "physics_limits.json"))
     parser.add_argument("--against", default=str(Path(__file__).resolve().parents[2] / "main" / "src"),
                         help="src folder of the code to time against in part speed (default: ../main/src)")
@@ -569,11 +617,14 @@ def main(argv=None) -> dict:
         elif part == "diagnosis":
             out[part] = part_diagnosis(walking, seeds)
         elif part == "online":
-            out[part] = part_online(clips, seeds)
+            out[part] = part_online(clips, seeds, dataclasses.replace(PhysicsSettings(),
+                                                                      **settings_overrides(args.physics)))
         elif part == "methods":
             out[part] = part_methods(clips, seeds, args.methods, walks, settings_overrides(args.physics))
         elif part == "speed":
             out[part] = part_speed(args.against)
+        elif part == "stability":
+            out[part] = part_stability()
         elif part == "speed_alternating":
             out[part] = part_speed_alternating(args.against)
         out[part]["minutes"] = (time.perf_counter() - start) / 60

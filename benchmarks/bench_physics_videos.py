@@ -147,6 +147,7 @@ def main(argv=None) -> dict:
     rows = []
     with tempfile.TemporaryDirectory() as folder:
         work = Path(args.runs or folder)
+        work.mkdir(parents=True, exist_ok=True)  # the re-encode below writes into it first
         videos = [VIDEOS / name for name in (args.videos or VIDEOS_RUN)]
         if args.videos is None:
             slow = work / "sports2d_demo_10fps.mp4"

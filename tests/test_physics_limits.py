@@ -8,7 +8,7 @@ from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
 from physmocap.body.rotations import quat_exp, quat_multiply
 from physmocap.config import PhysicsSettings
-from physmocap.dynamics.physcap import integration_steps
+from physmocap.dynamics.physcap import integration_steps, stability_limit
 from physmocap.dynamics.stage import run_physcap
 
 G = 9.81
@@ -37,11 +37,27 @@ def swaying(body, fps, seconds=2.5):
 
 def test_the_step_follows_the_frame_interval():
     settings = PhysicsSettings()
+    longest = settings.step_stability_share * stability_limit(settings)
     for fps, steps in ((8, 12), (10, 10), (24, 4), (25, 4), (30, 4), (60, 2), (120, 1)):
         n, step = integration_steps(settings, fps)
-        assert n == steps and step <= settings.max_step and n * step == pytest.approx(1.0 / fps)
-    legacy = PhysicsSettings(max_step=None)
+        assert n == steps and step <= longest and n * step == pytest.approx(1.0 / fps)
+    legacy = PhysicsSettings(step_stability_share=None)
     assert integration_steps(legacy, 10) == (4, pytest.approx(0.025))
+
+
+def test_the_step_limit_follows_the_stiffest_gains():
+    """Semi-implicit Euler on x'' = -kp x - kd x' is stable while kp h^2 + 2 kd h < 4: the limit is where the
+    stiffest DOF reaches 4, and stiffer gains shorten the steps."""
+    settings = PhysicsSettings()
+    h = stability_limit(settings)
+    kp, kd = settings.kp_root_translation, settings.kd_root_translation  # the stiffest pair of the defaults
+    assert kp * h * h + 2 * kd * h == pytest.approx(4.0)
+    assert settings.kp_joint * h * h + 2 * settings.kd_joint * h < 4.0
+    stiff = PhysicsSettings(kp_joint=4 * settings.kp_joint, kd_joint=2 * settings.kd_joint)
+    assert stability_limit(stiff) < h and integration_steps(stiff, 30)[0] > integration_steps(settings, 30)[0]
+    assert stability_limit(PhysicsSettings(kp_joint=0.0, kd_joint=0.0, kp_root_rotation=0.0, kd_root_rotation=0.0,
+                                           kp_root_translation=0.0, kd_root_translation=0.0, kp_root_horizontal=0.0,
+                                           kd_root_horizontal=0.0)) == float("inf")
 
 
 def test_the_same_motion_at_10_24_30_and_60_fps_gives_the_same_physics(body):

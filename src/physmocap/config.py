@@ -126,7 +126,8 @@ class PhysicsSettings(Section):
     stationary_max_speed: float | None = setting(0.25, "m/s", (0.01, 10.0), "the stationary flag is believed only "
                                                  "while the root is slower (None: always)")
     stationary_speed_interval: float = setting(0.2, "s", (0.01, 2.0), "over which that speed is measured")
-    max_step: float | None = setting(0.011, "s", (0.001, 0.02), "longest step (docs/decisions/physics-frame-rate.md)")
+    step_stability_share: float | None = setting(0.5, "", (0.05, 0.95), "longest step as a share of the PD's "
+                                                 "stability limit (None: iterations; physics-frame-rate.md)")
     max_force: float = setting(10.0, "body weights", (1.0, 100.0), "larger contact/residual forces are cut and flagged")
     unexplained_force: float | None = setting(0.5, "body weights", (0.05, 10.0), "upward root force no floor "
                                               "contact gives that flags a frame (None: not checked)")

@@ -74,11 +74,12 @@ class BalanceCorrector:
             return q_kin, False
         lean = np.arccos(np.clip(spine @ UP / np.linalg.norm(spine), -1.0, 1.0))
         q = q_kin
-        axis = np.cross(spine, UP)
+        axis = np.array([spine[1], -spine[0], 0.0])  # spine x UP
         if np.linalg.norm(axis) > 1e-9:
             axis /= np.linalg.norm(axis)
             tilt = min(self.tilt, lean)
-            pivot = np.append(support.mean(axis=0), 0.0)
+            pivot = np.zeros(3)
+            pivot[:2] = support.mean(axis=0)
             R = axis_angle_matrix(axis, np.array(tilt))
             q = rigid_transform_qpos(q[None], R, pivot - R @ pivot)[0]
         q = self._straightened(q)

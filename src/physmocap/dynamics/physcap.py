@@ -31,13 +31,21 @@ MAX_DESIRED_ACCELERATION = 2e3  # m/s^2 or rad/s^2, the PD targets' bound: about
 # otherwise ask the stiff PD for 1e4 and trip the divergence guard.
 
 
+def stability_limit(settings: PhysicsSettings) -> float:
+    """s: the step at which semi-implicit Euler on eq. (4)'s PD (x'' = -kp x - kd x') turns unstable on the stiffest
+    DOF: kp h^2 + 2 kd h = 4, h = 4 / (kd + sqrt(kd^2 + 4 kp)); infinite without gains."""
+    kp, kd = tracking_gains(settings, 7)  # the root's six DOFs and one joint: every distinct pair of gains
+    return 4.0 / float(np.max(kd + np.sqrt(kd * kd + 4.0 * kp))) if np.any(kp + kd > 0.0) else math.inf
+
+
 def integration_steps(settings: PhysicsSettings, fps: float) -> tuple[int, float]:
-    """(steps per frame, step in s): with settings.max_step, the fewest equal steps of at most max_step that
-    fill one frame interval, so that the integration's stability and the PD's behaviour (gains in 1/s^2 and 1/s)
-    do not depend on the frame rate; else the legacy settings.iterations steps of settings.step (or of one frame
-    / iterations)."""
-    if settings.max_step is not None:
-        steps = max(1, math.ceil(1.0 / (fps * settings.max_step) - 1e-9))
+    """(steps per frame, step in s): with settings.step_stability_share, the fewest equal steps no longer than that
+    share of the PD's stability limit (stability_limit) that fill one frame interval, so that the integration's
+    stability and the PD's behaviour (gains in 1/s^2 and 1/s) do not depend on the frame rate; else the legacy
+    settings.iterations steps of settings.step (or of one frame / iterations)."""
+    if settings.step_stability_share is not None:
+        longest = settings.step_stability_share * stability_limit(settings)
+        steps = max(1, math.ceil(1.0 / (fps * longest) - 1e-9))
         return steps, 1.0 / (fps * steps)
     return settings.iterations, settings.step if settings.step is not None else 1.0 / (fps * settings.iterations)
 
@@ -264,11 +272,16 @@ class PhysCapTracker:
         """(4,) contact points whose target (target_sites, (4, 3) m) lies more than release_distance along the
         floor from where the character holds them: the kinematic foot has gone (a wrong contact label or the
         detector swapping the feet), and holding on would drag the whole body after it. Reads the character's
-        contact points from `_dynamics`, which must have run at the current state."""
-        if self.settings.release_distance is None:
+        contact points from `_dynamics`, which must have run at the current state. In Python floats (numpy's cost
+        per call outweighs the arithmetic on four points)."""
+        limit = self.settings.release_distance
+        if limit is None:
             return np.zeros(4, bool)
-        offset = target_sites[:, :2] - self.data.site_xpos[self.sites, :2]
-        return np.sqrt((offset * offset).sum(axis=1)) > self.settings.release_distance
+        released = []
+        for (aim_x, aim_y, _), (x, y, _) in zip(target_sites.tolist(), self.data.site_xpos[self.sites].tolist(),
+                                                strict=True):
+            released.append(math.sqrt((aim_x - x) * (aim_x - x) + (aim_y - y) * (aim_y - y)) > limit)
+        return np.array(released)
 
     # ---- one video frame ----------------------------------------------------------------------------------
     def track(self, q_kin: np.ndarray, qd_kin: np.ndarray, qdd_kin: np.ndarray,
