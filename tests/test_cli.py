@@ -1,6 +1,7 @@
 """The command line end to end: the happy path on the shipped demo clip, and every kind of bad input with real
 files, each answered by one clear sentence, a non-zero exit code, no traceback and no half-written result."""
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -10,6 +11,7 @@ import pytest
 
 from conftest import DEMO_VIDEO
 from physmocap.io.video import VideoWriter
+from physmocap.motion import Observations
 from physmocap.result import REQUIRED_KEYS, RESULT_POINTS, load_result
 from test_bad_inputs import run_cli
 
@@ -19,6 +21,12 @@ pytestmark = pytest.mark.slow  # the command line on real clips
 def physmocap(*args, cwd=None):
     return subprocess.run([sys.executable, "-m", "physmocap.cli", *map(str, args)], capture_output=True,
                           text=True, cwd=cwd, timeout=600)
+
+
+def physmocap_in_process(*args):
+    """The command line run in this process (no interpreter and torch start-up), as a CompletedProcess."""
+    code, out, err = run_cli(*args)
+    return subprocess.CompletedProcess(args, code, out, err)
 
 
 def assert_clean_failure(proc, *words):
@@ -146,15 +154,9 @@ def test_unreadable_observations_file(tmp_path):
     (["--person-box", "10,10,5,5"], ["person_box"]),
 ])
 def test_nonsense_settings(tmp_path, args, words):
-    proc = physmocap("capture", DEMO_VIDEO, "-o", tmp_path / "o", *args)
+    proc = physmocap_in_process("capture", DEMO_VIDEO, "-o", tmp_path / "o", *args)
     assert_clean_failure(proc, *words)
     assert not (tmp_path / "o").exists()
-
-
-def physmocap_in_process(*args):
-    """The command line run in this process (no interpreter and torch start-up), as a CompletedProcess."""
-    code, out, err = run_cli(*args)
-    return subprocess.CompletedProcess(args, code, out, err)
 
 
 def test_train_contacts_on_bad_data_fails_with_one_sentence(tmp_path):
@@ -171,15 +173,16 @@ def test_train_contacts_on_bad_data_fails_with_one_sentence(tmp_path):
 
 def test_bad_settings_file(tmp_path):
     cfg = tmp_path / "s.toml"
+    run = ("capture", DEMO_VIDEO, "-o", tmp_path / "o", "--config", cfg)
     cfg.write_text("[fit]\nweight_2d = 'heavy'\n")
-    assert_clean_failure(physmocap("capture", DEMO_VIDEO, "-o", tmp_path / "o", "--config", cfg), "weight_2d")
+    assert_clean_failure(physmocap_in_process(*run), "weight_2d")
     cfg.write_text("[fit\n")
-    assert_clean_failure(physmocap("capture", DEMO_VIDEO, "-o", tmp_path / "o", "--config", cfg), "s.toml")
+    assert_clean_failure(physmocap_in_process(*run), "s.toml")
     cfg.write_text("[physics]\nfloor_tilt_rate = 500\n")  # deg/s, allowed 0.01 .. 90
-    assert_clean_failure(physmocap("capture", DEMO_VIDEO, "-o", tmp_path / "o", "--config", cfg),
+    assert_clean_failure(physmocap_in_process(*run),
                          "physics.floor_tilt_rate", "500")
     cfg.write_text("[physics]\nrotation_velocity_share = 2.0\n")  # a share, 0 .. 1
-    assert_clean_failure(physmocap("capture", DEMO_VIDEO, "-o", tmp_path / "o", "--config", cfg),
+    assert_clean_failure(physmocap_in_process(*run),
                          "physics.rotation_velocity_share", "2.0")
 
 
@@ -250,7 +253,11 @@ def test_export_command_writes_each_format_and_rejects_bad_input(demo_run, tmp_p
 
 def test_trajectory_optimisation_physics(demo_run, tmp_path):
     out, _ = demo_run
-    obs = out / "cache" / "observations.npz"
+    whole = Observations.load(out / "cache" / "observations.npz")
+    frames = 48  # the first two seconds: the command line's part, not the solver's (test_trajopt.py)
+    obs = tmp_path / "first_frames.npz"
+    dataclasses.replace(whole, keypoints_2d=whole.keypoints_2d[:frames], landmarks_3d=whole.landmarks_3d[:frames],
+                        valid=whole.valid[:frames], invalid_reason=whole.invalid_reason[:frames]).save(obs)
     proc = physmocap("capture", "--observations", obs, "-o", tmp_path / "t", "--physics", "trajopt")
     assert proc.returncode == 0, proc.stderr
     result = load_result(tmp_path / "t" / "result.npz")
