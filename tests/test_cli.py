@@ -179,11 +179,9 @@ def test_bad_settings_file(tmp_path):
     cfg.write_text("[fit\n")
     assert_clean_failure(physmocap_in_process(*run), "s.toml")
     cfg.write_text("[physics]\nfloor_tilt_rate = 500\n")  # deg/s, allowed 0.01 .. 90
-    assert_clean_failure(physmocap_in_process(*run),
-                         "physics.floor_tilt_rate", "500")
+    assert_clean_failure(physmocap_in_process(*run), "physics.floor_tilt_rate", "500")
     cfg.write_text("[physics]\nrotation_velocity_share = 2.0\n")  # a share, 0 .. 1
-    assert_clean_failure(physmocap_in_process(*run),
-                         "physics.rotation_velocity_share", "2.0")
+    assert_clean_failure(physmocap_in_process(*run), "physics.rotation_velocity_share", "2.0")
 
 
 def test_online_capture_of_a_video_streams_and_caches(tmp_path):
