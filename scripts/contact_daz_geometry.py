@@ -11,6 +11,7 @@ pair, and the per-pair Daz minus CC3 gap that `DAZ_TOE_BASE_ABOVE_SOLE` was fitt
 and ankle-toe distances. Test subjects (6, 9, 94, 131) are never read.
 
     PYTHONPATH=src .venv/bin/python scripts/contact_daz_geometry.py [--data ../shared/data/mocap]
+        [--toe-base-above-sole 0.20 --default-pitch 15]   (the geometry before the fit)
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from physmocap.contacts.labels import CONTACT_SITE_INDICES, CONTACT_SITES, motion_labels
+from physmocap.mocap import bvh_reader
 from physmocap.mocap.bvh_reader import JOINT_INDEX, STILL_SPEED, load_mocap
 
 SUBJECTS = ("1", "2", "5", "7")
@@ -45,7 +47,14 @@ def overlap(a: np.ndarray, b: np.ndarray, shift: int) -> tuple[np.ndarray, np.nd
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", default=str(Path(__file__).resolve().parents[1].parent / "shared/data/mocap"))
+    parser.add_argument("--toe-base-above-sole", type=float, default=bvh_reader.DAZ_TOE_BASE_ABOVE_SOLE,
+                        help="Daz End Site above the sole, fraction of ankle -> End Site (0.20 before the fit)")
+    parser.add_argument("--default-pitch", type=float, default=bvh_reader.DAZ_DEFAULT_FOOT_PITCH_DEGREES,
+                        help="Daz flat-foot pitch of never-still feet, degrees (15 before the fit)")
     args = parser.parse_args()
+    # `_daz_layout` reads these module settings at each load: measure other values without editing the reader.
+    bvh_reader.DAZ_TOE_BASE_ABOVE_SOLE = args.toe_base_above_sole
+    bvh_reader.DAZ_DEFAULT_FOOT_PITCH_DEGREES = args.default_pitch
     root = Path(args.data)
     daz_labels, cc3_labels, daz_heights, cc3_heights, flat = [], [], [], [], []
     shapes: dict[str, list[np.ndarray]] = {"Daz": [], "CC3": []}
