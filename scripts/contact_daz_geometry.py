@@ -23,7 +23,14 @@ import numpy as np
 
 from physmocap.contacts.labels import CONTACT_SITE_INDICES, CONTACT_SITES, motion_labels
 from physmocap.mocap import bvh_reader
-from physmocap.mocap.bvh_reader import JOINT_INDEX, STILL_SPEED, load_mocap
+from physmocap.mocap.bvh_reader import (
+    HEEL_BEHIND_ANKLE,
+    JOINT_INDEX,
+    STILL_SPEED,
+    TOE_AHEAD_OF_TOE_BASE,
+    MocapClip,
+    load_mocap,
+)
 
 SUBJECTS = ("1", "2", "5", "7")
 
@@ -86,7 +93,10 @@ def main() -> None:
         flat.append(flat_foot)
         for name, clip in (("Daz", daz), ("CC3", cc3)):
             shapes[name].append(_foot_shape(clip.positions, shift if name == "Daz" else -shift, flat_foot))
-        line = f"{path.name} vs {twin.name}: shift {shift}, agreement {(a == b).mean():.3f}"
+        pitches = " / ".join(",".join(f"{_flat_pitch_degrees(clip, side):.0f}" for side in ("left", "right"))
+                             for clip in (daz, cc3))
+        line = (f"{path.name} vs {twin.name}: shift {shift}, agreement {(a == b).mean():.3f}, "
+                f"flat-foot pitch (left,right) Daz / CC3 {pitches} degrees")
         if flat_foot.any():
             ankle = [float(np.median(shapes[name][-1][:, 0])) for name in ("Daz", "CC3")]
             ankle_gaps.append(ankle[0] - ankle[1])
@@ -114,6 +124,17 @@ def main() -> None:
         ankle_up, heel_back, toe_ahead = np.median(np.concatenate(parts), axis=0)
         print(f"{name} flat-stance foot (median): ankle {100 * ankle_up:.1f} cm above the heel site, heel site "
               f"{100 * heel_back:.1f} cm behind it, toe site {100 * toe_ahead:.1f} cm ahead of it (horizontal)")
+
+
+def _flat_pitch_degrees(clip: MocapClip, side: str) -> float:
+    """The flat-foot pitch `load_mocap` gave a foot, read back from its rigid sole sites: with L the ankle -> MTP
+    length, `sole_sites` puts the heel HEEL_BEHIND_ANKLE L behind the ankle along the sole and the toe
+    L (cos p + HEEL_BEHIND_ANKLE + TOE_AHEAD_OF_TOE_BASE) ahead of the heel."""
+    ankle, heel, toe = (clip.joint(f"{side}_{part}")[0] for part in ("ankle", "heel", "toe"))
+    sole = np.linalg.norm(toe - heel)
+    length = np.dot(ankle - heel, (toe - heel) / sole) / HEEL_BEHIND_ANKLE
+    cos_pitch = sole / length - HEEL_BEHIND_ANKLE - TOE_AHEAD_OF_TOE_BASE
+    return float(np.degrees(np.arccos(np.clip(cos_pitch, -1.0, 1.0))))
 
 
 def _foot_shape(positions: np.ndarray, shift: int, flat_foot: np.ndarray) -> np.ndarray:

@@ -238,7 +238,7 @@ TOE_AHEAD_OF_TOE_BASE = 0.25  # toe site ahead of the MTP joint, under the proxi
 # The Daz foot's End Site above the sole, fraction of ankle -> End Site (12.7 cm): 0.15 puts a flat stance's ankle as
 # high above its heel site as on the CC3 avatar in the same motion (scripts/contact_daz_geometry.py).
 DAZ_TOE_BASE_ABOVE_SOLE = 0.15
-DAZ_DEFAULT_FOOT_PITCH_DEGREES = 19.0  # measured 17-21 degrees on the Daz walks 01_01, 02_01, 02_02, 07_0x
+DAZ_DEFAULT_FOOT_PITCH_DEGREES = 19.0  # measured 17-20 degrees on the Daz walks 01_01, 02_01, 02_02, 07_0x
 # Range a measured flat-foot pitch (of the ankle -> MTP line below the sole plane) is clamped to, and the largest
 # difference between the feet taken as real rather than caused by a foot that stands mostly on its toes.
 FOOT_PITCH_RANGE = (np.radians(5.0), np.radians(40.0))
