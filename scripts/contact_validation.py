@@ -75,6 +75,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--mode", choices=("causal", "centred"), default="centred")
     parser.add_argument("--val", default="1,7", help="comma-separated CMU subjects held out of training")
+    parser.add_argument("--folders", help="comma-separated folders of ../shared/data/mocap to train on (default: all; "
+                                          "cmu_iclone_cc3_retarget,cmu_raw_cgspeed are the shipped weights' clips); "
+                                          "the validation clips stay those of every folder")
     parser.add_argument("--variants", type=int, default=8, help="synthetic sequences per training clip")
     parser.add_argument("--epochs", type=int, default=4)
     parser.add_argument("--min-phase-seconds", type=float, default=LabelSettings().min_phase_seconds)
@@ -108,7 +111,8 @@ def main() -> None:
                                                         rest_on_either_side=args.rest_on_either_side))
     held_out = tuple(args.val.split(","))
     train_files, _ = split_by_subject(mocap_files(SHARED / "mocap"))
-    fit_files = [f for f in train_files if cmu_subject(f) not in held_out]
+    fit_files = [f for f in train_files if cmu_subject(f) not in held_out
+                 and (args.folders is None or f.parent.name in args.folders.split(","))]
     val_files = [f for f in train_files if cmu_subject(f) in held_out]
     validation = make_sequences(load_clips(val_files), 1, held_out_settings(synthetic), variants=4)
     if args.load is not None:

@@ -24,6 +24,7 @@ from physmocap.contacts.labels import (
     LabelSettings,
     contact_labels,
     hard_frames,
+    motion_labels,
     point_speed,
     stationary_labels,
     without_short_phases,
@@ -342,6 +343,38 @@ def test_split_by_subject_never_shares_a_subject():
     train, test = split_by_subject(files, ("6", "131"))
     assert [f.name for f in test] == ["006_01.bvh", "131_02.bvh"]
     assert [f.name for f in train] == ["02_01.bvh", "002_05.bvh", "007_01.bvh"]
+
+
+def _flat_stance_foot(clip) -> np.ndarray:
+    """Medians over a clip's flat-stance foot-frames (heel and toe labelled in contact and still): heel minus toe
+    height, ankle height above the heel site, horizontal heel-ankle and ankle-toe distances, metres."""
+    from physmocap.mocap.bvh_reader import STILL_SPEED
+
+    contacts, _ = motion_labels(clip.positions, clip.fps)
+    rows = []
+    for f, side in enumerate(("left", "right")):
+        ankle, heel, toe = (clip.joint(f"{side}_{part}") for part in ("ankle", "heel", "toe"))
+        still = [np.linalg.norm(np.gradient(p, axis=0), axis=1) * clip.fps < STILL_SPEED for p in (heel, toe)]
+        flat = contacts[:, 2 * f] & contacts[:, 2 * f + 1] & still[0] & still[1]
+        rows.append(np.stack([heel[flat, 2] - toe[flat, 2], ankle[flat, 2] - heel[flat, 2],
+                              np.linalg.norm((ankle - heel)[flat, :2], axis=1),
+                              np.linalg.norm((toe - ankle)[flat, :2], axis=1)], axis=1))
+    rows = np.concatenate(rows)
+    assert len(rows) >= 30  # each walk has at least a few flat stances on each skeleton
+    return np.median(rows, axis=0)
+
+
+@needs_shared
+@pytest.mark.parametrize("daz_name, cc3_name", [("02_01", "002_01"), ("07_03", "007_03")])
+def test_daz_flat_stance_foot_matches_the_cc3_avatar_in_the_same_walk(daz_name, cc3_name):
+    from physmocap.mocap.bvh_reader import load_mocap
+
+    mocap = SHARED_DATA / "mocap"
+    daz = _flat_stance_foot(load_mocap(mocap / "cmu_daz_cgspeed" / f"{daz_name}.bvh"))
+    cc3 = _flat_stance_foot(load_mocap(mocap / "cmu_iclone_cc3_retarget" / f"{cc3_name}.bvh"))
+    assert abs(daz[0]) < 0.005 and abs(daz[0] - cc3[0]) < 0.005  # heel and toe sites level, as on CC3
+    assert abs(daz[1] - cc3[1]) < 0.006  # ankle height above the sole (DAZ_TOE_BASE_ABOVE_SOLE 0.20 gave 1.0 cm)
+    assert abs(daz[2] - cc3[2]) < 0.005 and abs(daz[3] - cc3[3]) < 0.015  # heel behind, toe ahead of the ankle
 
 
 @needs_shared

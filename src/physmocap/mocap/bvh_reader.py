@@ -235,8 +235,10 @@ REFERENCE_CROWN_ABOVE_HEAD_JOINT = 0.19
 # of the MTP joint above the sole depends on the skeleton: `_SkeletonLayout.toe_base_above_sole`).
 HEEL_BEHIND_ANKLE = 0.35  # heel site behind the ankle, along the sole (about 4.7 cm)
 TOE_AHEAD_OF_TOE_BASE = 0.25  # toe site ahead of the MTP joint, under the proximal toes (about 3.4 cm)
-DAZ_TOE_BASE_ABOVE_SOLE = 0.20  # the Daz foot's End Site above the sole, fraction of ankle -> End Site (see load_mocap)
-DAZ_DEFAULT_FOOT_PITCH_DEGREES = 15.0
+# The Daz foot's End Site above the sole, fraction of ankle -> End Site (12.7 cm): 0.15 puts a flat stance's ankle as
+# high above its heel site as on the CC3 avatar in the same motion (scripts/contact_daz_geometry.py).
+DAZ_TOE_BASE_ABOVE_SOLE = 0.15
+DAZ_DEFAULT_FOOT_PITCH_DEGREES = 19.0  # measured 17-20 degrees on the Daz walks 01_01, 02_01, 02_02, 07_0x
 # Range a measured flat-foot pitch (of the ankle -> MTP line below the sole plane) is clamped to, and the largest
 # difference between the feet taken as real rather than caused by a foot that stands mostly on its toes.
 FOOT_PITCH_RANGE = (np.radians(5.0), np.radians(40.0))
