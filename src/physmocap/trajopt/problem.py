@@ -17,6 +17,9 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+import scipy.sparse as sp
+
+from .splines import to_dm
 
 INF = np.inf
 
@@ -41,13 +44,41 @@ class VariableSet:
 @dataclass
 class ConstraintSet:
     """Constraints lower <= g(x) <= upper, collected row block by row block. `linear`: g is linear in x (its
-    Hessian is zero and is not built)."""
+    Hessian is zero and is not built). Rows may be written on `read` symbols, each standing for a sparse linear
+    map of x: they are then differentiated in those few symbols and mapped to x by the chain rule."""
 
     name: str
     linear: bool = False
     rows: list = field(default_factory=list)
     lower: list = field(default_factory=list)
     upper: list = field(default_factory=list)
+    inputs: list = field(default_factory=list)  # (symbols (k, 1), scipy sparse map (k, n)) of every read
+
+    def read(self, matrix: sp.spmatrix, x):
+        """(k, 1) standing for matrix @ x, matrix a scipy sparse (k, n) map, x the program's variables: a symbol
+        per row that reads x, a structural zero per empty row (a force in flight), so that, as in an expression
+        graph, nothing multiplied by it depends on x."""
+        matrix = sp.csr_matrix(matrix)
+        used = np.flatnonzero(np.diff(matrix.indptr))
+        symbols = type(x).sym(f"{self.name}_{len(self.inputs)}", len(used))
+        self.inputs.append((symbols, matrix[used]))
+        place = sp.csr_matrix((np.ones(len(used)), (used, np.arange(len(used)))), shape=(matrix.shape[0], len(used)))
+        return ca.mtimes(to_dm(place), symbols)
+
+    def local_form(self):
+        """(rows in the read symbols z, z, the sparse map S with z = S x), or None when nothing was read."""
+        if not self.inputs:
+            return None
+        return (ca.densify(self.expression()), ca.vertcat(*[z for z, _ in self.inputs]),
+                sp.vstack([m for _, m in self.inputs]).tocsr())
+
+    def expression_in(self, x):
+        """The rows as expressions of x (the read symbols replaced by their maps)."""
+        local = self.local_form()
+        if local is None:
+            return self.expression()
+        rows, z, S = local
+        return ca.substitute(rows, z, ca.densify(ca.mtimes(to_dm(S), x)))
 
     def add(self, expression, lower=0.0, upper=0.0) -> None:
         expression = ca.vec(expression)
@@ -71,10 +102,29 @@ class ConstraintSet:
 
 @dataclass
 class CostTerm:
-    """A scalar term of the objective."""
+    """A scalar term of the objective. `squares`: the term is sum_k w_k |M_k x - t_k|^2, given as (w_k, M_k
+    scipy sparse, t_k) blocks, so its gradient and (constant) Hessian are built from the matrices; None: `value`
+    is any expression, differentiated by CasADi."""
 
     name: str
     value: Any  # a CasADi scalar expression (SX or MX) in the variable vector
+    squares: list | None = None
+
+    @staticmethod
+    def least_squares(name: str, x, squares: list) -> CostTerm:
+        """sum_k w_k |M_k x - t_k|^2 from (w_k, M_k, t_k) blocks: M_k (m, n) scipy sparse, t_k (m,)."""
+        value = type(x)(0)
+        for weight, matrix, target in squares:
+            value = value + weight * ca.sumsqr(ca.mtimes(to_dm(matrix), x) - ca.DM(target))
+        return CostTerm(name, value, squares)
+
+    def hessian_and_offset(self, size: int) -> tuple[sp.csr_matrix, np.ndarray]:
+        """(H, b) of a least-squares term: its gradient is H x - b, its Hessian H (constant)."""
+        hessian, offset = sp.csr_matrix((size, size)), np.zeros(size)
+        for weight, matrix, target in self.squares or []:
+            hessian = hessian + 2 * weight * (matrix.T @ matrix)
+            offset += 2 * weight * (matrix.T @ target)
+        return sp.csr_matrix(hessian), offset
 
 
 @dataclass
@@ -181,13 +231,17 @@ class Program:
         if sum(v.size for v in variables) != x.shape[0]:
             raise ValueError("the variable sets do not lay out the whole variable vector")
         zero = type(x)(0)
-        self.g = ca.densify(ca.vertcat(*[c.expression() for c in constraints])) if constraints else type(x)(0, 1)
+        self.g = (ca.densify(ca.vertcat(*[c.expression_in(x) for c in constraints])) if constraints
+                  else type(x)(0, 1))
         self.f = sum((c.value for c in costs), zero)
         self.lbg = np.concatenate([c.bounds()[0] for c in constraints]) if constraints else np.zeros(0)
         self.ubg = np.concatenate([c.bounds()[1] for c in constraints]) if constraints else np.zeros(0)
         self.iteration_limit = IterationLimit(int(x.shape[0]), int(self.g.shape[0]))
+        # No 'nlp_grad' (the Lagrangian's gradient, by differentiating the whole program, for multipliers that
+        # are never read): the larger part of nlpsol's build.
         options: dict[str, Any] = {"ipopt": dict(ipopt_options), "print_time": False, "error_on_fail": False,
-                   "iteration_callback": self.iteration_limit}
+                                   "iteration_callback": self.iteration_limit, "no_nlp_grad": True,
+                                   "calc_lam_p": False}
         options["ipopt"].setdefault("print_level", 0)
         options["ipopt"].setdefault("sb", "yes")
         if isinstance(x, ca.SX):
@@ -197,23 +251,48 @@ class Program:
         self.constraint_values = ca.Function("constraints", [self.x], [self.g])
 
     def _derivatives(self) -> dict:
-        """Exact Jacobian of the constraints and Hessian of the Lagrangian, by CasADi's differentiation of each
-        piece on its own and summed: the pieces are small and sparse, so this builds several times faster than
-        differentiating the whole program at once (same values); linear constraint sets add no Hessian."""
+        """Exact gradient of the objective, Jacobian of the constraints and Hessian of the Lagrangian, piece by
+        piece and summed: a least-squares cost's from its matrices (its Hessian is constant), a constraint set
+        written on read symbols z = S x by CasADi's differentiation in z and the chain rule (J S, S^T H S; the
+        rows of a set depend on a few of the many x each), any other piece by CasADi's differentiation in x;
+        linear constraint sets add no Hessian. Much faster to build than differentiating the whole program at
+        once (same values up to rounding)."""
         x = self.x
+        size = int(x.shape[0])
         no_parameters = ca.SX(0, 1)
         lam_f, lam_g = ca.SX.sym("lam_f"), ca.SX.sym("lam_g", self.g.shape[0])
-        hessian = ca.SX(x.shape[0], x.shape[0])
+        constant_hessian, offset = sp.csr_matrix((size, size)), np.zeros(size)
+        gradient, hessian = ca.SX(size, 1), ca.SX(size, size)
         for cost in self.costs:
-            hessian = hessian + lam_f * ca.hessian(cost.value, x)[0]
+            if cost.squares is None:
+                gradient = gradient + ca.gradient(cost.value, x)
+                hessian = hessian + lam_f * ca.hessian(cost.value, x)[0]
+            else:
+                h, b = cost.hessian_and_offset(size)
+                constant_hessian, offset = constant_hessian + h, offset + b
+        gradient = gradient + ca.mtimes(to_dm(constant_hessian), x) - ca.DM(offset)
+        hessian = hessian + lam_f * to_dm(sp.triu(constant_hessian))
         blocks = []
         for c in self.constraints:
-            g = ca.densify(c.expression())
+            local = c.local_form()
+            lam = lam_g[self.con_slices[c.name]]
+            if local is not None and not ca.depends_on(local[0], x):
+                rows, z, S = local
+                S_dm = to_dm(S)
+                jacobian_z = ca.jacobian(rows, z)
+                outputs = [jacobian_z] if c.linear else [jacobian_z, ca.hessian(ca.dot(lam, rows), z)[0]]
+                values = ca.Function("piece", [z, lam], outputs)(ca.densify(ca.mtimes(S_dm, x)), lam)
+                blocks.append(ca.mtimes(values[0], S_dm))
+                if not c.linear:
+                    hessian = hessian + ca.triu(ca.mtimes(S_dm.T, ca.mtimes(values[1], S_dm)))
+                continue
+            g = ca.densify(c.expression_in(x))
             blocks.append(ca.jacobian(g, x))
             if not c.linear:
-                hessian = hessian + ca.hessian(ca.dot(lam_g[self.con_slices[c.name]], g), x)[0]
-        jacobian = ca.vertcat(*blocks) if blocks else ca.SX(0, x.shape[0])
-        return {"hess_lag": ca.Function("hess_lag", [x, no_parameters, lam_f, lam_g], [ca.triu(hessian)]),
+                hessian = hessian + ca.triu(ca.hessian(ca.dot(lam, g), x)[0])
+        jacobian = ca.vertcat(*blocks) if blocks else ca.SX(0, size)
+        return {"grad_f": ca.Function("grad_f", [x, no_parameters], [self.f, gradient]),
+                "hess_lag": ca.Function("hess_lag", [x, no_parameters, lam_f, lam_g], [ca.triu(hessian)]),
                 "jac_g": ca.Function("jac_g", [x, no_parameters], [self.g, jacobian])}
 
     @property
