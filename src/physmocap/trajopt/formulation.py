@@ -487,6 +487,14 @@ class WindowProblem:
     def sample(self, trajectory: Trajectory, times: np.ndarray | list[float], order: int = 0) -> ca.SX:
         return trajectory.sample(self.x, times, order)
 
+    def values(self, trajectory: Trajectory, times: np.ndarray | list[float], x: np.ndarray,
+               order: int = 0) -> np.ndarray:
+        """(3, n) numbers: `sample` at the solution x (n,), by the sampling matrix where the times are fixed."""
+        times = np.asarray(times, float)
+        if not trajectory.symbolic_times:
+            return (trajectory.matrix(times, order, len(x)) @ x).reshape(len(times), 3).T
+        return np.asarray(ca.Function("values", [self.x], [self.sample(trajectory, times, order)])(x))
+
     def read(self, out: ConstraintSet, trajectory: Trajectory, times: np.ndarray | list[float], order: int = 0):
         """(3, n) samples like `sample`, for the rows of `out`: symbols read by `out` (the program differentiates
         the rows in them) where the trajectory's times are fixed, else expressions of x."""
@@ -569,9 +577,10 @@ def _offset_of(problem: WindowProblem, target: VariableSet) -> int:
 
 # ---- constraint sets ---------------------------------------------------------------------------------------
 def dynamics_residuals(problem: WindowProblem, times: np.ndarray, out: ConstraintSet):
-    """Newton and Euler residuals (3, n) each at `times`, for the rows of `out` (WindowProblem.read), scaled by body weight (and 1 m), forces f in body
-    weights: r''/g + z - sum f and (I_w w' + w x I_w w + tau_int)/(m g) - sum (p - r) x f, tau_int the input's
-    internal torque (ReducedMotion.internal_torque) when `internal_momentum` is on, else zero."""
+    """Newton and Euler residuals (3, n) each at `times`, written for the rows of `out` (WindowProblem.read),
+    scaled by body weight (and 1 m), forces f in body weights: r''/g + z - sum f and
+    (I_w w' + w x I_w w + tau_int)/(m g) - sum (p - r) x f, tau_int the input's internal torque
+    (ReducedMotion.internal_torque) when `internal_momentum` is on, else zero."""
     s, red = problem.settings, problem.window.reduced
     n = len(times)
     r = problem.read(out, problem.com.position, times, 0)
@@ -649,7 +658,8 @@ def foot_length(problem: WindowProblem) -> ConstraintSet:
     times = free_times(w, sample_times(w.t0, w.t1, s.kinematic_interval, red.times))
     out = ConstraintSet("foot_length")
     for side, (heel, toe) in enumerate(FOOT_PAIRS):
-        d = problem.read(out, problem.feet[heel].trajectory, times) - problem.read(out, problem.feet[toe].trajectory, times)
+        feet = problem.feet
+        d = problem.read(out, feet[heel].trajectory, times) - problem.read(out, feet[toe].trajectory, times)
         out.add(ca.sum1(d * d) / red.foot_length[side] ** 2 - 1.0)
     return out
 

@@ -103,6 +103,10 @@ class Trajectory:
     def __init__(self, segments: list[Segment]):
         self.segments = segments
         self._starts = np.array([s.nominal[0] for s in segments])
+        self._ends = np.array([s.nominal[1] for s in segments])
+        # (segments, 4, DIM) indices of each segment's p0, v0, p1, v1 in x (-1: zero), read by `matrix`.
+        self._nodes = np.array([[s.first.value, s.first.derivative, s.second.value, s.second.derivative]
+                                for s in segments]).reshape(len(segments), 4, DIM)
         self.symbolic_times = any(s.moves for s in segments)
 
     @property
@@ -124,15 +128,13 @@ class Trajectory:
         t0 z, t1 x, ...), at the nominal timing."""
         times = np.asarray(times, float)
         seg = self.segment_at(times)
-        t0 = np.array([self.segments[k].nominal[0] for k in seg])
-        t1 = np.array([self.segments[k].nominal[1] for k in seg])
-        h = t1 - t0
+        t0 = self._starts[seg]
+        h = self._ends[seg] - t0
         weights = hermite_weights((times - t0) / h, h, order)
         rows, cols, vals = [], [], []
-        for w, (node_attr, field_name) in zip(weights, (("first", "value"), ("first", "derivative"),
-                                                        ("second", "value"), ("second", "derivative")), strict=True):
-            idx = np.stack([getattr(getattr(self.segments[k], node_attr), field_name) for k in seg])  # (n, DIM)
-            r = DIM * np.arange(len(times))[:, None] + np.arange(DIM)
+        r = DIM * np.arange(len(times))[:, None] + np.arange(DIM)
+        for k, w in enumerate(weights):
+            idx = self._nodes[seg, k]  # (n, DIM)
             keep = idx >= 0
             rows.append(r[keep])
             cols.append(idx[keep])
