@@ -157,10 +157,13 @@ def solve_window(window: Window, settings: TrajoptSettings, budget: int | None =
     budget = settings.max_iterations if budget is None else budget
     problem = build_window_problem(window, settings)
     program = _program(problem, settings)
+    # The force limits read only the forces, held in the fit: constant rows, left out with the dynamics.
+    fit_relaxed = ("dynamics", "force_limits")
+    program.prepare(fit_relaxed)
     build = time.perf_counter() - start
     stages = []
     # Half the budget at most: a fit cut short starts the dynamics worse (docs/decisions/trajopt-long-clips.md).
-    fit = program.solve(program.initial(), fixed=problem.force_set_names, relaxed=("dynamics",),
+    fit = program.solve(program.initial(), fixed=problem.force_set_names, relaxed=fit_relaxed,
                         max_iterations=max(1, budget // 2))
     stages.append(_report("fit", fit))
     x0 = _force_guess(problem, program, fit.x)
