@@ -409,6 +409,36 @@ def test_program_derivatives_equal_casadis_whole_program_ones():
     assert sol.converged and abs(sol.x[0] * sol.x[1] - 1) < 1e-6
 
 
+def test_window_derivatives_from_matrices_equal_casadis_whole_program_ones(body):
+    """A window's least-squares costs (from their matrices) and constraint rows written on read symbols (chain
+    rule through the sampling matrices) give the gradient, Jacobian and Hessian of CasADi's differentiation of the
+    whole program, the Jacobian with no extra structural entries (a force in flight reads nothing)."""
+    q = sway(body, 30)
+    red = reduced_motion(body, q, FPS)
+    flags = np.ones(30, bool)
+    flags[12:18] = False
+    phases = [contact_phases(flags, red.times)] + [contact_phases(np.ones(30, bool), red.times)] * 3
+    problem = build_window_problem(Window(red, phases), TrajoptSettings())
+    program = Program(problem.x, problem.variable_sets, list(problem.constraints.values()),
+                      list(problem.costs.values()), {})
+    read = {c.name for c in program.constraints if c.inputs}
+    assert read == {"dynamics", "foot_length", "leg_length"}
+    assert all(c.squares is not None for c in program.costs)
+    derivatives = program._derivatives()
+    x, g = program.x, program.g
+    lam_f, lam_g = ca.SX.sym("lf"), ca.SX.sym("lg", g.shape[0])
+    jacobian = ca.jacobian(g, x)
+    expected = ca.Function("e", [x, lam_f, lam_g], [ca.gradient(program.f, x), jacobian,
+                                                     ca.triu(ca.hessian(lam_f * program.f + ca.dot(lam_g, g), x)[0])])
+    assert derivatives["jac_g"].sparsity_out(1).nnz() == jacobian.nnz()
+    rng = np.random.default_rng(3)
+    xv, lf, lg = rng.normal(size=int(x.shape[0])), rng.normal(), rng.normal(size=int(g.shape[0]))
+    grad, jac, hess = (np.asarray(ca.densify(v)) for v in expected(xv, lf, lg))
+    assert np.allclose(np.asarray(derivatives["grad_f"](xv, [])[1]).ravel(), grad.ravel(), rtol=1e-9, atol=1e-9)
+    assert np.allclose(np.asarray(ca.densify(derivatives["jac_g"](xv, [])[1])), jac, rtol=1e-9, atol=1e-9)
+    assert np.allclose(np.asarray(ca.densify(derivatives["hess_lag"](xv, [], lf, lg))), hess, rtol=1e-9, atol=1e-9)
+
+
 def test_window_ranges_cover_the_clip_with_overlap():
     s = TrajoptSettings(window_seconds=2.0, window_overlap=0.5)
     ranges = window_ranges(301, FPS, s)

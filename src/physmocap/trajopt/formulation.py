@@ -46,7 +46,7 @@ from ..config import TrajoptSettings
 from .phases import Phase, flags_from_phases, segment_count
 from .problem import ConstraintSet, CostTerm, VariableSet
 from .reduced import ReducedMotion
-from .splines import Node, Segment, Trajectory
+from .splines import Node, Segment, Trajectory, to_dm
 
 # The program's symbols. Scalar graphs (SX) evaluate fastest at these sizes; CasADi builds their exact first
 # and second derivatives once per program (measured: MX graphs build no faster here and iterate 5x slower).
@@ -487,12 +487,28 @@ class WindowProblem:
     def sample(self, trajectory: Trajectory, times: np.ndarray | list[float], order: int = 0) -> ca.SX:
         return trajectory.sample(self.x, times, order)
 
+    def values(self, trajectory: Trajectory, times: np.ndarray | list[float], x: np.ndarray,
+               order: int = 0) -> np.ndarray:
+        """(3, n) numbers: `sample` at the solution x (n,), by the sampling matrix where the times are fixed."""
+        times = np.asarray(times, float)
+        if not trajectory.symbolic_times:
+            return (trajectory.matrix(times, order, len(x)) @ x).reshape(len(times), 3).T
+        return np.asarray(ca.Function("values", [self.x], [self.sample(trajectory, times, order)])(x))
+
+    def read(self, out: ConstraintSet, trajectory: Trajectory, times: np.ndarray | list[float], order: int = 0):
+        """(3, n) samples like `sample`, for the rows of `out`: symbols read by `out` (the program differentiates
+        the rows in them) where the trajectory's times are fixed, else expressions of x."""
+        if trajectory.symbolic_times:
+            return self.sample(trajectory, times, order)
+        times = np.asarray(times, float)
+        return ca.reshape(out.read(trajectory.matrix(times, order, int(self.x.shape[0])), self.x), 3, len(times))
+
     def select(self, starts: np.ndarray) -> ca.SX:
         """(3, k) the entries x[a:a + 3] for each a in starts (k,), by one sparse product."""
         rows = np.arange(3 * len(starts))
         cols = (np.asarray(starts)[:, None] + np.arange(3)).ravel()
         M = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(rows), int(self.x.shape[0])))
-        return ca.reshape(ca.mtimes(ca.DM(M), self.x), 3, len(starts))
+        return ca.reshape(ca.mtimes(to_dm(M), self.x), 3, len(starts))
 
     def contacts(self) -> np.ndarray:
         """(n, 4) contact flags of the window's frames under the input timing."""
@@ -560,15 +576,16 @@ def _offset_of(problem: WindowProblem, target: VariableSet) -> int:
 
 
 # ---- constraint sets ---------------------------------------------------------------------------------------
-def dynamics_residuals(problem: WindowProblem, times: np.ndarray):
-    """Newton and Euler residuals (3, n) each at `times`, scaled by body weight (and 1 m), forces f in body
-    weights: r''/g + z - sum f and (I_w w' + w x I_w w + tau_int)/(m g) - sum (p - r) x f, tau_int the input's
-    internal torque (ReducedMotion.internal_torque) when `internal_momentum` is on, else zero."""
+def dynamics_residuals(problem: WindowProblem, times: np.ndarray, out: ConstraintSet):
+    """Newton and Euler residuals (3, n) each at `times`, written for the rows of `out` (WindowProblem.read),
+    scaled by body weight (and 1 m), forces f in body weights: r''/g + z - sum f and
+    (I_w w' + w x I_w w + tau_int)/(m g) - sum (p - r) x f, tau_int the input's internal torque
+    (ReducedMotion.internal_torque) when `internal_momentum` is on, else zero."""
     s, red = problem.settings, problem.window.reduced
     n = len(times)
-    r = problem.sample(problem.com.position, times, 0)
-    acc = problem.sample(problem.com.position, times, 2)
-    e = [problem.sample(problem.com.orientation, times, k) for k in range(3)]
+    r = problem.read(out, problem.com.position, times, 0)
+    acc = problem.read(out, problem.com.position, times, 2)
+    e = [problem.read(out, problem.com.orientation, times, k) for k in range(3)]
     torque = euler_torque(e[0], e[1], e[2], interpolate(red.times, red.inertia, times))
     if s.internal_momentum:
         torque = torque + ca.DM(interpolate(red.times, red.internal_torque, times).T)
@@ -576,9 +593,9 @@ def dynamics_residuals(problem: WindowProblem, times: np.ndarray):
     for i, force in enumerate(problem.forces):
         if not force.any_contact:
             continue
-        f = problem.sample(force.trajectory, times)
+        f = problem.read(out, force.trajectory, times)
         total = total + f
-        moment = moment + cross(problem.sample(problem.feet[i].trajectory, times) - r, f)
+        moment = moment + cross(problem.read(out, problem.feet[i].trajectory, times) - r, f)
     up = ca.DM([[0.0], [0.0], [1.0]]) @ ca.DM.ones(1, n)
     return acc / s.gravity + up - total, torque / (red.mass * s.gravity) - moment
 
@@ -590,11 +607,11 @@ def dynamics(problem: WindowProblem) -> ConstraintSet:
     move the COM."""
     s, w, red = problem.settings, problem.window, problem.window.reduced
     times = sample_times(w.t0, w.t1, s.dynamics_interval, red.times)
-    linear, angular = dynamics_residuals(problem, times)
+    out = ConstraintSet("dynamics")
+    linear, angular = dynamics_residuals(problem, times, out)
     linear_times = frame_sample_times(red.times, s.linear_dynamics_interval)
     if not np.array_equal(linear_times, times):
-        linear, _ = dynamics_residuals(problem, linear_times)
-    out = ConstraintSet("dynamics")
+        linear, _ = dynamics_residuals(problem, linear_times, out)
     out.add(linear)
     out.add(angular)
     return out
@@ -620,7 +637,7 @@ def acceleration_continuity(problem: WindowProblem) -> ConstraintSet:
             free = (np.abs(knots[:, None] - changes[None]) <= reach).any(axis=1)  # none without changes
             M = M[np.repeat(~free, M.shape[0] // len(knots))]  # rows: DIM per inner knot
             if M.shape[0]:
-                out.add(ca.mtimes(ca.DM(M), problem.x))
+                out.add(ca.mtimes(to_dm(M), problem.x))
     return out
 
 
@@ -641,7 +658,8 @@ def foot_length(problem: WindowProblem) -> ConstraintSet:
     times = free_times(w, sample_times(w.t0, w.t1, s.kinematic_interval, red.times))
     out = ConstraintSet("foot_length")
     for side, (heel, toe) in enumerate(FOOT_PAIRS):
-        d = problem.sample(problem.feet[heel].trajectory, times) - problem.sample(problem.feet[toe].trajectory, times)
+        feet = problem.feet
+        d = problem.read(out, feet[heel].trajectory, times) - problem.read(out, feet[toe].trajectory, times)
         out.add(ca.sum1(d * d) / red.foot_length[side] ** 2 - 1.0)
     return out
 
@@ -651,12 +669,12 @@ def leg_length(problem: WindowProblem) -> ConstraintSet:
     offset from the COM in the root frame."""
     s, w, red = problem.settings, problem.window, problem.window.reduced
     times = free_times(w, sample_times(w.t0, w.t1, s.kinematic_interval, red.times))
-    r = problem.sample(problem.com.position, times)
-    e = problem.sample(problem.com.orientation, times)
-    hips = interpolate(red.times, red.hips, times)  # (n, 4, 3)
     out = ConstraintSet("leg_length")
+    r = problem.read(out, problem.com.position, times)
+    e = problem.read(out, problem.com.orientation, times)
+    hips = interpolate(red.times, red.hips, times)  # (n, 4, 3)
     for i, foot in enumerate(problem.feet):
-        d = problem.sample(foot.trajectory, times) - r - rotate(e, ca.DM(hips[:, i].T))
+        d = problem.read(out, foot.trajectory, times) - r - rotate(e, ca.DM(hips[:, i].T))
         out.add(ca.sum1(d * d) / red.leg_length[i] ** 2, -np.inf, 1.0)
     return out
 
@@ -718,44 +736,44 @@ CONSTRAINTS = dict(dynamics=dynamics, acceleration_continuity=acceleration_conti
 FEET_SMOOTHING_STEP = 1.0 / 30.0  # s
 
 
-def _frame_cost(problem: WindowProblem, order: int, weights: tuple[float, float, float], targets: bool) -> ca.SX:
+def _frame_cost(problem: WindowProblem, name: str, order: int, weights: tuple[float, float, float],
+                targets: bool) -> CostTerm:
     red = problem.window.reduced
     times = red.times
-    w_r, w_theta = weights[0], weights[1]
     w_p = weights[2] * FEET_SMOOTHING_STEP ** (2 * order)
-    r = problem.sample(problem.com.position, times, order)
-    e = problem.sample(problem.com.orientation, times, order)
-    if targets:
-        r, e = r - ca.DM(red.com.T), e - ca.DM(red.euler.T)
-    total = w_r * ca.sumsqr(r) + w_theta * ca.sumsqr(e)
-    for i, foot in enumerate(problem.feet):
-        p = problem.sample(foot.trajectory, times, order)
-        if targets:
-            p = p - ca.DM(red.feet[:, i].T)
-        total = total + w_p * ca.sumsqr(p)
-    return total
+    parts = [(weights[0], problem.com.position, red.com), (weights[1], problem.com.orientation, red.euler)]
+    parts += [(w_p, foot.trajectory, red.feet[:, i]) for i, foot in enumerate(problem.feet)]
+    if not any(trajectory.symbolic_times for _, trajectory, _ in parts):
+        size = int(problem.x.shape[0])
+        return CostTerm.least_squares(name, problem.x, [
+            (weight, trajectory.matrix(times, order, size), target.ravel() if targets else np.zeros(target.size))
+            for weight, trajectory, target in parts])
+    total: Any = 0
+    for weight, trajectory, target in parts:
+        value = problem.sample(trajectory, times, order)
+        total = total + weight * ca.sumsqr(value - ca.DM(target.T) if targets else value)
+    return CostTerm(name, total)
 
 
 def data(problem: WindowProblem) -> CostTerm:
     """E_data (1): w_r |r - r_in|^2 + w_theta |theta - theta_in|^2 + w_p sum |p_i - p_in,i|^2 at every frame."""
     s = problem.settings
-    return CostTerm("data", _frame_cost(problem, 0, (s.weight_com, s.weight_orientation, s.weight_feet), True))
+    return _frame_cost(problem, "data", 0, (s.weight_com, s.weight_orientation, s.weight_feet), True)
 
 
 def velocity(problem: WindowProblem) -> CostTerm:
     """E_vel (3): gamma_r |r'|^2 + gamma_theta |theta'|^2 + gamma_p sum |p_i'|^2 at every frame (the feet's per
     1/30 s step)."""
     s = problem.settings
-    return CostTerm("velocity", _frame_cost(problem, 1, (s.velocity_com, s.velocity_orientation, s.velocity_feet),
-                                            False))
+    return _frame_cost(problem, "velocity", 1, (s.velocity_com, s.velocity_orientation, s.velocity_feet), False)
 
 
 def acceleration(problem: WindowProblem) -> CostTerm:
     """E_acc (4): beta_r |r''|^2 + beta_theta |theta''|^2 + beta_p sum |p_i''|^2 at every frame (the feet's per
     (1/30 s)^2)."""
     s = problem.settings
-    return CostTerm("acceleration", _frame_cost(
-        problem, 2, (s.acceleration_com, s.acceleration_orientation, s.acceleration_feet), False))
+    return _frame_cost(problem, "acceleration", 2,
+                       (s.acceleration_com, s.acceleration_orientation, s.acceleration_feet), False)
 
 
 def duration(problem: WindowProblem) -> CostTerm:
@@ -781,11 +799,22 @@ def force_rate(problem: WindowProblem) -> CostTerm:
     total: Any = 0  # a CasADi expression once a force adds to it
     if len(times) < 2:
         return CostTerm("force_rate", total)
+    forces = [force for force in problem.forces if force.any_contact]
+    if not any(force.trajectory.symbolic_times for force in forces):
+        # Rows 3k + d of the samples (time-major): (f(t_k+1) - f(t_k)) / (t_k+1 - t_k), component d.
+        n, size = len(times), int(problem.x.shape[0])
+        step = np.repeat(1.0 / np.diff(times), 3)
+        rows = np.arange(3 * (n - 1))
+        rate_of = sp.csr_matrix((np.concatenate([-step, step]), (np.concatenate([rows, rows]),
+                                                                 np.concatenate([rows, rows + 3]))),
+                                shape=(3 * (n - 1), 3 * n))
+        return CostTerm.least_squares("force_rate", problem.x, [
+            (s.force_rate, rate_of @ force.trajectory.matrix(times, 0, size), np.zeros(3 * (n - 1)))
+            for force in forces])
     step = ca.DM(1.0 / np.diff(times)).T
-    for force in problem.forces:
-        if force.any_contact:
-            f = problem.sample(force.trajectory, times)
-            total = total + s.force_rate * ca.sumsqr((f[:, 1:] - f[:, :-1]) * ca.repmat(step, 3, 1))
+    for force in forces:
+        f = problem.sample(force.trajectory, times)
+        total = total + s.force_rate * ca.sumsqr((f[:, 1:] - f[:, :-1]) * ca.repmat(step, 3, 1))
     return CostTerm("force_rate", total)
 
 

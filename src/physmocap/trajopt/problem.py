@@ -3,7 +3,8 @@ initial values), constraint sets (expressions and bounds) and cost terms (scalar
 through CasADi with exact first and second derivatives (CasADi's algorithmic differentiation).
 
 A stage of a staged solve is the same program with some variable sets held at their values (`fixed`) and some
-constraint sets switched off (`relaxed`), so the program is built once and solved several times.
+constraint sets switched off (`relaxed`, left out of what IPOPT solves), so the program and its derivatives are
+built once and solved several times (one IPOPT instance per choice of switched-off sets).
 """
 
 from __future__ import annotations
@@ -17,6 +18,9 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+import scipy.sparse as sp
+
+from .splines import to_dm
 
 INF = np.inf
 
@@ -41,13 +45,41 @@ class VariableSet:
 @dataclass
 class ConstraintSet:
     """Constraints lower <= g(x) <= upper, collected row block by row block. `linear`: g is linear in x (its
-    Hessian is zero and is not built)."""
+    Hessian is zero and is not built). Rows may be written on `read` symbols, each standing for a sparse linear
+    map of x: they are then differentiated in those few symbols and mapped to x by the chain rule."""
 
     name: str
     linear: bool = False
     rows: list = field(default_factory=list)
     lower: list = field(default_factory=list)
     upper: list = field(default_factory=list)
+    inputs: list = field(default_factory=list)  # (symbols (k, 1), scipy sparse map (k, n)) of every read
+
+    def read(self, matrix: sp.spmatrix, x):
+        """(k, 1) standing for matrix @ x, matrix a scipy sparse (k, n) map, x the program's variables: a symbol
+        per row that reads x, a structural zero per empty row (a force in flight), so that, as in an expression
+        graph, nothing multiplied by it depends on x."""
+        matrix = sp.csr_matrix(matrix)
+        used = np.flatnonzero(np.diff(matrix.indptr))
+        symbols = type(x).sym(f"{self.name}_{len(self.inputs)}", len(used))
+        self.inputs.append((symbols, matrix[used]))
+        place = sp.csr_matrix((np.ones(len(used)), (used, np.arange(len(used)))), shape=(matrix.shape[0], len(used)))
+        return ca.mtimes(to_dm(place), symbols)
+
+    def local_form(self):
+        """(rows in the read symbols z, z, the sparse map S with z = S x), or None when nothing was read."""
+        if not self.inputs:
+            return None
+        return (ca.densify(self.expression()), ca.vertcat(*[z for z, _ in self.inputs]),
+                sp.vstack([m for _, m in self.inputs]).tocsr())
+
+    def expression_in(self, x):
+        """The rows as expressions of x (the read symbols replaced by their maps)."""
+        local = self.local_form()
+        if local is None:
+            return self.expression()
+        rows, z, S = local
+        return ca.substitute(rows, z, ca.densify(ca.mtimes(to_dm(S), x)))
 
     def add(self, expression, lower=0.0, upper=0.0) -> None:
         expression = ca.vec(expression)
@@ -71,10 +103,29 @@ class ConstraintSet:
 
 @dataclass
 class CostTerm:
-    """A scalar term of the objective."""
+    """A scalar term of the objective. `squares`: the term is sum_k w_k |M_k x - t_k|^2, given as (w_k, M_k
+    scipy sparse, t_k) blocks, so its gradient and (constant) Hessian are built from the matrices; None: `value`
+    is any expression, differentiated by CasADi."""
 
     name: str
     value: Any  # a CasADi scalar expression (SX or MX) in the variable vector
+    squares: list | None = None
+
+    @staticmethod
+    def least_squares(name: str, x, squares: list) -> CostTerm:
+        """sum_k w_k |M_k x - t_k|^2 from (w_k, M_k, t_k) blocks: M_k (m, n) scipy sparse, t_k (m,)."""
+        value = type(x)(0)
+        for weight, matrix, target in squares:
+            value = value + weight * ca.sumsqr(ca.mtimes(to_dm(matrix), x) - ca.DM(target))
+        return CostTerm(name, value, squares)
+
+    def hessian_and_offset(self, size: int) -> tuple[sp.csr_matrix, np.ndarray]:
+        """(H, b) of a least-squares term: its gradient is H x - b, its Hessian H (constant)."""
+        hessian, offset = sp.csr_matrix((size, size)), np.zeros(size)
+        for weight, matrix, target in self.squares or []:
+            hessian = hessian + 2 * weight * (matrix.T @ matrix)
+            offset += 2 * weight * (matrix.T @ target)
+        return sp.csr_matrix(hessian), offset
 
 
 @dataclass
@@ -181,40 +232,104 @@ class Program:
         if sum(v.size for v in variables) != x.shape[0]:
             raise ValueError("the variable sets do not lay out the whole variable vector")
         zero = type(x)(0)
-        self.g = ca.densify(ca.vertcat(*[c.expression() for c in constraints])) if constraints else type(x)(0, 1)
+        self.g = (ca.densify(ca.vertcat(*[c.expression_in(x) for c in constraints])) if constraints
+                  else type(x)(0, 1))
         self.f = sum((c.value for c in costs), zero)
         self.lbg = np.concatenate([c.bounds()[0] for c in constraints]) if constraints else np.zeros(0)
         self.ubg = np.concatenate([c.bounds()[1] for c in constraints]) if constraints else np.zeros(0)
-        self.iteration_limit = IterationLimit(int(x.shape[0]), int(self.g.shape[0]))
-        options: dict[str, Any] = {"ipopt": dict(ipopt_options), "print_time": False, "error_on_fail": False,
-                   "iteration_callback": self.iteration_limit}
-        options["ipopt"].setdefault("print_level", 0)
-        options["ipopt"].setdefault("sb", "yes")
-        if isinstance(x, ca.SX):
-            options.update(self._derivatives())
-        self.solver = ca.nlpsol("trajopt", "ipopt", {"x": self.x, "f": self.f, "g": self.g}, options)
+        self.ipopt_options = dict(ipopt_options)
+        self._pieces = self._differentiate() if isinstance(x, ca.SX) else None
+        self._solvers: dict[tuple[str, ...], tuple[Any, IterationLimit, np.ndarray]] = {}
+        self._solver(tuple(c.name for c in constraints))
         self.cost_values = ca.Function("costs", [self.x], [c.value for c in costs] or [zero])
         self.constraint_values = ca.Function("constraints", [self.x], [self.g])
 
-    def _derivatives(self) -> dict:
-        """Exact Jacobian of the constraints and Hessian of the Lagrangian, by CasADi's differentiation of each
-        piece on its own and summed: the pieces are small and sparse, so this builds several times faster than
-        differentiating the whole program at once (same values); linear constraint sets add no Hessian."""
+    def _differentiate(self) -> dict:
+        """Exact gradient of the objective, and each constraint set's Jacobian and share of the Lagrangian's
+        Hessian, piece by piece: a least-squares cost's from its matrices (its Hessian is constant), a constraint
+        set written on read symbols z = S x by CasADi's differentiation in z and the chain rule (J S, S^T H S; each
+        row depends on a few of the many x), any other piece by CasADi's differentiation in x; linear constraint
+        sets add no Hessian. Much faster to build than differentiating the whole program at once (same values up
+        to rounding)."""
         x = self.x
-        no_parameters = ca.SX(0, 1)
+        size = int(x.shape[0])
         lam_f, lam_g = ca.SX.sym("lam_f"), ca.SX.sym("lam_g", self.g.shape[0])
-        hessian = ca.SX(x.shape[0], x.shape[0])
+        constant_hessian, offset = sp.csr_matrix((size, size)), np.zeros(size)
+        gradient, hessian = ca.SX(size, 1), ca.SX(size, size)
         for cost in self.costs:
-            hessian = hessian + lam_f * ca.hessian(cost.value, x)[0]
-        blocks = []
+            if cost.squares is None:
+                gradient = gradient + ca.gradient(cost.value, x)
+                hessian = hessian + lam_f * ca.hessian(cost.value, x)[0]
+            else:
+                h, b = cost.hessian_and_offset(size)
+                constant_hessian, offset = constant_hessian + h, offset + b
+        gradient = gradient + ca.mtimes(to_dm(constant_hessian), x) - ca.DM(offset)
+        hessian = hessian + lam_f * to_dm(sp.triu(constant_hessian))
+        pieces: dict[str, tuple] = {}
         for c in self.constraints:
-            g = ca.densify(c.expression())
-            blocks.append(ca.jacobian(g, x))
-            if not c.linear:
-                hessian = hessian + ca.hessian(ca.dot(lam_g[self.con_slices[c.name]], g), x)[0]
-        jacobian = ca.vertcat(*blocks) if blocks else ca.SX(0, x.shape[0])
-        return {"hess_lag": ca.Function("hess_lag", [x, no_parameters, lam_f, lam_g], [ca.triu(hessian)]),
-                "jac_g": ca.Function("jac_g", [x, no_parameters], [self.g, jacobian])}
+            local = c.local_form()
+            lam = lam_g[self.con_slices[c.name]]
+            if local is not None and not ca.depends_on(local[0], x):
+                rows, z, S = local
+                S_dm = to_dm(S)
+                jacobian_z = ca.jacobian(rows, z)
+                outputs = [jacobian_z] if c.linear else [jacobian_z, ca.hessian(ca.dot(lam, rows), z)[0]]
+                values = ca.Function("piece", [z, lam], outputs)(ca.densify(ca.mtimes(S_dm, x)), lam)
+                share = None if c.linear else ca.triu(ca.mtimes(S_dm.T, ca.mtimes(values[1], S_dm)))
+                pieces[c.name] = (lam, ca.mtimes(values[0], S_dm), share)
+                continue
+            g = ca.densify(c.expression_in(x))
+            share = None if c.linear else ca.triu(ca.hessian(ca.dot(lam, g), x)[0])
+            pieces[c.name] = (lam, ca.jacobian(g, x), share)
+        return dict(lam_f=lam_f, gradient=gradient, hessian=hessian, constraints=pieces)
+
+    def _derivatives(self, active: tuple[str, ...] | None = None) -> dict:
+        """CasADi's grad_f, jac_g and hess_lag Functions of the program with the constraint sets `active` (None:
+        all), from the pieces."""
+        pieces, x = self._pieces, self.x
+        active = tuple(c.name for c in self.constraints) if active is None else active
+        no_parameters = ca.SX(0, 1)
+        lam_f, hessian = pieces["lam_f"], pieces["hessian"]
+        parts = [pieces["constraints"][c.name] for c in self.constraints if c.name in active]
+        for _, _, share in parts:
+            if share is not None:
+                hessian = hessian + share
+        lam_g = ca.vertcat(*[lam for lam, _, _ in parts]) if parts else ca.SX(0, 1)
+        jacobian = ca.vertcat(*[jac for _, jac, _ in parts]) if parts else ca.SX(0, x.shape[0])
+        g = self.g[self._rows(active).tolist()] if parts else ca.SX(0, 1)
+        return {"grad_f": ca.Function("grad_f", [x, no_parameters], [self.f, pieces["gradient"]]),
+                "hess_lag": ca.Function("hess_lag", [x, no_parameters, lam_f, lam_g], [ca.triu(hessian)]),
+                "jac_g": ca.Function("jac_g", [x, no_parameters], [g, jacobian])}
+
+    def prepare(self, relaxed: tuple[str, ...]) -> None:
+        """Build now the IPOPT instance that `solve` uses with the constraint sets `relaxed` switched off."""
+        self._solver(tuple(c.name for c in self.constraints if c.name not in relaxed))
+
+    def _rows(self, active: tuple[str, ...]) -> np.ndarray:
+        """Indices of the rows of g of the constraint sets `active`, in program order."""
+        ranges = [np.arange(self.con_slices[c.name].start, self.con_slices[c.name].stop)
+                  for c in self.constraints if c.name in active]
+        return np.concatenate(ranges) if ranges else np.zeros(0, int)
+
+    def _solver(self, active: tuple[str, ...]):
+        """IPOPT on the program with only the constraint sets `active` (built once per such set), its iteration
+        limit and the rows of g it holds."""
+        if active not in self._solvers:
+            rows = self._rows(active)
+            g = self.g[rows.tolist()] if len(rows) else type(self.x)(0, 1)
+            limit = IterationLimit(int(self.x.shape[0]), len(rows))
+            # No 'nlp_grad' (the Lagrangian's gradient, by differentiating the whole program, for multipliers
+            # that are never read): the larger part of nlpsol's build.
+            options: dict[str, Any] = {"ipopt": dict(self.ipopt_options), "print_time": False,
+                                       "error_on_fail": False, "iteration_callback": limit, "no_nlp_grad": True,
+                                       "calc_lam_p": False}
+            options["ipopt"].setdefault("print_level", 0)
+            options["ipopt"].setdefault("sb", "yes")
+            if self._pieces is not None:
+                options.update(self._derivatives(active))
+            solver = ca.nlpsol("trajopt", "ipopt", {"x": self.x, "f": self.f, "g": g}, options)
+            self._solvers[active] = (solver, limit, rows)
+        return self._solvers[active]
 
     @property
     def num_variables(self) -> int:
@@ -245,29 +360,27 @@ class Program:
         for name in fixed:
             sl = self.var_slices[name]
             lbx[sl] = ubx[sl] = x0[sl]
-        lbg, ubg = self.lbg.copy(), self.ubg.copy()
-        active = np.ones(len(lbg), bool)
-        for name in relaxed:
-            rows = self.con_slices.get(name)
-            if rows is not None:
-                lbg[rows], ubg[rows] = -INF, INF
-                active[rows] = False
+        # A switched-off set is left out of the program IPOPT solves (not held with infinite bounds: its rows
+        # would still be in every linear system).
+        self.prepare(relaxed)
+        solver, limit, rows = self._solver(tuple(c.name for c in self.constraints if c.name not in relaxed))
+        lbg, ubg = self.lbg[rows], self.ubg[rows]
         start = time.perf_counter()
-        self.iteration_limit.limit, self.iteration_limit.count = max_iterations, 0
+        limit.limit, limit.count = max_iterations, 0
         with interrupts_noted() as interrupted:
-            out = self.solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+            out = solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
         if interrupted:  # Ctrl-C inside IPOPT: the run stops, this solve's result is not used
             raise KeyboardInterrupt
         seconds = time.perf_counter() - start
-        stats = self.solver.stats()
+        stats = solver.stats()
         x = np.asarray(out["x"]).ravel()
         g = np.asarray(out["g"]).ravel()
         violation = np.maximum(lbg - g, 0) + np.maximum(g - ubg, 0)
-        violation = float(violation[active].max()) if active.any() else 0.0
+        violation = float(violation.max()) if len(violation) else 0.0
         costs = [float(c) for c in self.cost_values.call([x])] if self.costs else []
         status = str(stats.get("return_status", "unknown"))
         if (max_iterations is not None and status == "User_Requested_Stop"
-                and self.iteration_limit.count > max_iterations):
+                and limit.count > max_iterations):
             status = "Maximum_Iterations_Exceeded"  # stopped by max_iterations, not by the user
         return Solution(x, {v.name: x[self.var_slices[v.name]] for v in self.variables}, float(out["f"]),
                         {c.name: v for c, v in zip(self.costs, costs, strict=True)}, status,
