@@ -811,10 +811,10 @@ def force_rate(problem: WindowProblem) -> CostTerm:
         return CostTerm.least_squares("force_rate", problem.x, [
             (s.force_rate, rate_of @ force.trajectory.matrix(times, 0, size), np.zeros(3 * (n - 1)))
             for force in forces])
-    step = ca.DM(1.0 / np.diff(times)).T
+    rate = ca.DM(1.0 / np.diff(times)).T
     for force in forces:
         f = problem.sample(force.trajectory, times)
-        total = total + s.force_rate * ca.sumsqr((f[:, 1:] - f[:, :-1]) * ca.repmat(step, 3, 1))
+        total = total + s.force_rate * ca.sumsqr((f[:, 1:] - f[:, :-1]) * ca.repmat(rate, 3, 1))
     return CostTerm("force_rate", total)
 
 

@@ -285,8 +285,10 @@ class Program:
 
     def _derivatives(self, active: tuple[str, ...] | None = None) -> dict:
         """CasADi's grad_f, jac_g and hess_lag Functions of the program with the constraint sets `active` (None:
-        all), from the pieces."""
+        all), from the pieces (a program on SX symbols only)."""
         pieces, x = self._pieces, self.x
+        if pieces is None:
+            raise ValueError("derivatives from pieces need a program on SX symbols")
         active = tuple(c.name for c in self.constraints) if active is None else active
         no_parameters = ca.SX(0, 1)
         lam_f, hessian = pieces["lam_f"], pieces["hessian"]
