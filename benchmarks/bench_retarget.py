@@ -42,7 +42,7 @@ from physmocap.config import Settings  # noqa: E402
 from physmocap.export import body_from_result  # noqa: E402
 from physmocap.io.bvh_export import write_bvh  # noqa: E402
 from physmocap.io.glb import write_glb  # noqa: E402
-from physmocap.metrics import GRAVITY, foot_contact_errors  # noqa: E402
+from physmocap.metrics import GRAVITY, foot_contact_errors, mean_acceleration  # noqa: E402
 from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
 from physmocap.mocap.synthetic import make_observations, random_camera, resample  # noqa: E402
 from physmocap.pipeline import run_capture  # noqa: E402
@@ -121,7 +121,8 @@ def real_source(video: str, work: Path, physics: str) -> Path:
 
 def source_feet(result: dict) -> dict:
     """The source capture's own heel and toe points against its own contact labels, frames with a person: Rempe's
-    skate and penetration, and its contact runs whose point slid more than 10 cm from where it touched down."""
+    skate and penetration, its contact runs whose point slid more than 10 cm from where it touched down, and its
+    joints' jitter."""
     body = body_from_result(result)
     feet = kin.forward_kinematics(body, result["qpos"]).points[:, body.point_index(CONTACT_POINTS)]
     valid, contacts = np.asarray(result["valid"], bool), np.asarray(result["contacts"], bool)
@@ -130,7 +131,13 @@ def source_feet(result: dict) -> dict:
               for k in range(len(CONTACT_POINTS)) for s, e in contact_runs(contacts[:, k])]
     return dict(skate_percent=errors["skate_percent"], penetration_percent=errors["penetration_percent"],
                 contact_runs=len(drifts), runs_sliding_over_10cm=sum(d > 0.1 for d in drifts),
-                largest_slide_m=max(drifts, default=0.0))
+                largest_slide_m=max(drifts, default=0.0), jitter=jitter(result))
+
+
+def jitter(result: dict) -> float:
+    """m/s^2: mean acceleration of the result's joints (metrics.mean_acceleration) over the frames with a person."""
+    valid = np.asarray(result["valid"], bool)
+    return float(mean_acceleration(result["joints_world"][valid], float(result["fps"])))
 
 
 def needed_force_percent_bw(result: dict, frames: int = 9) -> float:
@@ -170,6 +177,7 @@ def run(work: Path, quick: bool, trajopt: bool, source_physics: str, validation:
                 row = dict(source=source_name, rig=rig_name, **report.metrics,
                            com_over_hip_height=float(result["center_of_mass"][:, 2].mean() / hips),
                            needed_force_percent_bw=needed_force_percent_bw(result),
+                           jitter=jitter(result),
                            mass_kg=report.character["mass_kg"], height_m=report.character["height_m"],
                            wall_seconds=wall)
                 rows.append(row)
@@ -202,8 +210,8 @@ def markdown(data: dict) -> str:
              "outside).", "",
              "| source | rig | physics | skate % | penetration % | contacts kept % | bone cos | bone length err (m) "
              "| GRF % BW | vertical | residual | needed | COM / hip height | path departure mean / max (m) "
-             "| IK ms/frame | physics ms/frame |",
-             "|" + "---|" * 16]
+             "| jitter m/s² | IK ms/frame | physics ms/frame |",
+             "|" + "---|" * 17]
     for r in data["rows"]:
         grf = "- | - | - | -" if r["grf_mean_percent_bw"] is None else (
             f"{r['grf_mean_percent_bw']:.1f} | {r['grf_vertical_mean_percent_bw']:.1f} | "
@@ -213,14 +221,15 @@ def markdown(data: dict) -> str:
                      f"{r['penetration_percent']:.2f} | {kept} | {r['bone_cosine_rig']:.4f} | "
                      f"{r['bone_length_error_m']:.1e} | {grf} | {r['com_over_hip_height']:.3f} | "
                      f"{r['path_departure_mean_m']:.2f} / {r['path_departure_max_m']:.2f} | "
-                     f"{r['retarget_ms_per_frame']:.1f} | {r['physics_ms_per_frame']:.1f} |")
+                     f"{r.get('jitter', np.nan):.1f} | {r['retarget_ms_per_frame']:.1f} | {r['physics_ms_per_frame']:.1f} |")
     lines += ["", "The sources' own feet (their heel and toe points against their own contact labels, frames with a "
               "person):", "",
-              "| source | skate % | penetration % | contact runs sliding > 10 cm / all | largest slide (m) |",
-              "|---|---|---|---|---|"]
+              "| source | skate % | penetration % | contact runs sliding > 10 cm / all | largest slide (m) | jitter m/s² |",
+              "|---|---|---|---|---|---|"]
     for name, own in data.get("sources", {}).items():
         lines.append(f"| {name} | {own['skate_percent']:.2f} | {own['penetration_percent']:.2f} | "
-                     f"{own['runs_sliding_over_10cm']} / {own['contact_runs']} | {own['largest_slide_m']:.2f} |")
+                     f"{own['runs_sliding_over_10cm']} / {own['contact_runs']} | {own['largest_slide_m']:.2f} | "
+                     f"{own.get('jitter', np.nan):.1f} |")
     lines += ["", "Centre-of-mass paths (PhysCap), both scaled back to the source's size:", ""]
     for c in data["com_paths"]:
         lines.append(f"- {c['source']}: " + "; ".join(f"{k} {v:.1f}" for k, v in c.items() if k != "source"))

@@ -178,7 +178,6 @@ def solve_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray,
     q = qpos.copy()
     q[:, hinge_q] = np.clip(q[:, hinge_q], limits[:, 0], limits[:, 1])
     point_ids = np.concatenate([joints, feet])
-    below = np.zeros((len(q), len(feet)), bool)
     for _ in range(iterations):
         pose = kin.forward_kinematics(body, q)
         J_all = kin.point_jacobian(body, pose, point_ids)  # (T, n, 3, nv)
@@ -186,7 +185,7 @@ def solve_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray,
         r_pose = weights[..., None] * (p_joints - goal)  # (T, 20, 3)
         J_pose = weights[..., None, None] * J_all[:, :len(joints)]
         heights = pose.points[:, feet, 2]
-        below |= heights < 0.0  # once found below the floor a point stays held on it: no flip-flopping active set
+        below = heights < 0.0  # the wall's active set, found again each iteration
         r_floor = FLOOR_WEIGHT * np.where(below, heights, 0.0)  # (T, 4)
         J_floor = FLOOR_WEIGHT * below[..., None] * J_all[:, len(joints):, 2]  # (T, 4, nv)
         T, nv = len(q), body.nv
