@@ -148,6 +148,7 @@ def _read_timeline(path: Path, size: int, mtime_ns: int) -> _Timeline:
         stated = [r for r in (stream.average_rate, stream.guessed_rate) if r is not None and r > 0]
         announced = int(stream.frames or 0)
         duration = float(stream.duration * stream.time_base) if stream.duration and stream.time_base else 0.0
+        time_base = float(stream.time_base) if stream.time_base else 0.0  # read before close: it frees the stream
     finally:
         container.close()
     if first is None:
@@ -155,7 +156,6 @@ def _read_timeline(path: Path, size: int, mtime_ns: int) -> _Timeline:
     if not stated and len(pts) < 2:
         raise InputError(f"{path}: the video does not state a frame rate.")
     unique = np.unique(np.asarray(pts, dtype=np.int64))
-    time_base = float(stream.time_base) if stream.time_base else 0.0
     stream_has_times = len(unique) == len(pts) and len(unique) >= 2 and time_base > 0
     if stream_has_times:
         rate, slots = _grid_slots((unique - unique[0]) * time_base, stated)
