@@ -364,7 +364,6 @@ class Program:
             lbx[sl] = ubx[sl] = x0[sl]
         # A switched-off set is left out of the program IPOPT solves (not held with infinite bounds: its rows
         # would still be in every linear system).
-        self.prepare(relaxed)
         solver, limit, rows = self._solver(tuple(c.name for c in self.constraints if c.name not in relaxed))
         lbg, ubg = self.lbg[rows], self.ubg[rows]
         start = time.perf_counter()
