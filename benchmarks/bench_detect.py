@@ -10,6 +10,11 @@ the junction, and after it.
     .venv/bin/python benchmarks/bench_detect.py                                   # the looped 60 s 720p clip
     .venv/bin/python benchmarks/bench_detect.py --videos ../shared/data/videos/*.mp4 --repeats 2
     .venv/bin/python benchmarks/bench_detect.py --seek                            # cost of starting a reader mid-video
+    .venv/bin/python benchmarks/bench_detect.py --junction --videos CLIP ...      # the junction check's tolerances
+
+--junction measures what the junction check compares, on clips of any length: the sequential run's track against
+a fresh follower started at every `--step`-th frame and run for the overlap, on the overlap's settled half: the
+largest torso-centre distance (torso sizes) and size ratio per start, and whether the check would splice.
 """
 
 from __future__ import annotations
@@ -101,17 +106,65 @@ def seek_cost(video: Path, start: int, repeats: int) -> dict:
     return {name: float(np.median(values)) for name, values in times.items()}
 
 
+def junction_measures(video: Path, step: int) -> list[dict]:
+    """Per start frame: the largest centre distance and size ratio between the sequential track and a fresh
+    follower over the compared frames, the frames compared, and the check's verdict."""
+    from physmocap.detect import two_graphs
+    from physmocap.detect.mediapipe_pose import Detections, PersonFollower, detect_video
+    from physmocap.io.video import iter_frames, probe_video
+
+    info = probe_video(video)
+    sequential = detect_video(video, graphs=1)
+    whole = Detections(0)
+    for kp, wl, reason in zip(sequential.keypoints_2d, sequential.landmarks_3d, sequential.invalid_reason,
+                              strict=True):
+        whole.keypoints.append(kp)
+        whole.world.append(wl)
+        whole.reasons.append(str(reason))
+    overlap = max(two_graphs.MIN_OVERLAP, round(two_graphs.OVERLAP_SECONDS * info.fps))
+    rows = []
+    for start in range(step, info.frame_count - overlap + 1, step):
+        plan = two_graphs.Plan(info.frame_count, start + overlap, start, start + overlap - overlap // 2)
+        follower = PersonFollower((info.width, info.height), info.fps)
+        fresh = Detections(start)
+        frames = iter(iter_frames(video, start_frame=start))
+        try:
+            fresh.detect(follower, frames, lambda index: None, stop_before=plan.split)
+        finally:
+            frames.close()
+            follower.close()
+        steps, ratios = [], []
+        for frame in range(plan.compare_from, plan.split):
+            if whole.reasons[frame] or fresh.reasons[frame - start]:
+                continue
+            centre_a, size_a = two_graphs.torso_centre_and_size(whole.keypoints.block[frame, :, :2])
+            centre_b, size_b = two_graphs.torso_centre_and_size(fresh.keypoints.block[frame - start, :, :2])
+            steps.append(float(np.linalg.norm(centre_b - centre_a)) / size_a)
+            ratios.append(max(size_a, size_b) / min(size_a, size_b))
+        rows.append(dict(start=start, compared=len(steps), max_step=max(steps, default=float("nan")),
+                         max_ratio=max(ratios, default=float("nan")),
+                         splice=not two_graphs.junction_mismatch(whole, fresh, plan)))
+    return rows
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--videos", type=Path, nargs="*", default=None,
                         help="videos to detect (default: sports2d_demo looped to 60 s at 720p)")
     parser.add_argument("--repeats", type=int, default=2, help="pairs of runs (one graph, two graphs) per video")
     parser.add_argument("--seek", action="store_true", help="only the cost of starting a reader mid-video")
+    parser.add_argument("--junction", action="store_true", help="only the junction check's measures")
+    parser.add_argument("--step", type=int, default=10, help="--junction: frames between fresh starts")
     parser.add_argument("--work", type=Path, default=Path(tempfile.gettempdir()) / "physmocap_bench_videos")
     args = parser.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
     videos = args.videos or [looped_video(CLIP, args.work / "loop_720p_60s.mp4", 60, 720)]
     print(f"load average before: {os.getloadavg()}", flush=True)
+    if args.junction:
+        for video in videos:
+            for row in junction_measures(video, args.step):
+                print(json.dumps(dict(video=video.name, **row)), flush=True)
+        return 0
     if args.seek:
         for video in videos:
             from physmocap.io.video import probe_video
