@@ -186,9 +186,7 @@ def test_detection_cache_key_holds_the_graphs_run(monkeypatch: pytest.MonkeyPatc
     from physmocap.stages import DETECT
 
     def key(graphs: int | None) -> str:
-        settings = Settings()
-        settings = dataclasses.replace(settings, detect=dataclasses.replace(settings.detect, graphs=graphs))
-        return DETECT.key(settings, "video-digest")
+        return DETECT.key(Settings().replace("detect", graphs=graphs), "video-digest")
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
     assert key(None) == key(2) != key(1)
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0})

@@ -28,18 +28,18 @@ from .mediapipe_pose import PREFETCH_FRAMES, Box, Detections, PersonFollower, to
 logger = logging.getLogger(__name__)
 
 MIN_FRAMES = 300
-"""Frames a video needs for two graphs: a second graph costs about a second to load and detects the overlap
-twice, which a 10 s video at 30 fps repays several times over."""
+"""Frames a video needs for two graphs: the second graph takes 0.2-0.5 s to load and detects the overlap a
+second time (about 0.7 CPU s at 30 fps); half of 300 frames saves some 4 s."""
 OVERLAP_SECONDS = 1.0
 """Seconds of video the second graph detects before the split: its first half settles MediaPipe's tracking and
 smoothing, its second half is compared with the first graph's."""
 MIN_OVERLAP = 10
 """Frames of overlap at least, whatever the frame rate."""
 CENTRE_TOLERANCE = 0.25
-"""Torso sizes by which the two graphs' torso centres may differ on a compared frame (same person: at most
-0.03 on the validation clips; docs/decisions/detect-two-graphs.md)."""
+"""Torso sizes by which the two graphs' torso centres may differ on a compared frame (the same person: at most
+0.04 on the validation clips, docs/decisions/detect-two-graphs.md; another person: a torso size or more)."""
 SIZE_TOLERANCE = 1.25
-"""Factor by which the two graphs' torso sizes may differ on a compared frame (same person: at most 1.03)."""
+"""Factor by which the two graphs' torso sizes may differ on a compared frame (the same person: at most 1.08)."""
 MIN_COMPARED = 3
 """Overlap frames on which both graphs must follow someone for the junction check to trust the splice."""
 
