@@ -11,6 +11,11 @@ the junction, and after it.
     .venv/bin/python benchmarks/bench_detect.py --videos ../shared/data/videos/*.mp4 --repeats 2
     .venv/bin/python benchmarks/bench_detect.py --seek                            # cost of starting a reader mid-video
     .venv/bin/python benchmarks/bench_detect.py --junction --videos CLIP ...      # the junction check's tolerances
+    .venv/bin/python benchmarks/bench_detect.py --gil                             # does process() hold the GIL?
+
+--gil runs a pure-Python counting thread for 3 s beside an idle caller, then beside a caller detecting 60 frames:
+if MediaPipe's process() held the GIL, the counter would nearly stop while the caller detects. Also the
+detecting thread's own CPU seconds (the graph's work runs in MediaPipe's threads).
 
 --junction measures what the junction check compares, on clips of any length: the sequential run's track against
 a fresh follower started at every `--step`-th frame and run for the overlap, on the overlap's settled half: the
@@ -147,12 +152,53 @@ def junction_measures(video: Path, step: int) -> list[dict]:
     return rows
 
 
+def gil_probe(video: Path) -> list[dict]:
+    import threading
+
+    from physmocap.detect.mediapipe_pose import PersonFollower
+    from physmocap.io.video import iter_frames
+
+    reader = iter_frames(video)
+    frames = []
+    for index, frame in reader:
+        if index >= 60:
+            break
+        frames.append(frame)
+    follower = PersonFollower((reader.info.width, reader.info.height), reader.info.fps)
+    rows = []
+    for caller in ("sleeps", "detects", "sleeps", "detects"):
+        stop, counted = threading.Event(), {}
+
+        def count() -> None:
+            wall, cpu, n = time.perf_counter(), time.thread_time(), 0
+            while not stop.is_set():
+                n += 1
+            counted.update(n=n, wall=time.perf_counter() - wall, cpu=time.thread_time() - cpu)
+        counter = threading.Thread(target=count)
+        counter.start()
+        wall, cpu = time.perf_counter(), time.thread_time()
+        if caller == "sleeps":
+            time.sleep(3.0)
+        else:
+            for index, frame in enumerate(frames):
+                follower.detect(index, frame)
+        caller_wall, caller_cpu = time.perf_counter() - wall, time.thread_time() - cpu
+        stop.set()
+        counter.join()
+        rows.append(dict(caller=caller, counter_cores=counted["cpu"] / counted["wall"],
+                         counter_mcounts_per_s=counted["n"] / counted["wall"] / 1e6, caller_wall_s=caller_wall,
+                         caller_thread_cpu_s=caller_cpu, load=os.getloadavg()[0]))
+    follower.close()
+    return rows
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--videos", type=Path, nargs="*", default=None,
                         help="videos to detect (default: sports2d_demo looped to 60 s at 720p)")
     parser.add_argument("--repeats", type=int, default=2, help="pairs of runs (one graph, two graphs) per video")
     parser.add_argument("--seek", action="store_true", help="only the cost of starting a reader mid-video")
+    parser.add_argument("--gil", action="store_true", help="only the GIL probe")
     parser.add_argument("--junction", action="store_true", help="only the junction check's measures")
     parser.add_argument("--step", type=int, default=10, help="--junction: frames between fresh starts")
     parser.add_argument("--work", type=Path, default=Path(tempfile.gettempdir()) / "physmocap_bench_videos")
@@ -160,6 +206,10 @@ def main() -> int:
     args.work.mkdir(parents=True, exist_ok=True)
     videos = args.videos or [looped_video(CLIP, args.work / "loop_720p_60s.mp4", 60, 720)]
     print(f"load average before: {os.getloadavg()}", flush=True)
+    if args.gil:
+        for row in gil_probe(videos[0]):
+            print(json.dumps(row), flush=True)
+        return 0
     if args.junction:
         for video in videos:
             for row in junction_measures(video, args.step):

@@ -306,7 +306,8 @@ def detect_video(
     Frames stream through (decoded a few ahead in a thread, detected, dropped); the video's constant-rate,
     upright frames are those of io.video (variable frame rates resampled, with a warning; rotation applied).
     Returns Observations with T = frames decoded (pixel coordinates: integers at pixel centres, as in OpenCV);
-    frames without the followed person are invalid and all zero.
+    frames without the followed person are invalid and all zero; seconds_per_frame: the detector's seconds per
+    frame (with two graphs, the wall seconds of both at once per frame, what the stage costs a user).
     Raises InputError for an unreadable video or when no frame shows a person.
     """
     from .two_graphs import detect_in_two_parts, two_part_plan
@@ -348,7 +349,7 @@ def detect_video(
         )
     return Observations(keypoints_2d=keypoints, landmarks_3d=world, fps=info.fps, image_size=image_size,
                         valid=invalid_reason == "", invalid_reason=invalid_reason, source=str(path),
-                        seconds_per_frame=seconds / max(detections.detected, 1))
+                        seconds_per_frame=seconds / max(detections.end, 1))
 
 
 class Detections:
@@ -359,7 +360,6 @@ class Detections:
         self.first = first
         self.keypoints, self.world = _FrameArrays(), _FrameArrays()
         self.reasons: list[str] = []
-        self.detected = 0  # frames detected, also those a splice later dropped
 
     @property
     def end(self) -> int:
@@ -379,7 +379,6 @@ class Detections:
             self.keypoints.append(kp)
             self.world.append(wl)
             self.reasons.append(reason)
-            self.detected += 1
             on_frame(index)
             if (stop_before is not None and index + 1 >= stop_before) or (stop is not None and stop.is_set()):
                 return
@@ -397,7 +396,6 @@ class Detections:
                 whole.keypoints.append(keypoints[frame - source.first])
                 whole.world.append(world[frame - source.first])
                 whole.reasons.append(source.reasons[frame - source.first])
-        whole.detected = self.detected + later.detected
         return whole
 
 

@@ -17,6 +17,7 @@ import logging
 import multiprocessing
 import os
 import threading
+import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
@@ -136,13 +137,13 @@ def junction_mismatch(first: Detections, second: Detections, plan: Plan) -> str:
 def detect_in_two_parts(path: str | os.PathLike, plan: Plan, follower: PersonFollower,
                         frames: Iterator[tuple[int, np.ndarray]], person_box: Box | None, max_width: int | None,
                         progress: Callable[[int, int], None] | None) -> tuple[Detections, float]:
-    """The detections of the whole video and the seconds its followers spent: `follower` on `frames` (the
-    sequential reader, from frame 0) up to the split, a second follower in a thread from plan.overlap_start on,
+    """The detections of the whole video and the wall seconds they took (both graphs at once): `follower` on
+    `frames` (the sequential reader, from frame 0) up to the split, a second follower in a thread from plan.overlap_start on,
     spliced or redone as the module says. Ctrl-C or an error in either stops both."""
+    started = time.perf_counter()
     report = _SharedProgress(progress, plan.announced, plan.split)
     first, second = Detections(0), Detections(plan.overlap_start)
     stop, failed = threading.Event(), threading.Event()
-    second_seconds = [0.0]
     failure: list[BaseException] = []
 
     def detect_second_part() -> None:
@@ -156,7 +157,6 @@ def detect_in_two_parts(path: str | os.PathLike, plan: Plan, follower: PersonFol
                 finally:
                     second_frames.close()
             finally:
-                second_seconds[0] = second_follower.seconds
                 second_follower.close()
         except BaseException as error:  # handed to the calling thread, which stops and raises it
             failure.append(error)
@@ -174,7 +174,7 @@ def detect_in_two_parts(path: str | os.PathLike, plan: Plan, follower: PersonFol
         raise failure[0]
     if first.end < plan.split:  # the video stopped decoding before the split: the second part holds no frame
         report.finish()
-        return first, follower.seconds + second_seconds[0]
+        return first, time.perf_counter() - started
     mismatch = junction_mismatch(first, second, plan)
     if mismatch:
         logger.info("%s: the second detection graph, started at frame %d, may follow another person than the "
@@ -183,9 +183,8 @@ def detect_in_two_parts(path: str | os.PathLike, plan: Plan, follower: PersonFol
         report.redo_second_part()
         first.detect(follower, frames, report.first_frame)
         whole = first
-        whole.detected += second.detected
     else:
         whole = first.spliced(second, plan.split)
     report.finish()
-    return whole, follower.seconds + second_seconds[0]
+    return whole, time.perf_counter() - started
 
