@@ -169,7 +169,7 @@ def gil_probe(video: Path) -> list[dict]:
     for caller in ("sleeps", "detects", "sleeps", "detects"):
         stop, counted = threading.Event(), {}
 
-        def count() -> None:
+        def count(stop: threading.Event = stop, counted: dict = counted) -> None:
             wall, cpu, n = time.perf_counter(), time.thread_time(), 0
             while not stop.is_set():
                 n += 1

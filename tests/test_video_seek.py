@@ -8,9 +8,9 @@ from pathlib import Path
 import av
 import numpy as np
 import pytest
-from test_video_io import DEMO, write_timed_video
 
 from physmocap.io.video import iter_frames
+from test_video_io import DEMO, write_timed_video
 
 
 def numbered_frames(count: int, width: int = 64, height: int = 48) -> list[np.ndarray]:

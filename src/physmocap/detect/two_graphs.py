@@ -130,7 +130,8 @@ def junction_mismatch(first: Detections, second: Detections, plan: Plan) -> str:
                     f"by a factor {ratio:.2f}")
         compared += 1
     if compared < MIN_COMPARED:
-        return f"both followed someone on only {compared} of the overlap's frames {plan.compare_from}-{plan.split - 1}"
+        return (f"both followed someone on only {compared} of the overlap's frames "
+                f"{plan.compare_from}-{plan.split - 1}")
     return ""
 
 
@@ -138,8 +139,8 @@ def detect_in_two_parts(path: str | os.PathLike, plan: Plan, follower: PersonFol
                         frames: Iterator[tuple[int, np.ndarray]], person_box: Box | None, max_width: int | None,
                         progress: Callable[[int, int], None] | None) -> tuple[Detections, float]:
     """The detections of the whole video and the wall seconds they took (both graphs at once): `follower` on
-    `frames` (the sequential reader, from frame 0) up to the split, a second follower in a thread from plan.overlap_start on,
-    spliced or redone as the module says. Ctrl-C or an error in either stops both."""
+    `frames` (the sequential reader, from frame 0) up to the split, a second follower in a thread from
+    plan.overlap_start on, spliced or redone as the module says. Ctrl-C or an error in either stops both."""
     started = time.perf_counter()
     report = _SharedProgress(progress, plan.announced, plan.split)
     first, second = Detections(0), Detections(plan.overlap_start)

@@ -15,7 +15,7 @@ import functools
 import os
 import queue
 import threading
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
@@ -252,7 +252,7 @@ class FrameReader(Generic[Frame]):
             width, height = width + width % 2, height + height % 2
         return width, height
 
-    def __iter__(self) -> Iterator[tuple[int, Frame]]:
+    def __iter__(self) -> Generator[tuple[int, Frame], None, None]:  # close() stops a pass part-way
         self.frames_read = self.start_frame
         if self.prefetch <= 0:
             yield from self._decode(threading.Event())
