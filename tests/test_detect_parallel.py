@@ -26,7 +26,6 @@ SECOND_THREAD = "physmocap-detect-second"
 @pytest.fixture
 def short_videos_split(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(two_graphs, "MIN_FRAMES", 20)
-    monkeypatch.setattr(two_graphs, "graphs_to_run", lambda requested: 2 if requested is None else requested)
 
 
 @pytest.fixture(scope="module")

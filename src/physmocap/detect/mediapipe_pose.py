@@ -290,7 +290,7 @@ def detect_video(
     person_box: Sequence[float] | None = None,
     max_width: int | None = None,
     progress: Callable[[int, int], None] | None = None,
-    graphs: int | None = None,
+    graphs: int | None = 1,
 ) -> Observations:
     """MediaPipe Pose landmarks of one person followed through the video at `path`.
 
@@ -301,8 +301,9 @@ def detect_video(
         crops), and downscaling loses accuracy on people who fill little of the frame.
         Coordinates are always returned in native pixels.
     progress: called as progress(frames_done, frames_announced) as frames are done.
-    graphs: MediaPipe graphs detecting parts of a long video at once (two_graphs.graphs_to_run: None chooses 2
-        where this process has two cores of its own, 1 otherwise).
+    graphs: MediaPipe graphs detecting parts of a long video at once: 1 (the default: one follower, as every
+        caller had before), 2, or None to choose (two_graphs.graphs_to_run: 2 where this process has two cores of
+        its own); the capture's detect stage passes the detect.graphs setting, None by default.
     Frames stream through (decoded a few ahead in a thread, detected, dropped); the video's constant-rate,
     upright frames are those of io.video (variable frame rates resampled, with a warning; rotation applied).
     Returns Observations with T = frames decoded (pixel coordinates: integers at pixel centres, as in OpenCV);
