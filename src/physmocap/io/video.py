@@ -298,7 +298,11 @@ class FrameReader(Generic[Frame]):
             stream = container.streams.video[0]
             stream.thread_type = "AUTO"
             # index: the grid frame where the next source frame starts showing
-            position = self._seek(container, stream) if seek else (0, None)
+            try:
+                position = self._seek(container, stream) if seek else (0, None)
+            except av.error.FFmpegError:  # a file FFmpeg cannot seek in is decoded from frame 0
+                yield from self._decode(stop, seek=False)
+                return
             if position is None:
                 return
             index, first_pts = position
