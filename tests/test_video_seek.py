@@ -97,3 +97,18 @@ def test_stream_without_timestamps_is_decoded_from_its_first_frame(tmp_path: Pat
 def test_start_frame_must_not_be_negative() -> None:
     with pytest.raises(ValueError, match="start_frame"):
         iter_frames(DEMO, start_frame=-1)
+
+
+def test_a_refused_seek_decodes_from_the_first_frame(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from physmocap.io.video import FrameReader
+
+    path = write_gop_video(tmp_path / "gop.mp4", numbered_frames(30), list(range(30)), Fraction(1, 25), gop=5,
+                           b_frames=0)
+    whole = [frame for _, frame in iter_frames(path)]
+
+    def refuse(self, container, stream):
+        raise av.error.InvalidDataError(1094995529, "Invalid data found when processing input")
+    monkeypatch.setattr(FrameReader, "_seek", refuse)
+    part = list(iter_frames(path, start_frame=12))
+    assert [index for index, _ in part] == list(range(12, 30))
+    assert all(np.array_equal(frame, whole[index]) for index, frame in part)
