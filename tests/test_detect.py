@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import os
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -86,11 +87,39 @@ def test_progress_is_reported_and_mediapipe_log_spam_is_not(demo_start: Path, ca
     assert capfd.readouterr().err == ""
 
 
-def test_native_stderr_filter_passes_real_messages(tmp_path: Path, capfd) -> None:
-    with open(tmp_path / "log", "w+b") as log_file, _native_stderr_filtered(log_file):
+def test_native_stderr_filter_passes_real_messages(capfd) -> None:
+    with _native_stderr_filtered():
         os.write(2, b"W0000 00:00:1.0 1 inference_feedback_manager.cc:114] Feedback manager requires...\n")
         os.write(2, b"E0000 something real went wrong\n")
     assert capfd.readouterr().err == "E0000 something real went wrong\n"
+
+
+def test_native_stderr_filter_is_shared_by_threads_and_keeps_progress_bars(capfd) -> None:
+    """Two graphs' threads inside the filter at once: stderr comes back once both are out, with a progress bar's
+    carriage returns as they were written."""
+    inside, bar_written, leave = threading.Barrier(3), threading.Event(), threading.Event()
+
+    def graph(name: bytes) -> None:
+        with _native_stderr_filtered():
+            inside.wait()  # both threads and the caller's
+            bar_written.wait()
+            os.write(2, b"I0000 Created TensorFlow Lite XNNPACK delegate for CPU.\n")
+            os.write(2, name + b" done\n")
+            leave.wait()
+    threads = [threading.Thread(target=graph, args=(name,)) for name in (b"first", b"second")]
+    for thread in threads:
+        thread.start()
+    inside.wait()
+    os.write(2, b"\r  detect: 10%\r  detect: 20%\n")
+    bar_written.set()
+    leave.set()
+    for thread in threads:
+        thread.join()
+    err = capfd.readouterr().err
+    assert "XNNPACK" not in err and "first done\n" in err and "second done\n" in err
+    assert "\r  detect: 10%\r  detect: 20%\n" in err
+    os.write(2, b"after\n")  # file descriptor 2 is the terminal's again
+    assert capfd.readouterr().err == "after\n"
 
 
 def test_video_without_person_is_an_input_error(tmp_path: Path) -> None:

@@ -43,6 +43,8 @@ class DetectSettings(Section):
     person_box: tuple[float, float, float, float] | None = setting(None, "px", help="x0,y0,x1,y1: the person to "
                                                                    "follow", check=image_box)
     accept_truncated: bool = setting(False, help="capture the decodable part of a truncated video, not stop")
+    graphs: int | None = setting(None, "", (1, 2), "MediaPipe graphs detecting halves of a video of 300 frames or "
+                                 "more at once (None: 2 where the process has 2 cores, not in a batch worker)")
 
 
 @dataclass(frozen=True)

@@ -291,7 +291,8 @@ def detect(settings: Settings, progress: ProgressFactory | None, video: Path) ->
     from .detect.mediapipe_pose import detect_video
 
     return as_stored(detect_video(video, person_box=settings.detect.person_box,
-                                  max_width=settings.detect.max_width, progress=_bar(progress, "detect", 0)))
+                                  max_width=settings.detect.max_width, progress=_bar(progress, "detect", 0),
+                                  graphs=settings.detect.graphs))
 
 
 def fit(settings: Settings, progress: ProgressFactory | None, obs: Observations) -> KinematicMotion:
@@ -360,6 +361,9 @@ def trajopt(settings: Settings, progress: ProgressFactory | None, obs: Observati
 def _detect_settings(settings: Settings) -> dict:
     values = dataclasses.asdict(settings.detect)
     values.pop("accept_truncated")  # only decides whether a short read is an error, after detection
+    from .detect.two_graphs import graphs_to_run
+
+    values["graphs"] = graphs_to_run(settings.detect.graphs)  # two graphs splice different numbers than one
     return values
 
 

@@ -15,6 +15,7 @@ import logging
 import os
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -112,13 +113,16 @@ def search_region(last: Sighting, frame: int, fps: float, image_size: tuple[int,
 
 
 class _PoseModel:
-    """MediaPipe Pose on pixel regions of BGR frames, with its native log spam filtered out of stderr."""
+    """MediaPipe Pose on pixel regions of BGR frames, with its native log spam filtered out of stderr.
+
+    MediaPipe logs while it loads its models, when it is reset and on its first landmark inference, never in
+    between; only those calls are filtered, so that other threads' output (a progress bar beside a second graph)
+    goes straight to the terminal the rest of the time."""
 
     def __init__(self) -> None:
         import mediapipe as mp
 
-        self._native_log = tempfile.TemporaryFile()
-        with self._filtered_native_stderr():
+        with _native_stderr_filtered():
             self._pose = mp.solutions.pose.Pose(
                 static_image_mode=False,
                 model_complexity=1,
@@ -127,6 +131,7 @@ class _PoseModel:
                 min_tracking_confidence=0.5,
             )
             self._wait_until_ready()
+        self._landmarks_seen = False
 
     def detect(
         self, frame: np.ndarray, region: tuple[int, int, int, int], max_width: int | None
@@ -149,10 +154,11 @@ class _PoseModel:
         else:
             image = np.zeros_like(frame)
             image[y0:y1, x0:x1] = frame[y0:y1, x0:x1]
-        with self._filtered_native_stderr():
+        with _native_stderr_filtered() if not self._landmarks_seen else contextlib.nullcontext():
             result: Any = self._pose.process(cv2.cvtColor(image, cv2.COLOR_BGR2RGB))
         if result.pose_landmarks is None:
             return None
+        self._landmarks_seen = True
         keypoints = np.array([(p.x, p.y, p.visibility) for p in result.pose_landmarks.landmark])
         world = np.array([(p.x, p.y, p.z) for p in result.pose_world_landmarks.landmark])
         # MediaPipe's normalised coordinates run from the left/top edge (0) to the right/bottom edge (1).
@@ -161,9 +167,10 @@ class _PoseModel:
 
     def reset(self) -> None:
         """Forget the tracked region: the next frame runs MediaPipe's person detector again."""
-        with self._filtered_native_stderr():
+        with _native_stderr_filtered():
             self._pose.reset()
             self._wait_until_ready()
+        self._landmarks_seen = False
 
     def _wait_until_ready(self) -> None:
         """Process a blank image: MediaPipe loads its models (and logs about it) in the background until then."""
@@ -171,30 +178,54 @@ class _PoseModel:
 
     def close(self) -> None:
         self._pose.close()
-        self._native_log.close()
-
-    def _filtered_native_stderr(self) -> contextlib.AbstractContextManager[None]:
-        return _native_stderr_filtered(self._native_log)
 
 
-@contextlib.contextmanager
-def _native_stderr_filtered(log_file: BinaryIO) -> Iterator[None]:
-    """Send file descriptor 2 to `log_file` for the block, then replay all but the benign lines to stderr."""
-    sys.stderr.flush()
-    saved_fd = os.dup(2)
-    os.dup2(log_file.fileno(), 2)
-    try:
-        yield
-    finally:
-        os.dup2(saved_fd, 2)
-        os.close(saved_fd)
-        log_file.seek(0)
-        text = log_file.read().decode(errors="replace")
-        log_file.seek(0)
-        log_file.truncate()
-        for line in text.splitlines():
-            if line.strip() and not any(benign in line for benign in _BENIGN_NATIVE_LOG_LINES):
-                print(line, file=sys.stderr)
+class _NativeStderrFilter:
+    """Sends file descriptor 2 to a temporary file while any thread is inside a filtered block, then writes what
+    came, less MediaPipe's benign lines, to stderr as it was. File descriptor 2 is one per process, so the graphs
+    of all threads share one filter: the first thread in redirects it, the last one out restores it."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._inside = 0
+        self._saved_fd = -1
+        self._log: BinaryIO | None = None
+
+    @contextlib.contextmanager
+    def __call__(self) -> Iterator[None]:
+        with self._lock:
+            if self._inside == 0:
+                sys.stderr.flush()
+                if self._log is None:
+                    self._log = tempfile.TemporaryFile()
+                self._saved_fd = os.dup(2)
+                os.dup2(self._log.fileno(), 2)
+            self._inside += 1
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._inside -= 1
+                if self._inside == 0:
+                    self._restore()
+
+    def _restore(self) -> None:
+        assert self._log is not None
+        os.dup2(self._saved_fd, 2)
+        os.close(self._saved_fd)
+        self._log.seek(0)
+        text = self._log.read().decode(errors="replace")
+        self._log.seek(0)
+        self._log.truncate()
+        # Pieces end at "\n" or "\r", so a progress bar's "\r" updates caught in between come back as they were.
+        kept = "".join(piece for piece in text.splitlines(keepends=True)
+                       if not any(benign in piece for benign in _BENIGN_NATIVE_LOG_LINES))
+        if kept:
+            sys.stderr.write(kept)
+            sys.stderr.flush()
+
+
+_native_stderr_filtered = _NativeStderrFilter()
 
 
 def _check_person_box(path: object, person_box: Sequence[float], image_size: tuple[int, int]) -> Box:
@@ -259,6 +290,7 @@ def detect_video(
     person_box: Sequence[float] | None = None,
     max_width: int | None = None,
     progress: Callable[[int, int], None] | None = None,
+    graphs: int | None = 1,
 ) -> Observations:
     """MediaPipe Pose landmarks of one person followed through the video at `path`.
 
@@ -268,13 +300,19 @@ def detect_video(
         resolution: MediaPipe's cost hardly depends on the frame size (it runs fixed-size networks on its own
         crops), and downscaling loses accuracy on people who fill little of the frame.
         Coordinates are always returned in native pixels.
-    progress: called as progress(frames_done, frames_announced) after each frame.
+    progress: called as progress(frames_done, frames_announced) as frames are done.
+    graphs: MediaPipe graphs detecting parts of a long video at once: 1 (the default: one follower, as every
+        caller had before), 2, or None to choose (two_graphs.graphs_to_run: 2 where this process has two cores of
+        its own); the capture's detect stage passes the detect.graphs setting, None by default.
     Frames stream through (decoded a few ahead in a thread, detected, dropped); the video's constant-rate,
     upright frames are those of io.video (variable frame rates resampled, with a warning; rotation applied).
     Returns Observations with T = frames decoded (pixel coordinates: integers at pixel centres, as in OpenCV);
-    frames without the followed person are invalid and all zero.
+    frames without the followed person are invalid and all zero; seconds_per_frame: the detector's seconds per
+    frame (with two graphs, the wall seconds of both at once per frame, what the stage costs a user).
     Raises InputError for an unreadable video or when no frame shows a person.
     """
+    from .two_graphs import detect_in_two_parts, two_part_plan
+
     reader = iter_frames(path, prefetch=PREFETCH_FRAMES)
     info = reader.info
     image_size = (info.width, info.height)
@@ -283,33 +321,83 @@ def detect_video(
         logger.warning("%s: variable frame rate: resampled to a constant %.3f fps (%d of %d frames shown more than "
                        "once, %d dropped).", path, info.fps, info.repeated_frames, info.source_frames,
                        info.dropped_frames)
-    keypoints, world = _FrameArrays(), _FrameArrays()
-    reasons = []
+    plan = two_part_plan(info, graphs)
     follower = PersonFollower(image_size, info.fps, person_box=start_box, max_width=max_width)
+    frames = iter(reader)
     try:
-        for index, frame in reader:
-            kp, wl, reason = follower.detect(index, frame)
-            del frame  # decode -> detect -> drop: no decoded image outlives its detection
-            keypoints.append(kp)
-            world.append(wl)
-            reasons.append(reason)
-            if progress is not None:
-                progress(index + 1, max(info.frame_count, index + 1))
+        if plan is None:
+            detections = Detections(0)
+
+            def report(index: int) -> None:
+                if progress is not None:
+                    progress(index + 1, max(info.frame_count, index + 1))
+            detections.detect(follower, frames, report)
+            seconds = follower.seconds
+        else:
+            detections, seconds = detect_in_two_parts(path, plan, follower, frames, start_box, max_width, progress)
     finally:
+        frames.close()  # stops the decoding thread where detection stopped early
         follower.close()
-    if follower.last is None:
+    keypoints, world, invalid_reason = detections.arrays()
+    if not (invalid_reason == "").any():
         where = "" if start_box is None else f" inside person_box {start_box}"
         raise InputError(f"{path}: no person was found{where} in any frame.")
-    if reader.missing_frames:
+    if detections.end < info.frame_count:
         logger.warning(
             "%s: decoding stopped after %d of the %d frames the file announces (truncated file?); "
             "detection covers the frames that decoded.",
-            path, reader.frames_read, info.frame_count,
+            path, detections.end, info.frame_count,
         )
-    invalid_reason = np.array(reasons, dtype=object)
-    return Observations(keypoints_2d=keypoints.array(), landmarks_3d=world.array(), fps=info.fps, image_size=image_size,
+    return Observations(keypoints_2d=keypoints, landmarks_3d=world, fps=info.fps, image_size=image_size,
                         valid=invalid_reason == "", invalid_reason=invalid_reason, source=str(path),
-                        seconds_per_frame=follower.seconds / len(reasons))
+                        seconds_per_frame=seconds / max(detections.end, 1))
+
+
+class Detections:
+    """One follower's detections of consecutive frames from frame `first` on: keypoints and world landmarks
+    (float32, as the observations file stores them) and why each frame is invalid ("" where it is valid)."""
+
+    def __init__(self, first: int) -> None:
+        self.first = first
+        self.keypoints, self.world = _FrameArrays(), _FrameArrays()
+        self.reasons: list[str] = []
+
+    @property
+    def end(self) -> int:
+        """The frame after the last one held."""
+        return self.first + len(self.reasons)
+
+    def detect(self, follower: PersonFollower, frames: Iterator[tuple[int, np.ndarray]],
+               on_frame: Callable[[int], None], stop_before: int | None = None,
+               stop: threading.Event | None = None) -> None:
+        """Detect the frames `frames` yields, from this object's end on, up to the one before `stop_before` (None:
+        all), or until `stop` is set. The frame at `stop_before` stays in `frames` for a later call."""
+        if stop_before is not None and self.end >= stop_before:
+            return
+        for index, frame in frames:
+            kp, wl, reason = follower.detect(index, frame)
+            del frame  # decode -> detect -> drop: no decoded image outlives its detection
+            self.keypoints.append(kp)
+            self.world.append(wl)
+            self.reasons.append(reason)
+            on_frame(index)
+            if (stop_before is not None and index + 1 >= stop_before) or (stop is not None and stop.is_set()):
+                return
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Keypoints (T, 33, 3), world landmarks (T, 33, 3), float32, and the invalid reasons (T,) as objects."""
+        return self.keypoints.array(), self.world.array(), np.array(self.reasons, dtype=object)
+
+    def spliced(self, later: Detections, junction: int) -> Detections:
+        """This object's frames before `junction`, then `later`'s from `junction` on."""
+        whole = Detections(self.first)
+        for source, frames in ((self, range(self.first, junction)), (later, range(junction, later.end))):
+            keypoints, world = source.keypoints.block, source.world.block
+            for frame in frames:
+                whole.keypoints.append(keypoints[frame - source.first])
+                whole.world.append(world[frame - source.first])
+                whole.reasons.append(source.reasons[frame - source.first])
+        return whole
 
 
 class _FrameArrays:
@@ -326,9 +414,14 @@ class _FrameArrays:
         self._block[self._count] = values
         self._count += 1
 
+    @property
+    def block(self) -> np.ndarray:
+        """(frames, 33, 3) float32, a view."""
+        return self._block[: self._count]
+
     def array(self) -> np.ndarray:
         """(frames, 33, 3) float32."""
-        return self._block[: self._count].copy()
+        return self.block.copy()
 
 
 def _rejection(last: Sighting | None, sighting: Sighting, start_box: Box | None, fps: float) -> str:

@@ -15,7 +15,7 @@ import functools
 import os
 import queue
 import threading
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
@@ -64,10 +64,23 @@ class VideoInfo:
 
 @dataclass(frozen=True)
 class _Timeline:
-    """How the source frames map onto the constant-rate grid: slots[pts] grid frames show the frame at pts."""
+    """How the source frames map onto the constant-rate grid: slots[pts] grid frames show the frame at pts.
+    pts, counts: every source frame's presentation timestamp, sorted, and its number of grid frames (both empty
+    for a stream without usable timestamps, which cannot be sought)."""
 
     info: VideoInfo
     slots: dict[int, int]
+    pts: np.ndarray
+    counts: np.ndarray
+
+    def source_of(self, frame: int) -> tuple[int, int] | None:
+        """(pts of the source frame that grid frame `frame` shows, the grid frame where that source frame first
+        shows), or None where the stream cannot be sought or `frame` lies past its last source frame."""
+        shown_until = np.cumsum(self.counts)
+        source = int(np.searchsorted(shown_until, frame, side="right"))
+        if source >= len(self.pts):
+            return None
+        return int(self.pts[source]), int(shown_until[source] - self.counts[source])
 
 
 def _open_container(path: Path) -> av.container.InputContainer:
@@ -170,8 +183,8 @@ def _read_timeline(path: Path, size: int, mtime_ns: int) -> _Timeline:
                      rotation=rotation, source_frames=source_frames, repeated_frames=int((slots > 1).sum()),
                      dropped_frames=int((slots == 0).sum()))
     if not stream_has_times:
-        return _Timeline(info, {})
-    return _Timeline(info, {int(p): int(s) for p, s in zip(unique, slots, strict=True) if s != 1})
+        return _Timeline(info, {}, np.zeros(0, np.int64), np.zeros(0, np.int64))
+    return _Timeline(info, {int(p): int(s) for p, s in zip(unique, slots, strict=True) if s != 1}, unique, slots)
 
 
 def probe_video(path: str | os.PathLike) -> VideoInfo:
@@ -201,8 +214,11 @@ PIXEL_FORMATS = ("bgr24", "yuv420p")
 class FrameReader(Generic[Frame]):
     """Iterable over (index, frame) of a video's upright, constant-rate frames; re-iterating starts again.
 
-    Decoding stops quietly where the file stops decoding. After a pass, `frames_read` says how many frames came
-    out and `missing_frames` how many of those the container announced did not (> 0 for a truncated file).
+    Decoding stops quietly where the file stops decoding. After a pass, `frames_read` is the index after the last
+    frame that came out and `missing_frames` how many of those the container announced did not (> 0 for a
+    truncated file).
+    start_frame: the first frame of a pass (0: the first of the video); frames keep their indices, those of a
+    pass from 0. A stream with timestamps is sought to the keyframe before it (docs/decisions/detect-two-graphs.md).
     max_width: frames wider than this are scaled down to it (in the decoder's colour conversion).
     prefetch: frames decoded ahead in a background thread (0: decode in the caller's thread); decoding then
     overlaps with whatever the caller does with each frame.
@@ -212,12 +228,15 @@ class FrameReader(Generic[Frame]):
     """
 
     def __init__(self, path: str | os.PathLike, max_width: int | None = None, prefetch: int = 0,
-                 pixel_format: str = "bgr24") -> None:
+                 pixel_format: str = "bgr24", start_frame: int = 0) -> None:
         if pixel_format not in PIXEL_FORMATS:
             raise ValueError(f"pixel_format must be one of {PIXEL_FORMATS}, got {pixel_format!r}.")
-        timeline = _timeline(path)
-        self.info = timeline.info
-        self._slots = timeline.slots
+        if start_frame < 0:
+            raise ValueError(f"start_frame must be 0 or more, got {start_frame}.")
+        self._timeline = _timeline(path)
+        self.info = self._timeline.info
+        self._slots = self._timeline.slots
+        self.start_frame = start_frame
         self.max_width = max_width
         self.prefetch = prefetch
         self.pixel_format = pixel_format
@@ -233,8 +252,8 @@ class FrameReader(Generic[Frame]):
             width, height = width + width % 2, height + height % 2
         return width, height
 
-    def __iter__(self) -> Iterator[tuple[int, Frame]]:
-        self.frames_read = 0
+    def __iter__(self) -> Generator[tuple[int, Frame], None, None]:  # close() stops a pass part-way
+        self.frames_read = self.start_frame
         if self.prefetch <= 0:
             yield from self._decode(threading.Event())
             return
@@ -270,7 +289,7 @@ class FrameReader(Generic[Frame]):
                     frames.get_nowait()
             producer.join()
 
-    def _decode(self, stop: threading.Event) -> Iterator[tuple[int, Frame]]:
+    def _decode(self, stop: threading.Event, seek: bool = True) -> Iterator[tuple[int, Frame]]:
         width, height = self.output_size
         rotation = self.info.rotation
         stored = (height, width) if rotation in (90, 270) else (width, height)
@@ -278,11 +297,28 @@ class FrameReader(Generic[Frame]):
         try:
             stream = container.streams.video[0]
             stream.thread_type = "AUTO"
+            # index: the grid frame where the next source frame starts showing
+            try:
+                position = self._seek(container, stream) if seek else (0, None)
+            except av.error.FFmpegError:  # a file FFmpeg cannot seek in is decoded from frame 0
+                yield from self._decode(stop, seek=False)
+                return
+            if position is None:
+                return
+            index, first_pts = position
             for frame in _decoded_frames(container, stream):
                 if stop.is_set():
                     return
+                if first_pts is not None and frame.pts is not None and frame.pts < first_pts:
+                    continue  # decoded from the keyframe before the start, only to decode what follows
+                if first_pts is not None and frame.pts != first_pts:  # the seek missed the start: decode from 0
+                    yield from self._decode(stop, seek=False)
+                    return
+                first_pts = None
                 copies = 1 if frame.pts is None else self._slots.get(frame.pts, 1)
-                if copies == 0:
+                first_copy = max(0, self.start_frame - index)
+                index += copies
+                if copies <= first_copy:
                     continue
                 if self.pixel_format == "yuv420p":
                     # The same size and format come back as the decoder's picture itself, without a copy.
@@ -290,7 +326,7 @@ class FrameReader(Generic[Frame]):
                                              interpolation="AREA")
                     if rotation:
                         picture = _rotated_yuv420(picture, rotation)
-                    for _ in range(copies):  # repeats share the picture: callers copy before drawing
+                    for _ in range(first_copy, copies):  # repeats share the picture: callers copy before drawing
                         self.frames_read += 1
                         yield self.frames_read - 1, cast(Frame, picture)
                     continue
@@ -298,12 +334,27 @@ class FrameReader(Generic[Frame]):
                                                      interpolation="AREA")
                 if rotation:
                     image = cv2.rotate(image, _UPRIGHT[rotation])
-                for copy in range(copies):
+                for copy in range(first_copy, copies):
                     self.frames_read += 1
                     # Each repeat is its own array: callers may draw on the frames they get.
                     yield self.frames_read - 1, cast(Frame, image if copy == copies - 1 else image.copy())
         finally:
             container.close()
+
+    def _seek(self, container: av.container.InputContainer,
+              stream: av.VideoStream) -> tuple[int, int | None] | None:
+        """Position `container` for a pass from `start_frame`: (the grid frame where the next decoded source
+        frame starts, the pts of the first source frame to keep, None to keep every one), or None when the start
+        lies past the last frame. Seeks to the keyframe before the start where the stream has timestamps;
+        otherwise decoding starts at frame 0 and the frames before the start are not converted to images."""
+        if self.start_frame == 0:
+            return 0, None
+        source = self._timeline.source_of(self.start_frame)
+        if source is None:
+            return None if len(self._timeline.pts) else (0, None)
+        first_pts, first_index = source
+        container.seek(first_pts, stream=stream, backward=True, any_frame=False)
+        return first_index, first_pts
 
     @property
     def missing_frames(self) -> int:
@@ -356,23 +407,23 @@ def _decoded_frames(container: av.container.InputContainer, stream: av.VideoStre
 
 @overload
 def iter_frames(path: str | os.PathLike, max_width: int | None = None, prefetch: int = 0,
-                pixel_format: Literal["bgr24"] = "bgr24") -> FrameReader[np.ndarray]: ...
+                pixel_format: Literal["bgr24"] = "bgr24", start_frame: int = 0) -> FrameReader[np.ndarray]: ...
 
 
 @overload
 def iter_frames(path: str | os.PathLike, max_width: int | None = None, prefetch: int = 0, *,
-                pixel_format: Literal["yuv420p"]) -> FrameReader[av.VideoFrame]: ...
+                pixel_format: Literal["yuv420p"], start_frame: int = 0) -> FrameReader[av.VideoFrame]: ...
 
 
 def iter_frames(path: str | os.PathLike, max_width: int | None = None, prefetch: int = 0,
-                pixel_format: str = "bgr24") -> FrameReader:
+                pixel_format: str = "bgr24", start_frame: int = 0) -> FrameReader:
     """Frames of `path` as (index, upright BGR frame) at a constant rate; frames wider than `max_width` are
     scaled down to it, `prefetch` frames are decoded ahead in a thread (see FrameReader; pixel_format "yuv420p"
-    yields the decoder's pictures instead of BGR arrays).
+    yields the decoder's pictures instead of BGR arrays; start_frame: the first frame, indices unchanged).
 
     With max_width None the frames keep the native resolution. Raises InputError as probe_video does.
     """
-    return FrameReader(path, max_width, prefetch, pixel_format)
+    return FrameReader(path, max_width, prefetch, pixel_format, start_frame)
 
 
 class VideoWriter:
