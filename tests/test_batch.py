@@ -209,3 +209,25 @@ def test_pool_retries_a_run_whose_worker_died_then_records_it(tmp_path):
     [(_, record)] = finished
     assert record["status"] == "failed" and record["exit_status"] == 1
     assert record["reason"].startswith("the worker process running it died 3 times")
+
+
+def test_a_batch_worker_keeps_to_one_core(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every batch worker runs limit_threads: then no stage starts work on a second core (the batch keeps each
+    core busy with a run already)."""
+    import os
+
+    import cv2
+
+    from physmocap.batch.task import limit_threads
+    from physmocap.cores import may_use_two_cores
+
+    monkeypatch.setattr(os, "environ", {key: value for key, value in os.environ.items()
+                                        if key != "PHYSMOCAP_BATCH_WORKER"})
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    threads = cv2.getNumThreads()
+    try:
+        assert may_use_two_cores()
+        limit_threads()
+        assert not may_use_two_cores()
+    finally:
+        cv2.setNumThreads(threads)

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import physmocap
+from physmocap import cores
 from physmocap.config import Settings
 from physmocap.detect import two_graphs
 from physmocap.detect.mediapipe_pose import Detections, detect_video
@@ -168,9 +169,12 @@ def test_junction_check_compares_torso_centres_and_sizes() -> None:
 def test_two_graphs_only_where_two_cores_are_free_and_the_video_is_long(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
     assert two_graphs.graphs_to_run(None) == 2 and two_graphs.graphs_to_run(1) == 1
-    monkeypatch.setattr(two_graphs.multiprocessing, "parent_process", lambda: object())  # a pool's worker
+    monkeypatch.setattr(cores.multiprocessing, "parent_process", lambda: object())  # a pool's worker
     assert two_graphs.graphs_to_run(None) == 1 and two_graphs.graphs_to_run(2) == 2
-    monkeypatch.setattr(two_graphs.multiprocessing, "parent_process", lambda: None)
+    monkeypatch.setattr(cores.multiprocessing, "parent_process", lambda: None)
+    monkeypatch.setenv(cores.BATCH_WORKER_VARIABLE, "1")  # a batch's worker, Ray's included
+    assert two_graphs.graphs_to_run(None) == 1
+    monkeypatch.delenv(cores.BATCH_WORKER_VARIABLE)
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {3})
     assert two_graphs.graphs_to_run(None) == 1
     short = probe_video(DEMO)

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TextIO
 
 from ..config import Settings
+from ..cores import usable_cores
 from ..errors import InputError
 from .inputs import BatchInput
 from .progress import BatchProgress
@@ -25,7 +26,7 @@ def default_workers(tasks: int | None = None) -> int:
     """Processes to run at once on this machine: one per core this process may use (detection and fit are
     CPU-bound and each worker is held to one thread), fewer if memory would not hold them, never more than
     `tasks`."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    cores = usable_cores()
     try:
         memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
         cores = min(cores, int(memory // WORKER_MEMORY_BYTES))

@@ -23,6 +23,7 @@ from pathlib import Path
 import physmocap  # noqa: F401 - single-threaded BLAS before numpy loads
 
 from ..config import Settings
+from ..cores import BATCH_WORKER_VARIABLE
 from ..errors import PhysmocapError
 
 RUN_RECORD = "batch.json"
@@ -74,10 +75,12 @@ def finished_record(task: BatchTask) -> dict | None:
 
 
 def limit_threads() -> None:
-    """One compute thread in this process: the environment for libraries not loaded yet, OpenCV's own pool."""
+    """One compute thread in this process: the environment for libraries not loaded yet, OpenCV's own pool, and
+    no stage's work on a second core (`cores.BATCH_WORKER_VARIABLE`)."""
     import cv2
 
     os.environ.update(THREAD_ENV)
+    os.environ[BATCH_WORKER_VARIABLE] = "1"
     cv2.setNumThreads(1)
 
 

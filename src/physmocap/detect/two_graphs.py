@@ -14,7 +14,6 @@ person followed is the one a sequential run follows.
 from __future__ import annotations
 
 import logging
-import multiprocessing
 import os
 import threading
 import time
@@ -23,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..cores import may_use_two_cores
 from ..io.video import VideoInfo, iter_frames
 from .mediapipe_pose import PREFETCH_FRAMES, Box, Detections, PersonFollower, torso_centre_and_size
 
@@ -58,12 +58,10 @@ class Plan:
 
 def graphs_to_run(requested: int | None) -> int:
     """MediaPipe graphs detection runs at once in this process: `requested` (1 or 2); None chooses 2 where this
-    process may use two cores and is not a worker of a process pool (a batch already keeps the cores busy), as
-    trajopt's parallel windows decide."""
+    process may use two cores (`cores.may_use_two_cores`: not in a pool or batch worker)."""
     if requested is not None:
         return requested
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return 2 if cores >= 2 and multiprocessing.parent_process() is None else 1
+    return 2 if may_use_two_cores() else 1
 
 
 def two_part_plan(info: VideoInfo, graphs: int | None) -> Plan | None:
