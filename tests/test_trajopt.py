@@ -159,6 +159,9 @@ def test_contact_phases_from_flags():
     assert np.isclose(phases[1].start, 4.5 / FPS) and np.isclose(phases[1].end, 7.5 / FPS)
     assert np.array_equal(flags_from_phases(phases, times), cleaned)
     assert segment_count(0.3, 6, 2.0) == 6 and segment_count(5.0, 6, 2.0) == 15
+    # No polynomial shorter than a frame (nothing reads it between frames), unless the longest allowed is shorter.
+    assert segment_count(0.07, 6, 2.0, shortest=1 / 30) == 2 and segment_count(0.02, 6, 2.0, shortest=1 / 30) == 1
+    assert segment_count(0.3, 6, 2.0, longest=0.02, shortest=1 / 30) == 15
 
 
 def test_flight_the_motion_does_not_fall_through_keeps_a_support():

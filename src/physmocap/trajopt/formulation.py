@@ -314,6 +314,7 @@ class FootVariables:
 
     def __init__(self, index: int, window: Window, schedule: Schedule, settings: TrajoptSettings, offset: int):
         red, phases = window.reduced, schedule.phases
+        frame_step = (window.t1 - window.t0) / max(1, red.num_frames - 1)
         feet = red.feet[:, index]
         feet_rate = rate(red.times, feet)
         pack = _Packer(offset)
@@ -327,8 +328,10 @@ class FootVariables:
         flight_nodes: dict[tuple[int, int], int] = {}
         self.segment_counts = []
         for j, p in enumerate(phases):
+            # No flight polynomial shorter than a frame: the costs read the feet at the frames only, so the
+            # nodes of shorter ones were free in directions nothing sees (a null space of the whole program).
             m = 1 if p.contact else segment_count(p.duration, settings.segments_per_phase,
-                                                  settings.segment_phase_seconds)
+                                                  settings.segment_phase_seconds, shortest=frame_step)
             self.segment_counts.append(m)
             if p.contact:
                 continue
