@@ -464,6 +464,7 @@ def one_window(seconds: float, first: int, last: int) -> dict:
     from physmocap.trajopt.phases import clean_flags, contact_phases, split_drifting
     from physmocap.trajopt.reduced import boundary_velocity, reduced_motion
     from physmocap.trajopt.solve import solve_window
+    from physmocap.trajopt.stage import _support_held_flights
 
     obs, truth, settings = observe(LONG_CLIP, 0, 10.0)
     motion = fit_motion(obs, settings)
@@ -474,6 +475,7 @@ def one_window(seconds: float, first: int, last: int) -> dict:
     red = reduced_motion(refined.motion.body, refined.motion.qpos[idx], obs.fps)
     min_frames = max(1, int(np.ceil(s.min_phase_seconds * obs.fps - 1e-9)))
     flags = np.stack([clean_flags(refined.contacts[idx, i], min_frames) for i in range(4)], axis=1)
+    flags = _support_held_flights(flags, red, np.ones(len(idx), bool), s)  # as run_trajopt relabels them
     flags = split_drifting(flags, red.feet[..., :2], s.contact_drift, min_frames)
     part = red.frames(slice(first, last + 1))
     window = Window(part, [contact_phases(flags[first:last + 1, i], part.times) for i in range(4)],

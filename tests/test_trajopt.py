@@ -159,6 +159,9 @@ def test_contact_phases_from_flags():
     assert np.isclose(phases[1].start, 4.5 / FPS) and np.isclose(phases[1].end, 7.5 / FPS)
     assert np.array_equal(flags_from_phases(phases, times), cleaned)
     assert segment_count(0.3, 6, 2.0) == 6 and segment_count(5.0, 6, 2.0) == 15
+    # No polynomial shorter than a frame (nothing reads it between frames), unless the longest allowed is shorter.
+    assert segment_count(0.07, 6, 2.0, shortest=1 / 30) == 2 and segment_count(0.02, 6, 2.0, shortest=1 / 30) == 1
+    assert segment_count(0.3, 6, 2.0, longest=0.02, shortest=1 / 30) == 15
 
 
 def test_flight_the_motion_does_not_fall_through_keeps_a_support():
@@ -437,6 +440,46 @@ def test_window_derivatives_from_matrices_equal_casadis_whole_program_ones(body)
     assert np.allclose(np.asarray(derivatives["grad_f"](xv, [])[1]).ravel(), grad.ravel(), rtol=1e-9, atol=1e-9)
     assert np.allclose(np.asarray(ca.densify(derivatives["jac_g"](xv, [])[1])), jac, rtol=1e-9, atol=1e-9)
     assert np.allclose(np.asarray(ca.densify(derivatives["hess_lag"](xv, [], lf, lg))), hess, rtol=1e-9, atol=1e-9)
+
+
+def test_foot_length_rows_are_independent(body):
+    """Every foot-length row says something no other row says: a stance of both points is one row on their two
+    places, however long, and a flight is held at its own nodes. Sampled every kinematic_interval, a stance repeated
+    one equation and IPOPT's multipliers of the copies grew and cancelled (docs/decisions/trajopt-turn-window.md)."""
+    q = sway(body, 45)
+    red = reduced_motion(body, q, FPS)
+    heel, toe, planted = np.ones(45, bool), np.ones(45, bool), np.ones(45, bool)
+    heel[20:30] = False  # heel-off, then heel strike
+    toe[24:28] = False
+    phases = [contact_phases(f, red.times) for f in (heel, toe, planted, planted)]
+    problem = build_window_problem(Window(red, phases), QUICK)
+    rows = problem.constraints["foot_length"].expression_in(problem.x)
+    x0 = np.concatenate([v.initial for v in problem.variable_sets])
+    jacobian = np.asarray(ca.Function("J", [problem.x], [ca.jacobian(rows, problem.x)])(x0))
+    # Left: two stances of both points and the flights' own nodes; right: one stance, one row.
+    assert jacobian.shape[0] > 4 and np.linalg.matrix_rank(jacobian) == jacobian.shape[0]
+
+
+def test_turning_and_leaning_on_planted_feet_converges_well_within_budget(body):
+    """Turning 120 degrees in 1.5 s while leaning 30 degrees, labelled in contact throughout, so that the drifting
+    contacts are re-placed (pivots): each stage converges (with foot-length rows that repeated each other the fit
+    ran its half of the budget) and a foot planted at both points keeps its length."""
+    frames = 45
+    q = standing(body, frames)
+    s = np.clip((np.arange(frames) / FPS - 0.2) / (frames / FPS - 0.4), 0.0, 1.0)
+    turn = Rotation.from_euler("ZYX", np.stack([np.radians(120) * (3 * s**2 - 2 * s**3),
+                                                np.radians(30) * np.sin(np.pi * s), np.zeros(frames)], axis=1))
+    q[:, 3:7] = np.roll(turn.as_quat(), 1, axis=1)  # scalar first
+    result = run_trajopt(body, q, FPS, np.ones((frames, 4), bool), QUICK)
+    assert result.converged.all()
+    assert all(stage.converged for w in result.windows for stage in w.stages)
+    assert sum(stage.iterations for w in result.windows for stage in w.stages) < QUICK.max_iterations / 4
+    lengths = reduced_motion(body, q, FPS).foot_length
+    for side, (h, t) in enumerate(((0, 1), (2, 3))):
+        both = result.contacts[:, h] & result.contacts[:, t]
+        assert both.any()
+        span = np.linalg.norm(result.feet[both, h] - result.feet[both, t], axis=-1)
+        assert np.allclose(span, lengths[side], rtol=1e-3)
 
 
 def test_window_ranges_cover_the_clip_with_overlap():

@@ -163,7 +163,7 @@ class TrajoptSettings(Section):
     rest_height: float = setting(0.02, "m", (0.0, 0.5), "below this and slower than rest_speed: contact (ours); 0: off")
     rest_speed: float = setting(0.6, "m/s", (0.0, 10.0), "Rempe's label speed (3.2)")
     com_interval: float = setting(0.05, "s", (0.02, 1.0), "between COM polynomial knots (C.1; paper 0.1)")
-    segments_per_phase: int = setting(6, "", (1, 50), "least polynomials per foot flight and force phase")
+    segments_per_phase: int = setting(6, "", (1, 50), "least polynomials per force phase, flight (each >= a frame)")
     segment_phase_seconds: float = setting(2.0, "s", (0.1, 60.0), "longer phases get proportionally more")
     min_phase_seconds: float = setting(0.06, "s", (0.0, 1.0), "shorter contact flag runs join neighbours (ours)")
     contact_drift: float = setting(0.05, "m", (0.0, 1.0), "a contact straying farther is split by a flight (ours)")

@@ -18,7 +18,8 @@ constraint sets
                       Euler's equation every 0.1 s (the paper), Newton's twice per frame (ours, see settings)
   acceleration_continuity  COM position and orientation C2 at their nodes (ours, see there)
   velocity_boundaries COM velocity at the clip's first and last frame = mean input velocity of 5 frames
-  foot_length         |heel - toe| = foot length
+  foot_length         |heel - toe| = foot length: once per overlap of a heel and a toe contact phase, and at the
+                      kinematic samples where either flies (no row nearly repeats another)
   leg_length          |point - hip| <= leg reach, the hip placed from the COM pose with the input's offset
   force_limits        0 <= f_n <= f_max and |f_t| <= mu f_n (friction pyramid) at force nodes and frames
   above_floor         z >= 0 for feet in flight
@@ -313,6 +314,7 @@ class FootVariables:
 
     def __init__(self, index: int, window: Window, schedule: Schedule, settings: TrajoptSettings, offset: int):
         red, phases = window.reduced, schedule.phases
+        frame_step = (window.t1 - window.t0) / max(1, red.num_frames - 1)
         feet = red.feet[:, index]
         feet_rate = rate(red.times, feet)
         pack = _Packer(offset)
@@ -326,8 +328,10 @@ class FootVariables:
         flight_nodes: dict[tuple[int, int], int] = {}
         self.segment_counts = []
         for j, p in enumerate(phases):
+            # No flight polynomial shorter than a frame: the costs read the feet at the frames only, so the
+            # nodes of shorter ones were free in directions nothing sees (a null space of the whole program).
             m = 1 if p.contact else segment_count(p.duration, settings.segments_per_phase,
-                                                  settings.segment_phase_seconds)
+                                                  settings.segment_phase_seconds, shortest=frame_step)
             self.segment_counts.append(m)
             if p.contact:
                 continue
@@ -652,13 +656,35 @@ def velocity_boundaries(problem: WindowProblem) -> ConstraintSet:
     return out
 
 
+def foot_length_times(window: Window, heel_phases: list[Phase], toe_phases: list[Phase],
+                      interval: float) -> np.ndarray:
+    """Times at which a foot's length is held, so that no two rows say (nearly) the same thing: one time inside
+    each overlap of a heel and a toe contact phase (two planted places: every time there gives the same row), and
+    the kinematic samples (every `interval`; 0: the frames) where either point flies, except those closer to such
+    an overlap than half the samples' spacing (a point just lifted is still almost at its planted place, so the
+    row almost repeats the overlap's). Sampled everywhere, a stance repeated one equation and a sample just after
+    a lift-off nearly repeated it: IPOPT's multipliers of those rows grew to 1e5 and cancelled, and the window
+    crawled to its budget (docs/decisions/trajopt-turn-window.md)."""
+    edges = np.unique(np.round([p.start for p in heel_phases + toe_phases] + [window.t1], 9))
+    middles = 0.5 * (edges[:-1] + edges[1:])  # one per stretch between consecutive phase boundaries
+    planted = flags_from_phases(heel_phases, middles) & flags_from_phases(toe_phases, middles)
+    grid = sample_times(window.t0, window.t1, interval, window.reduced.times)
+    stretch = np.clip(np.searchsorted(edges, grid, side="right") - 1, 0, len(middles) - 1)
+    keep = ~planted[stretch]
+    stance_ends = np.concatenate([edges[:-1][planted], edges[1:][planted]])
+    if len(stance_ends) and len(grid) > 1:
+        spacing = (grid[-1] - grid[0]) / (len(grid) - 1)
+        keep &= np.abs(grid[:, None] - stance_ends[None]).min(axis=1) >= 0.5 * spacing
+    return free_times(window, np.sort(np.concatenate([middles[planted], grid[keep]])))
+
+
 def foot_length(problem: WindowProblem) -> ConstraintSet:
-    """|heel - toe|^2 / l_foot^2 = 1 for both feet at the kinematic samples."""
+    """|heel - toe|^2 / l_foot^2 = 1 for both feet at `foot_length_times`."""
     s, w, red = problem.settings, problem.window, problem.window.reduced
-    times = free_times(w, sample_times(w.t0, w.t1, s.kinematic_interval, red.times))
     out = ConstraintSet("foot_length")
     for side, (heel, toe) in enumerate(FOOT_PAIRS):
         feet = problem.feet
+        times = foot_length_times(w, w.phases[heel], w.phases[toe], s.kinematic_interval)
         d = problem.read(out, feet[heel].trajectory, times) - problem.read(out, feet[toe].trajectory, times)
         out.add(ca.sum1(d * d) / red.foot_length[side] ** 2 - 1.0)
     return out

@@ -124,10 +124,14 @@ def flags_from_phases(phases: list[Phase], times: np.ndarray) -> np.ndarray:
     return out
 
 
-def segment_count(duration: float, minimum: int, per_seconds: float, longest: float = np.inf) -> int:
+def segment_count(duration: float, minimum: int, per_seconds: float, longest: float = np.inf,
+                  shortest: float = 0.0) -> int:
     """Polynomials of a phase (Rempe C.1): at least `minimum`, more in proportion for phases longer than
-    `per_seconds`, and none longer than `longest` seconds."""
+    `per_seconds`, none shorter than `shortest` seconds (one for a shorter phase) and none longer than `longest`
+    (which wins where the two disagree)."""
     count = max(minimum, int(np.ceil(minimum * duration / per_seconds - 1e-9)))
+    if shortest > 0:
+        count = min(count, max(1, int(np.floor(duration / shortest + 1e-9))))
     if np.isfinite(longest) and longest > 0:
         count = max(count, int(np.ceil(duration / longest - 1e-9)))
     return count
