@@ -22,7 +22,6 @@ import dataclasses
 import logging
 import math
 import multiprocessing
-import os
 import signal
 import time
 from collections.abc import Callable
@@ -33,6 +32,7 @@ import numpy as np
 
 from ..body.model import CONTACT_POINTS, BodyModel
 from ..config import TrajoptSettings
+from ..cores import may_use_two_cores, usable_cores
 from ..motion import frame_ranges
 from .formulation import Window, WindowStart
 from .ik import IkTargets, ik_targets, solve_ik
@@ -348,15 +348,14 @@ def _ignore_interrupts() -> None:
 class _Solver:
     """Solves tasks in this process, or two at a time in forked worker processes where settings.parallel_windows
     is on, this process has at least two cores, can fork (spawned workers would run the caller's script again
-    unless it is guarded by `if __name__ == "__main__":`) and is not itself a worker of another pool (a batch
-    already keeps the cores busy). Where the tasks run does not change their results."""
+    unless it is guarded by `if __name__ == "__main__":`) and is not itself a pool or batch worker
+    (`cores.may_use_two_cores`). Where the tasks run does not change their results."""
 
     def __init__(self, settings: TrajoptSettings):
         self.settings = settings
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
         forks = "fork" in multiprocessing.get_all_start_methods()
-        self.workers = (PARALLEL_WORKERS if settings.parallel_windows and cores >= PARALLEL_WORKERS and forks
-                        and multiprocessing.parent_process() is None else 1)
+        self.workers = (PARALLEL_WORKERS if settings.parallel_windows and forks and may_use_two_cores()
+                        and usable_cores() >= PARALLEL_WORKERS else 1)
         self.pool: concurrent.futures.ProcessPoolExecutor | None = None
 
     def map(self, tasks: list[_Task]) -> list[_Outcome]:
