@@ -51,7 +51,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 sys.path.insert(0, str(Path(__file__).parent))
-from bench_synthetic import CLIPS, FPS, SECONDS, first_seconds, model_height  # noqa: E402
+from bench_synthetic import CLIP_SETS, FPS, SECONDS, first_seconds, model_height  # noqa: E402
 from common import MOCAP, RESULTS, git_revision, machine_description  # noqa: E402
 from physmocap import metrics  # noqa: E402
 from physmocap.body import kinematics as kin  # noqa: E402
@@ -601,6 +601,9 @@ def main(argv=None) -> dict:
                         help="measure only the time against clip length, keeping the cases of the --json file")
     parser.add_argument("--json", default=str(RESULTS / "trajopt.json"))
     parser.add_argument("--clips", nargs="+", help="these clips of the set only (file names, e.g. 131_01.bvh)")
+    parser.add_argument("--set", choices=tuple(CLIP_SETS), default="issue3",
+                        help="the synthetic clips (bench_synthetic.py --set): issue3, subjects 6 and 131; issue18, "
+                             "subjects 9 and 94")
     parser.add_argument("--accuracy-only", action="store_true",
                         help="only the accuracy rows of the cases (no 2 s pieces, no scaling); writes --json")
     parser.add_argument("--long", type=float, nargs="+", metavar="SECONDS",
@@ -663,9 +666,10 @@ def main(argv=None) -> dict:
         Path(args.json).write_text(json.dumps(out, indent=2, default=float))
         Path(args.json).with_suffix(".md").write_text(markdown(out))
         return out
-    clips = CLIPS[:3] if args.quick else CLIPS
+    clip_set = CLIP_SETS[args.set]
+    clips = clip_set[:3] if args.quick else clip_set
     if args.clips:
-        clips = tuple(name for name in CLIPS if name.split("/")[-1] in args.clips)
+        clips = tuple(name for name in clip_set if name.split("/")[-1] in args.clips)
     seeds = (0,) if args.quick else tuple(args.seeds)
     cases = []
     for name in clips:
