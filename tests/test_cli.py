@@ -160,13 +160,16 @@ def test_nonsense_settings(tmp_path, args, words):
 
 
 def test_train_contacts_on_bad_data_fails_with_one_sentence(tmp_path):
-    """Before any training starts: no mocap/ folder, a mocap/ folder without BVH files, a text file named .bvh."""
+    """Before any training starts: no mocap/ folder, a mocap/ folder without BVH files, folders that hold none, a
+    text file named .bvh."""
     out = tmp_path / "weights"
     train = ("train-contacts", "--data", tmp_path, "--out", out)
     assert_clean_failure(physmocap_in_process(*train), "no mocap/ folder")
-    (tmp_path / "mocap").mkdir()
+    (tmp_path / "mocap" / "cmu_raw_cgspeed").mkdir(parents=True)
     assert_clean_failure(physmocap_in_process(*train), "no .bvh files")
-    (tmp_path / "mocap" / "01_01.bvh").write_text("not a motion capture file\n")
+    (tmp_path / "mocap" / "cmu_raw_cgspeed" / "01_01.bvh").write_text("not a motion capture file\n")
+    assert_clean_failure(physmocap_in_process(*train, "--folders", "no_such_folder"), "no .bvh files in the folders",
+                         "no_such_folder")
     assert_clean_failure(physmocap_in_process(*train), "01_01.bvh", "not a BVH")
     assert not out.exists()
 

@@ -201,8 +201,8 @@ def _add_train_contacts_command(sub: argparse._SubParsersAction) -> None:
                            formatter_class=argparse.ArgumentDefaultsHelpFormatter,
                            description="Deterministic training of the causal and centred contact networks on "
                                        "synthetic observations of CMU motion capture (needs torch; the shipped "
-                                       "weights' four subjects took about 10 minutes on one core, all of "
-                                       "../shared/data takes hours: docs/decisions/contact-training-data.md). "
+                                       "weights' folders take about 10 minutes on one core, every folder over an "
+                                       "hour: docs/decisions/contact-training-data.md). "
                                        "The same data and seed give the same weights; "
                                        "training.json beside them records the recipe and the held-out scores.")
     train.add_argument("--data", type=Path, required=True,
@@ -212,6 +212,10 @@ def _add_train_contacts_command(sub: argparse._SubParsersAction) -> None:
                             "them into src/physmocap/data/contacts")
     train.add_argument("--seed", type=int, default=0,
                        help="seed of every random draw (synthetic data, initial weights, batches)")
+    train.add_argument("--folders", default="shipped",
+                       help="comma-separated folders of mocap/ to train on; 'shipped': those of the shipped weights "
+                            "(CC3 and raw CMU); 'all': every folder, which trains for over an hour and loses on real "
+                            "footage (docs/decisions/contact-training-data.md)")
 
 
 def _add_retarget_command(sub: argparse._SubParsersAction) -> None:
@@ -646,9 +650,13 @@ def _number(value) -> str:
 def cmd_train_contacts(args) -> int:
     if not (args.data / "mocap").is_dir():
         raise InputError(f"{args.data}: no mocap/ folder of training data here (give --data).")
-    from .contacts.train import train_contacts  # torch loads only once there is data to train on
+    from .contacts.dataset import SHIPPED_FOLDERS
+    from .contacts.train import ContactTrainingSettings, train_contacts  # torch only once there is data
 
-    train_contacts(args.data, args.out, seed=args.seed)  # the folder is checked by writing: data first
+    folders = {"shipped": SHIPPED_FOLDERS, "all": None}.get(args.folders,
+                                                             tuple(name for name in args.folders.split(",") if name))
+    train_contacts(args.data, args.out, seed=args.seed,  # the out folder is checked by writing: data first
+                   settings=ContactTrainingSettings(folders=folders))
     print(f"weights written to {args.out}")
     return 0
 

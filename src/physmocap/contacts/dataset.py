@@ -34,6 +34,8 @@ TEST_SUBJECTS: tuple[str, ...] = ("6", "9", "94", "131")
 """CMU subjects held out for testing: basketball and walks (6), runs (9), Indian dance (94, the acRNN clips),
 start-walk-stop and hops (131). Subjects 1 and 7 are the validation subjects for choosing settings; every other
 subject trains."""
+SHIPPED_FOLDERS: tuple[str, ...] = ("cmu_iclone_cc3_retarget", "cmu_raw_cgspeed")
+"""The folders of ../shared/data/mocap the shipped contact weights were trained on (`ContactTrainingSettings`)."""
 
 HOVER_SPEED = 0.3  # m/s
 MAX_SINK = 0.03  # m below the floor

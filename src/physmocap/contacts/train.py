@@ -35,6 +35,7 @@ from ..errors import InputError
 from ..io.atomic import atomic_path, write_text
 from ..mocap.bvh_reader import MocapClip
 from .dataset import (
+    SHIPPED_FOLDERS,
     TEST_SUBJECTS,
     SyntheticSequence,
     SyntheticSettings,
@@ -87,8 +88,15 @@ class TrainSettings:
 
 @dataclass(frozen=True)
 class ContactTrainingSettings:
-    """Everything `train_contacts` needs besides the data: synthetic data, networks, optimisation, split."""
+    """Everything `train_contacts` needs besides the data: synthetic data, networks, optimisation, split.
 
+    folders: the folders under mocap/ whose clips are used (None: every one). The default, the CC3 and raw CMU
+        folders, made the shipped weights: training on every folder (the Daz-skeleton clips added for issue 18)
+        gains on the held-out synthetic subjects but loses on the hand-labelled real frames
+        (docs/decisions/contact-training-data.md).
+    """
+
+    folders: tuple[str, ...] | None = SHIPPED_FOLDERS
     synthetic: SyntheticSettings = field(default_factory=SyntheticSettings)
     causal: CausalNetSpec = field(default_factory=CausalNetSpec)
     centred: CentredNetSpec = field(default_factory=CentredNetSpec)
@@ -355,7 +363,7 @@ def train_contacts(
         2.1 MB; float32 would double that, and changes 0.02-0.04 % of the held-out flags) and training.json (seed,
         settings, split, data sizes, losses, seconds, held-out synthetic scores). Created if missing.
     seed: every random choice (synthetic data, initialisation, batches, noise) follows from it.
-    settings: see ContactTrainingSettings; the defaults made the shipped weights.
+    settings: see ContactTrainingSettings; the defaults made the shipped weights (about 10 minutes on one core).
     max_clips: use only the first N training and N test clips (sorted by file name), for quick tests.
     modes: the networks to train (default both); each gets the same weights as when both are trained, so the two
         can be trained in separate processes (training.json then holds the given ones).
@@ -408,7 +416,10 @@ class _TrainingData:
     @classmethod
     def make(cls, data_root: Path, seed: int, settings: ContactTrainingSettings,
              max_clips: int | None) -> _TrainingData:
-        train_files, test_files = split_by_subject(mocap_files(data_root), settings.test_subjects)
+        files = [f for f in mocap_files(data_root) if settings.folders is None or f.parent.name in settings.folders]
+        if not files:
+            raise InputError(f"{data_root}: no .bvh files in the folders {', '.join(settings.folders or ())}.")
+        train_files, test_files = split_by_subject(files, settings.test_subjects)
         if max_clips is not None:
             train_files, test_files = train_files[:max_clips], test_files[:max_clips]
         train_clips, test_clips = load_clips(train_files), load_clips(test_files)
