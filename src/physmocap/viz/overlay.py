@@ -9,7 +9,8 @@ physics could not explain carry one at the bottom.
 The video is decoded (in a thread), drawn and encoded frame by frame at the output size, never held whole;
 `start_overlay` runs all of it in a worker thread beside whatever the caller writes meanwhile. The frames stay in
 the decoder's yuv420p from decoding to encoding: the markers are drawn in Y, U, V colours on the region they
-cover (docs/decisions/overlay-speed.md).
+cover. A long video is rendered as two halves at once, each with its own decoder, drawing and x264 in its own
+thread, and the halves are joined without re-encoding (docs/decisions/overlay-speed.md).
 """
 
 from __future__ import annotations
