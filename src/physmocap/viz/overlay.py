@@ -457,7 +457,6 @@ def render_overlay(
                          time.perf_counter() - started, parts)
 
 
-
 @dataclass(frozen=True)
 class _OverlayDrawing:
     """What render_overlay draws on each of `frames` frames, checked and as arrays (see render_overlay)."""
