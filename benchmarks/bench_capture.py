@@ -16,6 +16,9 @@ every loop, as in any looped clip.
     .venv/bin/python benchmarks/bench_capture.py --overlay-only        # overlay frames per second at 1280 px
     .venv/bin/python benchmarks/bench_capture.py --overlay-only --before ../main/src   # and an older checkout's
     .venv/bin/python benchmarks/bench_capture.py --overlay-pieces      # CPU ms per frame of each overlay step
+    .venv/bin/python benchmarks/bench_capture.py --overlay-only --overlay-parts --seconds 10 60 --heights 720
+                                                           # the overlay in one part against two, alternating
+    .venv/bin/python benchmarks/bench_capture.py --overlay-gil         # a Python thread beside the rendering
     .venv/bin/python benchmarks/bench_capture.py --time-orientation    # issue 24: variable rate, rotation
 
 A capture with --before SRC runs first with the physmocap in SRC, then with this checkout's, on the same video.
@@ -217,8 +220,9 @@ def child(timings_path: str, cli_args: list[str]) -> int:
     return code or 0
 
 
-def overlay_speed(video: Path, width: int | None, repeats: int) -> dict:
-    """Frames per second of render_overlay on `video` with a full skeleton, contacts, keypoints and arrows drawn."""
+def overlay_speed(video: Path, width: int | None, repeats: int, parts: int | None = None) -> dict:
+    """Frames per second of render_overlay on `video` with a full skeleton, contacts, keypoints and arrows drawn,
+    in `parts` parts (None: as render_overlay chooses; an older checkout's render_overlay takes no `parts`)."""
     from physmocap.body.kinematics import forward_kinematics
     from physmocap.body.model import build_body_model, template_lengths
     from physmocap.viz import overlay
@@ -234,20 +238,33 @@ def overlay_speed(video: Path, width: int | None, repeats: int) -> dict:
     keypoints = np.concatenate([pixels[:, np.arange(33) % pixels.shape[1]], np.full((T, 33, 1), 0.9)], axis=2)
     arrows = np.stack([pixels[:, :4], pixels[:, :4] - [0.0, 80.0]], axis=2)
     contacts = np.ones((T, 4), bool)
-    times, cpu = [], []
+    times, cpu, join_seconds = [], [], []
+    join = getattr(overlay, "join_video_parts", None)
+    if join is not None:  # the joining step's own wall seconds
+        def timed_join(*args, **kwargs):
+            started = time.perf_counter()
+            try:
+                return join(*args, **kwargs)
+            finally:
+                join_seconds.append(time.perf_counter() - started)
+        overlay.join_video_parts = timed_join
     with tempfile.TemporaryDirectory() as folder:
         for _ in range(repeats):
             started, cpu_started = time.perf_counter(), time.process_time()
             report = render_overlay(video, Path(folder) / "overlay.mp4", pixels, skeleton_edges(body),
                                     np.ones(T, bool), keypoints=keypoints, contacts=contacts,
-                                    labels=body.point_names, force_arrows=arrows, max_width=width)
+                                    labels=body.point_names, force_arrows=arrows, max_width=width,
+                                    **({} if parts is None else {"parts": parts}))
             times.append(time.perf_counter() - started)
             cpu.append(time.process_time() - cpu_started)  # all threads: decoder, drawing, x264
             size = (Path(folder) / "overlay.mp4").stat().st_size
         background_error = background_difference(video, Path(folder) / "overlay.mp4", report.width)
     seconds = float(np.median(times))
     return dict(video=video.name, input=f"{info.width}x{info.height}", output=f"{report.width}x{report.height}",
-                preset=overlay.OVERLAY_PRESET, frames=T, seconds=round(seconds, 2), fps=round(T / seconds, 1),
+                preset=overlay.OVERLAY_PRESET, parts=getattr(report, "parts", 1), frames=T, seconds=round(seconds, 2),
+                fps=round(T / seconds, 1), cpu_seconds=round(float(np.median(cpu)), 2),
+                cores_busy=round(float(np.median(np.divide(cpu, times))), 2),
+                join_seconds=round(float(np.median(join_seconds)), 3) if join_seconds else None,
                 cpu_ms_per_frame=round(1000 * float(np.median(cpu)) / T, 1), megabytes=round(size / 1e6, 1),
                 background_error=background_error,
                 repeats=repeats, load_average=load_average())
@@ -288,6 +305,67 @@ def overlay_side_by_side(video: Path, width: int | None, repeats: int, before: P
         for key in ("seconds", "fps", "cpu_ms_per_frame"):
             row[key] = round(float(np.median([run[key] for run in runs[side]])), 2)
         rows.append(row)
+    return rows
+
+
+def overlay_parts_side_by_side(video: Path, width: int | None, repeats: int) -> list[dict]:
+    """overlay_speed in one part and in two, one render per child process, the two alternating run by run so that
+    both see the same load; each side's median over its `repeats` runs (wall and CPU seconds, cores busy)."""
+    runs: dict[int, list[dict]] = {1: [], 2: []}
+    for _ in range(repeats):
+        for parts in (1, 2):
+            command = [sys.executable, __file__, "--overlay-child", str(video), str(width or 0), str(parts)]
+            done = subprocess.run(command, capture_output=True, text=True, check=True)
+            runs[parts].append(json.loads(done.stdout.splitlines()[-1]))
+    rows = []
+    for side in runs.values():
+        row = dict(side[0], repeats=repeats, load_average=load_average(),
+                   runs=[dict(seconds=run["seconds"], cpu_seconds=run["cpu_seconds"], load=run["load_average"])
+                         for run in side])
+        for key in ("seconds", "fps", "cpu_seconds", "cores_busy", "cpu_ms_per_frame"):
+            row[key] = round(float(np.median([run[key] for run in side])), 2)
+        rows.append(row)
+    return rows
+
+
+def overlay_gil_probe(video: Path, width: int | None) -> list[dict]:
+    """Does the overlay hold the GIL? A pure-Python counting thread runs beside a caller that sleeps 3 s, then
+    beside one that renders `video` in one part, twice: the counter's cores (its CPU over its wall seconds) and
+    pace, and the rendering thread's own CPU seconds (decoding and x264 run in threads of their own)."""
+    import threading
+
+    from physmocap.viz import overlay
+
+    rows = []
+    for caller in ("sleeps", "renders", "sleeps", "renders"):
+        stop, counted = threading.Event(), {}
+
+        def count(stop: threading.Event = stop, counted: dict = counted) -> None:
+            wall, cpu, n = time.perf_counter(), time.thread_time(), 0
+            while not stop.is_set():
+                n += 1
+            counted.update(n=n, wall=time.perf_counter() - wall, cpu=time.thread_time() - cpu)
+
+        counter = threading.Thread(target=count)
+        counter.start()
+        wall, cpu, process_cpu = time.perf_counter(), time.thread_time(), time.process_time()
+        if caller == "sleeps":
+            time.sleep(3.0)
+        else:
+            info = probe_video(video)
+            T = info.frame_count
+            points = np.full((T, 1, 2), 100.0) + np.arange(T)[:, None, None] % 200
+            overlay.render_overlay(video, Path(tempfile.mkdtemp()) / "overlay.mp4", points, [], np.ones(T, bool),
+                                   keypoints=np.concatenate([points, np.ones((T, 1, 1))], axis=2), max_width=width,
+                                   parts=1)
+        caller_wall, caller_cpu = time.perf_counter() - wall, time.thread_time() - cpu
+        process = time.process_time() - process_cpu
+        stop.set()
+        counter.join()
+        rows.append(dict(caller=caller, caller_wall_s=round(caller_wall, 2), caller_thread_cpu_s=round(caller_cpu, 2),
+                         process_cpu_s=round(process, 2), counter_cores=round(counted["cpu"] / counted["wall"], 2),
+                         counter_mcounts_per_s=round(counted["n"] / counted["wall"] / 1e6, 2),
+                         load=load_average()))
     return rows
 
 
@@ -398,8 +476,9 @@ def time_and_orientation(folder: Path) -> list[dict]:
 def main() -> int:
     if len(sys.argv) > 2 and sys.argv[1] == "--child":
         return child(sys.argv[2], sys.argv[3:])
-    if len(sys.argv) == 4 and sys.argv[1] == "--overlay-child":
-        print(json.dumps(overlay_speed(Path(sys.argv[2]), int(sys.argv[3]) or None, 1)))
+    if len(sys.argv) in (4, 5) and sys.argv[1] == "--overlay-child":  # VIDEO WIDTH [PARTS]
+        parts = int(sys.argv[4]) if len(sys.argv) == 5 else None
+        print(json.dumps(overlay_speed(Path(sys.argv[2]), int(sys.argv[3]) or None, 1, parts)))
         return 0
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seconds", type=float, nargs="+", default=[10, 60])
@@ -414,6 +493,9 @@ def main() -> int:
     parser.add_argument("--before", type=Path, default=None,
                         help="also run with the physmocap in this src folder, side by side (captures: that one first)")
     parser.add_argument("--overlay-pieces", action="store_true", help="CPU ms per frame of each overlay step")
+    parser.add_argument("--overlay-gil", action="store_true", help="a Python thread beside the overlay's rendering")
+    parser.add_argument("--overlay-parts", action="store_true",
+                        help="overlay-only: one part against two, alternating (--seconds: the looped videos' lengths)")
     parser.add_argument("--time-orientation", action="store_true", help="only issue 24's time and rotation cases")
     parser.add_argument("--json", type=Path, default=None, help="also write the rows here")
     args = parser.parse_args()
@@ -428,6 +510,17 @@ def main() -> int:
             video = looped_video(CLIP, args.videos / f"loop_{height}p_10s.mp4", 10, height)
             rows.append(overlay_pieces(video, args.overlay_width))
             print(json.dumps(rows[-1]), flush=True)
+    elif args.overlay_gil:
+        video = looped_video(CLIP, args.videos / "loop_720p_10s.mp4", 10, 720)
+        rows = overlay_gil_probe(video, args.overlay_width)
+        print("\n".join(json.dumps(row) for row in rows), flush=True)
+    elif args.overlay_only and args.overlay_parts:
+        for seconds in args.seconds:
+            for height in args.heights:
+                video = looped_video(CLIP, args.videos / f"loop_{height}p_{seconds:g}s.mp4", seconds, height)
+                for row in overlay_parts_side_by_side(video, args.overlay_width, args.repeats):
+                    rows.append(row)
+                    print(json.dumps(row), flush=True)
     elif args.overlay_only and args.before is not None:
         for height in args.heights:
             video = looped_video(CLIP, args.videos / f"loop_{height}p_10s.mp4", 10, height)

@@ -15,7 +15,7 @@ import functools
 import os
 import queue
 import threading
-from collections.abc import Generator, Iterator
+from collections.abc import Generator, Iterator, Sequence
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
@@ -426,6 +426,14 @@ def iter_frames(path: str | os.PathLike, max_width: int | None = None, prefetch:
     return FrameReader(path, max_width, prefetch, pixel_format, start_frame)
 
 
+def mp4_output_path(path: str | os.PathLike) -> Path:
+    """`path` as a Path; InputError unless it names an .mp4 file (the writers write MP4 only)."""
+    path = Path(path)
+    if path.suffix.lower() != ".mp4":
+        raise InputError(f"{path}: video output must be an .mp4 file.")
+    return path
+
+
 class VideoWriter:
     """Write BGR frames to an H.264 MP4 (libx264, yuv420p, moov atom first) that browsers play.
 
@@ -444,9 +452,7 @@ class VideoWriter:
         crf: int = 23,
         preset: str = "medium",
     ) -> None:
-        self.path = Path(path)
-        if self.path.suffix.lower() != ".mp4":
-            raise InputError(f"{self.path}: video output must be an .mp4 file.")
+        self.path = mp4_output_path(path)
         if width <= 0 or height <= 0:
             raise ValueError(f"frame size must be positive, got {width}x{height}.")
         self.width, self.height = int(width), int(height)
@@ -530,6 +536,72 @@ class VideoWriter:
             self.close()
         elif not self._closed:
             self._abort(exc)
+
+
+class PartsDiffer(ValueError):
+    """Video parts that cannot be joined without re-encoding; `join_video_parts` wrote nothing."""
+
+
+def _codec_parameters(stream: av.VideoStream) -> tuple:
+    """What must be the same in every part of a joined video: codec, size, pixel format, rate, time base and
+    extradata (H.264's SPS and PPS)."""
+    codec = stream.codec_context
+    return (codec.name, codec.width, codec.height, codec.pix_fmt, stream.average_rate, stream.time_base,
+            bytes(codec.extradata or b""))
+
+
+def join_video_parts(parts: Sequence[str | os.PathLike], path: str | os.PathLike) -> int:
+    """Join the MP4 `parts`, written by VideoWriters with the same settings, into one MP4 `path` (moov first)
+    without re-encoding: each part's packets follow the previous parts', their timestamps shifted by those parts'
+    frames. Returns the frames written. The file appears under `path` only when it is complete.
+
+    Raises PartsDiffer, writing nothing, where a part's codec parameters differ from the first's, its frame
+    duration is not a whole number of time-base ticks, a part does not start on a keyframe or one before the last
+    ends on one (two IDR pictures in a row may carry the same idr_pic_id, which H.264 forbids), or the decoding
+    timestamps would not increase strictly across a joint.
+    """
+    path = mp4_output_path(path)
+    if not parts:
+        raise ValueError("join_video_parts needs at least one part.")
+    with contextlib.ExitStack() as inputs:
+        containers = [inputs.enter_context(_open_container(Path(part))) for part in parts]
+        streams = [container.streams.video[0] for container in containers]
+        first = streams[0]
+        for part, stream in zip(parts[1:], streams[1:], strict=True):
+            if _codec_parameters(stream) != _codec_parameters(first):
+                raise PartsDiffer(f"{part}: its codec parameters differ from those of {parts[0]}.")
+        if not first.average_rate or not first.time_base:
+            raise PartsDiffer(f"{parts[0]}: states no frame rate or time base.")
+        ticks_per_frame = 1 / (first.average_rate * first.time_base)
+        if ticks_per_frame.denominator != 1:
+            raise PartsDiffer(f"{parts[0]}: a frame lasts {ticks_per_frame} ticks of its time base, not a whole "
+                              "number.")
+        with atomic_path(path) as tmp, av.open(str(tmp), "w", format="mp4",
+                                               options={"movflags": "+faststart"}) as output:
+            joined = output.add_stream_from_template(first)
+            joined.time_base = first.time_base
+            frames, last_dts = 0, None
+            for number, (part, container, stream) in enumerate(zip(parts, containers, streams, strict=True)):
+                shift, part_frames, keyframe = frames * int(ticks_per_frame), 0, False
+                for packet in container.demux(stream):
+                    if packet.size == 0:
+                        continue  # the demuxer's end-of-stream marker
+                    keyframe = bool(packet.is_keyframe)
+                    if part_frames == 0 and not keyframe:
+                        raise PartsDiffer(f"{part}: does not start on a keyframe.")
+                    if packet.pts is None or packet.dts is None:
+                        raise PartsDiffer(f"{part}: a packet has no timestamp.")
+                    packet.pts, packet.dts = packet.pts + shift, packet.dts + shift
+                    if last_dts is not None and packet.dts <= last_dts:
+                        raise PartsDiffer(f"{part}: its decoding timestamps would not follow the previous part's.")
+                    last_dts = packet.dts
+                    packet.stream = joined
+                    output.mux(packet)
+                    part_frames += 1
+                if keyframe and number < len(parts) - 1:
+                    raise PartsDiffer(f"{part}: ends on a keyframe, which the next part's first picture would follow.")
+                frames += part_frames
+    return frames
 
 
 def trim_video(

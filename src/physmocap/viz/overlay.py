@@ -9,25 +9,41 @@ physics could not explain carry one at the bottom.
 The video is decoded (in a thread), drawn and encoded frame by frame at the output size, never held whole;
 `start_overlay` runs all of it in a worker thread beside whatever the caller writes meanwhile. The frames stay in
 the decoder's yuv420p from decoding to encoding: the markers are drawn in Y, U, V colours on the region they
-cover (docs/decisions/overlay-speed.md).
+cover. A long video is rendered as two halves at once, each with its own decoder, drawing and x264 in its own
+thread, and the halves are joined without re-encoding (docs/decisions/overlay-speed.md).
 """
 
 from __future__ import annotations
 
 import functools
+import logging
+import multiprocessing
 import os
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import av
 import cv2
 import numpy as np
 
 from ..body.model import CONTACT_POINTS, BodyModel
-from ..io.video import FrameReader, VideoWriter, copy_yuv420, iter_frames, yuv420_planes
+from ..io.video import (
+    FrameReader,
+    PartsDiffer,
+    VideoWriter,
+    copy_yuv420,
+    iter_frames,
+    join_video_parts,
+    mp4_output_path,
+    yuv420_planes,
+)
 from ..metrics import GRAVITY
+
+logger = logging.getLogger(__name__)
 
 Colour = tuple[int, int, int]  # BGR, 0-255
 
@@ -46,6 +62,8 @@ OVERLAY_PRESET = "ultrafast"  # libx264 speed preset of overlay.mp4 (docs/decisi
 OVERLAY_CRF = 23  # libx264 constant rate factor (its default; lower: better and larger)
 PREFETCH_FRAMES = 8  # frames decoded ahead of the drawing, in the reader's thread
 MAX_DRAWN_COORDINATE = 1e5  # px: cv2 takes coordinates * 2**SHIFT as int32; points farther out are not drawn
+MIN_FRAMES_FOR_PARTS = 150  # frames a video needs before two parts pay (docs/decisions/overlay-speed.md, round 3)
+X264_KEYINT = 250  # frames between libx264's keyframes (its default; OVERLAY_PRESET makes no others)
 
 FORCE_ARROW_BODY_HEIGHTS = 0.4  # an arrow of one body weight is this many body heights long
 MIN_DRAWN_FORCE = 1.0  # N: weaker forces get no arrow
@@ -350,18 +368,33 @@ def _draw_banner(image: np.ndarray, text: str, at_top: bool, ink: Callable[[Colo
 @dataclass(frozen=True)
 class OverlayReport:
     """What render_overlay wrote: frames, the video's size in pixels, the frames drawn without some of their fitted
-    points because those were non-finite or absurdly far out (sorted indices; reconstructed frames only), and
-    the seconds it took."""
+    points because those were non-finite or absurdly far out (sorted indices; reconstructed frames only), the
+    seconds it took and the parts it was rendered in at once (1 or 2)."""
 
     frames: int
     width: int
     height: int
     nonfinite_frames: list[int]
     seconds: float
+    parts: int = 1
 
 
 class OverlayCancelled(Exception):
     """The overlay's worker was asked to stop; nothing was written."""
+
+
+def overlay_parts(requested: int | None, frames: int) -> int:
+    """Parts render_overlay draws and encodes at once for a video of `frames` frames: `requested` (1 or 2; one part
+    for fewer than 3 frames); None takes 2 from MIN_FRAMES_FOR_PARTS frames on, where this process may use two
+    cores and is not a worker of a process pool (a batch already keeps the cores busy), as detection's two graphs
+    decide (detect/two_graphs.py)."""
+    if requested not in (None, 1, 2):
+        raise ValueError(f"parts must be 1, 2 or None (automatic), got {requested}.")
+    if requested is None:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        requested = 2 if (frames >= MIN_FRAMES_FOR_PARTS and cores >= 2
+                          and multiprocessing.parent_process() is None) else 1
+    return requested if frames >= 3 else 1
 
 
 def render_overlay(
@@ -377,6 +410,7 @@ def render_overlay(
     force_arrows: np.ndarray | None = None,
     unexplained: np.ndarray | None = None,
     max_width: int | None = DEFAULT_OVERLAY_WIDTH,
+    parts: int | None = None,
     progress: Callable[[int, int], None] | None = None,
     cancel: threading.Event | None = None,
 ) -> OverlayReport:
@@ -389,23 +423,38 @@ def render_overlay(
     contact points (required with `contacts`). force_arrows: (T, C, 2, 2) ground reaction force arrows in native
     pixels (see `force_arrows_2d`). unexplained: (T,) bool, True marks frames physics could not explain.
     max_width: frames wider than this are scaled down to it, in pixels (None: native size).
-    progress: called as progress(frames_done, T) after each frame. cancel: once set, rendering stops with
-    OverlayCancelled and writes nothing.
+    parts: 2 draws and encodes the two halves of the video at once, in two threads, and joins them without
+    re-encoding (the same frames as one part, within the encoder's noise); 1 renders it in one pass; None
+    chooses (see `overlay_parts`). Parts that cannot be joined are rendered again in one pass.
+    progress: called as progress(frames_done, T) after each frame, one count over the parts. cancel: once set,
+    rendering stops with OverlayCancelled and writes nothing.
     The output keeps the input's (constant, see io.video) frame rate. A video with fewer than T frames raises
     ValueError (and writes nothing). Non-finite points and arrows are not drawn; the report lists the frames.
     """
     started = time.perf_counter()
     drawing = _overlay_drawing(points_2d, edges, valid, keypoints, contacts, labels, force_arrows, unexplained)
+    out_path = mp4_output_path(out_path)
     frames = iter_frames(video_path, max_width=max_width, prefetch=PREFETCH_FRAMES, pixel_format="yuv420p")
+    count = _FrameCount(progress, drawing.frames)
+    parts = overlay_parts(parts, drawing.frames)
+    try:
+        if parts == 2:
+            try:
+                _render_two_parts(video_path, out_path, drawing, max_width, count, cancel)
+            except PartsDiffer as why:
+                logger.warning("%s: its two parts cannot be joined (%s); rendering it again in one part.",
+                               out_path, why)
+                parts, count = 1, _FrameCount(progress, drawing.frames, already=count.done)
+        if parts == 1:
+            _render_part(frames, out_path, drawing, drawing.frames, count, () if cancel is None else (cancel,),
+                         out_path)
+    except _VideoEnded as ended:
+        raise ValueError(f"{video_path}: has {ended.frames} frames, fewer than the {drawing.frames} to draw.") \
+            from None
+    count.finish()
     out_width, out_height = frames.output_size
-    with VideoWriter(out_path, frames.info.fps, out_width, out_height, crf=OVERLAY_CRF,
-                     preset=OVERLAY_PRESET) as writer:
-        _draw_frames(frames, writer, drawing, progress, cancel, out_path)
-        if writer.frames_written < drawing.frames:
-            raise ValueError(f"{video_path}: has {writer.frames_written} frames, fewer than the {drawing.frames} to "
-                             "draw.")
     return OverlayReport(drawing.frames, out_width, out_height, _nonfinite_frames(drawing).tolist(),
-                         time.perf_counter() - started)
+                         time.perf_counter() - started, parts)
 
 
 @dataclass(frozen=True)
@@ -462,19 +511,18 @@ def _nonfinite_frames(drawing: _OverlayDrawing) -> np.ndarray:
     return np.flatnonzero(drawing.valid & ~drawable(drawing.points_2d[:, drawn_points]).all(axis=1))
 
 
-def _draw_frames(frames: FrameReader[av.VideoFrame], writer: VideoWriter, drawing: _OverlayDrawing,
-                 progress: Callable[[int, int], None] | None, cancel: threading.Event | None,
-                 out_path: str | os.PathLike) -> None:
-    """Each of the first drawing.frames pictures copied, drawn on in place (yuv420p) and written."""
+def _draw_frames(frames: FrameReader[av.VideoFrame], writer: VideoWriter, drawing: _OverlayDrawing, end: int,
+                 count: _FrameCount, stops: Sequence[threading.Event], out_path: str | os.PathLike) -> None:
+    """Each picture before frame `end` copied, drawn on in place (yuv420p) and written."""
     info = frames.info
     out_width, out_height = frames.output_size
     scale = np.array([out_width / info.width, out_height / info.height])  # native pixels -> output pixels
     canvas = None  # the picture drawn on and encoded, reused frame after frame
     scratch = YuvScratch(out_width, out_height)
     for index, picture in frames:
-        if index >= drawing.frames:
+        if index >= end:
             break
-        if cancel is not None and cancel.is_set():
+        if any(stop.is_set() for stop in stops):
             raise OverlayCancelled(f"{out_path}: rendering was cancelled.")
         canvas = copy_yuv420(picture, canvas)
         _draw_yuv420(
@@ -485,8 +533,109 @@ def _draw_frames(frames: FrameReader[av.VideoFrame], writer: VideoWriter, drawin
             bool(drawing.valid[index]), bool(drawing.unexplained[index]),
         )
         writer.write_yuv420(canvas)
-        if progress is not None:
-            progress(index + 1, drawing.frames)
+        count.frame_drawn()
+
+
+class _VideoEnded(Exception):
+    """The video ended after `frames` frames, before the last frame to draw."""
+
+    def __init__(self, frames: int) -> None:
+        super().__init__(frames)
+        self.frames = frames
+
+
+class _FrameCount:
+    """One progress count over all parts: progress(done, total) after each frame drawn, from whichever part's
+    thread drew it (one at a time); the last frame is reported by finish(), once the file is complete. already:
+    frames reported by an earlier attempt, which count as work done (the count never runs backwards)."""
+
+    def __init__(self, progress: Callable[[int, int], None] | None, total: int, already: int = 0) -> None:
+        self.progress, self.total, self.already = progress, total, already
+        self.done = already
+        self._lock = threading.Lock()
+
+    def frame_drawn(self) -> None:
+        with self._lock:
+            self.done += 1
+            if self.progress is not None and self.done < self.already + self.total:
+                self.progress(self.done, self.already + self.total)
+
+    def finish(self) -> None:
+        if self.progress is not None:
+            self.progress(self.already + self.total, self.already + self.total)
+
+
+def _render_part(frames: FrameReader[av.VideoFrame], path: str | os.PathLike, drawing: _OverlayDrawing, end: int,
+                 count: _FrameCount, stops: Sequence[threading.Event], out_path: str | os.PathLike) -> None:
+    """The drawing's frames from frames.start_frame up to `end` drawn and encoded into MP4 `path`; _VideoEnded
+    (and no file) where the video ends before `end`, OverlayCancelled once any of `stops` is set."""
+    out_width, out_height = frames.output_size
+    with VideoWriter(path, frames.info.fps, out_width, out_height, crf=OVERLAY_CRF,
+                     preset=OVERLAY_PRESET) as writer:
+        _draw_frames(frames, writer, drawing, end, count, stops, out_path)
+        if writer.frames_written < end - frames.start_frame:
+            raise _VideoEnded(frames.start_frame + writer.frames_written)
+
+
+def _split_frame(frames: int) -> int:
+    """The second part's first frame: the middle, or the frame after it where the first part would otherwise end
+    on one of x264's keyframes (join_video_parts refuses two keyframes in a row at a joint)."""
+    split = frames // 2
+    return split + 1 if (split - 1) % X264_KEYINT == 0 else split
+
+
+def _render_two_parts(video_path: str | os.PathLike, out_path: Path, drawing: _OverlayDrawing,
+                      max_width: int | None, count: _FrameCount, cancel: threading.Event | None) -> None:
+    """The drawing rendered as two parts at once, the first in this thread and the second in a worker (each
+    with its own decoder, drawing and x264), into a temporary folder beside `out_path`, then joined into
+    `out_path`. An error or cancel in either part stops both (a video that ends early stops only its part, so
+    that the error says where it ends); the folder is removed in any case."""
+    split = _split_frame(drawing.frames)
+    stop = threading.Event()  # set when a part fails, so that the other stops too
+    stops = (stop,) if cancel is None else (cancel, stop)
+    outcomes: list[BaseException | None] = [None, None]
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=f".{out_path.stem}.parts.", dir=out_path.parent) as folder:
+        paths = [Path(folder) / "part1.mp4", Path(folder) / "part2.mp4"]
+
+        def render(part: int, first: int, end: int) -> None:
+            try:
+                frames = iter_frames(video_path, max_width=max_width, prefetch=PREFETCH_FRAMES,
+                                     pixel_format="yuv420p", start_frame=first)
+                _render_part(frames, paths[part], drawing, end, count, stops, out_path)
+            except _VideoEnded as ended:  # the other part goes on: where the video ends is the error's message
+                outcomes[part] = ended
+            except BaseException as error:  # raised in the calling thread below
+                outcomes[part] = error
+                stop.set()
+
+        second = threading.Thread(target=render, args=(1, split, drawing.frames), name="physmocap-overlay-part2",
+                                  daemon=True)
+        second.start()
+        try:
+            render(0, 0, split)
+            while second.is_alive():
+                second.join(0.2)  # a timed wait keeps this thread responsive to Ctrl-C
+        except BaseException:
+            stop.set()
+            second.join()
+            raise
+        _raise_first_error(outcomes)
+        join_video_parts(paths, out_path)
+
+
+def _raise_first_error(outcomes: Sequence[BaseException | None]) -> None:
+    """Raise what stopped the parts, if anything: an error of its own before a video that ended early (the
+    fewest frames it has) before a cancel, which the other part's stop causes as well."""
+    errors = [error for error in outcomes if error is not None]
+    own = [error for error in errors if not isinstance(error, _VideoEnded | OverlayCancelled)]
+    ended = [error for error in errors if isinstance(error, _VideoEnded)]
+    if own:
+        raise own[0]
+    if ended:
+        raise min(ended, key=lambda error: error.frames)
+    if errors:
+        raise errors[0]
 
 
 class OverlayJob:
