@@ -4,6 +4,7 @@ same behaviour on cancel, Ctrl-C, errors, short videos and non-finite inputs."""
 from __future__ import annotations
 
 import logging
+import os
 import threading
 from fractions import Fraction
 
@@ -11,6 +12,7 @@ import av
 import numpy as np
 import pytest
 
+from physmocap import cores
 from physmocap.body.kinematics import forward_kinematics
 from physmocap.body.model import build_body_model, template_lengths
 from physmocap.io.video import PartsDiffer, VideoWriter, join_video_parts
@@ -98,12 +100,12 @@ def test_the_first_part_never_ends_on_a_keyframe():
 def test_automatic_parts_need_enough_frames_two_cores_and_no_pool(monkeypatch):
     assert overlay_parts(1, 10_000) == 1 and overlay_parts(2, 3) == 2 and overlay_parts(2, 2) == 1
     assert overlay_parts(None, overlay.MIN_FRAMES_FOR_PARTS - 1) == 1
-    monkeypatch.setattr(overlay.os, "sched_getaffinity", lambda pid: {0, 1})
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
     assert overlay_parts(None, overlay.MIN_FRAMES_FOR_PARTS) == 2
-    monkeypatch.setattr(overlay.multiprocessing, "parent_process", lambda: object())  # a pool worker
+    monkeypatch.setattr(cores.multiprocessing, "parent_process", lambda: object())  # a pool worker
     assert overlay_parts(None, overlay.MIN_FRAMES_FOR_PARTS) == 1
-    monkeypatch.setattr(overlay.os, "sched_getaffinity", lambda pid: {0})
-    monkeypatch.setattr(overlay.multiprocessing, "parent_process", lambda: None)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0})
+    monkeypatch.setattr(cores.multiprocessing, "parent_process", lambda: None)
     assert overlay_parts(None, overlay.MIN_FRAMES_FOR_PARTS) == 1
     with pytest.raises(ValueError, match="parts must be"):
         overlay_parts(3, 100)

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import functools
 import logging
-import multiprocessing
 import os
 import tempfile
 import threading
@@ -31,6 +30,7 @@ import cv2
 import numpy as np
 
 from ..body.model import CONTACT_POINTS, BodyModel
+from ..cores import may_use_two_cores
 from ..io.video import (
     FrameReader,
     PartsDiffer,
@@ -386,14 +386,11 @@ class OverlayCancelled(Exception):
 def overlay_parts(requested: int | None, frames: int) -> int:
     """Parts render_overlay draws and encodes at once for a video of `frames` frames: `requested` (1 or 2; one part
     for fewer than 3 frames); None takes 2 from MIN_FRAMES_FOR_PARTS frames on, where this process may use two
-    cores and is not a worker of a process pool (a batch already keeps the cores busy), as detection's two graphs
-    decide (detect/two_graphs.py)."""
+    cores (`cores.may_use_two_cores`: not in a pool or batch worker)."""
     if requested not in (None, 1, 2):
         raise ValueError(f"parts must be 1, 2 or None (automatic), got {requested}.")
     if requested is None:
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-        requested = 2 if (frames >= MIN_FRAMES_FOR_PARTS and cores >= 2
-                          and multiprocessing.parent_process() is None) else 1
+        requested = 2 if frames >= MIN_FRAMES_FOR_PARTS and may_use_two_cores() else 1
     return requested if frames >= 3 else 1
 
 
