@@ -57,7 +57,7 @@ import av
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import REPO, VIDEOS, git_revision, machine_description  # noqa: E402
+from common import REPO, VIDEOS, gil_probe, git_revision, machine_description  # noqa: E402
 from physmocap.io.video import probe_video  # noqa: E402
 
 CLIP = VIDEOS / "sports2d_demo.mp4"  # 30 fps, one person walking across the frame
@@ -329,44 +329,17 @@ def overlay_parts_side_by_side(video: Path, width: int | None, repeats: int) -> 
 
 
 def overlay_gil_probe(video: Path, width: int | None) -> list[dict]:
-    """Does the overlay hold the GIL? A pure-Python counting thread runs beside a caller that sleeps 3 s, then
-    beside one that renders `video` in one part, twice: the counter's cores (its CPU over its wall seconds) and
-    pace, and the rendering thread's own CPU seconds (decoding and x264 run in threads of their own)."""
-    import threading
-
+    """Does the overlay hold the GIL? `common.gil_probe` with the caller rendering `video` in one part."""
     from physmocap.viz import overlay
 
-    rows = []
-    for caller in ("sleeps", "renders", "sleeps", "renders"):
-        stop, counted = threading.Event(), {}
+    def render() -> None:
+        T = probe_video(video).frame_count
+        points = np.full((T, 1, 2), 100.0) + np.arange(T)[:, None, None] % 200
+        overlay.render_overlay(video, Path(tempfile.mkdtemp()) / "overlay.mp4", points, [], np.ones(T, bool),
+                               keypoints=np.concatenate([points, np.ones((T, 1, 1))], axis=2), max_width=width,
+                               parts=1)
 
-        def count(stop: threading.Event = stop, counted: dict = counted) -> None:
-            wall, cpu, n = time.perf_counter(), time.thread_time(), 0
-            while not stop.is_set():
-                n += 1
-            counted.update(n=n, wall=time.perf_counter() - wall, cpu=time.thread_time() - cpu)
-
-        counter = threading.Thread(target=count)
-        counter.start()
-        wall, cpu, process_cpu = time.perf_counter(), time.thread_time(), time.process_time()
-        if caller == "sleeps":
-            time.sleep(3.0)
-        else:
-            info = probe_video(video)
-            T = info.frame_count
-            points = np.full((T, 1, 2), 100.0) + np.arange(T)[:, None, None] % 200
-            overlay.render_overlay(video, Path(tempfile.mkdtemp()) / "overlay.mp4", points, [], np.ones(T, bool),
-                                   keypoints=np.concatenate([points, np.ones((T, 1, 1))], axis=2), max_width=width,
-                                   parts=1)
-        caller_wall, caller_cpu = time.perf_counter() - wall, time.thread_time() - cpu
-        process = time.process_time() - process_cpu
-        stop.set()
-        counter.join()
-        rows.append(dict(caller=caller, caller_wall_s=round(caller_wall, 2), caller_thread_cpu_s=round(caller_cpu, 2),
-                         process_cpu_s=round(process, 2), counter_cores=round(counted["cpu"] / counted["wall"], 2),
-                         counter_mcounts_per_s=round(counted["n"] / counted["wall"] / 1e6, 2),
-                         load=load_average()))
-    return rows
+    return gil_probe(render, "renders")
 
 
 def overlay_pieces(video: Path, width: int, frames: int = 300) -> dict:

@@ -41,6 +41,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_capture import CLIP, looped_video  # noqa: E402
+from common import gil_probe  # noqa: E402
 
 CHILD = """
 import json, resource, sys, time
@@ -152,9 +153,8 @@ def junction_measures(video: Path, step: int) -> list[dict]:
     return rows
 
 
-def gil_probe(video: Path) -> list[dict]:
-    import threading
-
+def detection_gil_probe(video: Path) -> list[dict]:
+    """Does MediaPipe hold the GIL? `common.gil_probe` with the caller detecting the video's first 60 frames."""
     from physmocap.detect.mediapipe_pose import PersonFollower
     from physmocap.io.video import iter_frames
 
@@ -165,31 +165,15 @@ def gil_probe(video: Path) -> list[dict]:
             break
         frames.append(frame)
     follower = PersonFollower((reader.info.width, reader.info.height), reader.info.fps)
-    rows = []
-    for caller in ("sleeps", "detects", "sleeps", "detects"):
-        stop, counted = threading.Event(), {}
 
-        def count(stop: threading.Event = stop, counted: dict = counted) -> None:
-            wall, cpu, n = time.perf_counter(), time.thread_time(), 0
-            while not stop.is_set():
-                n += 1
-            counted.update(n=n, wall=time.perf_counter() - wall, cpu=time.thread_time() - cpu)
-        counter = threading.Thread(target=count)
-        counter.start()
-        wall, cpu = time.perf_counter(), time.thread_time()
-        if caller == "sleeps":
-            time.sleep(3.0)
-        else:
-            for index, frame in enumerate(frames):
-                follower.detect(index, frame)
-        caller_wall, caller_cpu = time.perf_counter() - wall, time.thread_time() - cpu
-        stop.set()
-        counter.join()
-        rows.append(dict(caller=caller, counter_cores=counted["cpu"] / counted["wall"],
-                         counter_mcounts_per_s=counted["n"] / counted["wall"] / 1e6, caller_wall_s=caller_wall,
-                         caller_thread_cpu_s=caller_cpu, load=os.getloadavg()[0]))
-    follower.close()
-    return rows
+    def detect() -> None:
+        for index, frame in enumerate(frames):
+            follower.detect(index, frame)
+
+    try:
+        return gil_probe(detect, "detects")
+    finally:
+        follower.close()
 
 
 def main() -> int:
@@ -207,7 +191,7 @@ def main() -> int:
     videos = args.videos or [looped_video(CLIP, args.work / "loop_720p_60s.mp4", 60, 720)]
     print(f"load average before: {os.getloadavg()}", flush=True)
     if args.gil:
-        for row in gil_probe(videos[0]):
+        for row in detection_gil_probe(videos[0]):
             print(json.dumps(row), flush=True)
         return 0
     if args.junction:

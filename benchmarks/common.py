@@ -47,3 +47,37 @@ def median_time(fn, repeats: int = 3) -> tuple[float, object]:
         result = fn()
         times.append(time.perf_counter() - start)
     return statistics.median(times), result
+
+
+def gil_probe(work, label: str) -> list[dict]:
+    """Does `work()` hold the GIL? A pure-Python counting thread runs beside a caller that sleeps 3 s, then beside
+    one that runs `work` (rows named `label`), twice each: the counter's cores (its CPU over its wall seconds) and
+    pace, and the calling thread's and the process's CPU seconds (native libraries work in threads of their own)."""
+    import threading
+
+    rows = []
+    for caller in ("sleeps", label, "sleeps", label):
+        stop, counted = threading.Event(), dict()
+
+        def count(stop: threading.Event = stop, counted: dict = counted) -> None:
+            wall, cpu, n = time.perf_counter(), time.thread_time(), 0
+            while not stop.is_set():
+                n += 1
+            counted.update(n=n, wall=time.perf_counter() - wall, cpu=time.thread_time() - cpu)
+
+        counter = threading.Thread(target=count)
+        counter.start()
+        wall, cpu, process_cpu = time.perf_counter(), time.thread_time(), time.process_time()
+        if caller == "sleeps":
+            time.sleep(3.0)
+        else:
+            work()
+        caller_wall, caller_cpu = time.perf_counter() - wall, time.thread_time() - cpu
+        process = time.process_time() - process_cpu
+        stop.set()
+        counter.join()
+        rows.append(dict(caller=caller, caller_wall_s=round(caller_wall, 2), caller_thread_cpu_s=round(caller_cpu, 2),
+                         process_cpu_s=round(process, 2), counter_cores=round(counted["cpu"] / counted["wall"], 2),
+                         counter_mcounts_per_s=round(counted["n"] / counted["wall"] / 1e6, 2),
+                         load=os.getloadavg()[0]))
+    return rows
