@@ -252,6 +252,16 @@ def test_partial_files_and_stale_outputs_are_removed(demo_folder, tmp_path):
     assert not (out / "overlay.mp4").exists() and str(out / "overlay.mp4") in summary.removed_stale_outputs
     assert "overlay.mp4" not in (out / "report.html").read_text()
     assert json.loads((out / "summary.json").read_text())["files"] == summary.files
+    assert summary.overlay_parts == 0
+
+
+@pytest.mark.parametrize("parts", [1, 2])
+def test_the_overlay_parts_setting_is_followed_and_recorded(demo_folder, tmp_path, parts):
+    out = tmp_path / "run"
+    shutil.copytree(demo_folder, out)
+    summary = run_capture(out, KINEMATICS_ONLY.replace(None, overlay_parts=parts), video=DEMO_VIDEO)
+    assert (out / "overlay.mp4").stat().st_size > 0
+    assert json.loads((out / "summary.json").read_text())["overlay_parts"] == summary.overlay_parts == parts
 
 
 # ---- determinism -------------------------------------------------------------------------------------------------

@@ -223,6 +223,8 @@ class Settings(Section):
     trajopt: TrajoptSettings = field(default_factory=TrajoptSettings)
     online: bool = setting(False, help="causal per-frame fit (live use) instead of the whole clip at once")
     overlay_width: int = setting(1280, "px", (160, 7680), "overlay.mp4 at most this wide (0: the video's)", also=0)
+    overlay_parts: int | None = setting(None, "", (1, 2), "overlay.mp4 drawn and encoded in this many parts at once "
+                                        "(None: 2 for 150 frames or more where the process has 2 cores)")
 
     def check(self) -> Settings:
         super().check()

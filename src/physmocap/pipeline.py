@@ -94,6 +94,7 @@ class RunSummary:
     body_height_source: str = "given"  # "given" (settings, the 1.70 m default included) or "estimated"
     body_height_note: str = ""  # the line that says which height was assumed and how to set it
     floor: dict = field(default_factory=dict)  # the floor's confidence (camera.Floor.confidence)
+    overlay_parts: int = 0  # parts overlay.mp4 was drawn and encoded in at once (0: no overlay)
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=2)
@@ -245,10 +246,11 @@ def write_outputs(out_dir: Path, source: str, obs: Observations, motion: Kinemat
         started = time.perf_counter()
         result = build_result(obs, motion, seconds, settings.as_dict(), contacts, stationary, physics, predicted,
                               settings.physics.method)
-        files = _write_files(out_dir, obs, motion, result, overlay_video, progress, settings.overlay_width)
+        files, overlay_parts = _write_files(out_dir, obs, motion, result, overlay_video, progress, settings)
         seconds["outputs"] = time.perf_counter() - started
         summary = _summary(out_dir, source, obs, motion, result, settings, seconds, cached, physics_report or {},
                            files)
+        summary.overlay_parts = overlay_parts
         files["summary"] = str(out_dir / "summary.json")
         summary.removed_stale_outputs = [str(p) for p in remove_stale_outputs(earlier, files)]
         write_text(files["summary"], summary.to_json())
@@ -258,9 +260,10 @@ def write_outputs(out_dir: Path, source: str, obs: Observations, motion: Kinemat
 
 def _write_files(out_dir: Path, obs: Observations, motion: KinematicMotion, result: dict[str, np.ndarray],
                  overlay_video: Path | None, progress: ProgressFactory | None,
-                 overlay_width: int = 1280) -> dict[str, str]:
-    """Every output file but summary.json and the report; returns {kind: path}. The overlay renders in a worker
-    thread while the other files are written (an error or Ctrl-C cancels it and leaves no overlay.mp4)."""
+                 settings: Settings) -> tuple[dict[str, str], int]:
+    """Every output file but summary.json and the report; returns {kind: path} and the parts the overlay was
+    rendered in (0 without one). The overlay renders in a worker thread while the other files are written (an
+    error or Ctrl-C cancels it and leaves no overlay.mp4)."""
     from .export import export_result
     from .io.bvh_export import write_bvh
     from .io.glb import write_glb
@@ -270,7 +273,7 @@ def _write_files(out_dir: Path, obs: Observations, motion: KinematicMotion, resu
              "glb": str(out_dir / "motion.glb")}
     if overlay_video is not None:
         files["overlay"] = str(out_dir / "overlay.mp4")
-    with _start_overlay(files.get("overlay"), overlay_video, obs, motion, result, progress, overlay_width) as job:
+    with _start_overlay(files.get("overlay"), overlay_video, obs, motion, result, progress, settings) as job:
         save_result(files["result"], result)
         write_bvh(files["bvh"], motion.body, result["qpos"], obs.fps)
         write_glb(files["glb"], motion.body, result["qpos"], obs.fps)
@@ -282,14 +285,14 @@ def _write_files(out_dir: Path, obs: Observations, motion: KinematicMotion, resu
         log.warning("overlay.mp4: frames %s drawn without some fitted points (non-finite or far outside the image)",
                     ", ".join(frame_ranges(np.asarray(report.nonfinite_frames))[:6]))
     files["report"] = str(out_dir / "report.html")
-    return files
+    return files, 0 if report is None else report.parts
 
 
 def _start_overlay(path: str | None, video: Path | None, obs: Observations, motion: KinematicMotion,
-                   result: dict[str, np.ndarray], progress: ProgressFactory | None, overlay_width: int):
+                   result: dict[str, np.ndarray], progress: ProgressFactory | None, settings: Settings):
     """The overlay rendering started in a worker (viz.overlay.start_overlay), or a context of None without one:
     the final motion, keypoints, contacts, forces and the frames physics could not explain, drawn on the input
-    video at most `overlay_width` pixels wide (0: its own width)."""
+    video at most settings.overlay_width pixels wide (0: its own width) in settings.overlay_parts parts."""
     import contextlib
 
     from .body.model import CONTACT_POINTS
@@ -305,7 +308,7 @@ def _start_overlay(path: str | None, video: Path | None, obs: Observations, moti
     return start_overlay(video, path, points_2d, skeleton_edges(motion.body), motion.valid,
                          keypoints=obs.keypoints_2d, contacts=result["contacts"], labels=RESULT_POINTS, progress=bar,
                          force_arrows=arrows, unexplained=result["physics_unexplained"],
-                         max_width=overlay_width or None)
+                         max_width=settings.overlay_width or None, parts=settings.overlay_parts)
 
 
 def _summary(out_dir: Path, source: str, obs: Observations, motion: KinematicMotion, result: dict[str, np.ndarray],
