@@ -17,12 +17,12 @@ import copy
 import math
 from dataclasses import dataclass, field
 
-import daqp
 import mujoco
 import numpy as np
 
 from ..body.model import CONTACT_POINTS, BodyModel
 from ..config import PhysicsSettings
+from .qp import DenseQP
 
 INF = 1e20  # daqp's "no bound"
 MAX_ACCELERATION = 1e4  # m/s^2 or rad/s^2, about 50 times the fastest human limb motions: the state diverged
@@ -131,12 +131,18 @@ class PhysCapTracker:
         self.mass_matrix = np.zeros((nv, nv))
         self.bias = np.zeros(nv)
         self.identity = np.eye(nv)
-        self._weighted_mass, self._hessian = np.zeros((nv, nv)), np.zeros((nv, nv))
+        self._weighted_mass = np.zeros((nv, nv))
+        # The pose QP (eq. 10): its H is built in the workspace's own buffer; at most 3 rows per contact point.
+        self._pose_qp = DenseQP(nv, 12)
+        self._hessian = self._pose_qp.H
         # H = A A^T has rank 6: at a regularisation of 1e-6 daqp called 8% of the demo clip's frames infeasible;
-        # 1e-4 N^-2 costs a bias of 1e-4 of the force. Per number of active contacts k: (regularisation (3k, 3k),
-        # pyramid rows (4k, 3k), their upper and lower bounds (each row >= 0)), contiguous as daqp takes them.
-        self.grf_problems = [(1e-4 * np.eye(3 * k), np.kron(np.eye(k), self.pyramid), np.full(4 * k, INF),
-                              np.zeros(4 * k)) for k in range(5)]
+        # 1e-4 N^-2 costs a bias of 1e-4 of the force. Per number of active contacts k: the regularisation (3k, 3k)
+        # and a workspace holding the pyramid rows (4k, 3k) and their bounds (each row >= 0).
+        self._grf_regularisation = [1e-4 * np.eye(3 * k) for k in range(5)]
+        self._grf_qps = [DenseQP(3 * k, 4 * k) for k in range(5)]
+        for k, qp in enumerate(self._grf_qps):
+            qp.A[:] = np.kron(np.eye(k), self.pyramid)
+            qp.upper[:], qp.lower[:] = INF, 0.0
         self.contact_jacobian = np.zeros((4, 3, nv))
         self.qpos, self.qvel = self.data.qpos, self.data.qvel  # the state, where the step's dynamics read it
         self.target_data = mujoco.MjData(self.model)  # kinematics of the frame's target pose
@@ -146,7 +152,16 @@ class PhysCapTracker:
         self._target_step = np.zeros(nv)
         self._pose_error, self._desired = np.zeros(nv), np.zeros(nv)  # desired_acceleration's buffers
         self._weight_column = self.torque_weights[:, None]
-        self._no_rows, self._no_bounds = np.zeros((0, nv)), np.zeros(0)
+        # The step's small bookkeeping (four contact points) runs on Python lists and tuples: numpy's cost per call
+        # outweighs the arithmetic on four values. Per tuple of active flags: the contacts' indices (list and array,
+        # which index the Jacobians as the flags would) and the flags as an array.
+        self._contact_index = {}
+        for mask in range(16):
+            flags = tuple(bool(mask >> j & 1) for j in range(4))
+            indices = [j for j in range(4) if flags[j]]
+            self._contact_index[flags] = (indices, np.array(indices, dtype=np.intp), np.array(flags))
+        self._contact_of_geom = self.contact_of_geom.tolist()
+        self._jacobian_columns = self.contact_jacobian.reshape(12, nv).T  # J^T of all contact points, a view
 
     def reset(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
         self.qpos[:] = qpos
@@ -163,13 +178,20 @@ class PhysCapTracker:
     # ---- the pieces of one step -------------------------------------------------------------------------
     def _dynamics(self):
         """Mass matrix, bias forces, contact Jacobians, contact heights and floor collisions at the state."""
+        heights, touching = self._step_state()
+        return self.bias, np.array(heights), np.array(touching)
+
+    def _step_state(self) -> tuple[list[float], list[bool]]:
+        """_dynamics with the contact points' heights (m) and floor collisions as lists of four."""
         d = self.data
         self._rigid_body_terms(d, collide=True)
-        touching = np.zeros(4, bool)
+        touching = [False, False, False, False]
         if d.ncon:
-            hit = self.contact_of_geom[d.contact.geom[:d.ncon].ravel()]
-            touching[hit[hit >= 0]] = True
-        return self.bias, d.site_xpos[self.sites, 2], touching
+            contact_of_geom = self._contact_of_geom
+            for geom in d.contact.geom[:d.ncon].ravel().tolist():
+                if contact_of_geom[geom] >= 0:
+                    touching[contact_of_geom[geom]] = True
+        return d.site_xpos[self.sites, 2].tolist(), touching
 
     def desired_acceleration(self, q_kin, qd_kin, qdd_kin) -> np.ndarray:
         """Eq. (4): PD control towards the kinematic pose; the pose error is taken on the manifold, the
@@ -194,19 +216,26 @@ class PhysCapTracker:
         """Eq. (6-7): forces (4, 3) at the active contacts that best produce the root's desired acceleration,
         pushing only, inside the friction pyramid. Returns the forces, whether the QP solved, and the root wrench
         (6,) the forces leave unexplained (the desired one where no contact is active or the QP failed)."""
+        return self._ground_reaction_forces(qdd_des, bias, self._contact_index[tuple(active.tolist())][1], True)
+
+    def _ground_reaction_forces(self, qdd_des, bias, index: np.ndarray,
+                                unexplained: bool) -> tuple[np.ndarray, bool, np.ndarray | None]:
+        """ground_reaction_forces for the active contacts' indices; the unexplained wrench only where asked
+        (else None)."""
         forces = np.zeros((4, 3))
         target = self.mass_matrix[:6] @ qdd_des + bias[:6]
-        k = int(np.count_nonzero(active))
+        k = len(index)
         if not k:
             return forces, True, target
-        root_rows = self.contact_jacobian[active, :, :6].reshape(3 * k, 6)  # (J^T restricted to the root)^T
-        regularisation, pyramid, upper, lower = self.grf_problems[k]
-        H = root_rows @ root_rows.T + regularisation
-        x, _, exitflag, _ = daqp.solve(H, -root_rows @ target, pyramid, upper, lower)
+        root_rows = self.contact_jacobian[index, :, :6].reshape(3 * k, 6)  # (J^T restricted to the root)^T
+        qp = self._grf_qps[k]
+        np.add(np.matmul(root_rows, root_rows.T, out=qp.H), self._grf_regularisation[k], out=qp.H)
+        np.matmul(np.negative(root_rows), target, out=qp.f)
+        x, exitflag = qp.solve(4 * k)
         if exitflag != 1:
             return forces, False, target
-        forces[active] = x.reshape(k, 3)
-        return forces, True, target - root_rows.T @ x
+        forces[index] = x.reshape(k, 3)
+        return forces, True, target - root_rows.T @ x if unexplained else None
 
     def pose_accelerations(self, qdd_des, bias, forces, active, heights, released,
                            target_heights) -> tuple[np.ndarray, np.ndarray, bool]:
@@ -216,30 +245,37 @@ class PhysCapTracker:
         (target_heights, (4,) m) down to it within settings.contact_settle_time, tangential speeds stay within
         sigma (except at released contacts, which slide freely but still do not sink).
         Returns qdd, tau and whether the QP solved (else the unconstrained optimum is used)."""
-        M, dt, nv = self.mass_matrix, self.dt, self.model.nv
-        W = self.torque_weights
-        external = self.contact_jacobian.reshape(12, -1).T @ forces.ravel()
+        contacts, index, _ = self._contact_index[tuple(active.tolist())]
+        return self._pose_accelerations(qdd_des, bias, forces, contacts, index, heights.tolist(), released.tolist(),
+                                        target_heights.tolist())
+
+    def _pose_accelerations(self, qdd_des, bias, forces, contacts: list[int], index: np.ndarray,
+                            heights: list[float], released: list[bool],
+                            target_heights: list[float]) -> tuple[np.ndarray, np.ndarray, bool]:
+        """pose_accelerations for the active contacts' indices (list and array), the rest as lists of four."""
+        M, qp = self.mass_matrix, self._pose_qp
+        external = self._jacobian_columns @ forces.ravel()
         # The objective is 1/2 qdd' H qdd + f' qdd up to a constant and a factor 2: H = I + M W M, built in
         # preallocated buffers (it is rebuilt at every step).
         np.multiply(self._weight_column, M, out=self._weighted_mass)
-        H = np.matmul(M, self._weighted_mass, out=self._hessian)
+        H = np.matmul(M, self._weighted_mass, out=qp.H)
         H += self.identity
-        f = M @ (W * (bias - external)) - qdd_des
+        np.subtract(np.matmul(M, self.torque_weights * (bias - external), out=qp.f), qdd_des, out=qp.f)
         solved = True
-        contacts = [j for j, on in enumerate(active.tolist()) if on]
         if contacts:
-            rows = self.contact_jacobian[active].reshape(-1, nv)  # x, y, z rows of each active contact
+            rows = self.contact_jacobian[index].reshape(-1, self.model.nv)  # x, y, z rows of each active contact
             velocity = (rows @ self.qvel).tolist()
-            lower, upper = self._velocity_bounds(contacts, velocity, heights.tolist(), released.tolist(),
-                                                 target_heights.tolist())
-            qdd, _, exitflag, _ = daqp.solve(H, f, dt * rows, upper, lower)
+            m = len(velocity)
+            qp.lower[:m], qp.upper[:m] = self._velocity_bounds(contacts, velocity, heights, released, target_heights)
+            np.multiply(self.dt, rows, out=qp.A[:m])
+            qdd, exitflag = qp.solve(m)
             solved = exitflag == 1
         if not contacts or not solved:
-            qdd = self._unconstrained(H, f)
+            qdd = self._unconstrained()
         return qdd, M @ qdd + bias - external, solved
 
     def _velocity_bounds(self, contacts: list[int], velocity: list[float], heights: list[float],
-                         released: list[bool], target_heights: list[float]) -> tuple[np.ndarray, np.ndarray]:
+                         released: list[bool], target_heights: list[float]) -> tuple[list[float], list[float]]:
         """Eq. (9)'s bounds (lower, upper) on the x, y, z velocity changes of the active contacts over the step
         (pose_accelerations), from their velocities (3k,) and the points' heights, release flags and target
         heights (4,); in Python floats, as numpy's cost per call outweighs the arithmetic on so few values."""
@@ -260,28 +296,33 @@ class PhysCapTracker:
                 rise = max((goal - h) / settle_time if h > goal else INF, normal_speed) - vz
             lower += (-slide - vx, -slide - vy, normal_speed - vz)
             upper += (slide - vx, slide - vy, rise)
-        return np.array(lower), np.array(upper)
+        return lower, upper
 
-    def _unconstrained(self, H: np.ndarray, f: np.ndarray) -> np.ndarray:
-        """argmin 1/2 x'Hx + f'x by daqp's own factorisation: LAPACK's solve for a 40x40 system took 0.6 ms when
-        numpy's BLAS ran two threads on a busy machine, daqp about 30 us."""
-        x, _, exitflag, _ = daqp.solve(H, f, self._no_rows, self._no_bounds, self._no_bounds)
-        return x if exitflag == 1 else np.linalg.solve(H, -f)
+    def _unconstrained(self) -> np.ndarray:
+        """argmin 1/2 x'Hx + f'x of the pose QP's H and f by daqp's own factorisation: LAPACK's solve for a 40x40
+        system took 0.6 ms when numpy's BLAS ran two threads on a busy machine, daqp about 30 us."""
+        qp = self._pose_qp
+        x, exitflag = qp.solve(0)
+        return x if exitflag == 1 else np.linalg.solve(qp.H, -qp.f)
 
     def _released_contacts(self, target_sites: np.ndarray) -> np.ndarray:
         """(4,) contact points whose target (target_sites, (4, 3) m) lies more than release_distance along the
         floor from where the character holds them: the kinematic foot has gone (a wrong contact label or the
         detector swapping the feet), and holding on would drag the whole body after it. Reads the character's
-        contact points from `_dynamics`, which must have run at the current state. In Python floats (numpy's cost
-        per call outweighs the arithmetic on four points)."""
+        contact points from `_dynamics`, which must have run at the current state."""
+        return np.array(self._released(target_sites))
+
+    def _released(self, target_sites: np.ndarray) -> list[bool]:
+        """_released_contacts as a list of four, in Python floats (numpy's cost per call outweighs the arithmetic
+        on four points)."""
         limit = self.settings.release_distance
         if limit is None:
-            return np.zeros(4, bool)
+            return [False, False, False, False]
         released = []
         for (aim_x, aim_y, _), (x, y, _) in zip(target_sites.tolist(), self.data.site_xpos[self.sites].tolist(),
                                                 strict=True):
             released.append(math.sqrt((aim_x - x) * (aim_x - x) + (aim_y - y) * (aim_y - y)) > limit)
-        return np.array(released)
+        return released
 
     # ---- one video frame ----------------------------------------------------------------------------------
     def track(self, q_kin: np.ndarray, qd_kin: np.ndarray, qdd_kin: np.ndarray,
@@ -303,24 +344,31 @@ class PhysCapTracker:
         self._target_kinematics(q_kin)
         target_sites = self.target_data.site_xpos[self.sites].copy()
         height_step = target_sites[:, 2] - self._previous_target_heights
-        earlier_contacts = predicted_contacts if self._previous_contacts is None else self._previous_contacts
+        earlier_contacts = (predicted_contacts if self._previous_contacts is None
+                            else self._previous_contacts).tolist()
+        later_contacts = predicted_contacts.tolist()
+        previous_heights, height_step = self._previous_target_heights.tolist(), height_step.tolist()
         feedforward, target_damping = self.feedforward * qdd_kin, self.kd_target * qd_kin
+        contact_height, touch = s.contact_height, s.foot_lock != "never"  # foot_lock never: airborne or swimming
+        # motion, where the floor does not push back
+        flags = (False, False, False, False)
         for i in range(n):
             target[:] = self._previous_target
             mujoco.mj_integratePos(self.model, target, self._target_step, (i + 1) / n)
-            bias, heights, touching = self._dynamics()
+            heights, touching = self._step_state()
             if i == 0:  # judged once per frame against the frame's target (per step it split walks further)
-                released = self._released_contacts(target_sites)
-                held = ~released
-            predicted = earlier_contacts if (i + 0.5) / n < 0.5 else predicted_contacts
-            active = predicted & (heights < s.contact_height)  # eq. (5)
-            active &= held
-            if s.foot_lock != "never":  # airborne or swimming motion: the floor does not push back
-                active |= touching
+                released = self._released(target_sites)
+            predicted = earlier_contacts if (i + 0.5) / n < 0.5 else later_contacts
+            # eq. (5): predicted, within contact_height and not released; or touching the floor
+            flags = tuple((predicted[j] and heights[j] < contact_height and not released[j]) or (touch and touching[j])
+                          for j in range(4))
+            contacts, index, active = self._contact_index[flags]
             qdd_des = self._desired_acceleration(target, feedforward, target_damping)
-            forces, grf_ok, _ = self.ground_reaction_forces(qdd_des, bias, active)
-            qdd, torque, pose_ok = self.pose_accelerations(qdd_des, bias, forces, active, heights, released,
-                                                           self._previous_target_heights + (i + 1) / n * height_step)
+            forces, grf_ok, _ = self._ground_reaction_forces(qdd_des, self.bias, index, False)
+            fraction = (i + 1) / n
+            qdd, torque, pose_ok = self._pose_accelerations(
+                qdd_des, self.bias, forces, contacts, index, heights, released,
+                [height + fraction * step for height, step in zip(previous_heights, height_step, strict=True)])
             failures += (not grf_ok) + (not pose_ok)
             if self.record:
                 records.append(SubstepRecord(self.qpos.copy(), self.qvel.copy(), qdd, torque, forces, active.copy()))
@@ -337,7 +385,8 @@ class PhysCapTracker:
         self._previous_target_heights[:] = target_sites[:, 2]
         self._previous_contacts = predicted_contacts.copy()
         unexplained = self.kinematic_misfit(q_kin, qd_kin, qdd_kin)
-        return FrameOutput(forces_sum / n, residual_sum / n, active, failures, records, unexplained, diverged)
+        return FrameOutput(forces_sum / n, residual_sum / n, self._contact_index[flags][2].copy(), failures, records,
+                           unexplained, diverged)
 
     def _rigid_body_terms(self, d: mujoco.MjData, collide: bool) -> None:
         """Into d and the step buffers: kinematics, composite inertia, (collisions,) the bias forces
