@@ -162,6 +162,8 @@ class PhysCapTracker:
             self._contact_index[flags] = (indices, np.array(indices, dtype=np.intp), np.array(flags))
         self._contact_of_geom = self.contact_of_geom.tolist()
         self._jacobian_columns = self.contact_jacobian.reshape(12, nv).T  # J^T of all contact points, a view
+        self._site_jacobians = [(int(site), self.contact_jacobian[j]) for j, site in enumerate(self.sites)]
+        self._weighted_force = np.zeros(nv)  # pose_accelerations' buffer
 
     def reset(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
         self.qpos[:] = qpos
@@ -188,9 +190,10 @@ class PhysCapTracker:
         touching = [False, False, False, False]
         if d.ncon:
             contact_of_geom = self._contact_of_geom
-            for geom in d.contact.geom[:d.ncon].ravel().tolist():
-                if contact_of_geom[geom] >= 0:
-                    touching[contact_of_geom[geom]] = True
+            for pair in d.contact.geom.tolist():  # the ncon contacts' geom pairs
+                for geom in pair:
+                    if contact_of_geom[geom] >= 0:
+                        touching[contact_of_geom[geom]] = True
         return d.site_xpos[self.sites, 2].tolist(), touching
 
     def desired_acceleration(self, q_kin, qd_kin, qdd_kin) -> np.ndarray:
@@ -260,7 +263,9 @@ class PhysCapTracker:
         np.multiply(self._weight_column, M, out=self._weighted_mass)
         H = np.matmul(M, self._weighted_mass, out=qp.H)
         H += self.identity
-        np.subtract(np.matmul(M, self.torque_weights * (bias - external), out=qp.f), qdd_des, out=qp.f)
+        weighted = np.multiply(self.torque_weights, np.subtract(bias, external, out=self._weighted_force),
+                               out=self._weighted_force)
+        np.subtract(np.matmul(M, weighted, out=qp.f), qdd_des, out=qp.f)
         solved = True
         if contacts:
             rows = self.contact_jacobian[index].reshape(-1, self.model.nv)  # x, y, z rows of each active contact
@@ -332,7 +337,6 @@ class PhysCapTracker:
         forces_sum, residual_sum = np.zeros((4, 3)), np.zeros(6)
         failures, diverged = 0, False
         records = []
-        active = np.zeros(4, bool)
         target = np.empty_like(q_kin)
         # The steps advance the character through the frame: step i aims at the pose interpolated (on the
         # manifold) between the last frame's target and this one at the step's end time, so that the last step
@@ -360,8 +364,8 @@ class PhysCapTracker:
                 released = self._released(target_sites)
             predicted = earlier_contacts if (i + 0.5) / n < 0.5 else later_contacts
             # eq. (5): predicted, within contact_height and not released; or touching the floor
-            flags = tuple((predicted[j] and heights[j] < contact_height and not released[j]) or (touch and touching[j])
-                          for j in range(4))
+            flags = tuple([(predicted[j] and heights[j] < contact_height and not released[j]) or (touch and touching[j])
+                           for j in range(4)])
             contacts, index, active = self._contact_index[flags]
             qdd_des = self._desired_acceleration(target, feedforward, target_damping)
             forces, grf_ok, _ = self._ground_reaction_forces(qdd_des, self.bias, index, False)
@@ -401,8 +405,8 @@ class PhysCapTracker:
         mujoco.mj_comVel(m, d)
         mujoco.mj_rne(m, d, 0, self.bias)
         mujoco.mj_fullM(m, d, self.mass_matrix)
-        for j, site in enumerate(self.sites):
-            mujoco.mj_jacSite(m, d, self.contact_jacobian[j], None, site)
+        for site, jacobian in self._site_jacobians:
+            mujoco.mj_jacSite(m, d, jacobian, None, site)
 
     def kinematic_misfit(self, q_kin: np.ndarray, qd_kin: np.ndarray, qdd_kin: np.ndarray) -> np.ndarray:
         """(6,) the root force (world, N) and torque (pelvis frame, N m) that the kinematic motion itself needs
@@ -415,5 +419,6 @@ class PhysCapTracker:
         d = self.target_data
         d.qpos[:], d.qvel[:] = q_kin, qd_kin
         self._rigid_body_terms(d, collide=False)
-        active = d.site_xpos[self.sites, 2] < self.settings.contact_height
-        return self.ground_reaction_forces(qdd_kin, self.bias, active)[2]
+        contact_height = self.settings.contact_height
+        flags = tuple([height < contact_height for height in d.site_xpos[self.sites, 2].tolist()])
+        return self._ground_reaction_forces(qdd_kin, self.bias, self._contact_index[flags][1], True)[2]
