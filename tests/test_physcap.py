@@ -11,6 +11,7 @@ from physmocap.body.rotations import quat_exp, quat_multiply
 from physmocap.config import PhysicsSettings
 from physmocap.dynamics.balance import inside_support
 from physmocap.dynamics.physcap import PhysCapTracker
+from physmocap.dynamics.qp import DenseQP
 from physmocap.dynamics.stage import PhysicsStream, kinematic_derivatives, run_physcap
 
 FPS = 25.0
@@ -483,3 +484,32 @@ def test_a_root_shaken_sideways_by_fit_noise_gets_smaller_horizontal_forces_than
         force[stiff] = np.abs(np.array([f.contact_forces.sum(axis=0)[0] for f in outputs[10:]])).mean()
         sway[stiff] = np.ptp([r.qpos[0] for r in records[len(records) // 2:]])
     assert force[False] < 0.75 * force[True] and sway[False] < sway[True]
+
+
+def test_the_qp_workspace_returns_what_daqp_solve_returns_bit_for_bit():
+    """DenseQP calls daqp's C solver on its own buffers with daqp.solve's defaults: the same solutions and exit
+    flags on the tracker's problem sizes, feasible and infeasible, with and without rows, and its buffers unchanged
+    (a daqp whose structures or defaults differ from those DenseQP declares fails here)."""
+    import daqp
+
+    rng = np.random.default_rng(3)
+    flags = set()
+    for trial in range(400):
+        n = int(rng.choice([3, 6, 9, 12, 40]))
+        rows = int(rng.integers(0, 13))
+        B = rng.normal(size=(n, n))
+        H = B @ B.T + (1e-4 if trial % 2 else 1.0) * np.eye(n)
+        f, A = 10 * rng.normal(size=n), rng.normal(size=(rows, n))
+        lower = rng.normal(size=rows) - 1.0
+        upper = lower + rng.uniform(-1.0 if trial % 4 == 0 else 0.0, 2.0, size=rows)  # some rows infeasible
+        qp = DenseQP(n, 12)
+        qp.H[:], qp.f[:], qp.A[:rows], qp.upper[:rows], qp.lower[:rows] = H, f, A, upper, lower
+        buffers = [b.copy() for b in (qp.H, qp.f, qp.A, qp.upper, qp.lower)]
+        x, exitflag = qp.solve(rows)
+        expected, _, expected_flag, _ = daqp.solve(H, f, A, upper, lower)
+        flags.add(exitflag)
+        assert exitflag == expected_flag
+        if exitflag == 1:
+            assert np.array_equal(x, expected)
+        assert all(np.array_equal(a, b) for a, b in zip(buffers, (qp.H, qp.f, qp.A, qp.upper, qp.lower), strict=True))
+    assert 1 in flags and len(flags) > 1  # solved and infeasible problems both seen
