@@ -20,6 +20,10 @@ MediaPipe-like noise, the true intrinsics and height, 8 s at 30 fps, seeds 0 and
              (--against SRC, default ../main/src), in alternating child processes.
   speed_alternating  the same with the other tree's dynamics package loaded beside this one in one process,
              alternated run by run (steadier on a busy machine; only the dynamics package may differ).
+  identical  every array of run_physcap from this tree and from the --against tree's dynamics package (as
+             speed_alternating loads it) on eight runs: 131_01's 60 fps B.4 motion resampled to 10, 25, 30 and 60 fps,
+             006_01's online fit (refined floor; calibrated floor; three legacy steps without foot lock) and
+             131_01 with a box: which arrays differ and by how much (a speed change must leave them equal).
   stability  the validation walks' 60 fps B.4 motion resampled, PhysCap with a forced number of equal steps per
              frame around the PD's stability limit (physcap.stability_limit): what limits the step.
 
@@ -438,11 +442,9 @@ def part_speed(against: str, rounds: int = 3, repeats: int = 3) -> dict:
             for label, runs in seconds.items()} | dict(against=against, load_average=os.getloadavg()[0])
 
 
-def part_speed_alternating(against: str, rounds: int = 7) -> dict:
-    """Frames per CPU second (median and best of `rounds`) of this tree's physics stage and of the dynamics package
-    of the tree whose src folder is `against`, loaded beside it in one process (the rest of physmocap is this
-    tree's; each runs with its own tree's default PhysicsSettings) and alternated run by run, so that a busy
-    machine's changing load falls on both alike."""
+def other_tree(against: str):
+    """(run_physcap, its default PhysicsSettings) of the tree whose src folder is `against`: its dynamics package
+    and config loaded beside this tree's in one process (the rest of physmocap is this tree's)."""
     import importlib
     import importlib.util
 
@@ -452,14 +454,23 @@ def part_speed_alternating(against: str, rounds: int = 7) -> dict:
     package = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = package
     spec.loader.exec_module(package)
-    runners = {"this branch": run_physcap, "before": importlib.import_module(f"{spec.name}.stage").run_physcap}
-    # each tree's own default physics settings (a renamed setting would break the other tree's code)
+    # the tree's own default physics settings (a renamed setting would break the other tree's code)
     config_spec = importlib.util.spec_from_file_location("physmocap.config_against",
                                                          Path(against) / "physmocap" / "config.py")
     config_against = importlib.util.module_from_spec(config_spec)
     sys.modules[config_spec.name] = config_against
     config_spec.loader.exec_module(config_against)
-    physics_settings = {"this branch": PhysicsSettings(), "before": config_against.PhysicsSettings()}
+    return importlib.import_module(f"{spec.name}.stage").run_physcap, config_against.PhysicsSettings()
+
+
+def part_speed_alternating(against: str, rounds: int = 7) -> dict:
+    """Frames per CPU second (median and best of `rounds`) of this tree's physics stage and of the dynamics package
+    of the tree whose src folder is `against`, loaded beside it in one process (other_tree; each runs with its own
+    tree's default PhysicsSettings) and alternated run by run, so that a busy machine's changing load falls on both
+    alike."""
+    run_against, settings_against = other_tree(against)
+    runners = {"this branch": run_physcap, "before": run_against}
+    physics_settings = {"this branch": PhysicsSettings(), "before": settings_against}
     case = build_case(CLIPS[0], 0, 60.0, online=False)
     motion, refined = case["refined"].motion, case["refined"]
     out: dict = {"this branch": {}, "before": {}, "this branch best": {}, "before best": {}}
@@ -477,6 +488,47 @@ def part_speed_alternating(against: str, rounds: int = 7) -> dict:
             out[label][f"{fps:g}"] = 1.0 / float(np.median(runs))
             out[f"{label} best"][f"{fps:g}"] = 1.0 / float(np.min(runs))
     return out | dict(against=against, load_average=os.getloadavg()[0], rounds=rounds)
+
+
+def identity_runs(run, settings: PhysicsSettings):
+    """(name, PhysicsMotion) of part identical's eight runs with `run` (a run_physcap) and default `settings`."""
+    case = build_case(CLIPS[0], 0, 60.0, online=False)
+    motion, refined = case["refined"].motion, case["refined"]
+    for fps in (10.0, 25.0, 30.0, 60.0):
+        qpos, source = resample_motion(motion.body, motion.qpos, 60.0, fps)
+        yield f"131_01 at {fps:g} fps", run(motion.body, qpos, fps, refined.contacts[source],
+                                            case["stationary"][source], settings, refined_input=True)
+    case = build_case(CLIPS[1], 0)
+    fps, contacts, stationary = case["obs"].fps, case["causal"], case["causal_stationary"]
+    online, calibrated = case["online"], case["online_calibrated"]
+    yield "006_01 online, refined floor", run(online.body, online.qpos, fps, contacts, stationary, settings,
+                                              refine_floor=True)
+    yield "006_01 online, calibrated floor", run(calibrated.body, calibrated.qpos, fps, contacts, stationary,
+                                                 settings)
+    legacy = dataclasses.replace(settings, step_stability_share=None, iterations=3, step=None, foot_lock="never")
+    yield "006_01 online, 3 legacy steps, no foot lock", run(calibrated.body, calibrated.qpos, fps, contacts,
+                                                             stationary, legacy)
+    case = build_case(CLIPS[0], 0, box=True, online=False)
+    refined = case["refined"]
+    yield "131_01 with a box", run(refined.motion.body, refined.motion.qpos, case["obs"].fps, refined.contacts,
+                                   case["stationary"], settings, refined_input=True)
+
+
+def part_identical(against: str) -> dict:
+    """Every array of run_physcap (but the time) from this tree and from the tree whose src folder is `against`
+    (other_tree), each with its own default settings, on identity_runs: the arrays not bit for bit equal."""
+    run_against, settings_against = other_tree(against)
+    rows = []
+    for (name, mine), (_, theirs) in zip(identity_runs(run_physcap, PhysicsSettings()),
+                                         identity_runs(run_against, settings_against), strict=True):
+        ours, base = mine.to_arrays(), theirs.to_arrays()
+        differing = {key: float(np.nanmax(np.abs(ours[key].astype(float) - base[key].astype(float))))
+                     if ours[key].shape == base[key].shape else float("nan")
+                     for key in ours if key != "seconds" and not np.array_equal(ours[key], base[key], equal_nan=True)}
+        rows.append(dict(run=name, frames=len(mine.qpos), arrays=len(ours) - 1, differing=differing,
+                         flagged=int(np.count_nonzero(mine.unexplained))))
+        print("identical", rows[-1], flush=True)
+    return dict(rows=rows, against=against)
 
 
 # ---- report ---------------------------------------------------------------------------------------------------
@@ -543,6 +595,14 @@ def markdown(out: dict) -> str:
                               f"stage, median (best) of {sp['rounds']} runs each; load average "
                               f"{sp['load_average']:.1f})",
                               lambda label, rate, v: f"{v:.0f} ({sp[label + ' best'][rate]:.0f})")
+    if "identical" in out:
+        lines += [f"**Every array of run_physcap against {out['identical']['against']}** (bit for bit: np.array_equal)",
+                  "", "| run | frames | frames flagged | arrays | arrays differing (largest difference) |",
+                  "|---|---|---|---|---|"]
+        for r in out["identical"]["rows"]:
+            differing = ", ".join(f"{k} ({v:.2g})" for k, v in r["differing"].items()) or "none"
+            lines.append(f"| {r['run']} | {r['frames']} | {r['flagged']} | {r['arrays']} | {differing} |")
+        lines.append("")
     if "stability" in out:
         lines += [f"**Step against the PD's stability limit** ({1000 * out['stability']['limit_s']:.1f} ms; "
                   "validation walks, 60 fps B.4 motion resampled)", "",
@@ -598,7 +658,8 @@ def main(argv=None) -> dict:
                              "settings on validation clips)")
     parser.add_argument("--json", default=str(RESULTS / "physics_limits.json"))
     parser.add_argument("--against", default=str(Path(__file__).resolve().parents[2] / "main" / "src"),
-                        help="src folder of the code to time against in part speed (default: ../main/src)")
+                        help="src folder of the code to compare with in parts speed, speed_alternating and "
+                             "identical (default: ../main/src)")
     parser.add_argument("--time-only", type=int, default=None, help=argparse.SUPPRESS)  # child of part speed
     args = parser.parse_args(argv)
     if args.time_only:
@@ -627,6 +688,8 @@ def main(argv=None) -> dict:
             out[part] = part_stability()
         elif part == "speed_alternating":
             out[part] = part_speed_alternating(args.against)
+        elif part == "identical":
+            out[part] = part_identical(args.against)
         out[part]["minutes"] = (time.perf_counter() - start) / 60
     RESULTS.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(out, indent=1))
