@@ -164,6 +164,7 @@ class PhysCapTracker:
         self._jacobian_columns = self.contact_jacobian.reshape(12, nv).T  # J^T of all contact points, a view
         self._site_jacobians = [(int(site), self.contact_jacobian[j]) for j, site in enumerate(self.sites)]
         self._weighted_force = np.zeros(nv)  # pose_accelerations' buffer
+        self._mass_root, self._bias_root = self.mass_matrix[:6], self.bias[:6]  # the root's rows, views
 
     def reset(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
         self.qpos[:] = qpos
@@ -215,18 +216,14 @@ class PhysCapTracker:
         np.maximum(desired, -MAX_DESIRED_ACCELERATION, out=desired)
         return np.minimum(desired, MAX_DESIRED_ACCELERATION, out=desired)
 
-    def ground_reaction_forces(self, qdd_des, bias, active) -> tuple[np.ndarray, bool, np.ndarray]:
-        """Eq. (6-7): forces (4, 3) at the active contacts that best produce the root's desired acceleration,
-        pushing only, inside the friction pyramid. Returns the forces, whether the QP solved, and the root wrench
-        (6,) the forces leave unexplained (the desired one where no contact is active or the QP failed)."""
-        return self._ground_reaction_forces(qdd_des, bias, self._contact_index[tuple(active.tolist())][1], True)
-
-    def _ground_reaction_forces(self, qdd_des, bias, index: np.ndarray,
-                                unexplained: bool) -> tuple[np.ndarray, bool, np.ndarray | None]:
-        """ground_reaction_forces for the active contacts' indices; the unexplained wrench only where asked
-        (else None)."""
+    def ground_reaction_forces(self, qdd_des, index: np.ndarray,
+                               unexplained: bool) -> tuple[np.ndarray, bool, np.ndarray | None]:
+        """Eq. (6-7): forces (4, 3) at the active contacts (their indices) that best produce the root's desired
+        acceleration at the state `_rigid_body_terms` left in the step buffers, pushing only, inside the friction
+        pyramid. Returns the forces, whether the QP solved, and where asked (else None) the root wrench (6,) the
+        forces leave unexplained (the desired one where no contact is active or the QP failed)."""
         forces = np.zeros((4, 3))
-        target = self.mass_matrix[:6] @ qdd_des + bias[:6]
+        target = self._mass_root @ qdd_des + self._bias_root
         k = len(index)
         if not k:
             return forces, True, target
@@ -368,7 +365,7 @@ class PhysCapTracker:
                            for j in range(4)])
             contacts, index, active = self._contact_index[flags]
             qdd_des = self._desired_acceleration(target, feedforward, target_damping)
-            forces, grf_ok, _ = self._ground_reaction_forces(qdd_des, self.bias, index, False)
+            forces, grf_ok, _ = self.ground_reaction_forces(qdd_des, index, False)
             fraction = (i + 1) / n
             qdd, torque, pose_ok = self._pose_accelerations(
                 qdd_des, self.bias, forces, contacts, index, heights, released,
@@ -421,4 +418,4 @@ class PhysCapTracker:
         self._rigid_body_terms(d, collide=False)
         contact_height = self.settings.contact_height
         flags = tuple([height < contact_height for height in d.site_xpos[self.sites, 2].tolist()])
-        return self._ground_reaction_forces(qdd_kin, self.bias, self._contact_index[flags][1], True)[2]
+        return self.ground_reaction_forces(qdd_kin, self._contact_index[flags][1], True)[2]
