@@ -513,3 +513,15 @@ def test_the_qp_workspace_returns_what_daqp_solve_returns_bit_for_bit():
             assert np.array_equal(x, expected)
         assert all(np.array_equal(a, b) for a, b in zip(buffers, (qp.H, qp.f, qp.A, qp.upper, qp.lower), strict=True))
     assert 1 in flags and len(flags) > 1  # solved and infeasible problems both seen
+
+
+def test_a_non_finite_target_restarts_the_character_instead_of_integrating_it(body):
+    """Accelerations that are not finite (here from a target with a NaN joint) are never integrated: the step
+    counts as a fallback and the character restarts from the target (the stage then flags the frame)."""
+    tracker = PhysCapTracker(body, PhysicsSettings(), FPS)
+    tracker.reset(body.rest_qpos, np.zeros(body.nv))
+    target = body.rest_qpos.copy()
+    target[7] = np.nan
+    frame = tracker.track(target, np.zeros(body.nv), np.zeros(body.nv), np.ones(4, bool))
+    assert frame.diverged and frame.qp_failures >= tracker.substeps
+    assert np.isfinite(frame.contact_forces).all() and np.isfinite(frame.residual).all()

@@ -373,7 +373,9 @@ class PhysCapTracker:
             failures += (not grf_ok) + (not pose_ok)
             if self.record:
                 records.append(SubstepRecord(self.qpos.copy(), self.qvel.copy(), qdd, torque, forces, active.copy()))
-            if not np.abs(qdd).max() < MAX_ACCELERATION:  # also catches NaN
+            accelerations = qdd.tolist()  # in floats: numpy's reductions cost more than the comparison
+            if not (-MAX_ACCELERATION < min(accelerations) and max(accelerations) < MAX_ACCELERATION
+                    and math.isfinite(sum(accelerations))):  # the sum catches NaN, which min and max may skip
                 # Diverging (a wildly implausible target): restart from the target at rest, counted as a fallback.
                 failures, diverged = failures + 1, True
                 self.reset(target, np.zeros_like(self.qvel))

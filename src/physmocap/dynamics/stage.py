@@ -181,7 +181,8 @@ class PhysicsStream:
             elif size > bound:
                 forces *= bound / size
                 out_of_bounds = True
-        unexplained = frame.unexplained[:3] if np.isfinite(frame.unexplained).all() else np.zeros(3)
+        finite = all(map(math.isfinite, frame.unexplained.tolist()))
+        unexplained = frame.unexplained[:3] if finite else np.zeros(3)
         self._unexplained += self._unexplained_share * (unexplained - self._unexplained)
         flagged = (out_of_bounds or frame.diverged or frame.qp_failures > 0
                    or (s.unexplained_force is not None
