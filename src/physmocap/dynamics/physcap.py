@@ -165,6 +165,9 @@ class PhysCapTracker:
         self._site_jacobians = [(int(site), self.contact_jacobian[j]) for j, site in enumerate(self.sites)]
         self._weighted_force = np.zeros(nv)  # pose_accelerations' buffer
         self._mass_root, self._bias_root = self.mass_matrix[:6], self.bias[:6]  # the root's rows, views
+        # s: eq. (9)'s times to recover a penetration and to settle a held contact, never shorter than a step
+        self._recovery_time = max(self.dt, settings.penetration_recovery)
+        self._settle_time = max(self.dt, settings.contact_settle_time)
 
     def reset(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
         self.qpos[:] = qpos
@@ -281,21 +284,22 @@ class PhysCapTracker:
         """Eq. (9)'s bounds (lower, upper) on the x, y, z velocity changes of the active contacts over the step
         (pose_accelerations), from their velocities (3k,) and the points' heights, release flags and target
         heights (4,); in Python floats, as numpy's cost per call outweighs the arithmetic on so few values."""
-        s, dt = self.settings, self.dt
-        clearance = s.floor_clearance
-        recovery, settle_time = max(dt, s.penetration_recovery), max(dt, s.contact_settle_time)
+        dt, slide_speed, clearance = self.dt, self.settings.slide_speed, self.settings.floor_clearance
+        recovery, settle_time = self._recovery_time, self._settle_time
         lower: list[float] = []
         upper: list[float] = []
         for index, j in enumerate(contacts):
             vx, vy, vz = velocity[3 * index:3 * index + 3]
-            slide, h = INF if released[j] else s.slide_speed, heights[j]
+            slide, h = INF if released[j] else slide_speed, heights[j]
             # Above the floor: come down at most to the clearance by the end of the step (the step's rotation
             # may dip the point by less than that); within it: do not descend; below the floor: rise back gently.
-            normal_speed = (clearance - h) / dt if h > clearance else max(-h, 0.0) / recovery
+            # (b if b > a else a is max(a, b), without the call.)
+            normal_speed = (clearance - h) / dt if h > clearance else (0.0 if 0.0 > -h else -h) / recovery
             rise = INF
             if self.settle_contacts:
-                goal = max(target_heights[j], clearance)
-                rise = max((goal - h) / settle_time if h > goal else INF, normal_speed) - vz
+                goal = clearance if clearance > target_heights[j] else target_heights[j]
+                settle = (goal - h) / settle_time if h > goal else INF
+                rise = (normal_speed if normal_speed > settle else settle) - vz
             lower += (-slide - vx, -slide - vy, normal_speed - vz)
             upper += (slide - vx, slide - vy, rise)
         return lower, upper
