@@ -24,6 +24,9 @@ MediaPipe-like noise, the true intrinsics and height, 8 s at 30 fps, seeds 0 and
              speed_alternating loads it) on eight runs: 131_01's 60 fps B.4 motion resampled to 10, 25, 30 and 60 fps,
              006_01's online fit (refined floor; calibrated floor; three legacy steps without foot lock) and
              131_01 with a box: which arrays differ and by how much (a speed change must leave them equal).
+  profile    where the physics stage's CPU time goes: 131_01's 60 fps B.4 motion resampled to 30 fps, each method
+             of the tracker, the stage and the QP workspace timed by a wrapper (time.process_time around each call;
+             the wrappers add their own cost to the small calls: shares, not absolute figures).
   stability  the validation walks' 60 fps B.4 motion resampled, PhysCap with a forced number of equal steps per
              frame around the PD's stability limit (physcap.stability_limit): what limits the step.
 
@@ -531,6 +534,76 @@ def part_identical(against: str) -> dict:
     return dict(rows=rows, against=against)
 
 
+PROFILED = {  # module -> class -> methods of part profile (nested calls count in both)
+    "physmocap.dynamics.stage": {"PhysicsStream": ("push", "_diagnose", "_deviation")},
+    "physmocap.dynamics.balance": {"BalanceCorrector": ("correct",)},
+    "physmocap.dynamics.physcap": {"PhysCapTracker": (
+        "track", "_dynamics", "_step_state", "_rigid_body_terms", "_desired_acceleration", "ground_reaction_forces",
+        "pose_accelerations", "_pose_accelerations", "_velocity_bounds", "_unconstrained", "kinematic_misfit")},
+    "physmocap.dynamics.qp": {"DenseQP": ("solve",)},
+}
+
+
+def part_profile(fps: float = 30.0) -> dict:
+    """CPU microseconds per frame and calls per frame of each PROFILED method (those the tree has) while
+    run_physcap tracks 131_01's 60 fps B.4 motion resampled to `fps`; and the stage's CPU time per frame without
+    the wrappers."""
+    import importlib
+
+    case = build_case(CLIPS[0], 0, 60.0, online=False)
+    motion, refined = case["refined"].motion, case["refined"]
+    qpos, source = resample_motion(motion.body, motion.qpos, 60.0, fps)
+
+    def run() -> float:
+        start = time.process_time()
+        run_physcap(motion.body, qpos, fps, refined.contacts[source], case["stationary"][source], PhysicsSettings(),
+                    refined_input=True)
+        return (time.process_time() - start) / len(qpos)
+
+    run()  # warm
+    unwrapped = min(run() for _ in range(3))
+    seconds: dict[str, float] = {}
+    calls: dict[str, int] = {}
+    originals = []
+
+    def wrapped(label, method):
+        def timed(*args, **kwargs):
+            start = time.process_time()
+            try:
+                return method(*args, **kwargs)
+            finally:
+                seconds[label] = seconds.get(label, 0.0) + time.process_time() - start
+                calls[label] = calls.get(label, 0) + 1
+        return timed
+
+    for module_name, classes in PROFILED.items():
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError:  # a tree without the module (the QP workspace)
+            continue
+        for class_name, methods in classes.items():
+            owner = getattr(module, class_name)
+            for name in methods:
+                if hasattr(owner, name):
+                    originals.append((owner, name, getattr(owner, name)))
+                    setattr(owner, name, wrapped(f"{class_name}.{name}", getattr(owner, name)))
+    physcap_module = importlib.import_module("physmocap.dynamics.physcap")
+    if hasattr(physcap_module, "daqp"):  # a tree calling daqp.solve
+        import types
+
+        originals.append((physcap_module, "daqp", physcap_module.daqp))
+        physcap_module.daqp = types.SimpleNamespace(solve=wrapped("daqp.solve", physcap_module.daqp.solve))
+    try:
+        run()
+    finally:
+        for owner, name, method in originals:
+            setattr(owner, name, method)
+    frames = len(qpos)
+    rows = [dict(method=label, us_per_frame=1e6 * value / frames, calls_per_frame=calls[label] / frames)
+            for label, value in sorted(seconds.items(), key=lambda item: -item[1])]
+    return dict(fps=fps, unwrapped_us_per_frame=1e6 * unwrapped, rows=rows, load_average=os.getloadavg()[0])
+
+
 # ---- report ---------------------------------------------------------------------------------------------------
 def _speed_table(sp: dict, title: str, cell) -> list[str]:
     """A speed part's table: a row per code version, a column per frame rate; cell(label, rate, median) its text."""
@@ -602,6 +675,14 @@ def markdown(out: dict) -> str:
         for r in out["identical"]["rows"]:
             differing = ", ".join(f"{k} ({v:.2g})" for k, v in r["differing"].items()) or "none"
             lines.append(f"| {r['run']} | {r['frames']} | {r['flagged']} | {r['arrays']} | {differing} |")
+        lines.append("")
+    if "profile" in out:
+        pr = out["profile"]
+        lines += [f"**Where the time goes** (131_01 at {pr['fps']:g} fps; {pr['unwrapped_us_per_frame']:.0f} us of CPU "
+                  f"a frame without the wrappers; load average {pr['load_average']:.1f})", "",
+                  "| method | CPU us per frame | calls per frame |", "|---|---|---|"]
+        for r in pr["rows"]:
+            lines.append(f"| {r['method']} | {r['us_per_frame']:.0f} | {r['calls_per_frame']:.2f} |")
         lines.append("")
     if "stability" in out:
         lines += [f"**Step against the PD's stability limit** ({1000 * out['stability']['limit_s']:.1f} ms; "
@@ -690,6 +771,8 @@ def main(argv=None) -> dict:
             out[part] = part_speed_alternating(args.against)
         elif part == "identical":
             out[part] = part_identical(args.against)
+        elif part == "profile":
+            out[part] = part_profile()
         out[part]["minutes"] = (time.perf_counter() - start) / 60
     RESULTS.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(out, indent=1))
