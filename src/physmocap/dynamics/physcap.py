@@ -16,6 +16,7 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass, field
+from typing import cast
 
 import mujoco
 import numpy as np
@@ -117,10 +118,10 @@ class PhysCapTracker:
         self.kd_target = self.kd.copy()
         self.kd_target[3:] *= settings.rotation_velocity_share
         self.sites = np.array([self.model.site(n).id for n in CONTACT_POINTS])
-        self.contact_of_geom = np.full(self.model.ngeom, -1)  # geom id -> contact point index, -1 for others
+        self._contact_of_geom = [-1] * self.model.ngeom  # geom id -> contact point index, -1 for others
         for j, name in enumerate(CONTACT_POINTS):
             geom = self.model.geom(f"{name}_collision").id
-            self.contact_of_geom[geom] = j
+            self._contact_of_geom[geom] = j
             self.model.geom_margin[geom] = settings.touch_margin
         self.torque_weights = np.full(nv, settings.torque_weight)
         self.torque_weights[:6] = settings.residual_weight
@@ -134,7 +135,6 @@ class PhysCapTracker:
         self._weighted_mass = np.zeros((nv, nv))
         # The pose QP (eq. 10): its H is built in the workspace's own buffer; at most 3 rows per contact point.
         self._pose_qp = DenseQP(nv, 12)
-        self._hessian = self._pose_qp.H
         # H = A A^T has rank 6: at a regularisation of 1e-6 daqp called 8% of the demo clip's frames infeasible;
         # 1e-4 N^-2 costs a bias of 1e-4 of the force. Per number of active contacts k: the regularisation (3k, 3k)
         # and a workspace holding the pyramid rows (4k, 3k) and their bounds (each row >= 0).
@@ -155,12 +155,11 @@ class PhysCapTracker:
         # The step's small bookkeeping (four contact points) runs on Python lists and tuples: numpy's cost per call
         # outweighs the arithmetic on four values. Per tuple of active flags: the contacts' indices (list and array,
         # which index the Jacobians as the flags would) and the flags as an array.
-        self._contact_index = {}
+        self._contact_index: dict[tuple[bool, ...], tuple[list[int], np.ndarray, np.ndarray]] = {}
         for mask in range(16):
             flags = tuple(bool(mask >> j & 1) for j in range(4))
             indices = [j for j in range(4) if flags[j]]
             self._contact_index[flags] = (indices, np.array(indices, dtype=np.intp), np.array(flags))
-        self._contact_of_geom = self.contact_of_geom.tolist()
         self._jacobian_columns = self.contact_jacobian.reshape(12, nv).T  # J^T of all contact points, a view
         self._site_jacobians = [(int(site), self.contact_jacobian[j]) for j, site in enumerate(self.sites)]
         self._weighted_force = np.zeros(nv)  # pose_accelerations' buffer
@@ -356,7 +355,7 @@ class PhysCapTracker:
         feedforward, target_damping = self.feedforward * qdd_kin, self.kd_target * qd_kin
         contact_height, touch = s.contact_height, s.foot_lock != "never"  # foot_lock never: airborne or swimming
         # motion, where the floor does not push back
-        flags = (False, False, False, False)
+        flags: tuple[bool, ...] = (False, False, False, False)
         for i in range(n):
             target[:] = self._previous_target
             mujoco.mj_integratePos(self.model, target, self._target_step, (i + 1) / n)
@@ -424,4 +423,4 @@ class PhysCapTracker:
         self._rigid_body_terms(d, collide=False)
         contact_height = self.settings.contact_height
         flags = tuple([height < contact_height for height in d.site_xpos[self.sites, 2].tolist()])
-        return self.ground_reaction_forces(qdd_kin, self._contact_index[flags][1], True)[2]
+        return cast(np.ndarray, self.ground_reaction_forces(qdd_kin, self._contact_index[flags][1], True)[2])
