@@ -247,22 +247,22 @@ def test_contact_released_when_the_kinematic_foot_leaves(body):
     sliding = np.zeros(body.nv)
     sliding[0], sliding[2] = 1.0, -0.2  # the whole body moving forward at 1 m/s and down at 0.2 m/s
     tracker.reset(q, sliding)
-    bias, heights, _ = tracker._dynamics()
+    heights, _ = tracker._step_state()
     away = q.copy()
     away[0] += 2 * settings.release_distance
     tracker._target_kinematics(away)
     released = tracker._released_contacts(tracker.target_data.site_xpos[tracker.sites])
     tracker._target_kinematics(q)
-    assert released.all() and not tracker._released_contacts(tracker.target_data.site_xpos[tracker.sites]).any()
-    active = np.ones(4, bool)
-    for let_go in (np.zeros(4, bool), released):
-        qdd, _, solved = tracker.pose_accelerations(np.zeros(body.nv), bias, np.zeros((4, 3)), active, heights,
-                                                    let_go, heights)
+    assert all(released) and not any(tracker._released_contacts(tracker.target_data.site_xpos[tracker.sites]))
+    active = (True, True, True, True)
+    for let_go in ([False] * 4, released):
+        qdd, _, solved = tracker.pose_accelerations(np.zeros(body.nv), tracker.bias, np.zeros((4, 3)), active,
+                                                    heights, let_go, heights)
         assert solved
         velocity = tracker.contact_jacobian @ (sliding + tracker.dt * qdd)  # (4, 3) after the step
-        assert np.all(velocity[:, 2] >= -heights / tracker.dt - 1e-9)  # no sinking either way
+        assert np.all(velocity[:, 2] >= -np.array(heights) / tracker.dt - 1e-9)  # no sinking either way
         along_floor = np.linalg.norm(velocity[:, :2], axis=1)
-        if let_go.any():
+        if any(let_go):
             assert np.all(along_floor > 0.5)
         else:
             assert np.all(along_floor <= np.sqrt(2) * settings.slide_speed + 1e-6)
@@ -277,17 +277,17 @@ def test_a_held_contact_above_its_target_comes_down_to_it(body):
     q = body.rest_qpos.copy()
     q[2] += 0.02  # the character 2 cm above its target, which stands on the floor
     tracker.reset(q, np.zeros(body.nv))
-    bias, heights, _ = tracker._dynamics()
-    targets = heights - 0.02
-    active = np.ones(4, bool)
-    qdd, _, solved = tracker.pose_accelerations(np.zeros(body.nv), bias, np.zeros((4, 3)), active, heights,
-                                                np.zeros(4, bool), targets)
+    heights, _ = tracker._step_state()
+    targets = [height - 0.02 for height in heights]
+    active, held = (True, True, True, True), [False] * 4
+    qdd, _, solved = tracker.pose_accelerations(np.zeros(body.nv), tracker.bias, np.zeros((4, 3)), active, heights,
+                                                held, targets)
     assert solved
     normal_velocity = (tracker.contact_jacobian @ (tracker.dt * qdd))[:, 2]
     goal = np.maximum(targets, settings.floor_clearance)
-    assert np.all(normal_velocity <= (goal - heights) / settings.contact_settle_time + 1e-9)
-    free = [tracker.pose_accelerations(np.zeros(body.nv), bias, np.zeros((4, 3)), active, heights,
-                                       np.zeros(4, bool), heights + above)[0] for above in (0.01, 10.0)]
+    assert np.all(normal_velocity <= (goal - np.array(heights)) / settings.contact_settle_time + 1e-9)
+    free = [tracker.pose_accelerations(np.zeros(body.nv), tracker.bias, np.zeros((4, 3)), active, heights, held,
+                                       [height + above for height in heights])[0] for above in (0.01, 10.0)]
     assert np.allclose(free[0], free[1])
 
 

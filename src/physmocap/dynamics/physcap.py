@@ -181,13 +181,9 @@ class PhysCapTracker:
         mujoco.mj_kinematics(self.model, self.target_data)
 
     # ---- the pieces of one step -------------------------------------------------------------------------
-    def _dynamics(self):
-        """Mass matrix, bias forces, contact Jacobians, contact heights and floor collisions at the state."""
-        heights, touching = self._step_state()
-        return self.bias, np.array(heights), np.array(touching)
-
     def _step_state(self) -> tuple[list[float], list[bool]]:
-        """_dynamics with the contact points' heights (m) and floor collisions as lists of four."""
+        """Mass matrix, bias forces and contact Jacobians at the state into the step buffers; returns the contact
+        points' heights (m) and floor collisions, lists of four."""
         d = self.data
         self._rigid_body_terms(d, collide=True)
         touching = [False, False, False, False]
@@ -218,12 +214,13 @@ class PhysCapTracker:
         np.maximum(desired, -MAX_DESIRED_ACCELERATION, out=desired)
         return np.minimum(desired, MAX_DESIRED_ACCELERATION, out=desired)
 
-    def ground_reaction_forces(self, qdd_des, index: np.ndarray,
+    def ground_reaction_forces(self, qdd_des, active: tuple[bool, ...],
                                unexplained: bool) -> tuple[np.ndarray, bool, np.ndarray | None]:
-        """Eq. (6-7): forces (4, 3) at the active contacts (their indices) that best produce the root's desired
+        """Eq. (6-7): forces (4, 3) at the active contacts (flags of four) that best produce the root's desired
         acceleration at the state `_rigid_body_terms` left in the step buffers, pushing only, inside the friction
         pyramid. Returns the forces, whether the QP solved, and where asked (else None) the root wrench (6,) the
         forces leave unexplained (the desired one where no contact is active or the QP failed)."""
+        index = self._contact_index[active][1]
         forces = np.zeros((4, 3))
         target = self._mass_root @ qdd_des + self._bias_root
         k = len(index)
@@ -239,22 +236,16 @@ class PhysCapTracker:
         forces[index] = x.reshape(k, 3)
         return forces, True, target - root_rows.T @ x if unexplained else None
 
-    def pose_accelerations(self, qdd_des, bias, forces, active, heights, released,
-                           target_heights) -> tuple[np.ndarray, np.ndarray, bool]:
+    def pose_accelerations(self, qdd_des, bias, forces, active: tuple[bool, ...], heights: list[float],
+                           released: list[bool], target_heights: list[float]) -> tuple[np.ndarray, np.ndarray, bool]:
         """Eq. (10): qdd minimising |qdd - qdd_des|^2 + tau' W tau with tau = M qdd + c - J^T lambda (the
-        equation of motion, eq. 2), subject to eq. (9) at the active contacts after the step: the normal
-        velocity keeps the point on or above the floor and (settle_contacts) brings a point above its target's height
-        (target_heights, (4,) m) down to it within settings.contact_settle_time, tangential speeds stay within
-        sigma (except at released contacts, which slide freely but still do not sink).
+        equation of motion, eq. 2), subject to eq. (9) at the active contacts (flags of four) after the step: the
+        normal velocity keeps the point on or above the floor and (settle_contacts) brings a point above its
+        target's height (target_heights, m) down to it within settings.contact_settle_time, tangential speeds
+        stay within sigma (except at released contacts, which slide freely but still do not sink). heights,
+        released and target_heights: lists of four (Python values: see __init__).
         Returns qdd, tau and whether the QP solved (else the unconstrained optimum is used)."""
-        contacts, index, _ = self._contact_index[tuple(active.tolist())]
-        return self._pose_accelerations(qdd_des, bias, forces, contacts, index, heights.tolist(), released.tolist(),
-                                        target_heights.tolist())
-
-    def _pose_accelerations(self, qdd_des, bias, forces, contacts: list[int], index: np.ndarray,
-                            heights: list[float], released: list[bool],
-                            target_heights: list[float]) -> tuple[np.ndarray, np.ndarray, bool]:
-        """pose_accelerations for the active contacts' indices (list and array), the rest as lists of four."""
+        contacts, index, _ = self._contact_index[active]
         M, qp = self.mass_matrix, self._pose_qp
         external = self._jacobian_columns @ forces.ravel()
         # The objective is 1/2 qdd' H qdd + f' qdd up to a constant and a factor 2: H = I + M W M, built in
@@ -310,16 +301,12 @@ class PhysCapTracker:
         x, exitflag = qp.solve(0)
         return x if exitflag == 1 else np.linalg.solve(qp.H, -qp.f)
 
-    def _released_contacts(self, target_sites: np.ndarray) -> np.ndarray:
-        """(4,) contact points whose target (target_sites, (4, 3) m) lies more than release_distance along the
-        floor from where the character holds them: the kinematic foot has gone (a wrong contact label or the
-        detector swapping the feet), and holding on would drag the whole body after it. Reads the character's
-        contact points from `_dynamics`, which must have run at the current state."""
-        return np.array(self._released(target_sites))
-
-    def _released(self, target_sites: np.ndarray) -> list[bool]:
-        """_released_contacts as a list of four, in Python floats (numpy's cost per call outweighs the arithmetic
-        on four points)."""
+    def _released_contacts(self, target_sites: np.ndarray) -> list[bool]:
+        """Flags of the four contact points whose target (target_sites, (4, 3) m) lies more than release_distance
+        along the floor from where the character holds them: the kinematic foot has gone (a wrong contact label or
+        the detector swapping the feet), and holding on would drag the whole body after it. Reads the character's
+        contact points from `_step_state`, which must have run at the current state. In Python floats (numpy's
+        cost per call outweighs the arithmetic on four points)."""
         limit = self.settings.release_distance
         if limit is None:
             return [False, False, False, False]
@@ -361,21 +348,21 @@ class PhysCapTracker:
             mujoco.mj_integratePos(self.model, target, self._target_step, (i + 1) / n)
             heights, touching = self._step_state()
             if i == 0:  # judged once per frame against the frame's target (per step it split walks further)
-                released = self._released(target_sites)
+                released = self._released_contacts(target_sites)
             predicted = earlier_contacts if (i + 0.5) / n < 0.5 else later_contacts
             # eq. (5): predicted, within contact_height and not released; or touching the floor
             flags = tuple([(predicted[j] and heights[j] < contact_height and not released[j]) or (touch and touching[j])
                            for j in range(4)])
-            contacts, index, active = self._contact_index[flags]
             qdd_des = self._desired_acceleration(target, feedforward, target_damping)
-            forces, grf_ok, _ = self.ground_reaction_forces(qdd_des, index, False)
+            forces, grf_ok, _ = self.ground_reaction_forces(qdd_des, flags, False)
             fraction = (i + 1) / n
-            qdd, torque, pose_ok = self._pose_accelerations(
-                qdd_des, self.bias, forces, contacts, index, heights, released,
+            qdd, torque, pose_ok = self.pose_accelerations(
+                qdd_des, self.bias, forces, flags, heights, released,
                 [height + fraction * step for height, step in zip(previous_heights, height_step, strict=True)])
             failures += (not grf_ok) + (not pose_ok)
             if self.record:
-                records.append(SubstepRecord(self.qpos.copy(), self.qvel.copy(), qdd, torque, forces, active.copy()))
+                records.append(SubstepRecord(self.qpos.copy(), self.qvel.copy(), qdd, torque, forces,
+                                             self._contact_index[flags][2].copy()))
             accelerations = qdd.tolist()  # in floats: numpy's reductions cost more than the comparison
             if not (-MAX_ACCELERATION < min(accelerations) and max(accelerations) < MAX_ACCELERATION
                     and math.isfinite(sum(accelerations))):  # the sum catches NaN, which min and max may skip
@@ -423,4 +410,4 @@ class PhysCapTracker:
         self._rigid_body_terms(d, collide=False)
         contact_height = self.settings.contact_height
         flags = tuple([height < contact_height for height in d.site_xpos[self.sites, 2].tolist()])
-        return cast(np.ndarray, self.ground_reaction_forces(qdd_kin, self._contact_index[flags][1], True)[2])
+        return cast(np.ndarray, self.ground_reaction_forces(qdd_kin, flags, True)[2])
