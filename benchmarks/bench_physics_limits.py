@@ -20,6 +20,13 @@ MediaPipe-like noise, the true intrinsics and height, 8 s at 30 fps, seeds 0 and
              (--against SRC, default ../main/src), in alternating child processes.
   speed_alternating  the same with the other tree's dynamics package loaded beside this one in one process,
              alternated run by run (steadier on a busy machine; only the dynamics package may differ).
+  identical  every array of run_physcap from this tree and from the --against tree's dynamics package (as
+             speed_alternating loads it) on eight runs: 131_01's 60 fps B.4 motion resampled to 10, 25, 30 and 60 fps,
+             006_01's online fit (refined floor; calibrated floor; three legacy steps without foot lock) and
+             131_01 with a box: which arrays differ and by how much (a speed change must leave them equal).
+  profile    where the physics stage's CPU time goes: 131_01's 60 fps B.4 motion resampled to 30 fps, each method
+             of the tracker, the stage and the QP workspace timed by a wrapper (time.process_time around each call;
+             the wrappers add their own cost to the small calls: shares, not absolute figures).
   stability  the validation walks' 60 fps B.4 motion resampled, PhysCap with a forced number of equal steps per
              frame around the PD's stability limit (physcap.stability_limit): what limits the step.
 
@@ -438,11 +445,9 @@ def part_speed(against: str, rounds: int = 3, repeats: int = 3) -> dict:
             for label, runs in seconds.items()} | dict(against=against, load_average=os.getloadavg()[0])
 
 
-def part_speed_alternating(against: str, rounds: int = 7) -> dict:
-    """Frames per CPU second (median and best of `rounds`) of this tree's physics stage and of the dynamics package
-    of the tree whose src folder is `against`, loaded beside it in one process (the rest of physmocap is this
-    tree's; each runs with its own tree's default PhysicsSettings) and alternated run by run, so that a busy
-    machine's changing load falls on both alike."""
+def other_tree(against: str):
+    """(run_physcap, its default PhysicsSettings) of the tree whose src folder is `against`: its dynamics package
+    and config loaded beside this tree's in one process (the rest of physmocap is this tree's)."""
     import importlib
     import importlib.util
 
@@ -452,14 +457,23 @@ def part_speed_alternating(against: str, rounds: int = 7) -> dict:
     package = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = package
     spec.loader.exec_module(package)
-    runners = {"this branch": run_physcap, "before": importlib.import_module(f"{spec.name}.stage").run_physcap}
-    # each tree's own default physics settings (a renamed setting would break the other tree's code)
+    # the tree's own default physics settings (a renamed setting would break the other tree's code)
     config_spec = importlib.util.spec_from_file_location("physmocap.config_against",
                                                          Path(against) / "physmocap" / "config.py")
     config_against = importlib.util.module_from_spec(config_spec)
     sys.modules[config_spec.name] = config_against
     config_spec.loader.exec_module(config_against)
-    physics_settings = {"this branch": PhysicsSettings(), "before": config_against.PhysicsSettings()}
+    return importlib.import_module(f"{spec.name}.stage").run_physcap, config_against.PhysicsSettings()
+
+
+def part_speed_alternating(against: str, rounds: int = 7) -> dict:
+    """Frames per CPU second (median and best of `rounds`) of this tree's physics stage and of the dynamics package
+    of the tree whose src folder is `against`, loaded beside it in one process (other_tree; each runs with its own
+    tree's default PhysicsSettings) and alternated run by run, so that a busy machine's changing load falls on both
+    alike."""
+    run_against, settings_against = other_tree(against)
+    runners = {"this branch": run_physcap, "before": run_against}
+    physics_settings = {"this branch": PhysicsSettings(), "before": settings_against}
     case = build_case(CLIPS[0], 0, 60.0, online=False)
     motion, refined = case["refined"].motion, case["refined"]
     out: dict = {"this branch": {}, "before": {}, "this branch best": {}, "before best": {}}
@@ -477,6 +491,117 @@ def part_speed_alternating(against: str, rounds: int = 7) -> dict:
             out[label][f"{fps:g}"] = 1.0 / float(np.median(runs))
             out[f"{label} best"][f"{fps:g}"] = 1.0 / float(np.min(runs))
     return out | dict(against=against, load_average=os.getloadavg()[0], rounds=rounds)
+
+
+def identity_runs(run, settings: PhysicsSettings):
+    """(name, PhysicsMotion) of part identical's eight runs with `run` (a run_physcap) and default `settings`."""
+    case = build_case(CLIPS[0], 0, 60.0, online=False)
+    motion, refined = case["refined"].motion, case["refined"]
+    for fps in (10.0, 25.0, 30.0, 60.0):
+        qpos, source = resample_motion(motion.body, motion.qpos, 60.0, fps)
+        yield f"131_01 at {fps:g} fps", run(motion.body, qpos, fps, refined.contacts[source],
+                                            case["stationary"][source], settings, refined_input=True)
+    case = build_case(CLIPS[1], 0)
+    fps, contacts, stationary = case["obs"].fps, case["causal"], case["causal_stationary"]
+    online, calibrated = case["online"], case["online_calibrated"]
+    yield "006_01 online, refined floor", run(online.body, online.qpos, fps, contacts, stationary, settings,
+                                              refine_floor=True)
+    yield "006_01 online, calibrated floor", run(calibrated.body, calibrated.qpos, fps, contacts, stationary,
+                                                 settings)
+    legacy = dataclasses.replace(settings, step_stability_share=None, iterations=3, step=None, foot_lock="never")
+    yield "006_01 online, 3 legacy steps, no foot lock", run(calibrated.body, calibrated.qpos, fps, contacts,
+                                                             stationary, legacy)
+    case = build_case(CLIPS[0], 0, box=True, online=False)
+    refined = case["refined"]
+    yield "131_01 with a box", run(refined.motion.body, refined.motion.qpos, case["obs"].fps, refined.contacts,
+                                   case["stationary"], settings, refined_input=True)
+
+
+def part_identical(against: str) -> dict:
+    """Every array of run_physcap (but the time) from this tree and from the tree whose src folder is `against`
+    (other_tree), each with its own default settings, on identity_runs: the arrays not bit for bit equal."""
+    run_against, settings_against = other_tree(against)
+    rows = []
+    for (name, mine), (_, theirs) in zip(identity_runs(run_physcap, PhysicsSettings()),
+                                         identity_runs(run_against, settings_against), strict=True):
+        ours, base = mine.to_arrays(), theirs.to_arrays()
+        differing = {key: float(np.nanmax(np.abs(ours[key].astype(float) - base[key].astype(float))))
+                     if ours[key].shape == base[key].shape else float("nan")
+                     for key in ours if key != "seconds" and not np.array_equal(ours[key], base[key], equal_nan=True)}
+        rows.append(dict(run=name, frames=len(mine.qpos), arrays=len(ours) - 1, differing=differing,
+                         flagged=int(np.count_nonzero(mine.unexplained))))
+        print("identical", rows[-1], flush=True)
+    return dict(rows=rows, against=against)
+
+
+PROFILED = {  # module -> class -> methods of part profile (nested calls count in both)
+    "physmocap.dynamics.stage": {"PhysicsStream": ("push", "_diagnose", "_deviation")},
+    "physmocap.dynamics.balance": {"BalanceCorrector": ("correct",)},
+    "physmocap.dynamics.physcap": {"PhysCapTracker": (
+        "track", "_dynamics", "_step_state", "_rigid_body_terms", "_desired_acceleration", "ground_reaction_forces",
+        "pose_accelerations", "_pose_accelerations", "_velocity_bounds", "_unconstrained", "kinematic_misfit")},
+    "physmocap.dynamics.qp": {"DenseQP": ("solve",)},
+}
+
+
+def part_profile(fps: float = 30.0) -> dict:
+    """CPU microseconds per frame and calls per frame of each PROFILED method (those the tree has) while
+    run_physcap tracks 131_01's 60 fps B.4 motion resampled to `fps`; and the stage's CPU time per frame without
+    the wrappers."""
+    import importlib
+
+    case = build_case(CLIPS[0], 0, 60.0, online=False)
+    motion, refined = case["refined"].motion, case["refined"]
+    qpos, source = resample_motion(motion.body, motion.qpos, 60.0, fps)
+
+    def run() -> float:
+        start = time.process_time()
+        run_physcap(motion.body, qpos, fps, refined.contacts[source], case["stationary"][source], PhysicsSettings(),
+                    refined_input=True)
+        return (time.process_time() - start) / len(qpos)
+
+    run()  # warm
+    unwrapped = min(run() for _ in range(3))
+    seconds: dict[str, float] = {}
+    calls: dict[str, int] = {}
+    originals = []
+
+    def wrapped(label, method):
+        def timed(*args, **kwargs):
+            start = time.process_time()
+            try:
+                return method(*args, **kwargs)
+            finally:
+                seconds[label] = seconds.get(label, 0.0) + time.process_time() - start
+                calls[label] = calls.get(label, 0) + 1
+        return timed
+
+    for module_name, classes in PROFILED.items():
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError:  # a tree without the module (the QP workspace)
+            continue
+        for class_name, methods in classes.items():
+            owner = getattr(module, class_name)
+            for name in methods:
+                if hasattr(owner, name):
+                    originals.append((owner, name, getattr(owner, name)))
+                    setattr(owner, name, wrapped(f"{class_name}.{name}", getattr(owner, name)))
+    physcap_module = importlib.import_module("physmocap.dynamics.physcap")
+    if hasattr(physcap_module, "daqp"):  # a tree calling daqp.solve
+        import types
+
+        originals.append((physcap_module, "daqp", physcap_module.daqp))
+        physcap_module.daqp = types.SimpleNamespace(solve=wrapped("daqp.solve", physcap_module.daqp.solve))
+    try:
+        run()
+    finally:
+        for owner, name, method in originals:
+            setattr(owner, name, method)
+    frames = len(qpos)
+    rows = [dict(method=label, us_per_frame=1e6 * value / frames, calls_per_frame=calls[label] / frames)
+            for label, value in sorted(seconds.items(), key=lambda item: -item[1])]
+    return dict(fps=fps, unwrapped_us_per_frame=1e6 * unwrapped, rows=rows, load_average=os.getloadavg()[0])
 
 
 # ---- report ---------------------------------------------------------------------------------------------------
@@ -543,6 +668,22 @@ def markdown(out: dict) -> str:
                               f"stage, median (best) of {sp['rounds']} runs each; load average "
                               f"{sp['load_average']:.1f})",
                               lambda label, rate, v: f"{v:.0f} ({sp[label + ' best'][rate]:.0f})")
+    if "identical" in out:
+        lines += [f"**Every array of run_physcap against {out['identical']['against']}** (bit for bit: np.array_equal)",
+                  "", "| run | frames | frames flagged | arrays | arrays differing (largest difference) |",
+                  "|---|---|---|---|---|"]
+        for r in out["identical"]["rows"]:
+            differing = ", ".join(f"{k} ({v:.2g})" for k, v in r["differing"].items()) or "none"
+            lines.append(f"| {r['run']} | {r['frames']} | {r['flagged']} | {r['arrays']} | {differing} |")
+        lines.append("")
+    if "profile" in out:
+        pr = out["profile"]
+        lines += [f"**Where the time goes** (131_01 at {pr['fps']:g} fps; {pr['unwrapped_us_per_frame']:.0f} us of CPU "
+                  f"a frame without the wrappers; load average {pr['load_average']:.1f})", "",
+                  "| method | CPU us per frame | calls per frame |", "|---|---|---|"]
+        for r in pr["rows"]:
+            lines.append(f"| {r['method']} | {r['us_per_frame']:.0f} | {r['calls_per_frame']:.2f} |")
+        lines.append("")
     if "stability" in out:
         lines += [f"**Step against the PD's stability limit** ({1000 * out['stability']['limit_s']:.1f} ms; "
                   "validation walks, 60 fps B.4 motion resampled)", "",
@@ -598,7 +739,8 @@ def main(argv=None) -> dict:
                              "settings on validation clips)")
     parser.add_argument("--json", default=str(RESULTS / "physics_limits.json"))
     parser.add_argument("--against", default=str(Path(__file__).resolve().parents[2] / "main" / "src"),
-                        help="src folder of the code to time against in part speed (default: ../main/src)")
+                        help="src folder of the code to compare with in parts speed, speed_alternating and "
+                             "identical (default: ../main/src)")
     parser.add_argument("--time-only", type=int, default=None, help=argparse.SUPPRESS)  # child of part speed
     args = parser.parse_args(argv)
     if args.time_only:
@@ -627,6 +769,10 @@ def main(argv=None) -> dict:
             out[part] = part_stability()
         elif part == "speed_alternating":
             out[part] = part_speed_alternating(args.against)
+        elif part == "identical":
+            out[part] = part_identical(args.against)
+        elif part == "profile":
+            out[part] = part_profile()
         out[part]["minutes"] = (time.perf_counter() - start) / 60
     RESULTS.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(out, indent=1))

@@ -11,6 +11,7 @@ from physmocap.body.rotations import quat_exp, quat_multiply
 from physmocap.config import PhysicsSettings
 from physmocap.dynamics.balance import inside_support
 from physmocap.dynamics.physcap import PhysCapTracker
+from physmocap.dynamics.qp import DenseQP
 from physmocap.dynamics.stage import PhysicsStream, kinematic_derivatives, run_physcap
 
 FPS = 25.0
@@ -246,22 +247,22 @@ def test_contact_released_when_the_kinematic_foot_leaves(body):
     sliding = np.zeros(body.nv)
     sliding[0], sliding[2] = 1.0, -0.2  # the whole body moving forward at 1 m/s and down at 0.2 m/s
     tracker.reset(q, sliding)
-    bias, heights, _ = tracker._dynamics()
+    heights, _ = tracker._step_state()
     away = q.copy()
     away[0] += 2 * settings.release_distance
     tracker._target_kinematics(away)
     released = tracker._released_contacts(tracker.target_data.site_xpos[tracker.sites])
     tracker._target_kinematics(q)
-    assert released.all() and not tracker._released_contacts(tracker.target_data.site_xpos[tracker.sites]).any()
-    active = np.ones(4, bool)
-    for let_go in (np.zeros(4, bool), released):
-        qdd, _, solved = tracker.pose_accelerations(np.zeros(body.nv), bias, np.zeros((4, 3)), active, heights,
-                                                    let_go, heights)
+    assert all(released) and not any(tracker._released_contacts(tracker.target_data.site_xpos[tracker.sites]))
+    active = (True, True, True, True)
+    for let_go in ([False] * 4, released):
+        qdd, _, solved = tracker.pose_accelerations(np.zeros(body.nv), tracker.bias, np.zeros((4, 3)), active,
+                                                    heights, let_go, heights)
         assert solved
         velocity = tracker.contact_jacobian @ (sliding + tracker.dt * qdd)  # (4, 3) after the step
-        assert np.all(velocity[:, 2] >= -heights / tracker.dt - 1e-9)  # no sinking either way
+        assert np.all(velocity[:, 2] >= -np.array(heights) / tracker.dt - 1e-9)  # no sinking either way
         along_floor = np.linalg.norm(velocity[:, :2], axis=1)
-        if let_go.any():
+        if any(let_go):
             assert np.all(along_floor > 0.5)
         else:
             assert np.all(along_floor <= np.sqrt(2) * settings.slide_speed + 1e-6)
@@ -276,17 +277,17 @@ def test_a_held_contact_above_its_target_comes_down_to_it(body):
     q = body.rest_qpos.copy()
     q[2] += 0.02  # the character 2 cm above its target, which stands on the floor
     tracker.reset(q, np.zeros(body.nv))
-    bias, heights, _ = tracker._dynamics()
-    targets = heights - 0.02
-    active = np.ones(4, bool)
-    qdd, _, solved = tracker.pose_accelerations(np.zeros(body.nv), bias, np.zeros((4, 3)), active, heights,
-                                                np.zeros(4, bool), targets)
+    heights, _ = tracker._step_state()
+    targets = [height - 0.02 for height in heights]
+    active, held = (True, True, True, True), [False] * 4
+    qdd, _, solved = tracker.pose_accelerations(np.zeros(body.nv), tracker.bias, np.zeros((4, 3)), active, heights,
+                                                held, targets)
     assert solved
     normal_velocity = (tracker.contact_jacobian @ (tracker.dt * qdd))[:, 2]
     goal = np.maximum(targets, settings.floor_clearance)
-    assert np.all(normal_velocity <= (goal - heights) / settings.contact_settle_time + 1e-9)
-    free = [tracker.pose_accelerations(np.zeros(body.nv), bias, np.zeros((4, 3)), active, heights,
-                                       np.zeros(4, bool), heights + above)[0] for above in (0.01, 10.0)]
+    assert np.all(normal_velocity <= (goal - np.array(heights)) / settings.contact_settle_time + 1e-9)
+    free = [tracker.pose_accelerations(np.zeros(body.nv), tracker.bias, np.zeros((4, 3)), active, heights, held,
+                                       [height + above for height in heights])[0] for above in (0.01, 10.0)]
     assert np.allclose(free[0], free[1])
 
 
@@ -483,3 +484,44 @@ def test_a_root_shaken_sideways_by_fit_noise_gets_smaller_horizontal_forces_than
         force[stiff] = np.abs(np.array([f.contact_forces.sum(axis=0)[0] for f in outputs[10:]])).mean()
         sway[stiff] = np.ptp([r.qpos[0] for r in records[len(records) // 2:]])
     assert force[False] < 0.75 * force[True] and sway[False] < sway[True]
+
+
+def test_the_qp_workspace_returns_what_daqp_solve_returns_bit_for_bit():
+    """DenseQP calls daqp's C solver on its own buffers with daqp.solve's defaults: the same solutions and exit
+    flags on the tracker's problem sizes, feasible and infeasible, with and without rows, and its buffers unchanged
+    (a daqp whose structures or defaults differ from those DenseQP declares fails here)."""
+    import daqp
+
+    rng = np.random.default_rng(3)
+    flags = set()
+    for trial in range(400):
+        n = int(rng.choice([3, 6, 9, 12, 40]))
+        rows = int(rng.integers(0, 13))
+        B = rng.normal(size=(n, n))
+        H = B @ B.T + (1e-4 if trial % 2 else 1.0) * np.eye(n)
+        f, A = 10 * rng.normal(size=n), rng.normal(size=(rows, n))
+        lower = rng.normal(size=rows) - 1.0
+        upper = lower + rng.uniform(-1.0 if trial % 4 == 0 else 0.0, 2.0, size=rows)  # some rows infeasible
+        qp = DenseQP(n, 12)
+        qp.H[:], qp.f[:], qp.A[:rows], qp.upper[:rows], qp.lower[:rows] = H, f, A, upper, lower
+        buffers = [b.copy() for b in (qp.H, qp.f, qp.A, qp.upper, qp.lower)]
+        x, exitflag = qp.solve(rows)
+        expected, _, expected_flag, _ = daqp.solve(H, f, A, upper, lower)
+        flags.add(exitflag)
+        assert exitflag == expected_flag
+        if exitflag == 1:
+            assert np.array_equal(x, expected)
+        assert all(np.array_equal(a, b) for a, b in zip(buffers, (qp.H, qp.f, qp.A, qp.upper, qp.lower), strict=True))
+    assert 1 in flags and len(flags) > 1  # solved and infeasible problems both seen
+
+
+def test_a_non_finite_target_restarts_the_character_instead_of_integrating_it(body):
+    """Accelerations that are not finite (here from a target with a NaN joint) are never integrated: the step
+    counts as a fallback and the character restarts from the target (the stage then flags the frame)."""
+    tracker = PhysCapTracker(body, PhysicsSettings(), FPS)
+    tracker.reset(body.rest_qpos, np.zeros(body.nv))
+    target = body.rest_qpos.copy()
+    target[7] = np.nan
+    frame = tracker.track(target, np.zeros(body.nv), np.zeros(body.nv), np.ones(4, bool))
+    assert frame.diverged and frame.qp_failures >= tracker.substeps
+    assert np.isfinite(frame.contact_forces).all() and np.isfinite(frame.residual).all()

@@ -37,6 +37,17 @@ def inside_support(point: np.ndarray, support: np.ndarray, margin: float = 0.02)
     return bool(np.linalg.norm(ends[0] + s * d - point) <= margin)
 
 
+def _norm(vector: np.ndarray) -> float:
+    """np.linalg.norm of a vector (the square root of its dot product with itself), without numpy's Python layer."""
+    return math.sqrt(vector.dot(vector))
+
+
+def _angle_to_up(vector: np.ndarray) -> float:
+    """rad: the angle between `vector` (3,) and UP; the cosine clipped to [-1, 1] in floats (np.clip's cost per
+    call is about that of the rest of the correction's arithmetic)."""
+    return float(np.arccos(min(max(vector @ UP / _norm(vector), -1.0), 1.0)))
+
+
 class BalanceCorrector:
     """Keeps the accumulated corrections of 4.3.1 from frame to frame (causal)."""
 
@@ -70,13 +81,14 @@ class BalanceCorrector:
             return q_kin, False
         com, sites, spine = self._state(q_kin)
         support = sites[contacts, :2]
-        if inside_support(com[:2], support) and self.tilt == 0.0 and self.straighten == 0.0:
+        if self.tilt == 0.0 and self.straighten == 0.0 and inside_support(com[:2], support):
             return q_kin, False
-        lean = np.arccos(np.clip(spine @ UP / np.linalg.norm(spine), -1.0, 1.0))
+        lean = _angle_to_up(spine)
         q = q_kin
         axis = np.array([spine[1], -spine[0], 0.0])  # spine x UP
-        if np.linalg.norm(axis) > 1e-9:
-            axis /= np.linalg.norm(axis)
+        length = _norm(axis)
+        if length > 1e-9:
+            axis /= length
             tilt = min(self.tilt, lean)
             pivot = np.zeros(3)
             pivot[:2] = support.mean(axis=0)
@@ -86,7 +98,7 @@ class BalanceCorrector:
         com, _, spine_now = self._state(q)
         if inside_support(com[:2], support):
             return q, True  # balanced: keep the accumulated correction while the person stands still
-        remaining = np.arccos(np.clip(spine_now @ UP / np.linalg.norm(spine_now), -1.0, 1.0))
+        remaining = _angle_to_up(spine_now)
         if remaining > SMALL_LEAN:
             self.tilt += self.rate * remaining  # xi_{t+1} = xi_t + theta_t / 10
         else:

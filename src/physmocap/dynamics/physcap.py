@@ -16,13 +16,14 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass, field
+from typing import cast
 
-import daqp
 import mujoco
 import numpy as np
 
 from ..body.model import CONTACT_POINTS, BodyModel
 from ..config import PhysicsSettings
+from .qp import DenseQP
 
 INF = 1e20  # daqp's "no bound"
 MAX_ACCELERATION = 1e4  # m/s^2 or rad/s^2, about 50 times the fastest human limb motions: the state diverged
@@ -117,10 +118,10 @@ class PhysCapTracker:
         self.kd_target = self.kd.copy()
         self.kd_target[3:] *= settings.rotation_velocity_share
         self.sites = np.array([self.model.site(n).id for n in CONTACT_POINTS])
-        self.contact_of_geom = np.full(self.model.ngeom, -1)  # geom id -> contact point index, -1 for others
+        self._contact_of_geom = [-1] * self.model.ngeom  # geom id -> contact point index, -1 for others
         for j, name in enumerate(CONTACT_POINTS):
             geom = self.model.geom(f"{name}_collision").id
-            self.contact_of_geom[geom] = j
+            self._contact_of_geom[geom] = j
             self.model.geom_margin[geom] = settings.touch_margin
         self.torque_weights = np.full(nv, settings.torque_weight)
         self.torque_weights[:6] = settings.residual_weight
@@ -131,12 +132,17 @@ class PhysCapTracker:
         self.mass_matrix = np.zeros((nv, nv))
         self.bias = np.zeros(nv)
         self.identity = np.eye(nv)
-        self._weighted_mass, self._hessian = np.zeros((nv, nv)), np.zeros((nv, nv))
+        self._weighted_mass = np.zeros((nv, nv))
+        # The pose QP (eq. 10): its H is built in the workspace's own buffer; at most 3 rows per contact point.
+        self._pose_qp = DenseQP(nv, 12)
         # H = A A^T has rank 6: at a regularisation of 1e-6 daqp called 8% of the demo clip's frames infeasible;
-        # 1e-4 N^-2 costs a bias of 1e-4 of the force. Per number of active contacts k: (regularisation (3k, 3k),
-        # pyramid rows (4k, 3k), their upper and lower bounds (each row >= 0)), contiguous as daqp takes them.
-        self.grf_problems = [(1e-4 * np.eye(3 * k), np.kron(np.eye(k), self.pyramid), np.full(4 * k, INF),
-                              np.zeros(4 * k)) for k in range(5)]
+        # 1e-4 N^-2 costs a bias of 1e-4 of the force. Per number of active contacts k: the regularisation (3k, 3k)
+        # and a workspace holding the pyramid rows (4k, 3k) and their bounds (each row >= 0).
+        self._grf_regularisation = [1e-4 * np.eye(3 * k) for k in range(5)]
+        self._grf_qps = [DenseQP(3 * k, 4 * k) for k in range(5)]
+        for k, qp in enumerate(self._grf_qps):
+            qp.A[:] = np.kron(np.eye(k), self.pyramid)
+            qp.upper[:], qp.lower[:] = INF, 0.0
         self.contact_jacobian = np.zeros((4, 3, nv))
         self.qpos, self.qvel = self.data.qpos, self.data.qvel  # the state, where the step's dynamics read it
         self.target_data = mujoco.MjData(self.model)  # kinematics of the frame's target pose
@@ -146,7 +152,21 @@ class PhysCapTracker:
         self._target_step = np.zeros(nv)
         self._pose_error, self._desired = np.zeros(nv), np.zeros(nv)  # desired_acceleration's buffers
         self._weight_column = self.torque_weights[:, None]
-        self._no_rows, self._no_bounds = np.zeros((0, nv)), np.zeros(0)
+        # The step's small bookkeeping (four contact points) runs on Python lists and tuples: numpy's cost per call
+        # outweighs the arithmetic on four values. Per tuple of active flags: the contacts' indices (list and array,
+        # which index the Jacobians as the flags would) and the flags as an array.
+        self._contact_index: dict[tuple[bool, ...], tuple[list[int], np.ndarray, np.ndarray]] = {}
+        for mask in range(16):
+            flags = tuple(bool(mask >> j & 1) for j in range(4))
+            indices = [j for j in range(4) if flags[j]]
+            self._contact_index[flags] = (indices, np.array(indices, dtype=np.intp), np.array(flags))
+        self._jacobian_columns = self.contact_jacobian.reshape(12, nv).T  # J^T of all contact points, a view
+        self._site_jacobians = [(int(site), self.contact_jacobian[j]) for j, site in enumerate(self.sites)]
+        self._weighted_force = np.zeros(nv)  # pose_accelerations' buffer
+        self._mass_root, self._bias_root = self.mass_matrix[:6], self.bias[:6]  # the root's rows, views
+        # s: eq. (9)'s times to recover a penetration and to settle a held contact, never shorter than a step
+        self._recovery_time = max(self.dt, settings.penetration_recovery)
+        self._settle_time = max(self.dt, settings.contact_settle_time)
 
     def reset(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
         self.qpos[:] = qpos
@@ -161,15 +181,19 @@ class PhysCapTracker:
         mujoco.mj_kinematics(self.model, self.target_data)
 
     # ---- the pieces of one step -------------------------------------------------------------------------
-    def _dynamics(self):
-        """Mass matrix, bias forces, contact Jacobians, contact heights and floor collisions at the state."""
+    def _step_state(self) -> tuple[list[float], list[bool]]:
+        """Mass matrix, bias forces and contact Jacobians at the state into the step buffers; returns the contact
+        points' heights (m) and floor collisions, lists of four."""
         d = self.data
         self._rigid_body_terms(d, collide=True)
-        touching = np.zeros(4, bool)
+        touching = [False, False, False, False]
         if d.ncon:
-            hit = self.contact_of_geom[d.contact.geom[:d.ncon].ravel()]
-            touching[hit[hit >= 0]] = True
-        return self.bias, d.site_xpos[self.sites, 2], touching
+            contact_of_geom = self._contact_of_geom
+            for pair in d.contact.geom.tolist():  # the ncon contacts' geom pairs
+                for geom in pair:
+                    if contact_of_geom[geom] >= 0:
+                        touching[contact_of_geom[geom]] = True
+        return d.site_xpos[self.sites, 2].tolist(), touching
 
     def desired_acceleration(self, q_kin, qd_kin, qdd_kin) -> np.ndarray:
         """Eq. (4): PD control towards the kinematic pose; the pose error is taken on the manifold, the
@@ -190,98 +214,107 @@ class PhysCapTracker:
         np.maximum(desired, -MAX_DESIRED_ACCELERATION, out=desired)
         return np.minimum(desired, MAX_DESIRED_ACCELERATION, out=desired)
 
-    def ground_reaction_forces(self, qdd_des, bias, active) -> tuple[np.ndarray, bool, np.ndarray]:
-        """Eq. (6-7): forces (4, 3) at the active contacts that best produce the root's desired acceleration,
-        pushing only, inside the friction pyramid. Returns the forces, whether the QP solved, and the root wrench
-        (6,) the forces leave unexplained (the desired one where no contact is active or the QP failed)."""
+    def ground_reaction_forces(self, qdd_des, active: tuple[bool, ...],
+                               unexplained: bool) -> tuple[np.ndarray, bool, np.ndarray | None]:
+        """Eq. (6-7): forces (4, 3) at the active contacts (flags of four) that best produce the root's desired
+        acceleration at the state `_rigid_body_terms` left in the step buffers, pushing only, inside the friction
+        pyramid. Returns the forces, whether the QP solved, and where asked (else None) the root wrench (6,) the
+        forces leave unexplained (the desired one where no contact is active or the QP failed)."""
+        index = self._contact_index[active][1]
         forces = np.zeros((4, 3))
-        target = self.mass_matrix[:6] @ qdd_des + bias[:6]
-        k = int(np.count_nonzero(active))
+        target = self._mass_root @ qdd_des + self._bias_root
+        k = len(index)
         if not k:
             return forces, True, target
-        root_rows = self.contact_jacobian[active, :, :6].reshape(3 * k, 6)  # (J^T restricted to the root)^T
-        regularisation, pyramid, upper, lower = self.grf_problems[k]
-        H = root_rows @ root_rows.T + regularisation
-        x, _, exitflag, _ = daqp.solve(H, -root_rows @ target, pyramid, upper, lower)
+        root_rows = self.contact_jacobian[index, :, :6].reshape(3 * k, 6)  # (J^T restricted to the root)^T
+        qp = self._grf_qps[k]
+        np.add(np.matmul(root_rows, root_rows.T, out=qp.H), self._grf_regularisation[k], out=qp.H)
+        np.matmul(np.negative(root_rows), target, out=qp.f)
+        x, exitflag = qp.solve(4 * k)
         if exitflag != 1:
             return forces, False, target
-        forces[active] = x.reshape(k, 3)
-        return forces, True, target - root_rows.T @ x
+        forces[index] = x.reshape(k, 3)
+        return forces, True, target - root_rows.T @ x if unexplained else None
 
-    def pose_accelerations(self, qdd_des, bias, forces, active, heights, released,
-                           target_heights) -> tuple[np.ndarray, np.ndarray, bool]:
+    def pose_accelerations(self, qdd_des, bias, forces, active: tuple[bool, ...], heights: list[float],
+                           released: list[bool], target_heights: list[float]) -> tuple[np.ndarray, np.ndarray, bool]:
         """Eq. (10): qdd minimising |qdd - qdd_des|^2 + tau' W tau with tau = M qdd + c - J^T lambda (the
-        equation of motion, eq. 2), subject to eq. (9) at the active contacts after the step: the normal
-        velocity keeps the point on or above the floor and (settle_contacts) brings a point above its target's height
-        (target_heights, (4,) m) down to it within settings.contact_settle_time, tangential speeds stay within
-        sigma (except at released contacts, which slide freely but still do not sink).
+        equation of motion, eq. 2), subject to eq. (9) at the active contacts (flags of four) after the step: the
+        normal velocity keeps the point on or above the floor and (settle_contacts) brings a point above its
+        target's height (target_heights, m) down to it within settings.contact_settle_time, tangential speeds
+        stay within sigma (except at released contacts, which slide freely but still do not sink). heights,
+        released and target_heights: lists of four (Python values: see __init__).
         Returns qdd, tau and whether the QP solved (else the unconstrained optimum is used)."""
-        M, dt, nv = self.mass_matrix, self.dt, self.model.nv
-        W = self.torque_weights
-        external = self.contact_jacobian.reshape(12, -1).T @ forces.ravel()
+        contacts, index, _ = self._contact_index[active]
+        M, qp = self.mass_matrix, self._pose_qp
+        external = self._jacobian_columns @ forces.ravel()
         # The objective is 1/2 qdd' H qdd + f' qdd up to a constant and a factor 2: H = I + M W M, built in
         # preallocated buffers (it is rebuilt at every step).
         np.multiply(self._weight_column, M, out=self._weighted_mass)
-        H = np.matmul(M, self._weighted_mass, out=self._hessian)
+        H = np.matmul(M, self._weighted_mass, out=qp.H)
         H += self.identity
-        f = M @ (W * (bias - external)) - qdd_des
+        weighted = np.multiply(self.torque_weights, np.subtract(bias, external, out=self._weighted_force),
+                               out=self._weighted_force)
+        np.subtract(np.matmul(M, weighted, out=qp.f), qdd_des, out=qp.f)
         solved = True
-        contacts = [j for j, on in enumerate(active.tolist()) if on]
         if contacts:
-            rows = self.contact_jacobian[active].reshape(-1, nv)  # x, y, z rows of each active contact
+            rows = self.contact_jacobian[index].reshape(-1, self.model.nv)  # x, y, z rows of each active contact
             velocity = (rows @ self.qvel).tolist()
-            lower, upper = self._velocity_bounds(contacts, velocity, heights.tolist(), released.tolist(),
-                                                 target_heights.tolist())
-            qdd, _, exitflag, _ = daqp.solve(H, f, dt * rows, upper, lower)
+            m = len(velocity)
+            qp.lower[:m], qp.upper[:m] = self._velocity_bounds(contacts, velocity, heights, released, target_heights)
+            np.multiply(self.dt, rows, out=qp.A[:m])
+            qdd, exitflag = qp.solve(m)
             solved = exitflag == 1
         if not contacts or not solved:
-            qdd = self._unconstrained(H, f)
+            qdd = self._unconstrained()
         return qdd, M @ qdd + bias - external, solved
 
     def _velocity_bounds(self, contacts: list[int], velocity: list[float], heights: list[float],
-                         released: list[bool], target_heights: list[float]) -> tuple[np.ndarray, np.ndarray]:
+                         released: list[bool], target_heights: list[float]) -> tuple[list[float], list[float]]:
         """Eq. (9)'s bounds (lower, upper) on the x, y, z velocity changes of the active contacts over the step
         (pose_accelerations), from their velocities (3k,) and the points' heights, release flags and target
         heights (4,); in Python floats, as numpy's cost per call outweighs the arithmetic on so few values."""
-        s, dt = self.settings, self.dt
-        clearance = s.floor_clearance
-        recovery, settle_time = max(dt, s.penetration_recovery), max(dt, s.contact_settle_time)
+        dt, slide_speed, clearance = self.dt, self.settings.slide_speed, self.settings.floor_clearance
+        recovery, settle_time = self._recovery_time, self._settle_time
         lower: list[float] = []
         upper: list[float] = []
         for index, j in enumerate(contacts):
             vx, vy, vz = velocity[3 * index:3 * index + 3]
-            slide, h = INF if released[j] else s.slide_speed, heights[j]
+            slide, h = INF if released[j] else slide_speed, heights[j]
             # Above the floor: come down at most to the clearance by the end of the step (the step's rotation
             # may dip the point by less than that); within it: do not descend; below the floor: rise back gently.
-            normal_speed = (clearance - h) / dt if h > clearance else max(-h, 0.0) / recovery
+            # (b if b > a else a is max(a, b), without the call.)
+            normal_speed = (clearance - h) / dt if h > clearance else (0.0 if 0.0 > -h else -h) / recovery
             rise = INF
             if self.settle_contacts:
-                goal = max(target_heights[j], clearance)
-                rise = max((goal - h) / settle_time if h > goal else INF, normal_speed) - vz
+                goal = clearance if clearance > target_heights[j] else target_heights[j]
+                settle = (goal - h) / settle_time if h > goal else INF
+                rise = (normal_speed if normal_speed > settle else settle) - vz
             lower += (-slide - vx, -slide - vy, normal_speed - vz)
             upper += (slide - vx, slide - vy, rise)
-        return np.array(lower), np.array(upper)
+        return lower, upper
 
-    def _unconstrained(self, H: np.ndarray, f: np.ndarray) -> np.ndarray:
-        """argmin 1/2 x'Hx + f'x by daqp's own factorisation: LAPACK's solve for a 40x40 system took 0.6 ms when
-        numpy's BLAS ran two threads on a busy machine, daqp about 30 us."""
-        x, _, exitflag, _ = daqp.solve(H, f, self._no_rows, self._no_bounds, self._no_bounds)
-        return x if exitflag == 1 else np.linalg.solve(H, -f)
+    def _unconstrained(self) -> np.ndarray:
+        """argmin 1/2 x'Hx + f'x of the pose QP's H and f by daqp's own factorisation: LAPACK's solve for a 40x40
+        system took 0.6 ms when numpy's BLAS ran two threads on a busy machine, daqp about 30 us."""
+        qp = self._pose_qp
+        x, exitflag = qp.solve(0)
+        return x if exitflag == 1 else np.linalg.solve(qp.H, -qp.f)
 
-    def _released_contacts(self, target_sites: np.ndarray) -> np.ndarray:
-        """(4,) contact points whose target (target_sites, (4, 3) m) lies more than release_distance along the
-        floor from where the character holds them: the kinematic foot has gone (a wrong contact label or the
-        detector swapping the feet), and holding on would drag the whole body after it. Reads the character's
-        contact points from `_dynamics`, which must have run at the current state. In Python floats (numpy's cost
-        per call outweighs the arithmetic on four points)."""
+    def _released_contacts(self, target_sites: np.ndarray) -> list[bool]:
+        """Flags of the four contact points whose target (target_sites, (4, 3) m) lies more than release_distance
+        along the floor from where the character holds them: the kinematic foot has gone (a wrong contact label or
+        the detector swapping the feet), and holding on would drag the whole body after it. Reads the character's
+        contact points from `_step_state`, which must have run at the current state. In Python floats (numpy's
+        cost per call outweighs the arithmetic on four points)."""
         limit = self.settings.release_distance
         if limit is None:
-            return np.zeros(4, bool)
+            return [False, False, False, False]
         released = []
         for (aim_x, aim_y, _), (x, y, _) in zip(target_sites.tolist(), self.data.site_xpos[self.sites].tolist(),
                                                 strict=True):
             released.append(math.sqrt((aim_x - x) * (aim_x - x) + (aim_y - y) * (aim_y - y)) > limit)
-        return np.array(released)
+        return released
 
     # ---- one video frame ----------------------------------------------------------------------------------
     def track(self, q_kin: np.ndarray, qd_kin: np.ndarray, qdd_kin: np.ndarray,
@@ -291,7 +324,6 @@ class PhysCapTracker:
         forces_sum, residual_sum = np.zeros((4, 3)), np.zeros(6)
         failures, diverged = 0, False
         records = []
-        active = np.zeros(4, bool)
         target = np.empty_like(q_kin)
         # The steps advance the character through the frame: step i aims at the pose interpolated (on the
         # manifold) between the last frame's target and this one at the step's end time, so that the last step
@@ -303,28 +335,37 @@ class PhysCapTracker:
         self._target_kinematics(q_kin)
         target_sites = self.target_data.site_xpos[self.sites].copy()
         height_step = target_sites[:, 2] - self._previous_target_heights
-        earlier_contacts = predicted_contacts if self._previous_contacts is None else self._previous_contacts
+        earlier_contacts = (predicted_contacts if self._previous_contacts is None
+                            else self._previous_contacts).tolist()
+        later_contacts = predicted_contacts.tolist()
+        previous_heights, height_step = self._previous_target_heights.tolist(), height_step.tolist()
         feedforward, target_damping = self.feedforward * qdd_kin, self.kd_target * qd_kin
+        contact_height, touch = s.contact_height, s.foot_lock != "never"  # foot_lock never: airborne or swimming
+        # motion, where the floor does not push back
+        flags: tuple[bool, ...] = (False, False, False, False)
         for i in range(n):
             target[:] = self._previous_target
             mujoco.mj_integratePos(self.model, target, self._target_step, (i + 1) / n)
-            bias, heights, touching = self._dynamics()
+            heights, touching = self._step_state()
             if i == 0:  # judged once per frame against the frame's target (per step it split walks further)
                 released = self._released_contacts(target_sites)
-                held = ~released
-            predicted = earlier_contacts if (i + 0.5) / n < 0.5 else predicted_contacts
-            active = predicted & (heights < s.contact_height)  # eq. (5)
-            active &= held
-            if s.foot_lock != "never":  # airborne or swimming motion: the floor does not push back
-                active |= touching
+            predicted = earlier_contacts if (i + 0.5) / n < 0.5 else later_contacts
+            # eq. (5): predicted, within contact_height and not released; or touching the floor
+            flags = tuple([(predicted[j] and heights[j] < contact_height and not released[j]) or (touch and touching[j])
+                           for j in range(4)])
             qdd_des = self._desired_acceleration(target, feedforward, target_damping)
-            forces, grf_ok, _ = self.ground_reaction_forces(qdd_des, bias, active)
-            qdd, torque, pose_ok = self.pose_accelerations(qdd_des, bias, forces, active, heights, released,
-                                                           self._previous_target_heights + (i + 1) / n * height_step)
+            forces, grf_ok, _ = self.ground_reaction_forces(qdd_des, flags, False)
+            fraction = (i + 1) / n
+            qdd, torque, pose_ok = self.pose_accelerations(
+                qdd_des, self.bias, forces, flags, heights, released,
+                [height + fraction * step for height, step in zip(previous_heights, height_step, strict=True)])
             failures += (not grf_ok) + (not pose_ok)
             if self.record:
-                records.append(SubstepRecord(self.qpos.copy(), self.qvel.copy(), qdd, torque, forces, active.copy()))
-            if not np.abs(qdd).max() < MAX_ACCELERATION:  # also catches NaN
+                records.append(SubstepRecord(self.qpos.copy(), self.qvel.copy(), qdd, torque, forces,
+                                             self._contact_index[flags][2].copy()))
+            accelerations = qdd.tolist()  # in floats: numpy's reductions cost more than the comparison
+            if not (-MAX_ACCELERATION < min(accelerations) and max(accelerations) < MAX_ACCELERATION
+                    and math.isfinite(sum(accelerations))):  # the sum catches NaN, which min and max may skip
                 # Diverging (a wildly implausible target): restart from the target at rest, counted as a fallback.
                 failures, diverged = failures + 1, True
                 self.reset(target, np.zeros_like(self.qvel))
@@ -337,7 +378,8 @@ class PhysCapTracker:
         self._previous_target_heights[:] = target_sites[:, 2]
         self._previous_contacts = predicted_contacts.copy()
         unexplained = self.kinematic_misfit(q_kin, qd_kin, qdd_kin)
-        return FrameOutput(forces_sum / n, residual_sum / n, active, failures, records, unexplained, diverged)
+        return FrameOutput(forces_sum / n, residual_sum / n, self._contact_index[flags][2].copy(), failures, records,
+                           unexplained, diverged)
 
     def _rigid_body_terms(self, d: mujoco.MjData, collide: bool) -> None:
         """Into d and the step buffers: kinematics, composite inertia, (collisions,) the bias forces
@@ -352,8 +394,8 @@ class PhysCapTracker:
         mujoco.mj_comVel(m, d)
         mujoco.mj_rne(m, d, 0, self.bias)
         mujoco.mj_fullM(m, d, self.mass_matrix)
-        for j, site in enumerate(self.sites):
-            mujoco.mj_jacSite(m, d, self.contact_jacobian[j], None, site)
+        for site, jacobian in self._site_jacobians:
+            mujoco.mj_jacSite(m, d, jacobian, None, site)
 
     def kinematic_misfit(self, q_kin: np.ndarray, qd_kin: np.ndarray, qdd_kin: np.ndarray) -> np.ndarray:
         """(6,) the root force (world, N) and torque (pelvis frame, N m) that the kinematic motion itself needs
@@ -366,5 +408,6 @@ class PhysCapTracker:
         d = self.target_data
         d.qpos[:], d.qvel[:] = q_kin, qd_kin
         self._rigid_body_terms(d, collide=False)
-        active = d.site_xpos[self.sites, 2] < self.settings.contact_height
-        return self.ground_reaction_forces(qdd_kin, self.bias, active)[2]
+        contact_height = self.settings.contact_height
+        flags = tuple([height < contact_height for height in d.site_xpos[self.sites, 2].tolist()])
+        return cast(np.ndarray, self.ground_reaction_forces(qdd_kin, flags, True)[2])

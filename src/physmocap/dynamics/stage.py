@@ -181,7 +181,8 @@ class PhysicsStream:
             elif size > bound:
                 forces *= bound / size
                 out_of_bounds = True
-        unexplained = frame.unexplained[:3] if np.isfinite(frame.unexplained).all() else np.zeros(3)
+        finite = all(map(math.isfinite, frame.unexplained.tolist()))
+        unexplained = frame.unexplained[:3] if finite else np.zeros(3)
         self._unexplained += self._unexplained_share * (unexplained - self._unexplained)
         flagged = (out_of_bounds or frame.diverged or frame.qp_failures > 0
                    or (s.unexplained_force is not None
@@ -279,7 +280,8 @@ class PhysicsStream:
         interval (in the first frames, the displacement so far over the whole interval: the flag is believed
         until the root has moved)."""
         interval = (self._root_frames - 1) / self.fps
-        return float(np.linalg.norm(self._roots[-1] - self._roots[0])) / interval
+        displacement = self._roots[-1] - self._roots[0]
+        return math.sqrt(displacement.dot(displacement)) / interval  # np.linalg.norm's own sum, without its layer
 
 
 def kinematic_derivatives(body: BodyModel, qpos: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
