@@ -165,18 +165,21 @@ class KinematicFitter:
         J = np.zeros((T, self.frame_rows + floor_rows, nv))
         mp, mj = points[:, self.marker_points], jac[:, self.marker_points]
         # Reprojection, in metres at the person's depth: r = s (K2 (x, y) / z + c - keypoint).
-        pc = mp @ cam.R.T + cam.t
-        inv_z = 1.0 / np.maximum(pc[..., 2], 1e-6)
-        uv = pc[..., :2] * inv_z[..., None]
-        scale = targets.weight_2d * (targets.depth[:, None] / cam.focal)  # (T, M)
-        K2 = cam.K[:2, :2]
-        pixel_error = uv @ K2.T + cam.K[:2, 2] - targets.keypoints  # (T, M, 2)
-        scale = scale * self._robust_weight(scale[..., None] * pixel_error, self.settings.robust_2d)
-        r[:, :2 * M] = (scale[..., None] * pixel_error).reshape(T, -1)
-        # d(pixels) / d(world point) = K2 (R[:2] - uv R[2]) / z, scaled: (T, M, 2, 3), then through the point
-        # Jacobians, written in place (these arrays are the bulk of the offline fit's memory traffic).
-        d_uv = (K2 @ cam.R[:2] - (uv @ K2.T)[..., None] * cam.R[2]) * (scale * inv_z)[..., None, None]
-        J[:, :2 * M] = (d_uv @ mj).reshape(T, -1, nv)
+        if targets.weight_2d.any():
+            pc = mp @ cam.R.T + cam.t
+            inv_z = 1.0 / np.maximum(pc[..., 2], 1e-6)
+            uv = pc[..., :2] * inv_z[..., None]
+            scale = targets.weight_2d * (targets.depth[:, None] / cam.focal)  # (T, M)
+            K2 = cam.K[:2, :2]
+            pixel_error = uv @ K2.T + cam.K[:2, 2] - targets.keypoints  # (T, M, 2)
+            scale = scale * self._robust_weight(scale[..., None] * pixel_error, self.settings.robust_2d)
+            r[:, :2 * M] = (scale[..., None] * pixel_error).reshape(T, -1)
+            # d(pixels) / d(world point) = K2 (R[:2] - uv R[2]) / z, scaled: (T, M, 2, 3), then through the point
+            # Jacobians, written in place (these arrays are the bulk of the offline fit's memory traffic).
+            d_uv = (K2 @ cam.R[:2] - (uv @ K2.T)[..., None] * cam.R[2]) * (scale * inv_z)[..., None, None]
+            J[:, :2 * M] = (d_uv @ mj).reshape(T, -1, nv)
+        else:  # no 2D term (the trajectory optimisation's IK): its rows are the zeros they would compute
+            r[:, :2 * M] = 0.0
         # Root-relative 3D landmarks.
         offset = mp - points[:, self.pelvis_point, None] - targets.targets_3d
         w3 = targets.weight_3d * self._robust_weight(targets.weight_3d[..., None] * offset, self.settings.robust_3d)
@@ -327,7 +330,9 @@ class KinematicFitter:
         del r, J, Jt  # freed before the temporal terms make theirs: the chunk's peak
         F = end - first
         window_targets = targets.frames(window)
-        signals = [(v, j, c, None) for v, j, c in self.temporal_signals(points, jac, qpos[window])]
+        # A signal of weight 0 (the IK's smoothness and depth) adds zeros to g and H: left out.
+        signals = [(v, j, c, None) for v, j, c in self.temporal_signals(points, jac, qpos[window])
+                   if v.any() or j.any()]
         for values, jacobians, coeffs, pair_weights in signals + self.contact_signals(points, jac, window_targets):
             K = len(coeffs)
             if K - 1 > TEMPORAL_REACH:

@@ -49,8 +49,8 @@ from .problem import ConstraintSet, CostTerm, VariableSet
 from .reduced import ReducedMotion
 from .splines import Node, Segment, Trajectory, to_dm
 
-# The program's symbols. Scalar graphs (SX) evaluate fastest at these sizes; CasADi builds their exact first
-# and second derivatives once per program (measured: MX graphs build no faster here and iterate 5x slower).
+# The pieces' symbols. Scalar graphs (SX) differentiate and evaluate fastest row by row (measured: pieces written
+# in MX iterate 5x slower); problem.Program joins the pieces' SX Functions with sparse products in MX.
 SYMBOL = ca.SX
 
 POINT_NAMES = tuple(name.replace("left_", "l_").replace("right_", "r_") for name in CONTACT_POINTS)
@@ -771,7 +771,7 @@ def _frame_cost(problem: WindowProblem, name: str, order: int, weights: tuple[fl
     parts += [(w_p, foot.trajectory, red.feet[:, i]) for i, foot in enumerate(problem.feet)]
     if not any(trajectory.symbolic_times for _, trajectory, _ in parts):
         size = int(problem.x.shape[0])
-        return CostTerm.least_squares(name, problem.x, [
+        return CostTerm.least_squares(name, [
             (weight, trajectory.matrix(times, order, size), target.ravel() if targets else np.zeros(target.size))
             for weight, trajectory, target in parts])
     total: Any = 0
@@ -834,7 +834,7 @@ def force_rate(problem: WindowProblem) -> CostTerm:
         rate_of = sp.csr_matrix((np.concatenate([-step, step]), (np.concatenate([rows, rows]),
                                                                  np.concatenate([rows, rows + 3]))),
                                 shape=(3 * (n - 1), 3 * n))
-        return CostTerm.least_squares("force_rate", problem.x, [
+        return CostTerm.least_squares("force_rate", [
             (s.force_rate, rate_of @ force.trajectory.matrix(times, 0, size), np.zeros(3 * (n - 1)))
             for force in forces])
     rate = ca.DM(1.0 / np.diff(times)).T

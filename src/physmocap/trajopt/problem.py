@@ -105,19 +105,26 @@ class ConstraintSet:
 class CostTerm:
     """A scalar term of the objective. `squares`: the term is sum_k w_k |M_k x - t_k|^2, given as (w_k, M_k
     scipy sparse, t_k) blocks, so its gradient and (constant) Hessian are built from the matrices; None: `value`
-    is any expression, differentiated by CasADi."""
+    is any expression of the program's variables, differentiated by CasADi."""
 
     name: str
-    value: Any  # a CasADi scalar expression (SX or MX) in the variable vector
+    value: Any  # a CasADi scalar expression (SX) in the variable vector; None for a least-squares term
     squares: list | None = None
 
     @staticmethod
-    def least_squares(name: str, x, squares: list) -> CostTerm:
+    def least_squares(name: str, squares: list) -> CostTerm:
         """sum_k w_k |M_k x - t_k|^2 from (w_k, M_k, t_k) blocks: M_k (m, n) scipy sparse, t_k (m,)."""
+        return CostTerm(name, None, squares)
+
+    def expression(self, x):
+        """The term as an expression of x (SX or MX): a least-squares term's from its matrices, any other's value
+        (written on x)."""
+        if self.squares is None:
+            return self.value
         value = type(x)(0)
-        for weight, matrix, target in squares:
+        for weight, matrix, target in self.squares:
             value = value + weight * ca.sumsqr(ca.mtimes(to_dm(matrix), x) - ca.DM(target))
-        return CostTerm(name, value, squares)
+        return value
 
     def hessian_and_offset(self, size: int) -> tuple[sp.csr_matrix, np.ndarray]:
         """(H, b) of a least-squares term: its gradient is H x - b, its Hessian H (constant)."""
@@ -210,8 +217,14 @@ class IterationLimit(ca.Callback):
 
 
 class Program:
-    """The program of the given pieces, with its IPOPT solver built once. x: the variable vector (a CasADi
-    symbol, SX or MX), the variable sets laid out along it in order."""
+    """The program of the given pieces, with its IPOPT solver built once. x: the variable vector the pieces are
+    written on (an SX symbol), the variable sets laid out along it in order.
+
+    What IPOPT evaluates is a small graph of matrix operations (MX) on a variable vector of its own: each
+    constraint set's rows, Jacobian and Hessian are SX Functions of the few symbols it reads, called on S x and
+    mapped to x by sparse products (J S, S^T H S); a least-squares cost's gradient and Hessian are its constant
+    matrices. Nothing is expanded into one scalar graph of the whole program, which was most of a window's build
+    (docs/decisions/trajopt-build-cost.md)."""
 
     def __init__(self, x, variables: list[VariableSet], constraints: list[ConstraintSet], costs: list[CostTerm],
                  ipopt_options: dict):
@@ -231,77 +244,87 @@ class Program:
             start += c.size
         if sum(v.size for v in variables) != x.shape[0]:
             raise ValueError("the variable sets do not lay out the whole variable vector")
-        zero = type(x)(0)
-        self.g = (ca.densify(ca.vertcat(*[c.expression_in(x) for c in constraints])) if constraints
-                  else type(x)(0, 1))
-        self.f = sum((c.value for c in costs), zero)
         self.lbg = np.concatenate([c.bounds()[0] for c in constraints]) if constraints else np.zeros(0)
         self.ubg = np.concatenate([c.bounds()[1] for c in constraints]) if constraints else np.zeros(0)
         self.ipopt_options = dict(ipopt_options)
-        self._pieces = self._differentiate() if isinstance(x, ca.SX) else None
+        self.variable_vector = ca.MX.sym("x", int(x.shape[0]))  # what IPOPT's Functions take
+        self._objective = self._objective_parts()
+        self._parts = {c.name: self._constraint_part(c) for c in constraints}
         self._solvers: dict[tuple[str, ...], tuple[Any, IterationLimit, np.ndarray]] = {}
         self._solver(tuple(c.name for c in constraints))
-        self.cost_values = ca.Function("costs", [self.x], [c.value for c in costs] or [zero])
-        self.constraint_values = ca.Function("constraints", [self.x], [self.g])
+        values = [c.expression(self.variable_vector) if c.squares is not None else self._of_x(c.value)
+                  for c in costs]
+        self.cost_values = ca.Function("costs", [self.variable_vector], values or [ca.MX(0)])
 
-    def _differentiate(self) -> dict:
-        """Exact gradient of the objective, and each constraint set's Jacobian and share of the Lagrangian's
-        Hessian, piece by piece: a least-squares cost's from its matrices (its Hessian is constant), a constraint
-        set written on read symbols z = S x by CasADi's differentiation in z and the chain rule (J S, S^T H S; each
-        row depends on a few of the many x), any other piece by CasADi's differentiation in x; linear constraint
-        sets add no Hessian. Much faster to build than differentiating the whole program at once (same values up
-        to rounding)."""
-        x = self.x
+    def _of_x(self, expression, *more):
+        """An SX expression of the pieces' x (and of SX symbols `more`, as (symbol, MX argument) pairs) as an MX
+        expression of the variable vector, by one call of an SX Function (not expanded)."""
+        symbols = [self.x] + [s for s, _ in more]
+        arguments = [self.variable_vector] + [a for _, a in more]
+        return ca.Function("piece", symbols, [ca.SX(expression)])(*arguments)
+
+    def _objective_parts(self) -> tuple:
+        """(value, gradient, Hessian without its multiplier) of the objective, MX of the variable vector: the
+        least-squares terms' from their matrices (constant Hessian), any other term's by CasADi's
+        differentiation in x."""
+        x, X = self.x, self.variable_vector
         size = int(x.shape[0])
-        lam_f, lam_g = ca.SX.sym("lam_f"), ca.SX.sym("lam_g", self.g.shape[0])
         constant_hessian, offset = sp.csr_matrix((size, size)), np.zeros(size)
-        gradient, hessian = ca.SX(size, 1), ca.SX(size, size)
+        value, gradient, hessian = ca.MX(0), ca.MX(size, 1), ca.MX(size, size)
         for cost in self.costs:
             if cost.squares is None:
-                gradient = gradient + ca.gradient(cost.value, x)
-                hessian = hessian + lam_f * ca.hessian(cost.value, x)[0]
+                value = value + self._of_x(cost.value)
+                gradient = gradient + self._of_x(ca.gradient(ca.SX(cost.value), x))
+                hessian = hessian + self._of_x(ca.hessian(ca.SX(cost.value), x)[0])
             else:
+                value = value + cost.expression(X)
                 h, b = cost.hessian_and_offset(size)
                 constant_hessian, offset = constant_hessian + h, offset + b
-        gradient = gradient + ca.mtimes(to_dm(constant_hessian), x) - ca.DM(offset)
-        hessian = hessian + lam_f * to_dm(sp.triu(constant_hessian))
-        pieces: dict[str, tuple] = {}
-        for c in self.constraints:
-            local = c.local_form()
-            lam = lam_g[self.con_slices[c.name]]
-            if local is not None and not ca.depends_on(local[0], x):
-                rows, z, S = local
-                S_dm = to_dm(S)
-                jacobian_z = ca.jacobian(rows, z)
-                outputs = [jacobian_z] if c.linear else [jacobian_z, ca.hessian(ca.dot(lam, rows), z)[0]]
-                values = ca.Function("piece", [z, lam], outputs)(ca.densify(ca.mtimes(S_dm, x)), lam)
-                share = None if c.linear else ca.triu(ca.mtimes(S_dm.T, ca.mtimes(values[1], S_dm)))
-                pieces[c.name] = (lam, ca.mtimes(values[0], S_dm), share)
-                continue
-            g = ca.densify(c.expression_in(x))
-            share = None if c.linear else ca.triu(ca.hessian(ca.dot(lam, g), x)[0])
-            pieces[c.name] = (lam, ca.jacobian(g, x), share)
-        return dict(lam_f=lam_f, gradient=gradient, hessian=hessian, constraints=pieces)
+        gradient = gradient + ca.mtimes(to_dm(constant_hessian), X) - ca.DM(offset)
+        return value, gradient, hessian + to_dm(constant_hessian)
+
+    def _constraint_part(self, c: ConstraintSet) -> tuple:
+        """(multipliers, rows, Jacobian, Hessian of the multiplied rows or None for a linear set) of one constraint
+        set, MX of the variable vector and the multipliers: a set written on read symbols z = S x differentiated
+        in z and mapped by the chain rule (each row depends on a few of the many x), any other in x."""
+        X = self.variable_vector
+        n = c.size
+        lam_mx, lam = ca.MX.sym(f"lam_{c.name}", n), ca.SX.sym("lam", n)
+        local = c.local_form()
+        if local is not None and not ca.depends_on(local[0], self.x):
+            rows, z, S = local
+            S_dm = to_dm(S)
+            z_of_x = ca.densify(ca.mtimes(S_dm, X))
+            values = ca.Function(f"{c.name}_rows", [z], [rows])(z_of_x)
+            jacobian = ca.mtimes(ca.Function(f"{c.name}_jacobian", [z], [ca.jacobian(rows, z)])(z_of_x), S_dm)
+            hessian = None
+            if not c.linear:
+                local_hessian = ca.Function(f"{c.name}_hessian", [z, lam], [ca.hessian(ca.dot(lam, rows), z)[0]])
+                hessian = ca.mtimes(S_dm.T, ca.mtimes(local_hessian(z_of_x, lam_mx), S_dm))
+            return lam_mx, values, jacobian, hessian
+        rows = ca.densify(c.expression_in(self.x))
+        hessian = None if c.linear else self._of_x(ca.hessian(ca.dot(lam, rows), self.x)[0], (lam, lam_mx))
+        return lam_mx, self._of_x(rows), self._of_x(ca.jacobian(rows, self.x)), hessian
 
     def _derivatives(self, active: tuple[str, ...] | None = None) -> dict:
         """CasADi's grad_f, jac_g and hess_lag Functions of the program with the constraint sets `active` (None:
-        all), from the pieces (a program on SX symbols only)."""
-        pieces, x = self._pieces, self.x
-        if pieces is None:
-            raise ValueError("derivatives from pieces need a program on SX symbols")
+        all), and its rows g (MX of the variable vector)."""
+        X = self.variable_vector
         active = tuple(c.name for c in self.constraints) if active is None else active
-        no_parameters = ca.SX(0, 1)
-        lam_f, hessian = pieces["lam_f"], pieces["hessian"]
-        parts = [pieces["constraints"][c.name] for c in self.constraints if c.name in active]
-        for _, _, share in parts:
+        no_parameters = ca.MX(0, 1)
+        value, gradient, cost_hessian = self._objective
+        lam_f = ca.MX.sym("lam_f")
+        parts = [self._parts[c.name] for c in self.constraints if c.name in active]
+        hessian = lam_f * cost_hessian
+        for _, _, _, share in parts:
             if share is not None:
                 hessian = hessian + share
-        lam_g = ca.vertcat(*[lam for lam, _, _ in parts]) if parts else ca.SX(0, 1)
-        jacobian = ca.vertcat(*[jac for _, jac, _ in parts]) if parts else ca.SX(0, x.shape[0])
-        g = self.g[self._rows(active).tolist()] if parts else ca.SX(0, 1)
-        return {"grad_f": ca.Function("grad_f", [x, no_parameters], [self.f, pieces["gradient"]]),
-                "hess_lag": ca.Function("hess_lag", [x, no_parameters, lam_f, lam_g], [ca.triu(hessian)]),
-                "jac_g": ca.Function("jac_g", [x, no_parameters], [g, jacobian])}
+        lam_g = ca.vertcat(*[lam for lam, _, _, _ in parts]) if parts else ca.MX(0, 1)
+        g = ca.vertcat(*[rows for _, rows, _, _ in parts]) if parts else ca.MX(0, 1)
+        jacobian = ca.vertcat(*[jac for _, _, jac, _ in parts]) if parts else ca.MX(0, X.shape[0])
+        return {"grad_f": ca.Function("grad_f", [X, no_parameters], [value, gradient]),
+                "hess_lag": ca.Function("hess_lag", [X, no_parameters, lam_f, lam_g], [ca.triu(hessian)]),
+                "jac_g": ca.Function("jac_g", [X, no_parameters], [g, jacobian]), "g": g, "f": value}
 
     def prepare(self, relaxed: tuple[str, ...]) -> None:
         """Build now the IPOPT instance that `solve` uses with the constraint sets `relaxed` switched off."""
@@ -318,18 +341,17 @@ class Program:
         limit and the rows of g it holds."""
         if active not in self._solvers:
             rows = self._rows(active)
-            g = self.g[rows.tolist()] if len(rows) else type(self.x)(0, 1)
             limit = IterationLimit(int(self.x.shape[0]), len(rows))
+            derivatives = self._derivatives(active)
+            g, f = derivatives.pop("g"), derivatives.pop("f")
             # No 'nlp_grad' (the Lagrangian's gradient, by differentiating the whole program, for multipliers
             # that are never read): the larger part of nlpsol's build.
             options: dict[str, Any] = {"ipopt": dict(self.ipopt_options), "print_time": False,
                                        "error_on_fail": False, "iteration_callback": limit, "no_nlp_grad": True,
-                                       "calc_lam_p": False}
+                                       "calc_lam_p": False, **derivatives}
             options["ipopt"].setdefault("print_level", 0)
             options["ipopt"].setdefault("sb", "yes")
-            if self._pieces is not None:
-                options.update(self._derivatives(active))
-            solver = ca.nlpsol("trajopt", "ipopt", {"x": self.x, "f": self.f, "g": g}, options)
+            solver = ca.nlpsol("trajopt", "ipopt", {"x": self.variable_vector, "f": f, "g": g}, options)
             self._solvers[active] = (solver, limit, rows)
         return self._solvers[active]
 
@@ -339,7 +361,7 @@ class Program:
 
     @property
     def num_constraints(self) -> int:
-        return int(self.g.shape[0])
+        return len(self.lbg)
 
     def initial(self) -> np.ndarray:
         return np.concatenate([v.initial for v in self.variables])

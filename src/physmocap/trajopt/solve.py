@@ -72,6 +72,10 @@ def ipopt_options(settings: TrajoptSettings) -> dict:
     return {
         "tol": settings.tolerance,
         "acceptable_tol": max(10 * settings.tolerance, 1e-3),
+        # Stop after 5 acceptable iterates in a row (IPOPT: 15): on an ill-conditioned window the dual
+        # infeasibility wanders about acceptable_tol with tiny steps, and 15 in a row came by chance or never;
+        # chosen on the looped dance, CMU subject 5 (docs/decisions/trajopt-build-cost.md, sixth pass).
+        "acceptable_iter": 5,
         "max_iter": settings.max_iterations,
         "max_cpu_time": settings.max_seconds,  # CPU, not wall: a loaded machine must not change the result
         "linear_solver": "mumps",
