@@ -6,9 +6,10 @@ import pytest
 
 from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
-from physmocap.camera import Camera
+from physmocap.camera import Camera, Floor
 from physmocap.config import FitSettings, Settings, TrajoptSettings
 from physmocap.kinematics.refine import (
+    _contact_floor,
     false_flights,
     fit_contact_floor,
     fitted_observations,
@@ -158,6 +159,57 @@ def test_contact_floor_takes_its_roll_from_the_feet_and_stays_level_where_they_l
     # Feet along one line in depth leave the roll to the prior: a level prior gives a level floor.
     line = -3.0 * normal + np.outer(rng.uniform(-0.5, 0.5, 150), along) + rng.normal(scale=0.01, size=(150, 3))
     assert angle(fit(line, normal, settings.floor_roll_prior, settings.floor_pitch_prior), normal) < 1.0
+
+
+def running_soles(frames):
+    """(T, 4, 3) world heel and toe points of a run along x at 3 m/s: one foot planted (0.5 cm noise) while the
+    other swings 20-40 cm up, a new foot every 8 frames; 12 swinging toe points graze 4 cm under the floor (a
+    fit's foot through it), so that the true floor sinks 5% of the points by more than refine.SINK_DEPTH."""
+    rng = np.random.default_rng(4)
+    soles = np.zeros((frames, 4, 3))
+    contacts = np.zeros((frames, 4), bool)
+    for f in range(frames):
+        step = f // 8
+        planted = 2 * (step % 2)
+        x0 = 3.0 * step * 8 / FPS - 1.8
+        for side in (0, 2):
+            lateral = -0.1 if side == 0 else 0.1
+            if side == planted:
+                soles[f, side] = [x0, lateral, 0.0]
+                soles[f, side + 1] = [x0 + 0.2, lateral, 0.0]
+                soles[f, side:side + 2] += rng.normal(scale=0.005, size=(2, 3))
+                contacts[f, side:side + 2] = True
+            else:
+                x = 3.0 * f / FPS - 1.8
+                soles[f, side] = [x - 0.1, lateral, rng.uniform(0.2, 0.4)]
+                soles[f, side + 1] = [x + 0.1, lateral, rng.uniform(0.2, 0.4)]
+    grazing = np.flatnonzero(~contacts[:, 1])[:6], np.flatnonzero(~contacts[:, 3])[:6]
+    soles[grazing[0], 1, 2] = soles[grazing[1], 3, 2] = -0.04
+    return soles, contacts
+
+
+def test_contact_floor_replaces_a_kinematic_floor_the_feet_sink_deeper_through(camera):
+    """A run: the floor through its contacts sinks 5% of the foot points 4 cm (more than SINK_DEPTH), but the
+    kinematic floor, tilted 12 degrees (a run's lean taken for the vertical), sinks them far deeper: the contacts'
+    floor is taken. With the true floor as the kinematic one and the swinging foot labelled in contact too, the
+    contacts' floor sinks the feet deeper, and the kinematic floor is kept."""
+    frames = 40
+    soles, contacts = running_soles(frames)
+    in_camera = camera.to_camera(soles)
+    valid = np.ones(frames, bool)
+    settings = TrajoptSettings()
+    up = camera.R[:, 2]
+    true_floor = Floor(up, -float(up @ camera.t))
+    lean = np.radians(12.0)
+    tilted_world = np.array([np.sin(lean), 0.0, np.cos(lean)])
+    tilted = Floor(camera.R @ tilted_world, -float(camera.R @ tilted_world @ camera.t))
+    floor, kept = _contact_floor(in_camera, contacts, valid, camera, tilted, False, settings)
+    assert np.degrees(np.arccos(floor.normal @ true_floor.normal)) < 1.0
+    assert kept[contacts].mean() > 0.95
+    wrong = contacts | (soles[..., 2] > 0.3)  # swinging points labelled in contact
+    floor, kept = _contact_floor(in_camera, wrong, valid, camera, true_floor, False, settings)
+    assert floor is true_floor
+    assert (kept == contacts).all()
 
 
 def on_floor(body, q):

@@ -208,13 +208,16 @@ def _contact_floor(soles: np.ndarray, contacts: np.ndarray, valid: np.ndarray, c
             fitted, _ = fit_contact_floor(soles[contacts], camera.R[:, 2], settings.floor_outlier_distance,
                                           settings.floor_roll_prior, settings.floor_pitch_prior)
             # A floor that many feet would sink through is made of wrong labels (feet labelled in contact in
-            # the air): keep the kinematic stage's floor, fitted to the lowest slow foot points, instead (ours).
-            sunk = np.percentile(fitted.height(soles[valid].reshape(-1, 3)), SINK_PERCENTILE)
-            if sunk > -SINK_DEPTH:
+            # the air): keep the kinematic stage's floor, fitted to the lowest slow foot points, instead, unless
+            # the feet sink deeper through that one (a tilted kinematic floor; docs/decisions/refine-short-runs.md).
+            sunk, kinematic_sunk = (np.percentile(f.height(soles[valid].reshape(-1, 3)), SINK_PERCENTILE)
+                                    for f in (fitted, floor))
+            if sunk > -SINK_DEPTH or sunk > kinematic_sunk:
                 floor = fitted
             else:
                 log.info("trajopt: the floor through the labelled contacts lies above %.0f%% of the foot points "
-                         "(by %.0f cm); the kinematic floor is kept.", SINK_PERCENTILE, -100 * sunk)
+                         "(by %.0f cm, the kinematic floor by %.0f); the kinematic floor is kept.", SINK_PERCENTILE,
+                         -100 * sunk, -100 * kinematic_sunk)
         inliers = np.abs(floor.height(soles[contacts])) < settings.floor_outlier_distance
         kept[contacts] = inliers
     return floor, kept
