@@ -40,10 +40,14 @@ def camera():
 
 
 def one_leg_stance(body, frames):
-    """Standing on the right foot, the left foot lifted 20-30 cm (hip and knee bent), arms swinging."""
+    """Standing on the right foot, the left foot lifted 20-30 cm (hip and knee bent), arms swinging; the body
+    rolled over the standing foot (hips rolled back), as a person must to stay on it."""
     q = np.repeat(body.rest_qpos[None], frames, axis=0)
     step = np.zeros((frames, body.nv))
     t = np.arange(frames) / FPS
+    step[:, 3] = 0.11
+    for side in ("left", "right"):
+        step[:, body.dof_address[body.joint_index[f"{side}_hip"]] + 2] = 0.11
     step[:, body.dof_address[body.joint_index["left_hip"]] + 1] = -0.9
     step[:, body.dof_address[body.joint_index["left_knee"]]] = 1.6
     step[:, body.dof_address[body.joint_index["left_ankle"]] + 1] = 0.5
