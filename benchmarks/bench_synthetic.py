@@ -13,6 +13,8 @@ taken in the camera frame (independent of the world each side chose); floor metr
 true contacts (Rempe 3.2 labels of the motion capture).
 
     .venv/bin/python benchmarks/bench_synthetic.py [--quick] [--plots-only] [--json OUT.json]
+    .venv/bin/python benchmarks/bench_synthetic.py --clip cmu_daz_cgspeed/02_03.bvh [--start S] [--seconds S]
+        [--seeds 0 1 2] [--offline-only]   # any clip, or a piece of it, alone
 
 Per-clip plots (foot heights with contact flags, forces against body weight) go to benchmarks/results/plots/.
 """
@@ -67,6 +69,7 @@ CLIP_SETS = {"issue3": CLIPS, "issue18": ISSUE18_CLIPS}
 WALKING = ("131_01.bvh", "131_02.bvh", "006_01.bvh", "09_12.bvh")
 FPS = 30.0
 SECONDS = 8.0
+OFFLINE_METHODS = ("kinematic offline", "kinematic refined (B.4)", "physcap on offline")
 METHODS = ("kinematic offline", "kinematic online", "kinematic refined (B.4)", "physcap on online",
            "physcap on offline", "kinematic online, calibrated floor", "physcap on online, calibrated floor")
 
@@ -78,17 +81,21 @@ def model_height(landmarks_world: np.ndarray) -> float:
     return partial / (1.0 - TEMPLATE_RATIOS["head_top"])
 
 
-def first_seconds(clip, seconds):
-    n = int(seconds * clip.fps)
-    return dataclasses.replace(clip, positions=clip.positions[:n], head_rotation=clip.head_rotation[:n],
-                               hand_rotations=clip.hand_rotations[:n])
+def first_seconds(clip, seconds, start: float = 0.0):
+    """The clip's frames from `start` seconds, at most `seconds` long."""
+    a = int(round(start * clip.fps))
+    b = a + int(seconds * clip.fps)
+    return dataclasses.replace(clip, positions=clip.positions[a:b], head_rotation=clip.head_rotation[a:b],
+                               hand_rotations=clip.hand_rotations[a:b])
 
 
 def evaluate_case(name: str, seed: int, noise: NoiseModel = MEDIAPIPE_NOISE, methods=METHODS,
-                  height_error: float = 0.0, plots_dir: Path | None = None) -> list[dict]:
-    """One clip seen by one random camera, scored for each method; with `plots_dir`, the plots of the run
-    report (forces against body weight, contacts, foot heights) of the physics-on-online method go there."""
-    clip = first_seconds(resample(load_mocap(MOCAP / name), FPS), SECONDS)
+                  height_error: float = 0.0, plots_dir: Path | None = None, start: float = 0.0,
+                  seconds: float = SECONDS) -> list[dict]:
+    """One clip (from `start` s, at most `seconds` s) seen by one random camera, scored for each method; with
+    `plots_dir`, the plots of the run report (forces against body weight, contacts, foot heights) of the
+    physics-on-online method go there."""
+    clip = first_seconds(resample(load_mocap(MOCAP / name), FPS), seconds, start)
     rng = np.random.default_rng(seed)
     K, R, t = random_camera(clip, rng)
     obs, truth = make_observations(clip, K, R, t, rng, noise)
@@ -153,6 +160,34 @@ def summarise(rows: list[dict]) -> dict:
     return summary
 
 
+def print_row(row: dict) -> None:
+    print(f"{row['method']:>20} {row['clip']:>10} seed {row['seed']}: root-rel {row['mpjpe_root_mm']:5.1f} "
+          f"global root {row['global_root_mm']:6.1f} mm, e_smooth {row['e_smooth_mm']:4.1f}, "
+          f"PNP {row['pnp_percent']:5.1f}%, skate {row['skate_percent']:4.1f}%, floating "
+          f"{row['floating_percent']:4.1f}%, penetration {row['penetration_percent']:4.2f}%, "
+          f"GRF {row['grf_mean_percent_bw']:6.1f}% BW, {row['ms_per_frame']:.2f} ms/frame", flush=True)
+
+
+def run_clips(args) -> dict:
+    """The --clip option: the named clips (or pieces) alone, each seed, their rows and mean."""
+    methods = OFFLINE_METHODS if args.offline_only else METHODS
+    rows = []
+    for name in args.clip:
+        for seed in args.seeds or (0, 1):
+            for row in evaluate_case(name, seed, methods=methods, start=args.start, seconds=args.seconds):
+                row["start_seconds"] = args.start
+                rows.append(row)
+                print_row(row)
+    out = dict(summary=summarise(rows), rows=rows, fps=FPS, start=args.start, seconds=args.seconds,
+               clips=args.clip, seeds=list(args.seeds or (0, 1)))
+    for method, values in out["summary"].items():
+        print(f"{method:>24}: root-rel {values['mpjpe_root_mm']:5.1f} mm, skate {values['skate_percent']:4.1f}%, "
+              f"floating {values['floating_percent']:4.1f}%, penetration {values['penetration_percent']:4.2f}%")
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=2))
+    return out
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="three clips, one seed")
@@ -163,7 +198,17 @@ def main(argv=None) -> dict:
     parser.add_argument("--json")
     parser.add_argument("--plots-only", action="store_true",
                         help="only the per-clip plots (PhysCap on the online fit, first seed)")
+    parser.add_argument("--clip", action="append",
+                        help="a clip under the mocap folder instead of a set (repeatable); nothing is written "
+                             "unless --json is given")
+    parser.add_argument("--start", type=float, default=0.0, help="with --clip: seconds skipped at its start")
+    parser.add_argument("--seconds", type=float, default=SECONDS, help="with --clip: the most seconds taken")
+    parser.add_argument("--seeds", type=int, nargs="+", help="with --clip: the cameras' seeds (default 0 1)")
+    parser.add_argument("--offline-only", action="store_true",
+                        help="with --clip: only " + ", ".join(OFFLINE_METHODS))
     args = parser.parse_args(argv)
+    if args.clip:
+        return run_clips(args)
     clip_set = CLIP_SETS[args.set]
     clips = clip_set[:3] if args.quick else clip_set
     json_path = Path(args.json or RESULTS / ("synthetic.json" if args.set == "issue3"
@@ -178,10 +223,7 @@ def main(argv=None) -> dict:
         for seed in seeds:
             for row in evaluate_case(name, seed, plots_dir=RESULTS / "plots" if seed == 0 else None):
                 rows.append(row)
-                print(f"{row['method']:>20} {row['clip']:>10} seed {seed}: root-rel {row['mpjpe_root_mm']:5.1f} "
-                      f"global root {row['global_root_mm']:6.1f} mm, e_smooth {row['e_smooth_mm']:4.1f}, "
-                      f"PNP {row['pnp_percent']:5.1f}%, GRF {row['grf_mean_percent_bw']:6.1f}% BW, "
-                      f"{row['ms_per_frame']:.2f} ms/frame", flush=True)
+                print_row(row)
     out = dict(summary=summarise(rows), rows=rows, fps=FPS, seconds=SECONDS, clips=list(clips), seeds=list(seeds),
                noise=dataclasses.asdict(MEDIAPIPE_NOISE))
     if args.set == "issue3":  # the height and foot-swap ablations, on the set where they were always taken

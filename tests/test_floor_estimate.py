@@ -85,6 +85,38 @@ def test_posture_vertical_of_a_walk_is_near_the_true_vertical(scene):
     assert angle_degrees(up, camera.R[:, 2]) < 5.0
 
 
+def kicking_back(body, frames, fps=30.0):
+    """A caricature of a run: at 3 m/s along x, standing on one foot while the other is kicked up behind
+    (0.8 m up, 0.5 m back), the legs swapping every 10 frames."""
+    q = np.repeat(body.rest_qpos[None], frames, axis=0)
+    step = np.zeros((frames, body.nv))
+    kicking = (np.arange(frames) // 10) % 2
+    for i, side in enumerate(("left", "right")):
+        step[:, body.dof_address[body.joint_index[f"{side}_hip"]] + 1] = 0.6 * (kicking == i)
+        step[:, body.dof_address[body.joint_index[f"{side}_knee"]]] = 1.8 * (kicking == i)
+    q = kin.integrate(body, q, step)
+    q[:, 0] += 3.0 * np.arange(frames) / fps
+    soles = kin.forward_kinematics(body, q).points[:, body.point_index(CONTACT_POINTS)]
+    q[:, 2] -= soles[..., 2].min()
+    return q
+
+
+def test_a_runners_trailing_foot_does_not_lean_the_posture_or_the_floor(scene):
+    """The middle of all four sole points trails a runner (the kicked-up foot), so the axis from it to the
+    centre of mass leans forward; the axis from the support (the lowest points) does not, and the feet's floor
+    is kept and trusted."""
+    body, camera, _ = scene
+    qpos = kicking_back(body, 60)
+    valid = np.ones(len(qpos), bool)
+    soles = camera.to_camera(kin.forward_kinematics(body, qpos).points[:, body.point_index(CONTACT_POINTS)])
+    up = camera.R[:, 2]
+    middle = floor_module.posture_vertical(body, qpos, camera, valid)
+    support = floor_module.posture_vertical(body, qpos, camera, valid, floor_module.lowest_points(soles, up, valid))
+    assert angle_degrees(middle, up) > 15.0 and angle_degrees(support, up) < 8.0
+    floor = floor_module.estimate_floor(body, qpos, camera, 30.0, valid)
+    assert floor.trusted and angle_degrees(floor.normal, up) < 2.0
+
+
 def test_robust_offset_ignores_a_few_points_far_off_the_plane():
     rng = np.random.default_rng(0)
     normal = np.array([0.0, -0.9, 0.3])

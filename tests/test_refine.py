@@ -6,9 +6,10 @@ import pytest
 
 from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
-from physmocap.camera import Camera
+from physmocap.camera import Camera, Floor
 from physmocap.config import FitSettings, Settings, TrajoptSettings
 from physmocap.kinematics.refine import (
+    _contact_floor,
     false_flights,
     fit_contact_floor,
     fitted_observations,
@@ -39,10 +40,14 @@ def camera():
 
 
 def one_leg_stance(body, frames):
-    """Standing on the right foot, the left foot lifted 20-30 cm (hip and knee bent), arms swinging."""
+    """Standing on the right foot, the left foot lifted 20-30 cm (hip and knee bent), arms swinging; the body
+    rolled over the standing foot (hips rolled back), as a person must to stay on it."""
     q = np.repeat(body.rest_qpos[None], frames, axis=0)
     step = np.zeros((frames, body.nv))
     t = np.arange(frames) / FPS
+    step[:, 3] = 0.11
+    for side in ("left", "right"):
+        step[:, body.dof_address[body.joint_index[f"{side}_hip"]] + 2] = 0.11
     step[:, body.dof_address[body.joint_index["left_hip"]] + 1] = -0.9
     step[:, body.dof_address[body.joint_index["left_knee"]]] = 1.6
     step[:, body.dof_address[body.joint_index["left_ankle"]] + 1] = 0.5
@@ -160,6 +165,57 @@ def test_contact_floor_takes_its_roll_from_the_feet_and_stays_level_where_they_l
     assert angle(fit(line, normal, settings.floor_roll_prior, settings.floor_pitch_prior), normal) < 1.0
 
 
+def running_soles(frames):
+    """(T, 4, 3) world heel and toe points of a run along x at 3 m/s: one foot planted (0.5 cm noise) while the
+    other swings 20-40 cm up, a new foot every 8 frames; 12 swinging toe points graze 4 cm under the floor (a
+    fit's foot through it), so that the true floor sinks 5% of the points by more than refine.SINK_DEPTH."""
+    rng = np.random.default_rng(4)
+    soles = np.zeros((frames, 4, 3))
+    contacts = np.zeros((frames, 4), bool)
+    for f in range(frames):
+        step = f // 8
+        planted = 2 * (step % 2)
+        x0 = 3.0 * step * 8 / FPS - 1.8
+        for side in (0, 2):
+            lateral = -0.1 if side == 0 else 0.1
+            if side == planted:
+                soles[f, side] = [x0, lateral, 0.0]
+                soles[f, side + 1] = [x0 + 0.2, lateral, 0.0]
+                soles[f, side:side + 2] += rng.normal(scale=0.005, size=(2, 3))
+                contacts[f, side:side + 2] = True
+            else:
+                x = 3.0 * f / FPS - 1.8
+                soles[f, side] = [x - 0.1, lateral, rng.uniform(0.2, 0.4)]
+                soles[f, side + 1] = [x + 0.1, lateral, rng.uniform(0.2, 0.4)]
+    grazing = np.flatnonzero(~contacts[:, 1])[:6], np.flatnonzero(~contacts[:, 3])[:6]
+    soles[grazing[0], 1, 2] = soles[grazing[1], 3, 2] = -0.04
+    return soles, contacts
+
+
+def test_contact_floor_replaces_a_kinematic_floor_the_feet_sink_deeper_through(camera):
+    """A run: the floor through its contacts sinks 5% of the foot points 4 cm (more than SINK_DEPTH), but the
+    kinematic floor, tilted 12 degrees (a run's lean taken for the vertical), sinks them far deeper: the contacts'
+    floor is taken. With the true floor as the kinematic one and the swinging foot labelled in contact too, the
+    contacts' floor sinks the feet deeper, and the kinematic floor is kept."""
+    frames = 40
+    soles, contacts = running_soles(frames)
+    in_camera = camera.to_camera(soles)
+    valid = np.ones(frames, bool)
+    settings = TrajoptSettings()
+    up = camera.R[:, 2]
+    true_floor = Floor(up, -float(up @ camera.t))
+    lean = np.radians(12.0)
+    tilted_world = np.array([np.sin(lean), 0.0, np.cos(lean)])
+    tilted = Floor(camera.R @ tilted_world, -float(camera.R @ tilted_world @ camera.t))
+    floor, kept = _contact_floor(in_camera, contacts, valid, camera, tilted, False, settings)
+    assert np.degrees(np.arccos(floor.normal @ true_floor.normal)) < 1.0
+    assert kept[contacts].mean() > 0.95
+    wrong = contacts | (soles[..., 2] > 0.3)  # swinging points labelled in contact
+    floor, kept = _contact_floor(in_camera, wrong, valid, camera, true_floor, False, settings)
+    assert floor is true_floor
+    assert (kept == contacts).all()
+
+
 def on_floor(body, q):
     """q moved up or down so that its lowest heel or toe touches z = 0."""
     soles = kin.forward_kinematics(body, q).points[:, body.point_index(CONTACT_POINTS), 2]
@@ -232,6 +288,26 @@ def test_false_flights_get_the_points_near_the_floor_back(body):
     flight = q.copy()
     flight[6:24, 2] += 0.5 * 9.81 * ((8.5 / FPS) ** 2 - t[6:24] ** 2)
     assert not false_flights(body, flight, FPS, labelled, valid, near).any()
+
+
+def test_a_runs_short_flights_stay_flights_though_the_fit_smooths_them(body):
+    """A run's COM height: 0.2 s stances pushing at up to 2 g, then 0.13 s flights in free fall, smoothed over 3
+    frames as a fit's velocity terms do. The velocities at a flight's two ends show about half of gravity's drop
+    (the stance's push is in them); the curvature over the flight shows most of it, and the flights stand."""
+    frames, gravity = 40, 9.81
+    period = 0.2 + 0.4 / 3
+    phase = np.mod(np.arange(frames) / FPS, period)
+    flight = phase >= 0.2
+    acc = np.where(flight, -gravity, -gravity + gravity * period / 0.2 * (1 - np.cos(2 * np.pi * phase / 0.2)))
+    speed = np.cumsum(acc) / FPS
+    height = np.cumsum(speed - speed.mean()) / FPS
+    height = np.convolve(np.pad(height, 1, mode="edge"), np.ones(3) / 3, mode="valid")
+    q = on_floor(body, np.repeat(body.rest_qpos[None], frames, axis=0))
+    q[:, 2] += height - height.min()
+    labelled = np.ones((frames, 4), bool)
+    labelled[flight] = False
+    near = 1.0  # every point counts as near the floor: only the verdict is tested
+    assert not false_flights(body, q, FPS, labelled, np.ones(frames, bool), near).any()
 
 
 def test_refinement_fits_the_observations_the_kinematic_stage_corrected():

@@ -31,15 +31,39 @@ def move_world_to_floor(qpos: np.ndarray, camera: Camera, floor: Floor, anchor_f
     qpos = kin.rigid_transform_qpos(qpos, R_new.T @ camera.R, R_new.T @ (camera.t - t_new))
     return qpos, camera.with_extrinsics(R_new, t_new)
 
-def posture_vertical(body: BodyModel, qpos: np.ndarray, camera: Camera, valid: np.ndarray) -> np.ndarray:
-    """(3,) the person's own vertical in the camera frame: per frame the unit axis from the middle of the four
-    sole points to the centre of mass, its median over the valid frames. A body cannot keep its centre of mass
-    away from above its support for long (it would fall), so over a clip this axis leans as little as the
-    posture does, whichever way the person turns."""
+def posture_vertical(body: BodyModel, qpos: np.ndarray, camera: Camera, valid: np.ndarray,
+                     support: np.ndarray | None = None) -> np.ndarray:
+    """(3,) the person's own vertical in the camera frame: per frame the unit axis from the support to the
+    centre of mass, its median over the valid frames. The support is the middle of the sole points flagged in
+    `support` (T, 4) on the frames that have any (`lowest_points`), else of all four. A body cannot keep its
+    centre of mass away from above its support for long (it would fall), so over a clip this axis leans as
+    little as the posture does, whichever way the person turns; the middle of all four leans with a runner,
+    whose swinging foot trails behind (docs/decisions/refine-short-runs.md)."""
     pose = kin.forward_kinematics(body, qpos)
     com = camera.to_camera(kin.center_of_mass(body, pose))
     soles = camera.to_camera(pose.points[:, body.point_index(CONTACT_POINTS)])
-    return unit_vectors(np.median(unit_vectors(com - soles.mean(axis=1))[valid], axis=0))
+    if support is None:
+        support = np.ones(soles.shape[:2], bool)
+    frames = valid & support.any(axis=1)
+    middle = (soles * support[..., None]).sum(axis=1)[frames] / support.sum(axis=1)[frames, None]
+    return unit_vectors(np.median(unit_vectors(com[frames] - middle), axis=0))
+
+
+def lowest_points(soles: np.ndarray, up: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(T, 4) per valid frame the sole points of soles (T, 4, 3) within 3 cm of the lowest along `up`."""
+    height = soles @ up
+    return (height <= height.min(axis=1, keepdims=True) + 0.03) & valid[:, None]
+
+
+def floor_points(soles: np.ndarray, up: np.ndarray, fps: float, valid: np.ndarray) -> np.ndarray:
+    """(T, 4) the sole points of soles (T, 4, 3) that show the floor below `up`: the lowest (`lowest_points`)
+    while slower than the clip's median sole speed; the lowest alone where fewer than 8 are slow."""
+    lowest = lowest_points(soles, up, valid)
+    speed = np.zeros(soles.shape[:2])
+    speed[1:] = np.linalg.norm(np.diff(soles, axis=0), axis=2) * fps
+    slow = speed <= np.percentile(speed[valid], 50)
+    return lowest & slow if (lowest & slow).sum() >= 8 else lowest
+
 
 def floor_tilt_spread(points: np.ndarray, frames: np.ndarray, up: np.ndarray, fitted: np.ndarray,
                       fps: float, draws: int = FLOOR_BOOTSTRAP_DRAWS, seed: int = 0) -> float:
@@ -67,17 +91,14 @@ def estimate_floor(body: BodyModel, qpos: np.ndarray, camera: Camera, fps: float
     the prior). Beyond FLOOR_AGREEMENT degrees the feet say something no posture explains (points taken from a
     lifted foot, a wrong depth) and the floor is not trusted: it is then level with the posture, through the
     same points, a warning is logged and Floor.trusted says so."""
-    pts = camera.to_camera(kin.forward_kinematics(body, qpos).points)
-    up = posture_vertical(body, qpos, camera, valid)
-    soles = pts[:, body.point_index(CONTACT_POINTS)]  # (T, 4, 3)
-    height = soles @ up
-    lowest = height <= height.min(axis=1, keepdims=True) + 0.03
-    speed = np.zeros(soles.shape[:2])
-    speed[1:] = np.linalg.norm(np.diff(soles, axis=0), axis=2) * fps
-    slow = speed <= np.percentile(speed[valid], 50)
-    chosen = lowest & slow & valid[:, None]
-    if chosen.sum() < 8:
-        chosen = lowest & valid[:, None]
+    soles = camera.to_camera(kin.forward_kinematics(body, qpos).points[:, body.point_index(CONTACT_POINTS)])
+    # The support is the lowest points along the feet's own plane: the posture's first guess leans with a
+    # runner, and the lowest points along it are then the trailing foot's.
+    first = posture_vertical(body, qpos, camera, valid)
+    feet_first, _ = fit_floor(soles[floor_points(soles, first, fps, valid)], first,
+                              prior_weight=FEET_ONLY_PRIOR_WEIGHT)
+    up = posture_vertical(body, qpos, camera, valid, lowest_points(soles, feet_first.normal, valid))
+    chosen = floor_points(soles, up, fps, valid)
     points, frames = soles[chosen], np.nonzero(chosen)[0]
     floor, _ = fit_floor(points, up, prior_weight=FLOOR_PRIOR_WEIGHT)
     feet_only, _ = fit_floor(points, up, prior_weight=FEET_ONLY_PRIOR_WEIGHT)

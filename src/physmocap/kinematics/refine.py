@@ -105,23 +105,27 @@ class RefinedKinematics:
 def false_flights(body, qpos: np.ndarray, fps: float, contacts: np.ndarray, valid: np.ndarray,
                   near_floor: float, gravity: float = 9.81) -> np.ndarray:
     """(T, 4) contact flags to add where the labels have every point in the air but the kinematic COM does not
-    fall freely: over such a run (and a frame either side) the COM's vertical velocity drops by less than half
-    of what gravity alone would take (ours: a contact network's false flight makes the optimiser launch the
-    body on a ballistic arc it never flew). The points within `near_floor` of the floor (z = 0) in those frames
-    are marked in contact; farther points are the floor's outliers, as for the labelled contacts (measured: a
-    lowest point 13 cm up marked in contact put a jump's flight on the floor)."""
+    fall freely: the parabola fitted to the COM height over such a run and its take-off and landing frames
+    curves down by less than half of gravity (ours: a contact network's false flight makes the optimiser launch
+    the body on a ballistic arc it never flew; the measure of trajopt.phases.flight_support, whose curvature
+    over all the frames reads a short run's flight where the velocities at its two ends, smoothed by the fit,
+    did not: docs/decisions/refine-short-runs.md). Runs of fewer than 3 frames with their neighbours are left
+    alone. The points within `near_floor` of the floor (z = 0) in those frames are marked in contact; farther
+    points are the floor's outliers, as for the labelled contacts (measured: a lowest point 13 cm up marked in
+    contact put a jump's flight on the floor)."""
     pose = kin.forward_kinematics(body, qpos)
-    vz = np.gradient(kin.center_of_mass(body, pose)[:, 2]) * fps
+    com_height = kin.center_of_mass(body, pose)[:, 2]
     heights = pose.points[:, body.point_index(CONTACT_POINTS), 2]
     added = np.zeros_like(contacts, dtype=bool)
     airborne = ~contacts.any(axis=1) & valid
     edges = np.flatnonzero(np.diff(np.concatenate([[0], airborne.astype(int), [0]])))
     T = len(qpos)
     for a, b in zip(edges[::2], edges[1::2], strict=True):
-        lo, hi = max(a - 1, 0), min(b, T - 1)
-        if hi - lo < 2:
+        lo, hi = max(a - 1, 0), min(b + 1, T)
+        if hi - lo < 3:
             continue
-        if vz[hi] - vz[lo] > -0.5 * gravity * (hi - lo) / fps:
+        fall = -2.0 * np.polyfit(np.arange(hi - lo) / fps, com_height[lo:hi], 2)[0] / gravity
+        if fall < 0.5:
             added[a:b] = heights[a:b] < near_floor
     return added
 
@@ -200,21 +204,24 @@ def fitted_observations(obs: Observations, motion: KinematicMotion, fit: FitSett
 def _contact_floor(soles: np.ndarray, contacts: np.ndarray, valid: np.ndarray, camera: Camera, floor: Floor,
                    keep_floor: bool, settings: TrajoptSettings) -> tuple[Floor, np.ndarray]:
     """B.4's second step: the floor through the contact points `soles` (T, 4, 3, camera frame) unless
-    keep_floor (or too few contacts, or it would sink the feet: then `floor`), and the contacts (T, 4) kept as
-    its inliers."""
+    keep_floor (or too few contacts, or it would sink the feet, deeper than `floor` does: then `floor`), and the
+    contacts (T, 4) kept as its inliers."""
     kept = contacts.copy()
     if contacts.sum() >= MIN_FLOOR_POINTS:
         if not keep_floor:
             fitted, _ = fit_contact_floor(soles[contacts], camera.R[:, 2], settings.floor_outlier_distance,
                                           settings.floor_roll_prior, settings.floor_pitch_prior)
             # A floor that many feet would sink through is made of wrong labels (feet labelled in contact in
-            # the air): keep the kinematic stage's floor, fitted to the lowest slow foot points, instead (ours).
-            sunk = np.percentile(fitted.height(soles[valid].reshape(-1, 3)), SINK_PERCENTILE)
-            if sunk > -SINK_DEPTH:
+            # the air): keep the kinematic stage's floor, fitted to the lowest slow foot points, instead, unless
+            # the feet sink deeper through that one (a tilted kinematic floor; docs/decisions/refine-short-runs.md).
+            sunk, kinematic_sunk = (np.percentile(f.height(soles[valid].reshape(-1, 3)), SINK_PERCENTILE)
+                                    for f in (fitted, floor))
+            if sunk > -SINK_DEPTH or sunk > kinematic_sunk:
                 floor = fitted
             else:
                 log.info("trajopt: the floor through the labelled contacts lies above %.0f%% of the foot points "
-                         "(by %.0f cm); the kinematic floor is kept.", SINK_PERCENTILE, -100 * sunk)
+                         "(by %.0f cm, the kinematic floor by %.0f); the kinematic floor is kept.", SINK_PERCENTILE,
+                         -100 * sunk, -100 * kinematic_sunk)
         inliers = np.abs(floor.height(soles[contacts])) < settings.floor_outlier_distance
         kept[contacts] = inliers
     return floor, kept
