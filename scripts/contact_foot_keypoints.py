@@ -38,7 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from contact_daz_geometry import SUBJECTS, best_shift, overlap  # noqa: E402
 from measure_mediapipe_noise import pose2sim_cameras, triangulate  # noqa: E402
 
-from physmocap.contacts.dataset import load_clips, mocap_files  # noqa: E402
+from physmocap.contacts.dataset import TEST_SUBJECTS, load_clips, mocap_files  # noqa: E402
 from physmocap.contacts.features import person_size, select_keypoints  # noqa: E402
 from physmocap.contacts.labels import CONTACT_SITE_INDICES, RAISED_HEEL_MAX_HEIGHT, motion_labels  # noqa: E402
 from physmocap.contacts.real_videos import REAL_VIDEOS, cached_detection  # noqa: E402
@@ -79,7 +79,8 @@ def real_standing_foot(views: list[int]) -> tuple[np.ndarray, np.ndarray, dict[i
     """Triangulated (T, 3, 3) left ankle, heel, foot_index of the Pose2Sim views, the standing frames (T,) bool,
     every view's observations and the cameras."""
     videos = {video.name: video for video in REAL_VIDEOS}
-    observations = {k: cached_detection(videos[f"pose2sim_cam0{k}"], SHARED / "videos", DETECTIONS) for k in range(1, 5)}
+    observations = {k: cached_detection(videos[f"pose2sim_cam0{k}"], SHARED / "videos", DETECTIONS)
+                    for k in range(1, 5)}
     cameras = pose2sim_cameras()
     projections = [cameras[k - 1][0] @ np.hstack([cameras[k - 1][1], cameras[k - 1][2][:, None]]) for k in views]
     pixels = np.stack([observations[k].keypoints_2d[..., :2] for k in views])
@@ -171,7 +172,7 @@ def main() -> None:
     print("\nRaised heels per training folder (subjects 1, 2, 5, 7 and every other non-test subject): share of "
           "foot-frames with the toe in contact and the heel lifted below RAISED_HEEL_MAX_HEIGHT, and their median "
           "heel height above the toe site")
-    files = [f for f in mocap_files(SHARED / "mocap") if cmu_subject(f) not in ("6", "9", "94", "131")]
+    files = [f for f in mocap_files(SHARED / "mocap") if cmu_subject(f) not in TEST_SUBJECTS]
     for folder in sorted({f.parent.name for f in files}):
         shares, rises, frames = [], [], 0
         for clip in load_clips([f for f in files if f.parent.name == folder]):

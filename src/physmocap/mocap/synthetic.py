@@ -97,7 +97,8 @@ def mediapipe_foot_keypoints(ankle: np.ndarray, heel: np.ndarray, toe: np.ndarra
     up = ankle - heel
     normal = unit_vectors(up - np.sum(up * sole, axis=-1, keepdims=True) * sole)
     heel_keypoint = ankle - length * (MEDIAPIPE_HEEL_BEHIND_ANKLE * sole + MEDIAPIPE_HEEL_BELOW_ANKLE * normal)
-    toe_keypoint = ankle + length * (MEDIAPIPE_FOOT_INDEX_AHEAD_OF_ANKLE * sole - MEDIAPIPE_FOOT_INDEX_BELOW_ANKLE * normal)
+    toe_keypoint = ankle + length * (MEDIAPIPE_FOOT_INDEX_AHEAD_OF_ANKLE * sole
+                                     - MEDIAPIPE_FOOT_INDEX_BELOW_ANKLE * normal)
     return heel_keypoint, toe_keypoint
 
 
