@@ -2,7 +2,8 @@
 subjects and on the hand-labelled real frames, plus inference time. Writes benchmarks/results/contacts.md (and
 contacts.json).
 
-    .venv/bin/python benchmarks/bench_contacts.py [--weights DIR]
+    .venv/bin/python benchmarks/bench_contacts.py [--weights DIR] [--foot-keypoints sole|mediapipe]
+        [--results-name contacts]
 
 - Held-out synthetic: the CMU subjects of `dataset.TEST_SUBJECTS` (never trained on), 4 sequences per clip made
   with seed 1 (the settings of training: random cameras, 12-60 fps, mirroring, proportions, measured noise).
@@ -42,6 +43,7 @@ from physmocap.contacts.baselines import HeuristicSettings, always_contact, velo
 from physmocap.contacts.dataset import (
     TEST_SUBJECTS,
     SyntheticSequence,
+    SyntheticSettings,
     held_out_settings,
     load_clips,
     make_sequences,
@@ -51,6 +53,7 @@ from physmocap.contacts.dataset import (
 from physmocap.contacts.labels import CONTACT_SITES
 from physmocap.contacts.predict import MODES, WEIGHTS_DIR, predict_contacts
 from physmocap.contacts.real_videos import REAL_VIDEOS, cached_detection, load_real_labels
+from physmocap.mocap.synthetic import FOOT_KEYPOINTS
 from physmocap.motion import Observations
 
 LABELS = REPO / "benchmarks" / "labels" / "contacts_real.toml"
@@ -232,11 +235,15 @@ def table(title: str, results: dict[str, dict], with_stationary: bool = True) ->
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--weights", type=Path, default=WEIGHTS_DIR)
+    parser.add_argument("--foot-keypoints", choices=FOOT_KEYPOINTS, default=SyntheticSettings().foot_keypoints,
+                        help="heel and foot_index keypoints of the synthetic sequences (SyntheticSettings.foot_keypoints)")
+    parser.add_argument("--results-name", default="contacts",
+                        help="write results/<name>.md and .json (contacts: the shipped weights' scores)")
     args = parser.parse_args()
     started = time.perf_counter()
     load = float(Path("/proc/loadavg").read_text().split()[0]) if Path("/proc/loadavg").exists() else float("nan")
     train_files, test_files = split_by_subject(mocap_files(MOCAP))
-    settings = held_out_settings()
+    settings = held_out_settings(SyntheticSettings(foot_keypoints=args.foot_keypoints))
     tuning = make_sequences(load_clips(train_files), 0, settings, variants=2)
     heuristics = tune_heuristics(tuning)
     test = make_sequences(load_clips(test_files), 1, settings, variants=4)
@@ -259,7 +266,7 @@ def main() -> None:
     frames_synthetic = sum(s.num_frames for s in test)
     lines = [
         "# Foot contacts and stationary flag (issues 3 and 18)", "",
-        f"Command: `.venv/bin/python benchmarks/bench_contacts.py`. Git {git_revision()}; {machine_description()}; "
+        f"Command: `.venv/bin/python benchmarks/bench_contacts.py` (synthetic foot keypoints: {args.foot_keypoints}). Git {git_revision()}; {machine_description()}; "
         f"load average {load:.1f} at the start; {time.perf_counter() - started:.0f} s.", "",
         f"Networks: the shipped weights (`{args.weights.relative_to(REPO) if args.weights.is_relative_to(REPO) else args.weights}`), trained by "
         f"`train_contacts` on CMU subjects {', '.join(training.get('train_subjects', []))} "
@@ -304,8 +311,8 @@ def main() -> None:
     lines += [f"| {mode} | {ms:.3f} |" for mode, ms in timings.items()]
     lines.append("")
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "contacts.md").write_text("\n".join(lines))
-    (RESULTS / "contacts.json").write_text(json.dumps(dict(
+    (RESULTS / f"{args.results_name}.md").write_text("\n".join(lines))
+    (RESULTS / f"{args.results_name}.json").write_text(json.dumps(dict(
         synthetic=synthetic, seen_motions=seen_motions, real=real, real_per_video=per_video, synthetic_error_locations=locations,
         inference_ms_per_frame=timings,
         heuristics=heuristics.__dict__, git=git_revision()), indent=1, default=float))

@@ -35,6 +35,7 @@ from physmocap.contacts.labels import LabelSettings
 from physmocap.contacts.predict import network_probabilities
 from physmocap.contacts.real_videos import REAL_VIDEOS, cached_detection, load_real_labels
 from physmocap.mocap.bvh_reader import cmu_subject
+from physmocap.mocap.synthetic import FOOT_KEYPOINTS
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared" / "data"
@@ -100,10 +101,13 @@ def main() -> None:
     parser.add_argument("--positive-weight", type=float, default=1.0, help="loss weight of the contact class")
     parser.add_argument("--hard-frame-weight", type=float, default=train.TrainSettings().hard_frame_weight,
                         help="sampling weight of raised-heel and skimming frames (TrainSettings.hard_frame_weight)")
+    parser.add_argument("--foot-keypoints", choices=FOOT_KEYPOINTS, default=SyntheticSettings().foot_keypoints,
+                        help="heel and foot_index keypoints of the training and validation sequences "
+                             "(SyntheticSettings.foot_keypoints)")
     args = parser.parse_args()
     started = time.perf_counter()
     torch.set_num_threads(1)
-    synthetic = SyntheticSettings(variants_per_clip=args.variants,
+    synthetic = SyntheticSettings(variants_per_clip=args.variants, foot_keypoints=args.foot_keypoints,
                                   playback_speed_range=tuple(float(v) for v in args.playback.split(",")),
                                   labels=LabelSettings(min_phase_seconds=args.min_phase_seconds,
                                                         contact_max_speed=args.max_speed,

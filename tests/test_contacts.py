@@ -394,6 +394,23 @@ def test_synthetic_sequences_are_deterministic_and_labelled():
         assert not sequence.stationary.any()
 
 
+@needs_shared
+def test_mediapipe_foot_keypoints_change_only_the_heel_and_foot_index_keypoints():
+    from physmocap.contacts.dataset import SyntheticSettings, load_clips, make_sequences
+    from physmocap.landmarks import LANDMARK_INDEX
+
+    clips = load_clips([SHARED_DATA / "mocap" / "cmu_iclone_cc3_retarget" / "007_01.bvh"])
+    sole = make_sequences(clips, 5, SyntheticSettings(variants_per_clip=2))
+    placed = make_sequences(clips, 5, SyntheticSettings(variants_per_clip=2, foot_keypoints="mediapipe"))
+    feet = [LANDMARK_INDEX[f"{side}_{part}"] for side in ("left", "right") for part in ("heel", "foot_index")]
+    others = [k for k in range(sole[0].keypoints_2d.shape[1]) if k not in feet]
+    for a, b in zip(sole, placed, strict=True):
+        # Same camera, rate, body and noise draws, same labels; only the foot keypoints move.
+        np.testing.assert_array_equal(a.keypoints_2d[:, others], b.keypoints_2d[:, others])
+        np.testing.assert_array_equal(a.contacts, b.contacts)
+        assert np.abs(a.keypoints_2d[:, feet, :2] - b.keypoints_2d[:, feet, :2]).max() > 1.0  # pixels
+
+
 @pytest.mark.slow
 @needs_shared
 def test_training_runs_a_few_steps(tmp_path):

@@ -20,6 +20,8 @@ from physmocap.mocap.bvh_reader import (
     standing_height,
 )
 from physmocap.mocap.synthetic import (
+    MEDIAPIPE_FOOT_INDEX_BELOW_ANKLE,
+    MEDIAPIPE_HEEL_BELOW_ANKLE,
     NoiseModel,
     landmarks_from_clip,
     make_observations,
@@ -234,6 +236,33 @@ def test_face_and_hands_are_placed_on_the_right_side(cc3_walk: MocapClip) -> Non
     for side in ("left", "right"):
         reach = np.linalg.norm(landmarks[:, LANDMARK_INDEX[f"{side}_index"]] - cc3_walk.joint(f"{side}_wrist"), axis=1)
         assert np.all((0.05 < reach) & (reach < 0.15))
+
+
+def test_mediapipe_foot_keypoints_sit_where_mediapipe_puts_those_of_a_flat_foot(cc3_walk: MocapClip) -> None:
+    sole = landmarks_from_clip(cc3_walk)
+    placed = landmarks_from_clip(cc3_walk, "mediapipe")
+    feet = [LANDMARK_INDEX[f"{side}_{part}"] for side in ("left", "right") for part in ("heel", "foot_index")]
+    others = np.setdiff1d(np.arange(NUM_LANDMARKS), feet)
+    np.testing.assert_array_equal(placed[:, others], sole[:, others])
+    for site, landmark in (("left_heel", "left_heel"), ("left_toe", "left_foot_index")):
+        np.testing.assert_array_equal(sole[:, LANDMARK_INDEX[landmark]], cc3_walk.joint(site))
+    ankle, heel, toe = (placed[:, LANDMARK_INDEX[f"left_{part}"]] for part in ("ankle", "heel", "foot_index"))
+    sites = cc3_walk.positions[:, [JOINT_INDEX["left_heel"], JOINT_INDEX["left_toe"]]]
+    # A flat foot: heel and toe sites on the floor, level within 3 mm.
+    flat = (np.abs(sites[..., 2]) < 0.02).all(axis=1) & (np.abs(sites[:, 0, 2] - sites[:, 1, 2]) < 0.003)
+    assert flat.sum() >= 10
+    length = np.linalg.norm(sites[flat, 1] - sites[flat, 0], axis=1)
+    # A flat foot's heel keypoint rises about 4 cm above its foot_index, as MediaPipe's does (sole sites: level).
+    rise = heel[flat, 2] - toe[flat, 2]
+    expected = (MEDIAPIPE_FOOT_INDEX_BELOW_ANKLE - MEDIAPIPE_HEEL_BELOW_ANKLE) * length
+    np.testing.assert_allclose(rise, expected, atol=0.01)
+    assert 0.03 < np.median(rise) < 0.06
+    np.testing.assert_allclose(ankle[flat, 2] - heel[flat, 2], MEDIAPIPE_HEEL_BELOW_ANKLE * length, atol=0.01)
+    # Rigid with the foot: heel keypoint to foot_index keypoint keeps its length in every frame.
+    keypoint_length = np.linalg.norm(toe - heel, axis=1)
+    assert np.ptp(keypoint_length) < 1e-6 + 1e-3 * keypoint_length.mean()
+    with pytest.raises(InputError, match="foot_keypoints"):
+        landmarks_from_clip(cc3_walk, "toes")
 
 
 def test_resample_halves_the_frames_at_half_the_rate(raw_walk: MocapClip) -> None:

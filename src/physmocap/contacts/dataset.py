@@ -82,6 +82,10 @@ class SyntheticSettings:
     arm_scale_range: elbows and wrists scaled about the shoulders, uniform.
     portrait_probability: chance of a 1080 x 1920 portrait image instead of 1280 x 720 (phone videos).
     noise: the detector's errors.
+    foot_keypoints: where the heel and foot_index keypoints sit on the foot (`synthetic.FOOT_KEYPOINTS`): "sole",
+        the sole sites the labels use (the shipped weights), or "mediapipe", where MediaPipe puts them on a flat
+        foot, its heel about 4 cm above its foot_index (`synthetic.mediapipe_foot_keypoints`;
+        docs/decisions/contact-training-data.md, "Foot keypoints").
     labels: the automatic label thresholds.
     """
 
@@ -96,6 +100,7 @@ class SyntheticSettings:
     arm_scale_range: tuple[float, float] = (0.9, 1.1)
     portrait_probability: float = 0.3
     noise: NoiseModel = field(default=MEDIAPIPE_NOISE)
+    foot_keypoints: str = "sole"
     labels: LabelSettings = field(default_factory=LabelSettings)
 
 
@@ -230,7 +235,7 @@ def synthesise(clip: MocapClip, variant: int, seed: int,
     contacts, stationary, hard = contacts[source_frames], stationary[source_frames], hard[source_frames]
     image_size = (1080, 1920) if rng.random() < settings.portrait_probability else (1280, 720)
     K, R, t = random_camera(filmed, rng, image_size)
-    observations, _ = make_observations(filmed, K, R, t, rng, settings.noise, image_size)
+    observations, _ = make_observations(filmed, K, R, t, rng, settings.noise, image_size, settings.foot_keypoints)
     keypoints_2d, landmarks_3d = observations.keypoints_2d, observations.landmarks_3d
     if rng.random() < settings.mirror_probability:
         keypoints_2d = mirror_keypoints(keypoints_2d, image_size[0])

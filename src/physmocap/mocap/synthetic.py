@@ -16,6 +16,7 @@ import numpy as np
 from scipy.signal import lfilter
 from scipy.spatial.transform import Rotation, Slerp
 
+from ..body.rotations import unit_vectors
 from ..camera import floor_in_camera
 from ..errors import InputError
 from ..io.atomic import save_npz
@@ -52,6 +53,17 @@ JOINT_LANDMARKS: dict[str, str] = {
     for part, joint in (("shoulder", "shoulder"), ("elbow", "elbow"), ("wrist", "wrist"), ("hip", "hip"),
                         ("knee", "knee"), ("ankle", "ankle"), ("heel", "heel"), ("foot_index", "toe"))
 }
+# MediaPipe's heel and foot_index keypoints of a flat standing foot, relative to its ankle keypoint, in units of the
+# foot's length F (heel -> foot_index, horizontal): triangulated from the Pose2Sim views 2-4 of a man standing on
+# one leg (scripts/contact_foot_keypoints.py; view subsets give heel above foot_index 0.15-0.30 F). MediaPipe's heel
+# sits about 4 cm above its foot_index (pitch 12 degrees); the sole sites, which the labels use, are level.
+MEDIAPIPE_HEEL_BEHIND_ANKLE = 0.271
+MEDIAPIPE_HEEL_BELOW_ANKLE = 0.235
+MEDIAPIPE_FOOT_INDEX_AHEAD_OF_ANKLE = 0.692
+MEDIAPIPE_FOOT_INDEX_BELOW_ANKLE = 0.448
+FOOT_KEYPOINTS = ("sole", "mediapipe")
+"""Where `landmarks_from_clip` puts the heel and foot_index keypoints: on the clip's heel and toe sole sites, or
+where MediaPipe puts them on the same foot (`mediapipe_foot_keypoints`)."""
 FOOT_LANDMARK_PAIRS: tuple[tuple[int, int], ...] = tuple(
     (LANDMARK_INDEX[f"left_{part}"], LANDMARK_INDEX[f"right_{part}"]) for part in ("ankle", "heel", "foot_index")
 )
@@ -71,17 +83,44 @@ def _mirror(offset: tuple[float, float, float]) -> np.ndarray:
     return np.array([offset[0], -offset[1], offset[2]])
 
 
-def landmarks_from_clip(clip: MocapClip) -> np.ndarray:
+def mediapipe_foot_keypoints(ankle: np.ndarray, heel: np.ndarray, toe: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """MediaPipe's heel and foot_index keypoints of a foot, rigid with it: (T, 3) each, metres.
+
+    ankle, heel, toe: (T, 3) the ankle joint and the heel and toe sole sites (`bvh_reader.sole_sites`). With s the
+    unit heel -> toe direction (along the sole), n the unit normal of the sole towards the ankle and F = |toe - heel|,
+    the keypoints are ankle - F (MEDIAPIPE_HEEL_BEHIND_ANKLE s + MEDIAPIPE_HEEL_BELOW_ANKLE n) and
+    ankle + F (MEDIAPIPE_FOOT_INDEX_AHEAD_OF_ANKLE s - MEDIAPIPE_FOOT_INDEX_BELOW_ANKLE n).
+    """
+    along = toe - heel
+    length = np.linalg.norm(along, axis=-1, keepdims=True)
+    sole = along / length
+    up = ankle - heel
+    normal = unit_vectors(up - np.sum(up * sole, axis=-1, keepdims=True) * sole)
+    heel_keypoint = ankle - length * (MEDIAPIPE_HEEL_BEHIND_ANKLE * sole + MEDIAPIPE_HEEL_BELOW_ANKLE * normal)
+    toe_keypoint = ankle + length * (MEDIAPIPE_FOOT_INDEX_AHEAD_OF_ANKLE * sole
+                                     - MEDIAPIPE_FOOT_INDEX_BELOW_ANKLE * normal)
+    return heel_keypoint, toe_keypoint
+
+
+def landmarks_from_clip(clip: MocapClip, foot_keypoints: str = "sole") -> np.ndarray:
     """World positions of the 33 MediaPipe landmarks (LANDMARK_NAMES order): (T, 33, 3) metres.
 
-    Shoulders, elbows, wrists, hips, knees, ankles and heels are the clip's points; foot_index is the toe site.
-    Face points are FACE_OFFSETS in the head frame, hand points HAND_OFFSETS in the hand frames, both scaled by
-    `body_scale(clip)`.
+    Shoulders, elbows, wrists, hips, knees and ankles are the clip's points; heel and foot_index are its heel and
+    toe sites (foot_keypoints "sole") or MediaPipe's places on the same foot ("mediapipe",
+    `mediapipe_foot_keypoints`). Face points are FACE_OFFSETS in the head frame, hand points HAND_OFFSETS in the
+    hand frames, both scaled by `body_scale(clip)`.
     """
+    if foot_keypoints not in FOOT_KEYPOINTS:
+        raise InputError(f"foot_keypoints is {foot_keypoints!r}, expected one of {', '.join(FOOT_KEYPOINTS)}.")
     scale = body_scale(clip)
     landmarks = np.zeros((clip.num_frames, NUM_LANDMARKS, 3))
     for landmark, joint in JOINT_LANDMARKS.items():
         landmarks[:, LANDMARK_INDEX[landmark]] = clip.joint(joint)
+    if foot_keypoints == "mediapipe":
+        for side in ("left", "right"):
+            heel, toe = mediapipe_foot_keypoints(*(clip.joint(f"{side}_{part}") for part in ("ankle", "heel", "toe")))
+            landmarks[:, LANDMARK_INDEX[f"{side}_heel"]] = heel
+            landmarks[:, LANDMARK_INDEX[f"{side}_foot_index"]] = toe
     head = clip.joint("head")
     for name, offset in FACE_OFFSETS.items():
         landmarks[:, LANDMARK_INDEX[name]] = head + scale * clip.head_rotation @ np.asarray(offset)
@@ -252,17 +291,19 @@ def make_observations(
     rng: np.random.Generator,
     noise: NoiseModel = NoiseModel(),
     image_size: tuple[int, int] = (1280, 720),
+    foot_keypoints: str = "sole",
 ) -> tuple[Observations, dict[str, np.ndarray]]:
     """Observations a detector could have made of the clip through camera (K, R, t), and the truth.
 
-    keypoints_2d: projected landmarks with `noise`'s 2D errors; confidence per keypoint.
+    keypoints_2d: projected landmarks (`landmarks_from_clip` with foot_keypoints) with `noise`'s 2D errors;
+        confidence per keypoint.
     landmarks_3d: landmarks minus the hips' midpoint, rotated into camera axes, with the 3D errors.
     Returns the observations (camera_K = K, all frames valid) and a dict of truth arrays: joint_names (20,),
     joints_world (T, 20, 3), landmarks_world (T, 33, 3), camera_K, camera_R, camera_t, fps, image_size,
     floor (4,) (plane in camera coordinates), dropout (T, 33) and foot_swapped (T,) (where the errors were gross).
     """
     num_frames, fps = clip.num_frames, clip.fps
-    landmarks = landmarks_from_clip(clip)
+    landmarks = landmarks_from_clip(clip, foot_keypoints)
     scale = np.ones(NUM_LANDMARKS) if noise.landmark_scale is None else np.asarray(noise.landmark_scale, float)
     if scale.shape != (NUM_LANDMARKS,):
         raise InputError(f"NoiseModel.landmark_scale has {scale.size} values, expected {NUM_LANDMARKS}.")
