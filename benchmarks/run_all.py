@@ -356,7 +356,8 @@ SECTIONS = REPO / "benchmarks" / "sections"
 HAND_SECTIONS = ("contacts_more_data", "physics_footage", "physics", "physics2", "floor_height", "trajopt_long", "trajopt", "capture",
                  "outputs", "memory", "live", "caches", "bad_inputs", "batch", "rayretarget", "retarget", "settings", "lint", "lint2",
                  "house_rerun", "physics3", "retarget3", "trajopt3", "physics4", "retarget4", "trajopt4", "contacts4", "capture12",
-                 "detect2", "overlay2", "trajopt5", "contacts5", "capture13", "synthetic18")
+                 "detect2", "overlay2", "trajopt5", "contacts5", "capture13", "synthetic18",
+                 "physics5", "trajopt6", "refine2", "contacts6")
 
 
 def compose(seconds: dict[str, float]) -> str:
