@@ -849,3 +849,27 @@ def test_ctrl_c_inside_the_solver_stops_the_run_and_caches_nothing(tmp_path):
     assert "interrupted" in text and "Traceback" not in text
     assert not (out / "cache" / "trajopt.npz").exists()  # nothing from the interrupted stage
     assert (out / "cache" / "observations.npz").exists()  # the finished stages stay cached
+
+
+def test_a_window_that_fails_is_solved_again_with_its_start_velocity_free(body, monkeypatch):
+    """A window without a neighbour's state to drop (the clip's first) used to keep the kinematic motion when the
+    input's start velocity could not be met; its first solve now gets half the budget and the retry the rest."""
+    q, in_air = jump(body, frames=40, takeoff=12)
+    contacts = np.repeat(~in_air[:, None], 4, axis=1)
+    s = TrajoptSettings(max_iterations=400)
+    calls = []
+    solve = stage.solve_window
+
+    def first_fails(window, settings, budget=None):
+        calls.append((window.start_velocity, budget))
+        result = solve(window, settings, budget)
+        if len(calls) == 1:
+            result.converged = False
+        return result
+
+    monkeypatch.setattr(stage, "solve_window", first_fails)
+    result = run_trajopt(body, q, FPS, contacts, s)
+    assert len(calls) == 2 and calls[0][1] == s.max_iterations // 2
+    assert calls[0][0] is not None and calls[1][0] is None
+    assert result.converged.all() and result.windows[0].restarted
+    assert sum(st.iterations for st in result.windows[0].stages) <= s.max_iterations

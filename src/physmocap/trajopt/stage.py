@@ -59,7 +59,8 @@ class WindowReport:
     """One window: frames [start, stop] solved, [start, keep) kept; converged; the stage whose solution was kept;
     every IPOPT run; program size; seconds to build and in total; com_departure, feet_departure: mean distance
     (m) of the optimised COM and contact points from the input over the kept frames (nan if not converged);
-    restarted: the window could not continue the previous one's state and was solved from a free start;
+    restarted: the first solve did not converge and the window was solved again: from a free start when it
+    continued a neighbour's state, else with its start velocity free (the input's estimate of it dropped);
     departed: converged, but farther from the input than settings.reject_departure, so not used."""
 
     start: int
@@ -302,8 +303,9 @@ def _measure_departure(report: WindowReport, result, red, n: int, limit: float |
 @dataclass
 class _Task:
     """One window to solve, picklable for a worker process: frames [start, stop] solved, [start, keep) kept;
-    `retry` is solved afresh, with what is left of the budget, when `window` does not converge (None: no second
-    try); the solved state is wanted at `state_times` (s) for the neighbouring windows."""
+    `retry` is solved, with what is left of the budget, when `window` does not converge: afresh when `window`
+    continues a neighbour's state, else without the input's start velocity (None: no second try); the solved
+    state is wanted at `state_times` (s) for the neighbouring windows."""
 
     start: int
     stop: int
@@ -326,12 +328,13 @@ class _Outcome:
 
 def _solve_task(task: _Task, settings: TrajoptSettings) -> _Outcome:
     t0 = time.perf_counter()
-    result = solve_window(task.window, settings)
+    # A window with a second try gets half the budget first: one that needs more has wandered (issue 23).
+    result = solve_window(task.window, settings, settings.max_iterations // 2 if task.retry is not None else None)
     restarted = False
     left = settings.max_iterations - sum(st.iterations for st in result.stages)
     if not result.converged and task.retry is not None and left > 0:
-        # No physical continuation of the neighbours' states: solve this window afresh (its start velocity the
-        # input's) with what is left of its budget, breaking continuity at the junction rather than losing it.
+        # Drop what the first solve could not meet (the neighbours' states, else the input's start velocity), with
+        # what is left of the budget: continuity at the junction broken rather than the window lost.
         retry = solve_window(task.retry, settings, left)
         retry.stages = result.stages + [dataclasses.replace(st, name=f"restart {st.name}") for st in retry.stages]
         result, restarted = retry, True
@@ -390,9 +393,13 @@ def _record(out: TrajoptMotion, task: _Task, outcome: _Outcome, reduced, setting
     """A solved window's report and, if converged and near its input, its kept frames into `out`; warnings for
     what went wrong. Returns whether the window's states may start or end its neighbours."""
     start, stop, keep, result = task.start, task.stop, task.keep, outcome.result
-    if outcome.restarted and result.converged:
+    linked = task.window.start is not None or task.window.end is not None
+    if outcome.restarted and result.converged and linked:
         log.warning("trajopt: frames %d-%d could not continue the neighbouring windows' motion and were solved "
                     "afresh: the motion may jump at frame %d.", start, keep - 1, start)
+    elif outcome.restarted and result.converged:
+        log.info("trajopt: frames %d-%d were solved again with their start velocity free (the input's estimate "
+                 "of it could not be met).", start, keep - 1)
     report = WindowReport(start, stop, keep, result.converged, result.chosen, result.stages, result.variables,
                           result.constraints, result.build_seconds, outcome.seconds, restarted=outcome.restarted)
     out.windows.append(report)
@@ -423,13 +430,13 @@ def _solve_run(out: TrajoptMotion, reduced, flags: np.ndarray, first: int, end: 
     T, times = len(flags), reduced.times
     ranges = [(a + first, b + first, c + first) for a, b, c in window_ranges(end - first, fps, settings)]
 
-    def window(start: int, stop: int, keep: int, begin=None, arrive=None) -> Window:
+    def window(start: int, stop: int, keep: int, begin=None, arrive=None, match_velocity=True) -> Window:
         sl = slice(start, stop + 1)
         red = reduced.frames(sl)
         # The clip's first frame matches the input's velocity, and so does a window starting afresh.
         start_velocity = boundary_velocity(reduced.com[start:end], fps, settings.boundary_frames, end=False)
         return Window(red, [contact_phases(flags[sl, i], red.times) for i in range(4)],
-                      start_velocity=start_velocity,
+                      start_velocity=start_velocity if match_velocity else None,
                       end_velocity=(boundary_velocity(reduced.com[first:end], fps, settings.boundary_frames,
                                                       end=True) if stop == end - 1 else None),
                       start=begin, freeze_after=times[keep] if keep < end else np.inf, end=arrive)
@@ -448,7 +455,7 @@ def _solve_run(out: TrajoptMotion, reduced, flags: np.ndarray, first: int, end: 
         state = None
         for start, stop, keep in ranges:
             task = _Task(start, stop, keep, window(start, stop, keep, begin=state),
-                         retry=window(start, stop, keep) if state is not None else None,
+                         retry=window(start, stop, keep, match_velocity=state is not None),
                          state_times=(times[keep],) if keep < end else ())
             outcome = solver.map([task])[0]
             state = outcome.states[0] if record(task, outcome) and outcome.states else None
@@ -458,7 +465,8 @@ def _solve_run(out: TrajoptMotion, reduced, flags: np.ndarray, first: int, end: 
     even = [k for k in range(len(ranges)) if k % 2 == 0]
     # An even window's states where its odd neighbours begin (its start) and end (its keep), inside the run.
     junctions = {k: [f for f in (ranges[k][0], ranges[k][2]) if first < f < end] for k in even}
-    tasks = {k: _Task(*ranges[k], window(*ranges[k]), retry=None, state_times=tuple(times[f] for f in junctions[k]))
+    tasks = {k: _Task(*ranges[k], window(*ranges[k]), retry=window(*ranges[k], match_velocity=False),
+                      state_times=tuple(times[f] for f in junctions[k]))
              for k in even}
     for k, outcome in zip(even, solver.map(list(tasks.values())), strict=True):
         if record(tasks[k], outcome):
@@ -471,9 +479,9 @@ def _solve_run(out: TrajoptMotion, reduced, flags: np.ndarray, first: int, end: 
         arrive = states.get(k + 1, {}).get(keep)
         if arrive is not None:  # solved to the next window's start, where it must arrive
             stop = keep
-        free = window(*ranges[k])
+        linked = begin is not None or arrive is not None
         tasks[k] = _Task(start, stop, keep, window(start, stop, keep, begin, arrive),
-                         retry=free if begin is not None or arrive is not None else None)
+                         retry=window(*ranges[k], match_velocity=linked))
     for k, outcome in zip(odd, solver.map([tasks[k] for k in odd]), strict=True):
         record(tasks[k], outcome)
         reports[k] = out.windows.pop()
