@@ -299,3 +299,17 @@ def test_trajectory_optimisation_physics(demo_run, tmp_path):
     assert "NOT converged" in failed.stdout and "did not converge" in failed.stdout
     assert_clean_failure(physmocap("capture", "--observations", obs, "-o", tmp_path / "u", "--physics", "trajopt",
                                    "--online"), "trajopt")
+
+
+def test_train_contacts_passes_the_foot_keypoints(tmp_path, monkeypatch):
+    """`--foot-keypoints` reaches the synthetic data's settings; the default is the shipped weights' "sole"."""
+    from physmocap.contacts import train
+
+    seen = []
+    monkeypatch.setattr(train, "train_contacts", lambda data, out, seed, settings: seen.append(settings))
+    (tmp_path / "mocap").mkdir()
+    base = ("train-contacts", "--data", tmp_path, "--out", tmp_path / "w")
+    assert physmocap_in_process(*base).returncode == 0
+    assert physmocap_in_process(*base, "--foot-keypoints", "mediapipe").returncode == 0
+    assert [s.synthetic.foot_keypoints for s in seen] == ["sole", "mediapipe"]
+    assert_clean_failure(physmocap_in_process(*base, "--foot-keypoints", "heel"), "foot-keypoints")

@@ -216,6 +216,10 @@ def _add_train_contacts_command(sub: argparse._SubParsersAction) -> None:
                        help="comma-separated folders of mocap/ to train on; 'shipped': those of the shipped weights "
                             "(CC3 and raw CMU); 'all': every folder, which trains for over an hour and loses on real "
                             "footage (docs/decisions/contact-training-data.md)")
+    train.add_argument("--foot-keypoints", choices=("sole", "mediapipe"), default="sole",
+                       help="where the synthetic heel and foot_index keypoints sit: 'sole', the sole points (the "
+                            "shipped weights); 'mediapipe', where MediaPipe puts them, its heel about 4 cm above its "
+                            "foot_index on a flat foot (benchmarks/sections/contacts6.md)")
 
 
 def _add_retarget_command(sub: argparse._SubParsersAction) -> None:
@@ -650,13 +654,14 @@ def _number(value) -> str:
 def cmd_train_contacts(args) -> int:
     if not (args.data / "mocap").is_dir():
         raise InputError(f"{args.data}: no mocap/ folder of training data here (give --data).")
-    from .contacts.dataset import SHIPPED_FOLDERS
+    from .contacts.dataset import SHIPPED_FOLDERS, SyntheticSettings
     from .contacts.train import ContactTrainingSettings, train_contacts  # torch only once there is data
 
     folders = {"shipped": SHIPPED_FOLDERS, "all": None}.get(args.folders,
                                                              tuple(name for name in args.folders.split(",") if name))
+    synthetic = SyntheticSettings(foot_keypoints=args.foot_keypoints)
     train_contacts(args.data, args.out, seed=args.seed,  # the out folder is checked by writing: data first
-                   settings=ContactTrainingSettings(folders=folders))
+                   settings=ContactTrainingSettings(folders=folders, synthetic=synthetic))
     print(f"weights written to {args.out}")
     return 0
 
