@@ -304,14 +304,14 @@ def _measure_departure(report: WindowReport, result, red, n: int, limit: float |
 class _Task:
     """One window to solve, picklable for a worker process: frames [start, stop] solved, [start, keep) kept;
     `retry` is solved, with what is left of the budget, when `window` does not converge: afresh when `window`
-    continues a neighbour's state, else without the input's start velocity (None: no second try); the solved
-    state is wanted at `state_times` (s) for the neighbouring windows."""
+    continues a neighbour's state, else without the input's start velocity; the solved state is wanted at
+    `state_times` (s) for the neighbouring windows."""
 
     start: int
     stop: int
     keep: int
     window: Window
-    retry: Window | None
+    retry: Window
     state_times: tuple[float, ...] = ()
 
 
@@ -328,11 +328,11 @@ class _Outcome:
 
 def _solve_task(task: _Task, settings: TrajoptSettings) -> _Outcome:
     t0 = time.perf_counter()
-    # A window with a second try gets half the budget first: one that needs more has wandered (issue 23).
-    result = solve_window(task.window, settings, settings.max_iterations // 2 if task.retry is not None else None)
+    # Half the budget first, the retry the rest: a window that needs more has wandered (issue 23).
+    result = solve_window(task.window, settings, settings.max_iterations // 2)
     restarted = False
     left = settings.max_iterations - sum(st.iterations for st in result.stages)
-    if not result.converged and task.retry is not None and left > 0:
+    if not result.converged and left > 0:
         # Drop what the first solve could not meet (the neighbours' states, else the input's start velocity), with
         # what is left of the budget: continuity at the junction broken rather than the window lost.
         retry = solve_window(task.retry, settings, left)
