@@ -39,7 +39,7 @@ from physmocap.trajopt.phases import (
     split_drifting,
     support_held_flights,
 )
-from physmocap.trajopt.problem import ConstraintSet, CostTerm, Program, VariableSet
+from physmocap.trajopt.problem import STALL_ITERATIONS, ConstraintSet, CostTerm, IterationWatch, Program, VariableSet
 from physmocap.trajopt.reduced import boundary_velocity, euler_to_matrix, matrix_to_euler, reduced_motion, world_inertia
 from physmocap.trajopt.splines import Node, Segment, Trajectory, hermite_weights
 from physmocap.trajopt.stage import run_trajopt, window_ranges
@@ -417,6 +417,36 @@ def test_program_derivatives_equal_casadis_whole_program_ones():
     sol = program.solve(np.array([1.0, 1.0, 0.1]))
     assert sol.converged and abs(sol.x[0] * sol.x[1] - 1) < 1e-6
 
+
+
+def test_an_infeasible_program_stops_once_its_violation_stalls():
+    """Two equalities that contradict each other: the violation cannot fall below 1, and the run stops
+    STALL_ITERATIONS after its last halving instead of spending its whole budget."""
+    x = ca.SX.sym("x", 3)
+    v = VariableSet("v", 3, -np.inf * np.ones(3), np.inf * np.ones(3), np.zeros(3), x)
+    contradicting = ConstraintSet("contradicting")
+    contradicting.add(ca.vertcat(x[0] * x[1] - 1, x[0] * x[1] + 1 + x[2] ** 2), [0, 0], [0, 0])
+    program = Program(x, [v], [contradicting], [CostTerm("c", (x[0] - 2) ** 2 + x[1] ** 4)], {"max_iter": 1000})
+    sol = program.solve(np.array([1.0, 1.0, 1.0]))
+    assert sol.status == "Stalled_Constraint_Violation" and not sol.converged
+    assert STALL_ITERATIONS <= sol.iterations < 2 * STALL_ITERATIONS and sol.max_violation > 1
+
+
+def test_the_watch_stops_only_a_violation_that_is_not_feasible_and_not_halving():
+    watch = IterationWatch(1, 1, feasible=1e-4)
+
+    def run(violations, limit=None) -> int:
+        """Iterations until the watch stops a run with these violations (of g <= 0), or 0 if it never does."""
+        watch.start(limit, np.array([-np.inf]), np.array([0.0]))
+        for k, violation in enumerate(violations, 1):
+            if watch.eval([np.zeros(1), 0.0, np.array([violation]), np.zeros(1), np.zeros(1), np.zeros(0)])[0]:
+                return k
+        return 0
+
+    assert run([1e-2] * 500) == STALL_ITERATIONS + 2 and watch.stalled  # counted from the first iterate
+    assert run([1e-2 * 0.4 ** (k // STALL_ITERATIONS) for k in range(1000)]) == 0  # slow, but halving
+    assert run([1e-5] * 500) == 0  # feasible: improving the objective however long it takes
+    assert run([1e-2] * 50, limit=20) == 21 and not watch.stalled  # the iteration limit, not a stall
 
 def test_window_derivatives_from_matrices_equal_casadis_whole_program_ones(body):
     """A window's least-squares costs (from their matrices) and constraint rows written on read symbols (chain
@@ -807,7 +837,7 @@ import sys
 signal.signal(signal.SIGINT, signal.default_int_handler)
 from physmocap.cli import main
 import time
-from physmocap.trajopt.problem import IterationLimit, Program
+from physmocap.trajopt.problem import IterationWatch, Program
 solve = Program.solve
 runs = 0
 def announced(self, *args, **kwargs):
@@ -821,8 +851,8 @@ def iterating(self, arg):  # the second run's Ctrl-C lands while IPOPT iterates:
         print("IPOPT iterates", flush=True)
         time.sleep(2.0)
     return stop(self, arg)
-stop = IterationLimit.eval
-IterationLimit.eval = iterating
+stop = IterationWatch.eval
+IterationWatch.eval = iterating
 sys.exit(main(sys.argv[1:]))
 """
 

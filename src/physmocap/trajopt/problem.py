@@ -178,16 +178,32 @@ def interrupts_noted():
         signal.signal(signal.SIGINT, previous)
 
 
-class IterationLimit(ca.Callback):
-    """IPOPT's iteration callback that stops a run after `limit` iterations: one solver serves runs with
-    different limits (IPOPT's own max_iter is fixed when the solver is built)."""
+# IPOPT's constr_viol_tol unless the options set it: the largest violation an optimum may have.
+IPOPT_CONSTR_VIOL_TOL = 1e-4
+# Iterations without halving the constraint violation after which a run that is not yet feasible is stopped: a
+# converging run on the validation clips went at most 37, a wandering one hundreds
+# (docs/decisions/trajopt-long-clips.md, "A run that stalls stops").
+STALL_ITERATIONS = 100
 
-    def __init__(self, variables: int, constraints: int):
+
+class IterationWatch(ca.Callback):
+    """IPOPT's iteration callback, which stops a run after `limit` iterations (one solver serves runs with
+    different limits; IPOPT's own max_iter is fixed when the solver is built), or once it has stalled: its
+    constraint violation still above `feasible` and not halved in STALL_ITERATIONS iterations."""
+
+    def __init__(self, variables: int, constraints: int, feasible: float):
         ca.Callback.__init__(self)
-        self.variables, self.constraints = variables, constraints
-        self.limit: int | None = None
+        self.variables, self.constraints, self.feasible = variables, constraints, feasible
+        self.g_index = ca.nlpsol_out().index("g")
+        self.start(None, np.zeros(0), np.zeros(0))
+        self.construct("iteration_watch", {})
+
+    def start(self, limit: int | None, lower: np.ndarray, upper: np.ndarray) -> None:
+        """Before a run: its iteration limit and the bounds (rows,) of the constraints it solves."""
+        self.limit, self.lower, self.upper = limit, lower, upper
         self.count = 0
-        self.construct("iteration_limit", {})
+        self.best, self.best_at = np.inf, 0
+        self.stalled = False
 
     def get_n_in(self):
         return ca.nlpsol_n_out()
@@ -213,7 +229,12 @@ class IterationLimit(ca.Callback):
 
     def eval(self, arg):
         self.count += 1  # called once for the starting point too
-        return [int(self.limit is not None and self.count > self.limit)]
+        g = np.asarray(arg[self.g_index]).ravel()
+        violation = max(float(np.max(self.lower - g, initial=0.0)), float(np.max(g - self.upper, initial=0.0)))
+        if violation < 0.5 * self.best:
+            self.best, self.best_at = violation, self.count
+        self.stalled = self.best > self.feasible and self.count - self.best_at > STALL_ITERATIONS
+        return [int(self.stalled or (self.limit is not None and self.count > self.limit))]
 
 
 class Program:
@@ -250,7 +271,7 @@ class Program:
         self.variable_vector = ca.MX.sym("x", int(x.shape[0]))  # what IPOPT's Functions take
         self._objective = self._objective_parts()
         self._parts = {c.name: self._constraint_part(c) for c in constraints}
-        self._solvers: dict[tuple[str, ...], tuple[Any, IterationLimit, np.ndarray]] = {}
+        self._solvers: dict[tuple[str, ...], tuple[Any, IterationWatch, np.ndarray]] = {}
         self._solver(tuple(c.name for c in constraints))
         values = [c.expression(self.variable_vector) if c.squares is not None else self._of_x(c.value)
                   for c in costs]
@@ -338,21 +359,22 @@ class Program:
 
     def _solver(self, active: tuple[str, ...]):
         """IPOPT on the program with only the constraint sets `active` (built once per such set), its iteration
-        limit and the rows of g it holds."""
+        watch and the rows of g it holds."""
         if active not in self._solvers:
             rows = self._rows(active)
-            limit = IterationLimit(int(self.x.shape[0]), len(rows))
+            watch = IterationWatch(int(self.x.shape[0]), len(rows),
+                                   self.ipopt_options.get("constr_viol_tol", IPOPT_CONSTR_VIOL_TOL))
             derivatives = self._derivatives(active)
             g, f = derivatives.pop("g"), derivatives.pop("f")
             # No 'nlp_grad' (the Lagrangian's gradient, by differentiating the whole program, for multipliers
             # that are never read): the larger part of nlpsol's build.
             options: dict[str, Any] = {"ipopt": dict(self.ipopt_options), "print_time": False,
-                                       "error_on_fail": False, "iteration_callback": limit, "no_nlp_grad": True,
+                                       "error_on_fail": False, "iteration_callback": watch, "no_nlp_grad": True,
                                        "calc_lam_p": False, **derivatives}
             options["ipopt"].setdefault("print_level", 0)
             options["ipopt"].setdefault("sb", "yes")
             solver = ca.nlpsol("trajopt", "ipopt", {"x": self.variable_vector, "f": f, "g": g}, options)
-            self._solvers[active] = (solver, limit, rows)
+            self._solvers[active] = (solver, watch, rows)
         return self._solvers[active]
 
     @property
@@ -374,7 +396,8 @@ class Program:
               max_iterations: int | None = None) -> Solution:
         """Solve from x0 (n,), with the variable sets named in `fixed` held at their x0 values and the
         constraint sets named in `relaxed` switched off. lower/upper override the variable bounds;
-        max_iterations stops this run sooner than the solver's own limit (status Maximum_Iterations_Exceeded)."""
+        max_iterations stops this run sooner than the solver's own limit (status Maximum_Iterations_Exceeded); a
+        run whose constraint violation stalls is stopped too (IterationWatch; status Stalled_Constraint_Violation)."""
         lbx, ubx = self.bounds()
         if lower is not None:
             lbx = lower.copy()
@@ -386,10 +409,10 @@ class Program:
             lbx[sl] = ubx[sl] = x0[sl]
         # A switched-off set is left out of the program IPOPT solves (not held with infinite bounds: its rows
         # would still be in every linear system).
-        solver, limit, rows = self._solver(tuple(c.name for c in self.constraints if c.name not in relaxed))
+        solver, watch, rows = self._solver(tuple(c.name for c in self.constraints if c.name not in relaxed))
         lbg, ubg = self.lbg[rows], self.ubg[rows]
         start = time.perf_counter()
-        limit.limit, limit.count = max_iterations, 0
+        watch.start(max_iterations, lbg, ubg)
         with interrupts_noted() as interrupted:
             out = solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
         if interrupted:  # Ctrl-C inside IPOPT: the run stops, this solve's result is not used
@@ -402,8 +425,10 @@ class Program:
         violation = float(violation.max()) if len(violation) else 0.0
         costs = [float(c) for c in self.cost_values.call([x])] if self.costs else []
         status = str(stats.get("return_status", "unknown"))
-        if (max_iterations is not None and status == "User_Requested_Stop"
-                and limit.count > max_iterations):
+        if status == "User_Requested_Stop" and watch.stalled:
+            status = "Stalled_Constraint_Violation"  # stopped by the watch: wandering, not converging
+        elif (max_iterations is not None and status == "User_Requested_Stop"
+                and watch.count > max_iterations):
             status = "Maximum_Iterations_Exceeded"  # stopped by max_iterations, not by the user
         return Solution(x, {v.name: x[self.var_slices[v.name]] for v in self.variables}, float(out["f"]),
                         {c.name: v for c, v in zip(self.costs, costs, strict=True)}, status,
