@@ -479,7 +479,7 @@ def one_window(seconds: float, first: int, last: int) -> dict:
     flags = split_drifting(flags, red.feet[..., :2], s.contact_drift, min_frames)
     part = red.frames(slice(first, last + 1))
     window = Window(part, [contact_phases(flags[first:last + 1, i], part.times) for i in range(4)],
-                    start_velocity=boundary_velocity(red.com[first:], obs.fps, s.boundary_frames, end=False))
+                    start_velocity=boundary_velocity(red.com[first:], obs.fps, s.boundary_seconds, end=False))
     cpu = time.process_time()
     result = solve_window(window, s)
     cpu = time.process_time() - cpu

@@ -374,11 +374,17 @@ def test_center_of_mass_from_points_matches_the_models_own(body):
     assert np.allclose(kin.center_of_mass_from_points(body, pose.points[:, ::-1], shuffled), com)
 
 
-def test_boundary_velocity_is_the_mean_of_the_first_frames():
+def test_boundary_velocity_is_the_mean_over_the_first_sixth_of_a_second_at_any_frame_rate():
     com = np.stack([np.arange(20) * 0.04, np.zeros(20), np.ones(20)], axis=1)
     com[0, 0] += 0.01  # a noisy first frame
-    assert np.allclose(boundary_velocity(com, FPS, 5, end=True), [1.2, 0, 0])
-    assert np.allclose(boundary_velocity(com, FPS, 5, end=False), [(0.2 - 0.01) * FPS / 5, 0, 0])
+    assert np.allclose(boundary_velocity(com, FPS, 5 / FPS, end=True), [1.2, 0, 0])
+    assert np.allclose(boundary_velocity(com, FPS, 5 / FPS, end=False), [(0.2 - 0.01) * FPS / 5, 0, 0])
+    seconds = TrajoptSettings().boundary_seconds
+    for fps in (10.0, 12.0, 24.0, 30.0, 60.0):
+        frames = round(seconds * fps)  # 2, 2, 4, 5, 10
+        mean = (0.04 * frames - 0.01) * fps / frames
+        assert np.allclose(boundary_velocity(com, fps, seconds, end=False), [mean, 0, 0])
+    assert np.allclose(boundary_velocity(com, 2.0, seconds, end=False), [(0.04 - 0.01) * 2.0, 0, 0])  # a frame at least
 
 
 def test_settings_name_the_pieces():
@@ -420,24 +426,26 @@ def test_program_derivatives_equal_casadis_whole_program_ones():
 
 
 def test_an_infeasible_program_stops_once_its_violation_stalls():
-    """Two equalities that contradict each other: the violation cannot fall below 1, and the run stops
-    STALL_ITERATIONS after its last halving instead of spending its whole budget."""
+    """Two equalities that contradict each other: the violation cannot fall below 1, and a watched run stops
+    STALL_ITERATIONS after its last halving instead of spending its whole budget; an unwatched one goes on."""
     x = ca.SX.sym("x", 3)
     v = VariableSet("v", 3, -np.inf * np.ones(3), np.inf * np.ones(3), np.zeros(3), x)
     contradicting = ConstraintSet("contradicting")
     contradicting.add(ca.vertcat(x[0] * x[1] - 1, x[0] * x[1] + 1 + x[2] ** 2), [0, 0], [0, 0])
     program = Program(x, [v], [contradicting], [CostTerm("c", (x[0] - 2) ** 2 + x[1] ** 4)], {"max_iter": 1000})
-    sol = program.solve(np.array([1.0, 1.0, 1.0]))
+    sol = program.solve(np.array([1.0, 1.0, 1.0]), stop_stalled=True)
     assert sol.status == "Stalled_Constraint_Violation" and not sol.converged
     assert STALL_ITERATIONS <= sol.iterations < 2 * STALL_ITERATIONS and sol.max_violation > 1
+    unwatched = program.solve(np.array([1.0, 1.0, 1.0]), max_iterations=2 * STALL_ITERATIONS)
+    assert unwatched.status != "Stalled_Constraint_Violation" and unwatched.iterations > sol.iterations
 
 
 def test_the_watch_stops_only_a_violation_that_is_not_feasible_and_not_halving():
     watch = IterationWatch(1, 1, feasible=1e-4)
 
-    def run(violations, limit=None) -> int:
+    def run(violations, limit=None, stop_stalled=True) -> int:
         """Iterations until the watch stops a run with these violations (of g <= 0), or 0 if it never does."""
-        watch.start(limit, np.array([-np.inf]), np.array([0.0]))
+        watch.start(limit, np.array([-np.inf]), np.array([0.0]), stop_stalled)
         for k, violation in enumerate(violations, 1):
             if watch.eval([np.zeros(1), 0.0, np.array([violation]), np.zeros(1), np.zeros(1), np.zeros(0)])[0]:
                 return k
@@ -447,6 +455,7 @@ def test_the_watch_stops_only_a_violation_that_is_not_feasible_and_not_halving()
     assert run([1e-2 * 0.4 ** (k // STALL_ITERATIONS) for k in range(1000)]) == 0  # slow, but halving
     assert run([1e-5] * 500) == 0  # feasible: improving the objective however long it takes
     assert run([1e-2] * 50, limit=20) == 21 and not watch.stalled  # the iteration limit, not a stall
+    assert run([1e-2] * 500, stop_stalled=False) == 0  # a run not watched for stalls
 
 def test_window_derivatives_from_matrices_equal_casadis_whole_program_ones(body):
     """A window's least-squares costs (from their matrices) and constraint rows written on read symbols (chain
@@ -890,9 +899,9 @@ def test_a_window_that_fails_is_solved_again_with_its_start_velocity_free(body, 
     calls = []
     solve = stage.solve_window
 
-    def first_fails(window, settings, budget=None):
-        calls.append((window.start_velocity, budget))
-        result = solve(window, settings, budget)
+    def first_fails(window, settings, budget=None, stop_stalled=False):
+        calls.append((window.start_velocity, budget, stop_stalled))
+        result = solve(window, settings, budget, stop_stalled)
         if len(calls) == 1:
             result.converged = False
         return result
@@ -901,5 +910,6 @@ def test_a_window_that_fails_is_solved_again_with_its_start_velocity_free(body, 
     result = run_trajopt(body, q, FPS, contacts, s)
     assert len(calls) == 2 and calls[0][1] == s.max_iterations // 2
     assert calls[0][0] is not None and calls[1][0] is None
+    assert calls[0][2] and not calls[1][2]  # a stall stops the first try, never the retry
     assert result.converged.all() and result.windows[0].restarted
     assert sum(st.iterations for st in result.windows[0].stages) <= s.max_iterations

@@ -174,7 +174,7 @@ class TrajoptSettings(Section):
     kinematic_interval: float = setting(0.08, "s", (0.0, 1.0), "between foot- and leg-length constraints")
     floor_interval: float = setting(0.1, "s", (0.0, 1.0), "between above-floor constraints of feet in flight")
     contact_change_reach: float = setting(2.0, "knot intervals", (0.0, 10.0), "COM knots this near a change: only C1")
-    boundary_frames: int = setting(5, "frames", (1, 100), "whose mean COM velocity the first and last must match")
+    boundary_seconds: float = setting(1 / 6, "s", (0.01, 3.0), "COM velocity at the ends: the mean over this (C.2)")
     max_force: float = setting(1000.0, "N", (10.0, 1e5), "f_max: largest normal force of one contact point")
     friction: float = setting(0.5, "", (0.05, 2.0), "mu of the friction pyramid")
     gravity: float = setting(9.81, "m/s^2", (0.0, 30.0), "(paper 9.8)")

@@ -17,7 +17,7 @@ constraint sets
                       I_w from the input's I_b(t);
                       Euler's equation every 0.1 s (the paper), Newton's twice per frame (ours, see settings)
   acceleration_continuity  COM position and orientation C2 at their nodes (ours, see there)
-  velocity_boundaries COM velocity at the clip's first and last frame = mean input velocity of 5 frames
+  velocity_boundaries COM velocity at the clip's first and last frame = mean input velocity of 1/6 s
   foot_length         |heel - toe| = foot length: once per overlap of a heel and a toe contact phase, and at the
                       kinematic samples where either flies (no row nearly repeats another)
   leg_length          |point - hip| <= leg reach, the hip placed from the COM pose with the input's offset
@@ -646,7 +646,7 @@ def acceleration_continuity(problem: WindowProblem) -> ConstraintSet:
 
 
 def velocity_boundaries(problem: WindowProblem) -> ConstraintSet:
-    """COM velocity at the clip's first and last frame equals the input's mean over `boundary_frames` frames."""
+    """COM velocity at the clip's first and last frame equals the input's mean over `boundary_seconds`."""
     w = problem.window
     out = ConstraintSet("velocity_boundaries", linear=True)
     if w.start_velocity is not None and w.start is None:

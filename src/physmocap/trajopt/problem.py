@@ -180,27 +180,28 @@ def interrupts_noted():
 
 # IPOPT's constr_viol_tol unless the options set it: the largest violation an optimum may have.
 IPOPT_CONSTR_VIOL_TOL = 1e-4
-# Iterations without halving the constraint violation after which a run that is not yet feasible is stopped: a
-# converging run on the validation clips went at most 37, a wandering one hundreds
-# (docs/decisions/trajopt-long-clips.md, "A run that stalls stops").
+# Iterations without halving the constraint violation after which a watched run that is not yet feasible is
+# stopped: converging runs on the validation clips went at most 37, a wandering one hundreds
+# (docs/decisions/trajopt-long-clips.md, "A first try that stalls gives way").
 STALL_ITERATIONS = 100
 
 
 class IterationWatch(ca.Callback):
     """IPOPT's iteration callback, which stops a run after `limit` iterations (one solver serves runs with
-    different limits; IPOPT's own max_iter is fixed when the solver is built), or once it has stalled: its
-    constraint violation still above `feasible` and not halved in STALL_ITERATIONS iterations."""
+    different limits; IPOPT's own max_iter is fixed when the solver is built) and, where asked, once it has
+    stalled: its constraint violation still above `feasible` and not halved in STALL_ITERATIONS iterations."""
 
     def __init__(self, variables: int, constraints: int, feasible: float):
         ca.Callback.__init__(self)
         self.variables, self.constraints, self.feasible = variables, constraints, feasible
         self.g_index = ca.nlpsol_out().index("g")
-        self.start(None, np.zeros(0), np.zeros(0))
+        self.start(None, np.zeros(0), np.zeros(0), stop_stalled=False)
         self.construct("iteration_watch", {})
 
-    def start(self, limit: int | None, lower: np.ndarray, upper: np.ndarray) -> None:
-        """Before a run: its iteration limit and the bounds (rows,) of the constraints it solves."""
-        self.limit, self.lower, self.upper = limit, lower, upper
+    def start(self, limit: int | None, lower: np.ndarray, upper: np.ndarray, stop_stalled: bool) -> None:
+        """Before a run: its iteration limit, the bounds (rows,) of the constraints it solves, and whether a
+        stall stops it."""
+        self.limit, self.lower, self.upper, self.stop_stalled = limit, lower, upper, stop_stalled
         self.count = 0
         self.best, self.best_at = np.inf, 0
         self.stalled = False
@@ -233,7 +234,8 @@ class IterationWatch(ca.Callback):
         violation = max(float(np.max(self.lower - g, initial=0.0)), float(np.max(g - self.upper, initial=0.0)))
         if violation < 0.5 * self.best:
             self.best, self.best_at = violation, self.count
-        self.stalled = self.best > self.feasible and self.count - self.best_at > STALL_ITERATIONS
+        self.stalled = (self.stop_stalled and self.best > self.feasible
+                        and self.count - self.best_at > STALL_ITERATIONS)
         return [int(self.stalled or (self.limit is not None and self.count > self.limit))]
 
 
@@ -393,11 +395,12 @@ class Program:
 
     def solve(self, x0: np.ndarray, fixed: tuple[str, ...] = (), relaxed: tuple[str, ...] = (),
               lower: np.ndarray | None = None, upper: np.ndarray | None = None,
-              max_iterations: int | None = None) -> Solution:
+              max_iterations: int | None = None, stop_stalled: bool = False) -> Solution:
         """Solve from x0 (n,), with the variable sets named in `fixed` held at their x0 values and the
         constraint sets named in `relaxed` switched off. lower/upper override the variable bounds;
-        max_iterations stops this run sooner than the solver's own limit (status Maximum_Iterations_Exceeded); a
-        run whose constraint violation stalls is stopped too (IterationWatch; status Stalled_Constraint_Violation)."""
+        max_iterations stops this run sooner than the solver's own limit (status Maximum_Iterations_Exceeded);
+        with stop_stalled, so does a stall of its constraint violation (IterationWatch; status
+        Stalled_Constraint_Violation)."""
         lbx, ubx = self.bounds()
         if lower is not None:
             lbx = lower.copy()
@@ -412,7 +415,7 @@ class Program:
         solver, watch, rows = self._solver(tuple(c.name for c in self.constraints if c.name not in relaxed))
         lbg, ubg = self.lbg[rows], self.ubg[rows]
         start = time.perf_counter()
-        watch.start(max_iterations, lbg, ubg)
+        watch.start(max_iterations, lbg, ubg, stop_stalled)
         with interrupts_noted() as interrupted:
             out = solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
         if interrupted:  # Ctrl-C inside IPOPT: the run stops, this solve's result is not used

@@ -158,9 +158,10 @@ def reduced_motion(body: BodyModel, qpos: np.ndarray, fps: float) -> ReducedMoti
                          foot_lengths(body), leg_reach(body), internal_torque(body, pose, com, inertia_world, fps))
 
 
-def boundary_velocity(com: np.ndarray, fps: float, frames: int, end: bool) -> np.ndarray:
-    """(3,) mean COM velocity over the first (or last) `frames` frames (Rempe C.2), m/s."""
-    n = min(frames, len(com) - 1)
+def boundary_velocity(com: np.ndarray, fps: float, seconds: float, end: bool) -> np.ndarray:
+    """(3,) mean COM velocity (m/s) over the first (or last) `seconds` of com (T, 3), at least one frame interval
+    (Rempe C.2: 5 frames at 30 fps; in seconds, so that a low frame rate does not average over longer)."""
+    n = min(max(1, int(round(seconds * fps))), len(com) - 1)
     if n < 1:
         return np.zeros(3)
     segment = com[-n - 1:] if end else com[:n + 1]

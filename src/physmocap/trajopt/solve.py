@@ -155,8 +155,10 @@ def _schedule_from(window_phases: list[list[Phase]], durations: DurationVariable
     return out
 
 
-def solve_window(window: Window, settings: TrajoptSettings, budget: int | None = None) -> WindowResult:
-    """Stages 1-3 on one window, within `budget` IPOPT iterations in all (None: settings.max_iterations)."""
+def solve_window(window: Window, settings: TrajoptSettings, budget: int | None = None,
+                 stop_stalled: bool = False) -> WindowResult:
+    """Stages 1-3 on one window, within `budget` IPOPT iterations in all (None: settings.max_iterations); with
+    stop_stalled, a stage whose constraint violation stalls stops (problem.IterationWatch)."""
     start = time.perf_counter()
     budget = settings.max_iterations if budget is None else budget
     problem = build_window_problem(window, settings)
@@ -168,10 +170,10 @@ def solve_window(window: Window, settings: TrajoptSettings, budget: int | None =
     stages = []
     # Half the budget at most: a fit cut short starts the dynamics worse (docs/decisions/trajopt-long-clips.md).
     fit = program.solve(program.initial(), fixed=problem.force_set_names, relaxed=fit_relaxed,
-                        max_iterations=max(1, budget // 2))
+                        max_iterations=max(1, budget // 2), stop_stalled=stop_stalled)
     stages.append(_report("fit", fit))
     x0 = _force_guess(problem, program, fit.x)
-    dyn = program.solve(x0, max_iterations=max(1, budget - fit.iterations))
+    dyn = program.solve(x0, max_iterations=max(1, budget - fit.iterations), stop_stalled=stop_stalled)
     stages.append(_report("dynamics", dyn))
     chosen, chosen_problem, x = "dynamics", problem, dyn.x
     phases = window.phases
@@ -183,7 +185,8 @@ def solve_window(window: Window, settings: TrajoptSettings, budget: int | None =
         if durations is not None and durations.set.size:
             dprogram = _program(dproblem, settings)
             build += time.perf_counter() - t
-            dur = dprogram.solve(np.concatenate([dyn.x, durations.set.initial]), max_iterations=left)
+            dur = dprogram.solve(np.concatenate([dyn.x, durations.set.initial]), max_iterations=left,
+                                 stop_stalled=stop_stalled)
             stages.append(_report("durations", dur))
             if dur.converged and dur.objective < dyn.objective:
                 chosen, chosen_problem, x = "durations", dproblem, dur.x

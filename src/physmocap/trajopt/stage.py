@@ -328,8 +328,9 @@ class _Outcome:
 
 def _solve_task(task: _Task, settings: TrajoptSettings) -> _Outcome:
     t0 = time.perf_counter()
-    # Half the budget first, the retry the rest: a window that needs more has wandered (issue 23).
-    result = solve_window(task.window, settings, settings.max_iterations // 2)
+    # Half the budget first, the retry the rest: a window that needs more has wandered (issue 23). A first try
+    # that stalls gives way to the retry early; the retry, the window's last chance, runs to the budget.
+    result = solve_window(task.window, settings, settings.max_iterations // 2, stop_stalled=True)
     restarted = False
     left = settings.max_iterations - sum(st.iterations for st in result.stages)
     if not result.converged and left > 0:
@@ -434,10 +435,10 @@ def _solve_run(out: TrajoptMotion, reduced, flags: np.ndarray, first: int, end: 
         sl = slice(start, stop + 1)
         red = reduced.frames(sl)
         # The clip's first frame matches the input's velocity, and so does a window starting afresh.
-        start_velocity = boundary_velocity(reduced.com[start:end], fps, settings.boundary_frames, end=False)
+        start_velocity = boundary_velocity(reduced.com[start:end], fps, settings.boundary_seconds, end=False)
         return Window(red, [contact_phases(flags[sl, i], red.times) for i in range(4)],
                       start_velocity=start_velocity if match_velocity else None,
-                      end_velocity=(boundary_velocity(reduced.com[first:end], fps, settings.boundary_frames,
+                      end_velocity=(boundary_velocity(reduced.com[first:end], fps, settings.boundary_seconds,
                                                       end=True) if stop == end - 1 else None),
                       start=begin, freeze_after=times[keep] if keep < end else np.inf, end=arrive)
 
