@@ -76,6 +76,9 @@ class FrameOutput:
     # contact on the floor can give (PhysCapTracker.kinematic_misfit): the load hands or a raised floor carry
     unexplained: np.ndarray = field(default_factory=lambda: np.zeros(6))
     diverged: bool = False  # a step's accelerations diverged and the character restarted from the target
+    # ((4, 3) N, (6,)) the contact forces and root residual fitted to the root wrench the frame's motion needed (eq.
+    # 6-7 on the steps' mean M qdd + c, at the last step's contacts), None without contacts: see PhysicsStream
+    motion_forces: tuple[np.ndarray, np.ndarray] | None = None
     unexplained_flag: bool = False  # set by the stage's diagnosis (stage.PhysicsStream)
 
 
@@ -220,9 +223,14 @@ class PhysCapTracker:
         acceleration at the state `_rigid_body_terms` left in the step buffers, pushing only, inside the friction
         pyramid. Returns the forces, whether the QP solved, and where asked (else None) the root wrench (6,) the
         forces leave unexplained (the desired one where no contact is active or the QP failed)."""
+        return self.forces_for_root_wrench(self._mass_root @ qdd_des + self._bias_root, active, unexplained)
+
+    def forces_for_root_wrench(self, target: np.ndarray, active: tuple[bool, ...],
+                               unexplained: bool) -> tuple[np.ndarray, bool, np.ndarray | None]:
+        """Eq. (6-7) for a given root wrench (6,): ground_reaction_forces' fit, at the contact Jacobians in the
+        step buffers, and its returns."""
         index = self._contact_index[active][1]
         forces = np.zeros((4, 3))
-        target = self._mass_root @ qdd_des + self._bias_root
         k = len(index)
         if not k:
             return forces, True, target
@@ -321,7 +329,7 @@ class PhysCapTracker:
               predicted_contacts: np.ndarray) -> FrameOutput:
         """Advance the character by one frame towards the kinematic pose (steps ii-v, n times)."""
         s, n = self.settings, self.substeps
-        forces_sum, residual_sum = np.zeros((4, 3)), np.zeros(6)
+        forces_sum, residual_sum, root_wrench_sum = np.zeros((4, 3)), np.zeros(6), np.zeros(6)
         failures, diverged = 0, False
         records = []
         target = np.empty_like(q_kin)
@@ -374,12 +382,17 @@ class PhysCapTracker:
             mujoco.mj_integratePos(self.model, self.qpos, self.qvel, self.dt)
             forces_sum += forces
             residual_sum += torque[:6]
+            root_wrench_sum += self._mass_root @ qdd + self._bias_root
         self._previous_target[:] = q_kin
         self._previous_target_heights[:] = target_sites[:, 2]
         self._previous_contacts = predicted_contacts.copy()
+        motion_forces = None
+        if any(flags) and not diverged:
+            refit, solved, left = self.forces_for_root_wrench(root_wrench_sum / n, flags, True)
+            motion_forces = (refit, cast(np.ndarray, left)) if solved else None
         unexplained = self.kinematic_misfit(q_kin, qd_kin, qdd_kin)
         return FrameOutput(forces_sum / n, residual_sum / n, self._contact_index[flags][2].copy(), failures, records,
-                           unexplained, diverged)
+                           unexplained, diverged, motion_forces=motion_forces)
 
     def _rigid_body_terms(self, d: mujoco.MjData, collide: bool) -> None:
         """Into d and the step buffers: kinematics, composite inertia, (collisions,) the bias forces
