@@ -166,6 +166,7 @@ class PhysCapTracker:
         self._jacobian_columns = self.contact_jacobian.reshape(12, nv).T  # J^T of all contact points, a view
         self._site_jacobians = [(int(site), self.contact_jacobian[j]) for j, site in enumerate(self.sites)]
         self._weighted_force = np.zeros(nv)  # pose_accelerations' buffer
+        self._external = np.zeros(nv)  # pose_accelerations' J^T lambda; its root rows feed track's motion_forces
         self._mass_root, self._bias_root = self.mass_matrix[:6], self.bias[:6]  # the root's rows, views
         # s: eq. (9)'s times to recover a penetration and to settle a held contact, never shorter than a step
         self._recovery_time = max(self.dt, settings.penetration_recovery)
@@ -255,7 +256,7 @@ class PhysCapTracker:
         Returns qdd, tau and whether the QP solved (else the unconstrained optimum is used)."""
         contacts, index, _ = self._contact_index[active]
         M, qp = self.mass_matrix, self._pose_qp
-        external = self._jacobian_columns @ forces.ravel()
+        external = np.matmul(self._jacobian_columns, forces.ravel(), out=self._external)
         # The objective is 1/2 qdd' H qdd + f' qdd up to a constant and a factor 2: H = I + M W M, built in
         # preallocated buffers (it is rebuilt at every step).
         np.multiply(self._weight_column, M, out=self._weighted_mass)
@@ -329,7 +330,7 @@ class PhysCapTracker:
               predicted_contacts: np.ndarray) -> FrameOutput:
         """Advance the character by one frame towards the kinematic pose (steps ii-v, n times)."""
         s, n = self.settings, self.substeps
-        forces_sum, residual_sum, root_wrench_sum = np.zeros((4, 3)), np.zeros(6), np.zeros(6)
+        forces_sum, residual_sum, root_forces_sum = np.zeros((4, 3)), np.zeros(6), np.zeros(6)
         failures, diverged = 0, False
         records = []
         target = np.empty_like(q_kin)
@@ -382,13 +383,13 @@ class PhysCapTracker:
             mujoco.mj_integratePos(self.model, self.qpos, self.qvel, self.dt)
             forces_sum += forces
             residual_sum += torque[:6]
-            root_wrench_sum += self._mass_root @ qdd + self._bias_root
+            root_forces_sum += self._external[:6]  # with the residual: the root wrench M qdd + c of the step
         self._previous_target[:] = q_kin
         self._previous_target_heights[:] = target_sites[:, 2]
         self._previous_contacts = predicted_contacts.copy()
         motion_forces = None
         if any(flags) and not diverged:
-            refit, solved, left = self.forces_for_root_wrench(root_wrench_sum / n, flags, True)
+            refit, solved, left = self.forces_for_root_wrench((residual_sum + root_forces_sum) / n, flags, True)
             motion_forces = (refit, cast(np.ndarray, left)) if solved else None
         unexplained = self.kinematic_misfit(q_kin, qd_kin, qdd_kin)
         return FrameOutput(forces_sum / n, residual_sum / n, self._contact_index[flags][2].copy(), failures, records,

@@ -195,8 +195,9 @@ class PhysicsStream:
             # admissible one gives it, not root residual (docs/decisions/physics-residual-attribution.md). Flagged
             # frames keep the load the contact model cannot explain on the residual.
             forces, residual = frame.motion_forces
-            sizes = [math.sqrt(part.dot(part)) for part in (forces.sum(axis=0), residual[:3], residual[3:])]
-            if all(math.isfinite(size) and size <= bound for size in sizes):  # else the bounded fit above stays
+            (fx, fy, fz), (rx, ry, rz, tx, ty, tz) = forces.sum(axis=0).tolist(), residual.tolist()
+            squares = (fx * fx + fy * fy + fz * fz, rx * rx + ry * ry + rz * rz, tx * tx + ty * ty + tz * tz)
+            if all(square <= bound * bound for square in squares):  # NaN fails: the bounded fit above stays
                 frame.contact_forces, frame.residual = forces, residual
         self._kinematic_share = min(1.0, self._kinematic_share + self._blend_rate) if flagged else \
             max(0.0, self._kinematic_share - self._blend_rate)
