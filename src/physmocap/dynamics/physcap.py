@@ -165,8 +165,7 @@ class PhysCapTracker:
             self._contact_index[flags] = (indices, np.array(indices, dtype=np.intp), np.array(flags))
         self._jacobian_columns = self.contact_jacobian.reshape(12, nv).T  # J^T of all contact points, a view
         self._site_jacobians = [(int(site), self.contact_jacobian[j]) for j, site in enumerate(self.sites)]
-        self._weighted_force = np.zeros(nv)  # pose_accelerations' buffer
-        self._external = np.zeros(nv)  # pose_accelerations' J^T lambda; its root rows feed track's motion_forces
+        self._weighted_force, self._external = np.zeros(nv), np.zeros(nv)  # pose_accelerations' buffers (J^T lambda)
         self._mass_root, self._bias_root = self.mass_matrix[:6], self.bias[:6]  # the root's rows, views
         # s: eq. (9)'s times to recover a penetration and to settle a held contact, never shorter than a step
         self._recovery_time = max(self.dt, settings.penetration_recovery)
@@ -387,13 +386,19 @@ class PhysCapTracker:
         self._previous_target[:] = q_kin
         self._previous_target_heights[:] = target_sites[:, 2]
         self._previous_contacts = predicted_contacts.copy()
-        motion_forces = None
-        if any(flags) and not diverged:
-            refit, solved, left = self.forces_for_root_wrench((residual_sum + root_forces_sum) / n, flags, True)
-            motion_forces = (refit, cast(np.ndarray, left)) if solved else None
+        motion_forces = None if diverged else self._motion_forces((residual_sum + root_forces_sum) / n, flags)
         unexplained = self.kinematic_misfit(q_kin, qd_kin, qdd_kin)
         return FrameOutput(forces_sum / n, residual_sum / n, self._contact_index[flags][2].copy(), failures, records,
                            unexplained, diverged, motion_forces=motion_forces)
+
+    def _motion_forces(self, root_wrench: np.ndarray,
+                       active: tuple[bool, ...]) -> tuple[np.ndarray, np.ndarray] | None:
+        """FrameOutput.motion_forces: eq. (6-7) fitted to the root wrench (6,) the frame's steps needed, at the active
+        contacts and Jacobians of its last step (still in the step buffers); None without contacts or solution."""
+        if not any(active):
+            return None
+        forces, solved, left = self.forces_for_root_wrench(root_wrench, active, True)
+        return (forces, cast(np.ndarray, left)) if solved else None
 
     def _rigid_body_terms(self, d: mujoco.MjData, collide: bool) -> None:
         """Into d and the step buffers: kinematics, composite inertia, (collisions,) the bias forces
