@@ -257,7 +257,10 @@ def test_contact_released_when_the_kinematic_foot_leaves(body):
     tracker._target_kinematics(away)
     released = tracker._released_contacts(tracker.target_data.site_xpos[tracker.sites])
     tracker._target_kinematics(q)
-    assert all(released) and not any(tracker._released_contacts(tracker.target_data.site_xpos[tracker.sites]))
+    # Back within release_distance while the target still slides (10 cm in a frame): still let go; then, the
+    # target at rest, caught again.
+    assert all(released) and all(tracker._released_contacts(tracker.target_data.site_xpos[tracker.sites]))
+    assert not any(tracker._released_contacts(tracker.target_data.site_xpos[tracker.sites]))
     active = (True, True, True, True)
     for let_go in ([False] * 4, released):
         qdd, _, solved = tracker.pose_accelerations(np.zeros(body.nv), tracker.bias, np.zeros((4, 3)), active,

@@ -152,6 +152,8 @@ class PhysCapTracker:
         self._previous_target = np.zeros(self.model.nq)  # the last frame's target: the steps move from it
         self._previous_target_heights = np.zeros(4)  # m, its contact points' heights
         self._previous_contacts: np.ndarray | None = None  # the last frame's predicted contacts (None after a reset)
+        self._released = [False, False, False, False]  # the last frame's released contacts (_released_contacts)
+        self._previous_target_xy = [[0.0, 0.0]] * 4  # m, the last frame's target contact points along the floor
         self._target_step = np.zeros(nv)
         self._pose_error, self._desired = np.zeros(nv), np.zeros(nv)  # desired_acceleration's buffers
         self._weight_column = self.torque_weights[:, None]
@@ -178,6 +180,8 @@ class PhysCapTracker:
         self._target_kinematics(qpos)
         self._previous_target_heights[:] = self.target_data.site_xpos[self.sites, 2]
         self._previous_contacts = None
+        self._released = [False, False, False, False]
+        self._previous_target_xy = self.target_data.site_xpos[self.sites, :2].tolist()
 
     def _target_kinematics(self, q_kin: np.ndarray) -> None:
         self.target_data.qpos[:] = q_kin
@@ -312,16 +316,24 @@ class PhysCapTracker:
     def _released_contacts(self, target_sites: np.ndarray) -> list[bool]:
         """Flags of the four contact points whose target (target_sites, (4, 3) m) lies more than release_distance
         along the floor from where the character holds them: the kinematic foot has gone (a wrong contact label or
-        the detector swapping the feet), and holding on would drag the whole body after it. Reads the character's
-        contact points from `_step_state`, which must have run at the current state. In Python floats (numpy's
-        cost per call outweighs the arithmetic on four points)."""
+        the detector swapping the feet), and holding on would drag the whole body after it. A released point stays
+        released until its target moves slower than slide_speed: caught again while its target slides on, it was
+        stopped within a step and let go the next frame (docs/decisions/physics-video-jitter.md). Reads the
+        character's contact points from `_step_state`, which must have run at the current state. In Python floats
+        (numpy's cost per call outweighs the arithmetic on four points)."""
         limit = self.settings.release_distance
         if limit is None:
             return [False, False, False, False]
+        slide = self.settings.slide_speed * self.substeps * self.dt  # m per frame interval
         released = []
-        for (aim_x, aim_y, _), (x, y, _) in zip(target_sites.tolist(), self.data.site_xpos[self.sites].tolist(),
-                                                strict=True):
-            released.append(math.sqrt((aim_x - x) * (aim_x - x) + (aim_y - y) * (aim_y - y)) > limit)
+        for j, ((aim_x, aim_y, _), (x, y, _), (last_x, last_y)) in enumerate(zip(
+                target_sites.tolist(), self.data.site_xpos[self.sites].tolist(), self._previous_target_xy,
+                strict=True)):
+            sliding = math.sqrt((aim_x - last_x) * (aim_x - last_x) + (aim_y - last_y) * (aim_y - last_y)) > slide
+            released.append(math.sqrt((aim_x - x) * (aim_x - x) + (aim_y - y) * (aim_y - y)) > limit
+                            or (self._released[j] and sliding))
+        self._released = released
+        self._previous_target_xy = target_sites[:, :2].tolist()
         return released
 
     # ---- one video frame ----------------------------------------------------------------------------------
