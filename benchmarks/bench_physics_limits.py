@@ -185,6 +185,14 @@ def resample_motion(body, qpos: np.ndarray, fps: float, new_fps: float) -> tuple
     return out, lower
 
 
+def explained_jitter(points: np.ndarray, fps: float, explained: np.ndarray) -> float:
+    """m/s^2: mean joint acceleration (central second differences) at the frames that are, with both neighbours,
+    not flagged (bench_physics_videos' feet-only jitter)."""
+    inner = explained[1:-1] & explained[:-2] & explained[2:]
+    second = points[2:] - 2 * points[1:-1] + points[:-2]
+    return float(np.linalg.norm(second[inner], axis=-1).mean() * fps ** 2) if inner.any() else float("nan")
+
+
 def part_framerate(clips, overrides=None) -> dict:
     """The 60 fps offline case's B.4-refined kinematic motion resampled to each rate (the same motion), PhysCap at
     each rate as offline capture runs it (refined_input); joints against the 60 fps run at common times."""
@@ -201,8 +209,11 @@ def part_framerate(clips, overrides=None) -> dict:
                                   refined_input=True)
             points = kin.forward_kinematics(body, physics.qpos).points
             to_input = np.linalg.norm(points - kin.forward_kinematics(body, qpos).points, axis=-1).mean(axis=1)
+            explained = ~physics.unexplained if physics.unexplained is not None else np.ones(len(qpos), bool)
             runs[fps] = dict(times=np.arange(len(qpos)) / fps, physics=physics, points=points,
-                             to_input=to_input[np.arange(len(qpos)) / fps >= 0.5])
+                             to_input=to_input[np.arange(len(qpos)) / fps >= 0.5],
+                             jitter=explained_jitter(points, fps, explained),
+                             input_jitter=explained_jitter(kin.forward_kinematics(body, qpos).points, fps, explained))
         reference = runs[60.0]
         for fps in RATES:
             run, physics = runs[fps], runs[fps]["physics"]
@@ -227,6 +238,7 @@ def part_framerate(clips, overrides=None) -> dict:
                              root_relative_vs_60_p95_mm=1000 * float(np.percentile(relative, 95)),
                              root_horizontal_vs_60_mm=1000 * float(root_horizontal.mean()),
                              physics_vs_own_input_mm=1000 * float(run["to_input"].mean()),
+                             jitter=run["jitter"], input_jitter=run["input_jitter"],
                              common_times=len(index), ms_per_frame=1000 * physics.seconds / len(physics.qpos)))
             print("framerate", rows[-1], flush=True)
     return dict(rows=rows)
@@ -621,8 +633,8 @@ def markdown(out: dict) -> str:
         lines += ["**Same motion at 10, 24, 30, 60 fps** (the 60 fps case's B.4-refined kinematics resampled; "
                   "PhysCap; mean joint distance to the 60 fps run at common times from 0.5 s on)", "",
                   "| clip | fps | finite | largest force BW | flagged % | physics vs 60 fps: mean mm | p95 mm | "
-                  "max mm | root-relative mm (p95) | root horizontal mm | physics vs its own input mm | ms/frame |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "max mm | root-relative mm (p95) | root horizontal mm | physics vs its own input mm | jitter m/s² (input) | ms/frame |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in out["framerate"]["rows"]:
             lines.append(f"| {r['clip']} | {r['fps']:g} | {r['finite']} | {r['largest_force_bw']:.2f} | "
                          f"{r['flagged_percent']:.1f} | {r['physics_vs_60_mm']:.1f} | "
@@ -630,7 +642,8 @@ def markdown(out: dict) -> str:
                          f"{r.get('root_relative_vs_60_mm', np.nan):.1f} "
                          f"({r.get('root_relative_vs_60_p95_mm', np.nan):.1f}) | "
                          f"{r.get('root_horizontal_vs_60_mm', np.nan):.1f} | "
-                         f"{r.get('physics_vs_own_input_mm', np.nan):.1f} | {r['ms_per_frame']:.2f} |")
+                         f"{r.get('physics_vs_own_input_mm', np.nan):.1f} | {r.get('jitter', np.nan):.2f} "
+                         f"({r.get('input_jitter', np.nan):.2f}) | {r['ms_per_frame']:.2f} |")
         lines.append("")
     if "diagnosis" in out:
         rows = out["diagnosis"]["rows"]

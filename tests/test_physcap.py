@@ -100,8 +100,9 @@ def test_standing_still_is_carried_by_the_feet(body):
 
 def test_a_target_sunk_into_the_floor_is_lifted_and_carried_by_the_feet(body):
     # The kinematic fit stands 3 cm too low: its soles lie under the floor, where the character cannot follow.
-    # Lifted out of the floor, the weight rests on the feet; without the lift, the root PD pulls the body the floor
-    # holds up towards free fall, and the residual carries the weight the forces then lack.
+    # Lifted out of the floor, the weight rests on the feet; without the lift, the floor holds up the body its root
+    # PD pulls down: the character stands 3 cm above its target, its weight still on the feet (the forces are
+    # those its motion needed, not those the PD asked for).
     q = standing(body, 60)
     q[:, 2] -= 0.03
     contacts, stationary = np.ones((60, 4), bool), np.zeros(60, bool)
@@ -111,9 +112,12 @@ def test_a_target_sunk_into_the_floor_is_lifted_and_carried_by_the_feet(body):
     settled = slice(30, None)
     assert np.all(np.abs(lifted.grf[settled, :, 2].sum(axis=1) - weight) < 0.05 * weight)
     assert np.abs(lifted.residual[settled, 2]).max() < 0.02 * weight
-    assert np.abs(sunk.residual[settled, 2]).mean() > 0.2 * weight
-    soles = kin.forward_kinematics(body, lifted.qpos[settled]).points[:, body.point_index(CONTACT_POINTS)]
-    assert np.abs(soles[..., 2]).max() < 2e-3
+    assert np.all(np.abs(sunk.grf[settled, :, 2].sum(axis=1) - weight) < 0.05 * weight)
+    assert np.abs(sunk.residual[settled, 2]).max() < 0.02 * weight
+    assert np.all(sunk.qpos[settled, 2] - q[settled, 2] > 0.025)
+    for motion in (lifted, sunk):
+        soles = kin.forward_kinematics(body, motion.qpos[settled]).points[:, body.point_index(CONTACT_POINTS)]
+        assert np.abs(soles[..., 2]).max() < 2e-3
 
 
 def test_a_flat_foot_fitted_tilted_is_turned_flat_before_the_lift(body):
@@ -253,7 +257,10 @@ def test_contact_released_when_the_kinematic_foot_leaves(body):
     tracker._target_kinematics(away)
     released = tracker._released_contacts(tracker.target_data.site_xpos[tracker.sites])
     tracker._target_kinematics(q)
-    assert all(released) and not any(tracker._released_contacts(tracker.target_data.site_xpos[tracker.sites]))
+    # Back within release_distance while the target still slides (10 cm in a frame): still let go; then, the
+    # target at rest, caught again.
+    assert all(released) and all(tracker._released_contacts(tracker.target_data.site_xpos[tracker.sites]))
+    assert not any(tracker._released_contacts(tracker.target_data.site_xpos[tracker.sites]))
     active = (True, True, True, True)
     for let_go in ([False] * 4, released):
         qdd, _, solved = tracker.pose_accelerations(np.zeros(body.nv), tracker.bias, np.zeros((4, 3)), active,

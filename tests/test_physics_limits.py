@@ -9,7 +9,7 @@ from physmocap.body.model import CONTACT_POINTS, build_body_model, template_leng
 from physmocap.body.rotations import quat_exp, quat_multiply
 from physmocap.config import PhysicsSettings
 from physmocap.dynamics.physcap import integration_steps, stability_limit
-from physmocap.dynamics.stage import run_physcap
+from physmocap.dynamics.stage import PhysicsStream, run_physcap
 
 G = 9.81
 
@@ -210,15 +210,18 @@ def test_the_result_file_carries_the_unexplained_frames(body, tmp_path):
 
 def test_refined_kinematics_are_tracked_without_lifting_their_targets(body):
     # B.4 placed the feet: a fit 3 cm under the floor is lifted out of it, refined kinematics are not (the floor
-    # holds the character up and the residual shows the conflict instead).
+    # holds the character up, 3 cm above the target its PD tracks, on the feet).
     q = standing(body, 40)
     q[:, 2] -= 0.03
-    contacts, stationary = np.ones((40, 4), bool), np.zeros(40, bool)
-    lifted = run_physcap(body, q, 30.0, contacts, stationary, PhysicsSettings())
-    refined = run_physcap(body, q, 30.0, contacts, stationary, PhysicsSettings(), refined_input=True)
     weight = body.mass * G
-    assert np.abs(lifted.residual[20:, 2]).max() < 0.02 * weight
-    assert np.abs(refined.residual[20:, 2]).mean() > 0.2 * weight
+    for refined_input, lift in ((False, 0.03), (True, 0.0)):
+        stream = PhysicsStream(body, PhysicsSettings(), 30.0, refined_input=refined_input)
+        for pose in q:
+            _, frame, _ = stream.push(pose, np.ones(4, bool), False)
+        tracked_target = stream.tracker._previous_target  # the pose the PD tracked in the last frame
+        assert abs(tracked_target[2] - q[-1, 2] - lift) < 0.003
+        assert abs(frame.contact_forces[:, 2].sum() - weight) < 0.05 * weight
+        assert abs(frame.residual[2]) < 0.02 * weight
 
 
 def standing(body, frames):

@@ -76,6 +76,9 @@ class FrameOutput:
     # contact on the floor can give (PhysCapTracker.kinematic_misfit): the load hands or a raised floor carry
     unexplained: np.ndarray = field(default_factory=lambda: np.zeros(6))
     diverged: bool = False  # a step's accelerations diverged and the character restarted from the target
+    # ((4, 3) N, (6,)) the contact forces and root residual fitted to the root wrench the frame's motion needed (eq.
+    # 6-7 on the steps' mean M qdd + c, at the last step's contacts), None without contacts: see PhysicsStream
+    motion_forces: tuple[np.ndarray, np.ndarray] | None = None
     unexplained_flag: bool = False  # set by the stage's diagnosis (stage.PhysicsStream)
 
 
@@ -149,6 +152,8 @@ class PhysCapTracker:
         self._previous_target = np.zeros(self.model.nq)  # the last frame's target: the steps move from it
         self._previous_target_heights = np.zeros(4)  # m, its contact points' heights
         self._previous_contacts: np.ndarray | None = None  # the last frame's predicted contacts (None after a reset)
+        self._released = [False, False, False, False]  # the last frame's released contacts (_released_contacts)
+        self._previous_target_xy = [[0.0, 0.0]] * 4  # m, the last frame's target contact points along the floor
         self._target_step = np.zeros(nv)
         self._pose_error, self._desired = np.zeros(nv), np.zeros(nv)  # desired_acceleration's buffers
         self._weight_column = self.torque_weights[:, None]
@@ -162,7 +167,7 @@ class PhysCapTracker:
             self._contact_index[flags] = (indices, np.array(indices, dtype=np.intp), np.array(flags))
         self._jacobian_columns = self.contact_jacobian.reshape(12, nv).T  # J^T of all contact points, a view
         self._site_jacobians = [(int(site), self.contact_jacobian[j]) for j, site in enumerate(self.sites)]
-        self._weighted_force = np.zeros(nv)  # pose_accelerations' buffer
+        self._weighted_force, self._external = np.zeros(nv), np.zeros(nv)  # pose_accelerations' buffers (J^T lambda)
         self._mass_root, self._bias_root = self.mass_matrix[:6], self.bias[:6]  # the root's rows, views
         # s: eq. (9)'s times to recover a penetration and to settle a held contact, never shorter than a step
         self._recovery_time = max(self.dt, settings.penetration_recovery)
@@ -175,6 +180,8 @@ class PhysCapTracker:
         self._target_kinematics(qpos)
         self._previous_target_heights[:] = self.target_data.site_xpos[self.sites, 2]
         self._previous_contacts = None
+        self._released = [False, False, False, False]
+        self._previous_target_xy = self.target_data.site_xpos[self.sites, :2].tolist()
 
     def _target_kinematics(self, q_kin: np.ndarray) -> None:
         self.target_data.qpos[:] = q_kin
@@ -220,9 +227,14 @@ class PhysCapTracker:
         acceleration at the state `_rigid_body_terms` left in the step buffers, pushing only, inside the friction
         pyramid. Returns the forces, whether the QP solved, and where asked (else None) the root wrench (6,) the
         forces leave unexplained (the desired one where no contact is active or the QP failed)."""
+        return self.forces_for_root_wrench(self._mass_root @ qdd_des + self._bias_root, active, unexplained)
+
+    def forces_for_root_wrench(self, target: np.ndarray, active: tuple[bool, ...],
+                               unexplained: bool) -> tuple[np.ndarray, bool, np.ndarray | None]:
+        """Eq. (6-7) for a given root wrench (6,): ground_reaction_forces' fit, at the contact Jacobians in the
+        step buffers, and its returns."""
         index = self._contact_index[active][1]
         forces = np.zeros((4, 3))
-        target = self._mass_root @ qdd_des + self._bias_root
         k = len(index)
         if not k:
             return forces, True, target
@@ -247,7 +259,7 @@ class PhysCapTracker:
         Returns qdd, tau and whether the QP solved (else the unconstrained optimum is used)."""
         contacts, index, _ = self._contact_index[active]
         M, qp = self.mass_matrix, self._pose_qp
-        external = self._jacobian_columns @ forces.ravel()
+        external = np.matmul(self._jacobian_columns, forces.ravel(), out=self._external)
         # The objective is 1/2 qdd' H qdd + f' qdd up to a constant and a factor 2: H = I + M W M, built in
         # preallocated buffers (it is rebuilt at every step).
         np.multiply(self._weight_column, M, out=self._weighted_mass)
@@ -304,16 +316,24 @@ class PhysCapTracker:
     def _released_contacts(self, target_sites: np.ndarray) -> list[bool]:
         """Flags of the four contact points whose target (target_sites, (4, 3) m) lies more than release_distance
         along the floor from where the character holds them: the kinematic foot has gone (a wrong contact label or
-        the detector swapping the feet), and holding on would drag the whole body after it. Reads the character's
-        contact points from `_step_state`, which must have run at the current state. In Python floats (numpy's
-        cost per call outweighs the arithmetic on four points)."""
+        the detector swapping the feet), and holding on would drag the whole body after it. A released point stays
+        released until its target moves slower than slide_speed: caught again while its target slides on, it was
+        stopped within a step and let go the next frame (docs/decisions/physics-video-jitter.md). Reads the
+        character's contact points from `_step_state`, which must have run at the current state. In Python floats
+        (numpy's cost per call outweighs the arithmetic on four points)."""
         limit = self.settings.release_distance
         if limit is None:
             return [False, False, False, False]
+        slide = self.settings.slide_speed * self.substeps * self.dt  # m per frame interval
         released = []
-        for (aim_x, aim_y, _), (x, y, _) in zip(target_sites.tolist(), self.data.site_xpos[self.sites].tolist(),
-                                                strict=True):
-            released.append(math.sqrt((aim_x - x) * (aim_x - x) + (aim_y - y) * (aim_y - y)) > limit)
+        for j, ((aim_x, aim_y, _), (x, y, _), (last_x, last_y)) in enumerate(zip(
+                target_sites.tolist(), self.data.site_xpos[self.sites].tolist(), self._previous_target_xy,
+                strict=True)):
+            sliding = math.sqrt((aim_x - last_x) * (aim_x - last_x) + (aim_y - last_y) * (aim_y - last_y)) > slide
+            released.append(math.sqrt((aim_x - x) * (aim_x - x) + (aim_y - y) * (aim_y - y)) > limit
+                            or (self._released[j] and sliding))
+        self._released = released
+        self._previous_target_xy = target_sites[:, :2].tolist()
         return released
 
     # ---- one video frame ----------------------------------------------------------------------------------
@@ -321,7 +341,7 @@ class PhysCapTracker:
               predicted_contacts: np.ndarray) -> FrameOutput:
         """Advance the character by one frame towards the kinematic pose (steps ii-v, n times)."""
         s, n = self.settings, self.substeps
-        forces_sum, residual_sum = np.zeros((4, 3)), np.zeros(6)
+        forces_sum, residual_sum, root_forces_sum = np.zeros((4, 3)), np.zeros(6), np.zeros(6)
         failures, diverged = 0, False
         records = []
         target = np.empty_like(q_kin)
@@ -374,12 +394,23 @@ class PhysCapTracker:
             mujoco.mj_integratePos(self.model, self.qpos, self.qvel, self.dt)
             forces_sum += forces
             residual_sum += torque[:6]
+            root_forces_sum += self._external[:6]  # with the residual: the root wrench M qdd + c of the step
         self._previous_target[:] = q_kin
         self._previous_target_heights[:] = target_sites[:, 2]
         self._previous_contacts = predicted_contacts.copy()
+        motion_forces = None if diverged else self._motion_forces((residual_sum + root_forces_sum) / n, flags)
         unexplained = self.kinematic_misfit(q_kin, qd_kin, qdd_kin)
         return FrameOutput(forces_sum / n, residual_sum / n, self._contact_index[flags][2].copy(), failures, records,
-                           unexplained, diverged)
+                           unexplained, diverged, motion_forces=motion_forces)
+
+    def _motion_forces(self, root_wrench: np.ndarray,
+                       active: tuple[bool, ...]) -> tuple[np.ndarray, np.ndarray] | None:
+        """FrameOutput.motion_forces: eq. (6-7) fitted to the root wrench (6,) the frame's steps needed, at the active
+        contacts and Jacobians of its last step (still in the step buffers); None without contacts or solution."""
+        if not any(active):
+            return None
+        forces, solved, left = self.forces_for_root_wrench(root_wrench, active, True)
+        return (forces, cast(np.ndarray, left)) if solved else None
 
     def _rigid_body_terms(self, d: mujoco.MjData, collide: bool) -> None:
         """Into d and the step buffers: kinematics, composite inertia, (collisions,) the bias forces

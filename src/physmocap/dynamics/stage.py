@@ -189,6 +189,16 @@ class PhysicsStream:
                        and self._unexplained[2] > s.unexplained_force * self._weight)
                    or self._deviation() > s.stray_distance)
         frame.unexplained_flag = flagged
+        if not flagged and frame.motion_forces is not None:
+            # An explained frame reports the forces its motion needed (PhysCapTracker.track): what the contact
+            # constraints did (a floor holding up a body its PD pulls down) is then the floor's force where an
+            # admissible one gives it, not root residual (docs/decisions/physics-residual-attribution.md). Flagged
+            # frames keep the load the contact model cannot explain on the residual.
+            forces, residual = frame.motion_forces
+            (fx, fy, fz), (rx, ry, rz, tx, ty, tz) = forces.sum(axis=0).tolist(), residual.tolist()
+            squares = (fx * fx + fy * fy + fz * fz, rx * rx + ry * ry + rz * rz, tx * tx + ty * ty + tz * tz)
+            if all(square <= bound * bound for square in squares):  # NaN fails: the bounded fit above stays
+                frame.contact_forces, frame.residual = forces, residual
         self._kinematic_share = min(1.0, self._kinematic_share + self._blend_rate) if flagged else \
             max(0.0, self._kinematic_share - self._blend_rate)
         if self._kinematic_share >= 1.0:
