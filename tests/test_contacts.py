@@ -36,6 +36,8 @@ from physmocap.contacts.networks import (
     CentredNetSpec,
     causal_forward,
     centred_forward,
+    ensemble_members,
+    stack_members,
 )
 from physmocap.contacts.predict import load_weights, network_probabilities, predict_contacts
 from physmocap.landmarks import LANDMARK_INDEX, MIRRORED
@@ -244,6 +246,23 @@ def test_numpy_forward_shapes():
     assert centred_forward(centred, centred_inputs).shape == (5, 5, 5)
 
 
+@pytest.mark.parametrize("mode", ["causal", "centred"])
+def test_an_ensemble_predicts_the_mean_of_its_members_probabilities(mode):
+    rng = np.random.default_rng(8)
+    spec = CausalNetSpec(channels=(8, 8, 8)) if mode == "causal" else CentredNetSpec(hidden=(16, 8))
+    members = [random_params(spec, rng) for _ in range(3)]
+    ensemble = stack_members(members)
+    assert all(value.shape[0] == 3 for value in ensemble.values())
+    assert all(np.array_equal(a[key], b[key]) for a, b in zip(ensemble_members(ensemble), members, strict=True)
+               for key in a)
+    assert ensemble_members(members[0]) == [members[0]]
+    keypoints, valid = person_keypoints(20, rng), np.ones(20, bool)
+    alone = [network_probabilities(keypoints, valid, 30.0, m, mode, mirror=False)[0] for m in members]
+    together, _ = network_probabilities(keypoints, valid, 30.0, ensemble, mode, mirror=False)
+    assert np.allclose(together, np.mean(alone, axis=0), atol=1e-6)
+    assert not np.allclose(alone[0], alone[1], atol=1e-3)  # the members differ, so the mean is a real test
+
+
 @pytest.mark.slow
 def test_numpy_inference_matches_torch():
     torch = pytest.importorskip("torch")
@@ -422,7 +441,7 @@ def test_training_runs_a_few_steps(tmp_path):
         synthetic=SyntheticSettings(variants_per_clip=1), optimisation=TrainSettings(max_steps=3, batch_size=64),
         causal=CausalNetSpec(channels=(16, 16, 16)), centred=CentredNetSpec(hidden=(32, 16)), test_variants_per_clip=1)
     metadata = train_contacts(SHARED_DATA, tmp_path, seed=3, settings=settings, max_clips=1, log=lambda _: None)
-    assert metadata["causal"]["steps"] == 3 and set(metadata["test_subjects"]).isdisjoint(metadata["train_subjects"])
+    assert metadata["causal"]["members"][0]["steps"] == 3 and set(metadata["test_subjects"]).isdisjoint(metadata["train_subjects"])
     assert (np.array([5e-324]) * 1.0)[0] != 0  # training flushed subnormal floats only while it ran
     assert len(metadata["data_sha256"]) == 64 and metadata["git_revision"]
     first = {mode: dict(np.load(tmp_path / f"{mode}.npz")) for mode in ("causal", "centred")}

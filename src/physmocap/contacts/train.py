@@ -47,7 +47,7 @@ from .dataset import (
     split_by_subject,
 )
 from .features import REFERENCE_FPS, VALUES_PER_POINT, WindowSpec, inputs_from_windows, select_keypoints
-from .networks import FRAME_CHANNELS, NUM_OUTPUTS, OUTPUT_NAMES, CausalNetSpec, CentredNetSpec
+from .networks import FRAME_CHANNELS, NUM_OUTPUTS, OUTPUT_NAMES, CausalNetSpec, CentredNetSpec, stack_members
 from .predict import MIRROR, MODES, Mode, network_probabilities
 
 METADATA_FILE = "training.json"
@@ -440,20 +440,30 @@ class _TrainingData:
         }
 
 
+MEMBER_SEED_STRIDE = 100  # member m of an ensemble trains with the seeds of member 0 plus 100 m
+
+
 def _train_one(mode: Mode, index: int, data: _TrainingData, seed: int, settings: ContactTrainingSettings,
                out_dir: Path, log: Callable[[str], None]) -> dict[str, object]:
-    """Train the `mode` network (the index-th of MODES), write its weights; its training record."""
-    torch.manual_seed(seed + index)  # the initial weights
-    model, window = ((TorchCausalNet(settings.causal), settings.causal.window) if mode == "causal"
-                     else (TorchCentredNet(settings.centred), settings.centred.window))
+    """Train the `mode` network (the index-th of MODES; every member of its ensemble), write its weights; its
+    training record."""
+    spec = settings.causal if mode == "causal" else settings.centred
     mode_started = time.perf_counter()
-    log(f"training the {mode} network ({sum(p.numel() for p in model.parameters())} parameters)")
-    training = train_network(model, data.table, window, settings.optimisation, seed + 10 * (index + 1), log)
-    params = {key: value.astype(np.float16) for key, value in model.export().items()}
+    members, records = [], []
+    for member in range(spec.members):
+        shift = MEMBER_SEED_STRIDE * member
+        torch.manual_seed(seed + index + shift)  # the initial weights
+        model = TorchCausalNet(settings.causal) if mode == "causal" else TorchCentredNet(settings.centred)
+        log(f"training the {mode} network, member {member + 1} of {spec.members} "
+            f"({sum(p.numel() for p in model.parameters())} parameters)")
+        records.append(train_network(model, data.table, spec.window, settings.optimisation,
+                                     seed + 10 * (index + 1) + shift, log))
+        members.append({key: value.astype(np.float16) for key, value in model.export().items()})
+    params = stack_members(members)
     with atomic_path(out_dir / f"{mode}.npz") as partial, open(partial, "wb") as file:
         np.savez(file, **params)  # uncompressed: the same weights give the same bytes
     params = {key: value.astype(np.float32) for key, value in params.items()}  # as predict_contacts loads them
     held_out = evaluate(params, mode, data.test_sequences) if data.test_sequences else {}
-    record = {**training, "seconds": time.perf_counter() - mode_started, "held_out_synthetic": held_out}
+    record = {"members": records, "seconds": time.perf_counter() - mode_started, "held_out_synthetic": held_out}
     log(f"  {mode}: {record}")
     return record
