@@ -41,7 +41,7 @@ class CausalNetSpec:
     channels: tuple[int, ...] = (128, 128, 128)
     kernel: int = 3
     dropout: float = 0.2
-    members: int = 1
+    members: int = 3
 
     def __post_init__(self) -> None:
         if (self.window.length - 1) != len(self.channels) * (self.kernel - 1):

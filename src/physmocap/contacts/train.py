@@ -35,7 +35,6 @@ from ..errors import InputError
 from ..io.atomic import atomic_path, write_text
 from ..mocap.bvh_reader import MocapClip
 from .dataset import (
-    SHIPPED_FOLDERS,
     TEST_SUBJECTS,
     SyntheticSequence,
     SyntheticSettings,
@@ -90,13 +89,12 @@ class TrainSettings:
 class ContactTrainingSettings:
     """Everything `train_contacts` needs besides the data: synthetic data, networks, optimisation, split.
 
-    folders: the folders under mocap/ whose clips are used (None: every one). The default, the CC3 and raw CMU
-        folders, made the shipped weights: training on every folder (the Daz-skeleton clips added for issue 18)
-        gains on the held-out synthetic subjects but loses on the hand-labelled real frames
-        (docs/decisions/contact-training-data.md).
+    folders: the folders under mocap/ whose clips are used (None: every one, the shipped weights; with
+        MediaPipe's foot keypoints the Daz-skeleton clips added for issue 18 gain on the held-out synthetic
+        subjects and on the hand-labelled real frames, docs/decisions/contact-training-data.md).
     """
 
-    folders: tuple[str, ...] | None = SHIPPED_FOLDERS
+    folders: tuple[str, ...] | None = None
     synthetic: SyntheticSettings = field(default_factory=SyntheticSettings)
     causal: CausalNetSpec = field(default_factory=CausalNetSpec)
     centred: CentredNetSpec = field(default_factory=CentredNetSpec)
