@@ -4,10 +4,10 @@ For each recipe seed S (`--seeds`), trains `--members` causal networks on the sy
 training subjects minus `--val`, every folder, MediaPipe's foot keypoints), member m with initial weights and
 batches of seed S + 100 m (member 0 is `contact_validation.py --seed S --data-seed S`), each also kept as an
 exponential moving average of its weights (`--ema-decay`, batch statistics included). Prints one JSON line per
-seed with the validation scores (mirrored votes) of member 0, of member 0's average, and of the ensembles of the
-first 2, 3, ... members (their probabilities averaged, `networks.ensemble_members`), and writes every member's
-parameters under `--out`. `--real` instead scores those saved parameters on the hand-labelled real frames (a test
-set: look only after choosing on validation). For example
+seed with the validation scores (mirrored votes) of every member alone, of member 0's average, and of the
+ensembles of the first 2, 3, ... members (their probabilities averaged, `networks.ensemble_members`), and writes
+every member's parameters under `--out`. `--load` scores the saved parameters again instead of training; `--real`
+scores them on the hand-labelled real frames (a test set: look only after choosing on validation). For example
 
     nice -n 10 .venv/bin/python scripts/contact_causal_stability.py --seeds 0,1,2 --members 3 --out /tmp/stability
 
@@ -77,6 +77,7 @@ def main() -> None:
     parser.add_argument("--epochs", type=int, default=2)
     parser.add_argument("--ema-decay", type=float, default=0.999, help="weight of the average per step, 0-1")
     parser.add_argument("--out", type=Path, required=True, help="folder of the members' parameters")
+    parser.add_argument("--load", action="store_true", help="score the saved parameters instead of training")
     parser.add_argument("--real", action="store_true", help="score the saved parameters on the real frames")
     args = parser.parse_args()
     started = time.perf_counter()
@@ -91,7 +92,7 @@ def main() -> None:
     spec = train.CausalNetSpec()
     for seed in seeds:
         folder = args.out / f"seed{seed}"
-        if not args.real:
+        if not (args.load or args.real):
             table = train.FrameTable.from_sequences(make_sequences(load_clips(fit_files), seed, synthetic))
             for member in range(args.members):
                 torch.manual_seed(1 + seed + 100 * member)
@@ -101,7 +102,8 @@ def main() -> None:
                 save(folder / f"member{member}.npz", model.model.export())
                 save(folder / f"member{member}_average.npz", model.finish().export())
         members = [load(folder / f"member{m}.npz") for m in range(args.members)]
-        candidates = {"single": members[0], "single_average": load(folder / "member0_average.npz"),
+        candidates = {**{f"member{m}": params for m, params in enumerate(members)},
+                      "member0_average": load(folder / "member0_average.npz"),
                       **{f"ensemble{n}": stack_members(members[:n]) for n in range(2, args.members + 1)}}
         scores = {}
         for name, params in candidates.items():
