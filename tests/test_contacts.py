@@ -445,6 +445,9 @@ def test_training_runs_a_few_steps(tmp_path):
     assert (np.array([5e-324]) * 1.0)[0] != 0  # training flushed subnormal floats only while it ran
     assert len(metadata["data_sha256"]) == 64 and metadata["git_revision"]
     first = {mode: dict(np.load(tmp_path / f"{mode}.npz")) for mode in ("causal", "centred")}
+    members = CausalNetSpec().members  # the causal ensemble's members, stacked on a leading axis
+    assert first["causal"]["fc.bias"].shape == (members, 5) and len(metadata["causal"]["members"]) == members
+    assert first["centred"]["linear0.bias"].ndim == 1  # one centred network
     train_contacts(SHARED_DATA, tmp_path, seed=3, settings=settings, max_clips=1, log=lambda _: None)
     for mode, params in first.items():
         again = load_weights(mode, tmp_path)
