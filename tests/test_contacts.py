@@ -419,7 +419,7 @@ def test_mediapipe_foot_keypoints_change_only_the_heel_and_foot_index_keypoints(
     from physmocap.landmarks import LANDMARK_INDEX
 
     clips = load_clips([SHARED_DATA / "mocap" / "cmu_iclone_cc3_retarget" / "007_01.bvh"])
-    sole = make_sequences(clips, 5, SyntheticSettings(variants_per_clip=2))
+    sole = make_sequences(clips, 5, SyntheticSettings(variants_per_clip=2, foot_keypoints="sole"))
     placed = make_sequences(clips, 5, SyntheticSettings(variants_per_clip=2, foot_keypoints="mediapipe"))
     feet = [LANDMARK_INDEX[f"{side}_{part}"] for side in ("left", "right") for part in ("heel", "foot_index")]
     others = [k for k in range(sole[0].keypoints_2d.shape[1]) if k not in feet]

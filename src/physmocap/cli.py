@@ -201,7 +201,7 @@ def _add_train_contacts_command(sub: argparse._SubParsersAction) -> None:
                            formatter_class=argparse.ArgumentDefaultsHelpFormatter,
                            description="Deterministic training of the causal and centred contact networks on "
                                        "synthetic observations of CMU motion capture (needs torch; the shipped "
-                                       "weights train in under an hour on one core: "
+                                       "weights take about 20 minutes of one core's time: "
                                        "docs/decisions/contact-training-data.md). "
                                        "The same data and seed give the same weights; "
                                        "training.json beside them records the recipe and the held-out scores.")

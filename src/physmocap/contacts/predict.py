@@ -130,8 +130,8 @@ def predict_contacts(
             frame's predictions (the mirrored input's and, centred, the overlapping windows').
     Invalid frames (obs.valid False) get no contact, not stationary and probability 0: the caller flags them.
     Neighbours of invalid frames use the nearest valid frame's keypoints with confidence 0 in their windows.
-    Cost: about 0.05 ms (causal) and 0.07 ms (centred) per frame on one core, mirrored votes included
-        (benchmarks/bench_contacts.py).
+    Cost: about 0.6 ms (causal, an ensemble of three networks) and 0.17 ms (centred) per frame on one core of a
+        busy 2-core machine, mirrored votes included (benchmarks/bench_contacts.py).
     Raises InputError for an unknown mode or missing weights.
     """
     if obs.num_frames == 0:

@@ -361,7 +361,8 @@ def train_contacts(
         2.1 MB; float32 would double that, and changes 0.02-0.04 % of the held-out flags) and training.json (seed,
         settings, split, data sizes, losses, seconds, held-out synthetic scores). Created if missing.
     seed: every random choice (synthetic data, initialisation, batches, noise) follows from it.
-    settings: see ContactTrainingSettings; the defaults made the shipped weights (about 10 minutes on one core).
+    settings: see ContactTrainingSettings; the defaults made the shipped weights (1,207 CPU seconds, 27 minutes on
+        one core of the 2-core machine at load 2.6-4.5, peak 0.9 GB).
     max_clips: use only the first N training and N test clips (sorted by file name), for quick tests.
     modes: the networks to train (default both); each gets the same weights as when both are trained, so the two
         can be trained in separate processes (training.json then holds the given ones).
