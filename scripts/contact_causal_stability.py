@@ -21,16 +21,24 @@ import json
 import time
 from pathlib import Path
 
-import physmocap  # noqa: F401 - single-threaded BLAS
+import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
+
+# isort: split
+
 import numpy as np
 import torch
+from contact_validation import real_accuracy
 from torch import nn
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
-from contact_validation import real_accuracy
 from physmocap.contacts import train
 from physmocap.contacts.dataset import (
-    SyntheticSettings, held_out_settings, load_clips, make_sequences, mocap_files, split_by_subject,
+    SyntheticSettings,
+    held_out_settings,
+    load_clips,
+    make_sequences,
+    mocap_files,
+    split_by_subject,
 )
 from physmocap.contacts.networks import stack_members
 from physmocap.mocap.bvh_reader import cmu_subject

@@ -26,12 +26,20 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
-import physmocap  # noqa: F401 - single-threaded BLAS
+import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
+
+# isort: split
+
 import numpy as np
 
 from physmocap import metrics
 from physmocap.contacts.dataset import (
-    SyntheticSettings, held_out_settings, load_clips, make_sequences, mocap_files, split_by_subject,
+    SyntheticSettings,
+    held_out_settings,
+    load_clips,
+    make_sequences,
+    mocap_files,
+    split_by_subject,
 )
 from physmocap.contacts.labels import CONTACT_SITE_INDICES, LabelSettings, contact_labels, point_speed
 

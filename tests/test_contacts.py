@@ -441,7 +441,8 @@ def test_training_runs_a_few_steps(tmp_path):
         synthetic=SyntheticSettings(variants_per_clip=1), optimisation=TrainSettings(max_steps=3, batch_size=64),
         causal=CausalNetSpec(channels=(16, 16, 16)), centred=CentredNetSpec(hidden=(32, 16)), test_variants_per_clip=1)
     metadata = train_contacts(SHARED_DATA, tmp_path, seed=3, settings=settings, max_clips=1, log=lambda _: None)
-    assert metadata["causal"]["members"][0]["steps"] == 3 and set(metadata["test_subjects"]).isdisjoint(metadata["train_subjects"])
+    assert metadata["causal"]["members"][0]["steps"] == 3
+    assert set(metadata["test_subjects"]).isdisjoint(metadata["train_subjects"])
     assert (np.array([5e-324]) * 1.0)[0] != 0  # training flushed subnormal floats only while it ran
     assert len(metadata["data_sha256"]) == 64 and metadata["git_revision"]
     first = {mode: dict(np.load(tmp_path / f"{mode}.npz")) for mode in ("causal", "centred")}
