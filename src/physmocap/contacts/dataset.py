@@ -58,9 +58,9 @@ class SyntheticSettings:
         0.871, 0.930 and 0.943 (the 4-epoch runs with labels whose short runs were not merged yet;
         scripts/contact_validation.py). The causal network, 2 epochs, shipped labels: 48 against 256 variants
         0.933 / 0.954 with 1 and 7 held out, 0.891 / 0.892 with 2 and 5 (real frames 0.936 / 0.930 and 0.867 /
-        0.895). Those figures are for the four subjects of issue 3; on every folder (ten times the motion) 32
-        variants train the shipped weights in about the time 256 took on those (docs/decisions/
-        contact-training-data.md).
+        0.895). Those figures are for the four subjects of issue 3; the shipped weights train on every folder (ten
+        times the motion) with 32 variants, 955,087 frames against the 1.26 million of 256 variants of those
+        four (docs/decisions/contact-training-data.md).
     fps_range: frames per second, uniform (issue 3: 12-60).
     max_seconds: longer clips are cut to a random segment of this length, s (a static camera must keep the
         whole segment in view; 8 s keeps the person large in the frame).
