@@ -302,7 +302,7 @@ def test_trajectory_optimisation_physics(demo_run, tmp_path):
 
 
 def test_train_contacts_passes_the_foot_keypoints(tmp_path, monkeypatch):
-    """`--foot-keypoints` reaches the synthetic data's settings; the default is the shipped weights' "sole"."""
+    """`--foot-keypoints` reaches the synthetic data's settings; the default is the shipped weights' "mediapipe"."""
     from physmocap.contacts import train
 
     seen = []
@@ -310,6 +310,6 @@ def test_train_contacts_passes_the_foot_keypoints(tmp_path, monkeypatch):
     (tmp_path / "mocap").mkdir()
     base = ("train-contacts", "--data", tmp_path, "--out", tmp_path / "w")
     assert physmocap_in_process(*base).returncode == 0
-    assert physmocap_in_process(*base, "--foot-keypoints", "mediapipe").returncode == 0
-    assert [s.synthetic.foot_keypoints for s in seen] == ["sole", "mediapipe"]
+    assert physmocap_in_process(*base, "--foot-keypoints", "sole").returncode == 0
+    assert [s.synthetic.foot_keypoints for s in seen] == ["mediapipe", "sole"] and seen[0].folders is None
     assert_clean_failure(physmocap_in_process(*base, "--foot-keypoints", "heel"), "foot-keypoints")

@@ -36,6 +36,8 @@ from physmocap.contacts.networks import (
     CentredNetSpec,
     causal_forward,
     centred_forward,
+    ensemble_members,
+    stack_members,
 )
 from physmocap.contacts.predict import load_weights, network_probabilities, predict_contacts
 from physmocap.landmarks import LANDMARK_INDEX, MIRRORED
@@ -244,6 +246,23 @@ def test_numpy_forward_shapes():
     assert centred_forward(centred, centred_inputs).shape == (5, 5, 5)
 
 
+@pytest.mark.parametrize("mode", ["causal", "centred"])
+def test_an_ensemble_predicts_the_mean_of_its_members_probabilities(mode):
+    rng = np.random.default_rng(8)
+    spec = CausalNetSpec(channels=(8, 8, 8)) if mode == "causal" else CentredNetSpec(hidden=(16, 8))
+    members = [random_params(spec, rng) for _ in range(3)]
+    ensemble = stack_members(members)
+    assert all(value.shape[0] == 3 for value in ensemble.values())
+    assert all(np.array_equal(a[key], b[key]) for a, b in zip(ensemble_members(ensemble), members, strict=True)
+               for key in a)
+    assert ensemble_members(members[0]) == [members[0]]
+    keypoints, valid = person_keypoints(20, rng), np.ones(20, bool)
+    alone = [network_probabilities(keypoints, valid, 30.0, m, mode, mirror=False)[0] for m in members]
+    together, _ = network_probabilities(keypoints, valid, 30.0, ensemble, mode, mirror=False)
+    assert np.allclose(together, np.mean(alone, axis=0), atol=1e-6)
+    assert not np.allclose(alone[0], alone[1], atol=1e-3)  # the members differ, so the mean is a real test
+
+
 @pytest.mark.slow
 def test_numpy_inference_matches_torch():
     torch = pytest.importorskip("torch")
@@ -400,7 +419,7 @@ def test_mediapipe_foot_keypoints_change_only_the_heel_and_foot_index_keypoints(
     from physmocap.landmarks import LANDMARK_INDEX
 
     clips = load_clips([SHARED_DATA / "mocap" / "cmu_iclone_cc3_retarget" / "007_01.bvh"])
-    sole = make_sequences(clips, 5, SyntheticSettings(variants_per_clip=2))
+    sole = make_sequences(clips, 5, SyntheticSettings(variants_per_clip=2, foot_keypoints="sole"))
     placed = make_sequences(clips, 5, SyntheticSettings(variants_per_clip=2, foot_keypoints="mediapipe"))
     feet = [LANDMARK_INDEX[f"{side}_{part}"] for side in ("left", "right") for part in ("heel", "foot_index")]
     others = [k for k in range(sole[0].keypoints_2d.shape[1]) if k not in feet]
@@ -422,10 +441,14 @@ def test_training_runs_a_few_steps(tmp_path):
         synthetic=SyntheticSettings(variants_per_clip=1), optimisation=TrainSettings(max_steps=3, batch_size=64),
         causal=CausalNetSpec(channels=(16, 16, 16)), centred=CentredNetSpec(hidden=(32, 16)), test_variants_per_clip=1)
     metadata = train_contacts(SHARED_DATA, tmp_path, seed=3, settings=settings, max_clips=1, log=lambda _: None)
-    assert metadata["causal"]["steps"] == 3 and set(metadata["test_subjects"]).isdisjoint(metadata["train_subjects"])
+    assert metadata["causal"]["members"][0]["steps"] == 3
+    assert set(metadata["test_subjects"]).isdisjoint(metadata["train_subjects"])
     assert (np.array([5e-324]) * 1.0)[0] != 0  # training flushed subnormal floats only while it ran
     assert len(metadata["data_sha256"]) == 64 and metadata["git_revision"]
     first = {mode: dict(np.load(tmp_path / f"{mode}.npz")) for mode in ("causal", "centred")}
+    members = CausalNetSpec().members  # the causal ensemble's members, stacked on a leading axis
+    assert first["causal"]["fc.bias"].shape == (members, 5) and len(metadata["causal"]["members"]) == members
+    assert first["centred"]["linear0.bias"].ndim == 1  # one centred network
     train_contacts(SHARED_DATA, tmp_path, seed=3, settings=settings, max_clips=1, log=lambda _: None)
     for mode, params in first.items():
         again = load_weights(mode, tmp_path)

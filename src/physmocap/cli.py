@@ -201,8 +201,8 @@ def _add_train_contacts_command(sub: argparse._SubParsersAction) -> None:
                            formatter_class=argparse.ArgumentDefaultsHelpFormatter,
                            description="Deterministic training of the causal and centred contact networks on "
                                        "synthetic observations of CMU motion capture (needs torch; the shipped "
-                                       "weights' folders take about 10 minutes on one core, every folder over an "
-                                       "hour: docs/decisions/contact-training-data.md). "
+                                       "weights take about 20 minutes of one core's time: "
+                                       "docs/decisions/contact-training-data.md). "
                                        "The same data and seed give the same weights; "
                                        "training.json beside them records the recipe and the held-out scores.")
     train.add_argument("--data", type=Path, required=True,
@@ -212,14 +212,13 @@ def _add_train_contacts_command(sub: argparse._SubParsersAction) -> None:
                             "them into src/physmocap/data/contacts")
     train.add_argument("--seed", type=int, default=0,
                        help="seed of every random draw (synthetic data, initial weights, batches)")
-    train.add_argument("--folders", default="shipped",
-                       help="comma-separated folders of mocap/ to train on; 'shipped': those of the shipped weights "
-                            "(CC3 and raw CMU); 'all': every folder, which trains for over an hour and loses on real "
-                            "footage (docs/decisions/contact-training-data.md)")
-    train.add_argument("--foot-keypoints", choices=("sole", "mediapipe"), default="sole",
-                       help="where the synthetic heel and foot_index keypoints sit: 'sole', the sole points (the "
-                            "shipped weights); 'mediapipe', where MediaPipe puts them, its heel about 4 cm above its "
-                            "foot_index on a flat foot (benchmarks/sections/contacts6.md)")
+    train.add_argument("--folders", default="all",
+                       help="comma-separated folders of mocap/ to train on; 'all': every folder (the shipped "
+                            "weights); 'issue3': the CC3 and raw CMU folders of the weights before issue 18")
+    train.add_argument("--foot-keypoints", choices=("sole", "mediapipe"), default="mediapipe",
+                       help="where the synthetic heel and foot_index keypoints sit: 'mediapipe', where MediaPipe puts "
+                            "them, its heel about 4 cm above its foot_index on a flat foot (the shipped weights); "
+                            "'sole', the sole points (the weights before issue 18)")
 
 
 def _add_retarget_command(sub: argparse._SubParsersAction) -> None:
@@ -654,10 +653,10 @@ def _number(value) -> str:
 def cmd_train_contacts(args) -> int:
     if not (args.data / "mocap").is_dir():
         raise InputError(f"{args.data}: no mocap/ folder of training data here (give --data).")
-    from .contacts.dataset import SHIPPED_FOLDERS, SyntheticSettings
+    from .contacts.dataset import ISSUE3_FOLDERS, SyntheticSettings
     from .contacts.train import ContactTrainingSettings, train_contacts  # torch only once there is data
 
-    folders = {"shipped": SHIPPED_FOLDERS, "all": None}.get(args.folders,
+    folders = {"issue3": ISSUE3_FOLDERS, "all": None}.get(args.folders,
                                                              tuple(name for name in args.folders.split(",") if name))
     synthetic = SyntheticSettings(foot_keypoints=args.foot_keypoints)
     train_contacts(args.data, args.out, seed=args.seed,  # the out folder is checked by writing: data first

@@ -12,6 +12,8 @@ right heel, right toe contact, stationary (OUTPUT_NAMES).
 Weights are stored as float32 arrays in an .npz file with batch normalisation folded into the preceding layer:
 - causal: "conv{i}.weight" (kernel, in, out), "conv{i}.bias" (out,), "fc.weight" (in, 5), "fc.bias" (5,).
 - centred: "linear{i}.weight" (in, out), "linear{i}.bias" (out,), the last one with 25 outputs (frame-major).
+An ensemble (`members` > 1: networks of different training seeds whose probabilities are averaged) stores every
+array with one more leading axis, one index per member (`stack_members`, `ensemble_members`).
 """
 
 from __future__ import annotations
@@ -32,12 +34,14 @@ FRAME_CHANNELS = NUM_FEATURE_POINTS * VALUES_PER_POINT  # 48 values per frame
 class CausalNetSpec:
     """Causal temporal-convolution network. channels: output channels of each convolution (their number must
     shrink the window to one frame: (length - 1) / (kernel - 1) layers); kernel: frames per convolution;
-    dropout: before the fully connected layer, training only."""
+    dropout: before the fully connected layer, training only; members: networks trained with different seeds
+    whose probabilities are averaged, 1 (one network) to about 5, each costing one more forward pass."""
 
     window: WindowSpec = CAUSAL_WINDOW
     channels: tuple[int, ...] = (128, 128, 128)
     kernel: int = 3
     dropout: float = 0.2
+    members: int = 3
 
     def __post_init__(self) -> None:
         if (self.window.length - 1) != len(self.channels) * (self.kernel - 1):
@@ -50,12 +54,31 @@ class CausalNetSpec:
 @dataclass(frozen=True)
 class CentredNetSpec:
     """Centred MLP (Rempe A.2: hidden sizes 1024, 512, 128, 32; dropout before the 128 layer, 0.1 where Rempe has
-    0.3: better on validation subjects, see contacts/train.py)."""
+    0.3: better on validation subjects, see contacts/train.py). members: as for CausalNetSpec."""
 
     window: WindowSpec = CENTRED_WINDOW
     hidden: tuple[int, ...] = (1024, 512, 128, 32)
     dropout: float = 0.1
     dropout_before_layer: int = 2
+    members: int = 1
+
+
+_ONE_NETWORK_DIMENSIONS = {"conv0.weight": 3, "linear0.weight": 2}  # a single network's first weight
+
+
+def stack_members(members: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """One parameter set holding the networks `members` (same architecture) as an ensemble."""
+    if len(members) == 1:
+        return members[0]
+    return {key: np.stack([member[key] for member in members]) for key in members[0]}
+
+
+def ensemble_members(params: dict[str, np.ndarray]) -> list[dict[str, np.ndarray]]:
+    """The networks of a parameter set: itself when it is one network, else each member of its ensemble."""
+    first = "conv0.weight" if "conv0.weight" in params else "linear0.weight"
+    if params[first].ndim == _ONE_NETWORK_DIMENSIONS[first]:
+        return [params]
+    return [{key: value[index] for key, value in params.items()} for index in range(len(params[first]))]
 
 
 def sigmoid(logits: np.ndarray) -> np.ndarray:
