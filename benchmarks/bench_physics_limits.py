@@ -37,7 +37,8 @@ MediaPipe-like noise, the true intrinsics and height, 8 s at 30 fps, seeds 0 and
 where settings are chosen; --physics tries PhysicsSettings values there (e.g. contact_settle_time=0.1).
 
 Writes benchmarks/results/physics_limits.json and .md. Fits are cached under the system's temporary folder
-(physmocap_bench_physics_limits) so that parts can be rerun alone.
+(physmocap_bench_physics_limits/DIGEST, a digest of the sources and data outside dynamics/) so that parts can be rerun
+alone, and are built again when the fits or contact weights change.
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loa
 
 import argparse
 import dataclasses
+import hashlib
 import json
 import os
 import pickle
@@ -77,7 +79,20 @@ from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
 from physmocap.mocap.synthetic import NoiseModel, make_observations, random_camera, resample  # noqa: E402
 from physmocap.trajopt import run_trajopt  # noqa: E402
 
-CACHE = Path(tempfile.gettempdir()) / "physmocap_bench_physics_limits"
+
+def inputs_fingerprint() -> str:
+    """A digest of what a case's fits and contacts come from: physmocap's sources and data outside dynamics/ (the
+    code under test, which --against may swap). A change there (new contact weights, a new fit) builds cases again."""
+    digest = hashlib.sha256()
+    root = Path(physmocap.__file__).parent
+    for path in sorted(root.rglob("*")):
+        relative = path.relative_to(root)
+        if path.is_file() and "dynamics" not in relative.parts and path.suffix in (".py", ".npz", ".json"):
+            digest.update(str(relative).encode() + path.read_bytes())
+    return digest.hexdigest()[:12]
+
+
+CACHE = Path(tempfile.gettempdir()) / "physmocap_bench_physics_limits" / inputs_fingerprint()
 GRAVITY = 9.81
 BOX = dict(start=3.0, end=5.5, ramp=0.5, height=0.3)  # s, s, s, m
 RATES = (10.0, 24.0, 30.0, 60.0)
