@@ -338,6 +338,13 @@ def detect_video(
     finally:
         frames.close()  # stops the decoding thread where detection stopped early
         follower.close()
+    return _observations(path, info, detections, start_box, seconds)
+
+
+def _observations(path: str | os.PathLike, info, detections: Detections, start_box, seconds: float) -> Observations:
+    """The detections of the video at `path` (its io.video info) as Observations, `seconds` of detection in all;
+    InputError where no frame shows the person (inside start_box if given), a warning where decoding stopped
+    before the frames the file announces."""
     keypoints, world, invalid_reason = detections.arrays()
     if not (invalid_reason == "").any():
         where = "" if start_box is None else f" inside person_box {start_box}"
@@ -348,8 +355,9 @@ def detect_video(
             "detection covers the frames that decoded.",
             path, detections.end, info.frame_count,
         )
-    return Observations(keypoints_2d=keypoints, landmarks_3d=world, fps=info.fps, image_size=image_size,
-                        valid=invalid_reason == "", invalid_reason=invalid_reason, source=str(path),
+    return Observations(keypoints_2d=keypoints, landmarks_3d=world, fps=info.fps,
+                        image_size=(info.width, info.height), valid=invalid_reason == "",
+                        invalid_reason=invalid_reason, source=str(path),
                         seconds_per_frame=seconds / max(detections.end, 1))
 
 

@@ -96,6 +96,13 @@ def tracking_gains(settings: PhysicsSettings, nv: int) -> tuple[np.ndarray, np.n
     return kp, kd
 
 
+def _bounded(qdd: np.ndarray) -> bool:
+    """Every acceleration (nv,) finite and within MAX_ACCELERATION: the step is not diverging."""
+    accelerations = qdd.tolist()  # in floats: numpy's reductions cost more than the comparison
+    return (-MAX_ACCELERATION < min(accelerations) and max(accelerations) < MAX_ACCELERATION
+            and math.isfinite(sum(accelerations)))  # the sum catches NaN, which min and max may skip
+
+
 class PhysCapTracker:
     """The physics-based character tracking a kinematic motion. One per clip (it holds the state q, qdot)."""
 
@@ -120,32 +127,7 @@ class PhysCapTracker:
         # kd times the share of the kinematic velocity in the derivative term (settings.rotation_velocity_share)
         self.kd_target = self.kd.copy()
         self.kd_target[3:] *= settings.rotation_velocity_share
-        self.sites = np.array([self.model.site(n).id for n in CONTACT_POINTS])
-        self._contact_of_geom = [-1] * self.model.ngeom  # geom id -> contact point index, -1 for others
-        for j, name in enumerate(CONTACT_POINTS):
-            geom = self.model.geom(f"{name}_collision").id
-            self._contact_of_geom[geom] = j
-            self.model.geom_margin[geom] = settings.touch_margin
-        self.torque_weights = np.full(nv, settings.torque_weight)
-        self.torque_weights[:6] = settings.residual_weight
-        self.torque_weights[2] = settings.residual_weight_vertical
-        mu = settings.friction / np.sqrt(2.0)
-        # Friction pyramid rows per contact: mu*fz -+ fx >= 0, mu*fz -+ fy >= 0.
-        self.pyramid = np.array([[-1.0, 0.0, mu], [1.0, 0.0, mu], [0.0, -1.0, mu], [0.0, 1.0, mu]])
-        self.mass_matrix = np.zeros((nv, nv))
-        self.bias = np.zeros(nv)
-        self.identity = np.eye(nv)
-        self._weighted_mass = np.zeros((nv, nv))
-        # The pose QP (eq. 10): its H is built in the workspace's own buffer; at most 3 rows per contact point.
-        self._pose_qp = DenseQP(nv, 12)
-        # H = A A^T has rank 6: at a regularisation of 1e-6 daqp called 8% of the demo clip's frames infeasible;
-        # 1e-4 N^-2 costs a bias of 1e-4 of the force. Per number of active contacts k: the regularisation (3k, 3k)
-        # and a workspace holding the pyramid rows (4k, 3k) and their bounds (each row >= 0).
-        self._grf_regularisation = [1e-4 * np.eye(3 * k) for k in range(5)]
-        self._grf_qps = [DenseQP(3 * k, 4 * k) for k in range(5)]
-        for k, qp in enumerate(self._grf_qps):
-            qp.A[:] = np.kron(np.eye(k), self.pyramid)
-            qp.upper[:], qp.lower[:] = INF, 0.0
+        self._prepare_contacts_and_qps(settings, nv)
         self.contact_jacobian = np.zeros((4, 3, nv))
         self.qpos, self.qvel = self.data.qpos, self.data.qvel  # the state, where the step's dynamics read it
         self.target_data = mujoco.MjData(self.model)  # kinematics of the frame's target pose
@@ -172,6 +154,36 @@ class PhysCapTracker:
         # s: eq. (9)'s times to recover a penetration and to settle a held contact, never shorter than a step
         self._recovery_time = max(self.dt, settings.penetration_recovery)
         self._settle_time = max(self.dt, settings.contact_settle_time)
+
+    def _prepare_contacts_and_qps(self, settings: PhysicsSettings, nv: int) -> None:
+        """The contact points' sites and touch margin, and the QPs' weights, friction pyramid and workspaces
+        (the pose QP, eq. 10; the force QPs, eqs. 6-7, one per number of active contacts)."""
+        self.sites = np.array([self.model.site(n).id for n in CONTACT_POINTS])
+        self._contact_of_geom = [-1] * self.model.ngeom  # geom id -> contact point index, -1 for others
+        for j, name in enumerate(CONTACT_POINTS):
+            geom = self.model.geom(f"{name}_collision").id
+            self._contact_of_geom[geom] = j
+            self.model.geom_margin[geom] = settings.touch_margin
+        self.torque_weights = np.full(nv, settings.torque_weight)
+        self.torque_weights[:6] = settings.residual_weight
+        self.torque_weights[2] = settings.residual_weight_vertical
+        mu = settings.friction / np.sqrt(2.0)
+        # Friction pyramid rows per contact: mu*fz -+ fx >= 0, mu*fz -+ fy >= 0.
+        self.pyramid = np.array([[-1.0, 0.0, mu], [1.0, 0.0, mu], [0.0, -1.0, mu], [0.0, 1.0, mu]])
+        self.mass_matrix = np.zeros((nv, nv))
+        self.bias = np.zeros(nv)
+        self.identity = np.eye(nv)
+        self._weighted_mass = np.zeros((nv, nv))
+        # The pose QP (eq. 10): its H is built in the workspace's own buffer; at most 3 rows per contact point.
+        self._pose_qp = DenseQP(nv, 12)
+        # H = A A^T has rank 6: at a regularisation of 1e-6 daqp called 8% of the demo clip's frames infeasible;
+        # 1e-4 N^-2 costs a bias of 1e-4 of the force. Per number of active contacts k: the regularisation (3k, 3k)
+        # and a workspace holding the pyramid rows (4k, 3k) and their bounds (each row >= 0).
+        self._grf_regularisation = [1e-4 * np.eye(3 * k) for k in range(5)]
+        self._grf_qps = [DenseQP(3 * k, 4 * k) for k in range(5)]
+        for k, qp in enumerate(self._grf_qps):
+            qp.A[:] = np.kron(np.eye(k), self.pyramid)
+            qp.upper[:], qp.lower[:] = INF, 0.0
 
     def reset(self, qpos: np.ndarray, qvel: np.ndarray) -> None:
         self.qpos[:] = qpos
@@ -360,8 +372,7 @@ class PhysCapTracker:
         later_contacts = predicted_contacts.tolist()
         previous_heights, height_step = self._previous_target_heights.tolist(), height_step.tolist()
         feedforward, target_damping = self.feedforward * qdd_kin, self.kd_target * qd_kin
-        contact_height, touch = s.contact_height, s.foot_lock != "never"  # foot_lock never: airborne or swimming
-        # motion, where the floor does not push back
+        contact_height, touch = s.contact_height, s.foot_lock != "never"  # never: a floor that does not push back
         flags: tuple[bool, ...] = (False, False, False, False)
         for i in range(n):
             target[:] = self._previous_target
@@ -383,9 +394,7 @@ class PhysCapTracker:
             if self.record:
                 records.append(SubstepRecord(self.qpos.copy(), self.qvel.copy(), qdd, torque, forces,
                                              self._contact_index[flags][2].copy()))
-            accelerations = qdd.tolist()  # in floats: numpy's reductions cost more than the comparison
-            if not (-MAX_ACCELERATION < min(accelerations) and max(accelerations) < MAX_ACCELERATION
-                    and math.isfinite(sum(accelerations))):  # the sum catches NaN, which min and max may skip
+            if not _bounded(qdd):
                 # Diverging (a wildly implausible target): restart from the target at rest, counted as a fallback.
                 failures, diverged = failures + 1, True
                 self.reset(target, np.zeros_like(self.qvel))
@@ -395,13 +404,18 @@ class PhysCapTracker:
             forces_sum += forces
             residual_sum += torque[:6]
             root_forces_sum += self._external[:6]  # with the residual: the root wrench M qdd + c of the step
-        self._previous_target[:] = q_kin
-        self._previous_target_heights[:] = target_sites[:, 2]
-        self._previous_contacts = predicted_contacts.copy()
+        self._remember_frame(q_kin, target_sites, predicted_contacts)
         motion_forces = None if diverged else self._motion_forces((residual_sum + root_forces_sum) / n, flags)
         unexplained = self.kinematic_misfit(q_kin, qd_kin, qdd_kin)
         return FrameOutput(forces_sum / n, residual_sum / n, self._contact_index[flags][2].copy(), failures, records,
                            unexplained, diverged, motion_forces=motion_forces)
+
+    def _remember_frame(self, q_kin: np.ndarray, target_sites: np.ndarray, predicted_contacts: np.ndarray) -> None:
+        """The frame's target pose (nq,), its contact points' heights (from target_sites (4, 3), m) and predicted
+        contacts (4,): where the next frame's steps start."""
+        self._previous_target[:] = q_kin
+        self._previous_target_heights[:] = target_sites[:, 2]
+        self._previous_contacts = predicted_contacts.copy()
 
     def _motion_forces(self, root_wrench: np.ndarray,
                        active: tuple[bool, ...]) -> tuple[np.ndarray, np.ndarray] | None:

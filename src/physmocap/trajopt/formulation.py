@@ -345,22 +345,7 @@ class FootVariables:
                 flight_nodes[(j, k)] = pack.take(np.concatenate([pos, vel]), [-np.inf, -np.inf, 0.0] + [-np.inf] * 3,
                                                  np.inf)
         self.set = pack.variable_set(f"foot_{POINT_NAMES[index]}")
-        if window.start is not None:  # continue from the previous window
-            s = window.start
-            if phases[0].contact:
-                self._fix(contact_at[0] - offset, s.feet[index, :2])
-            else:
-                self._fix(flight_nodes[(0, 0)] - offset, np.concatenate([s.feet[index], s.feet_rate[index]]))
-        last = len(phases) - 1
-        if window.end is not None:  # arrive where the next window starts
-            s = window.end
-            if not phases[last].contact:
-                self._fix(flight_nodes[(last, self.segment_counts[last])] - offset,
-                          np.concatenate([s.feet[index], s.feet_rate[index]]))
-            elif last > 0 or window.start is None:
-                # A contact held through the whole window keeps the previous window's place: the next window's
-                # fit of the same planted point differs by millimetres, a step at the junction.
-                self._fix(contact_at[last] - offset, s.feet[index, :2])
+        self._fix_ends(index, window, phases, contact_at, flight_nodes, offset)
         contact_nodes = {j: Node.resting(a) for j, a in contact_at.items()}
         segments = []
         for j, p in enumerate(phases):
@@ -377,6 +362,27 @@ class FootVariables:
                     nodes.append(contact_nodes[j - 1] if k == 0 else contact_nodes[j + 1])
             segments += [schedule.segment(j, k, m, nodes[k], nodes[k + 1]) for k in range(m)]
         self.trajectory = Trajectory(segments)
+
+    def _fix_ends(self, index: int, window: Window, phases: list[Phase], contact_at: dict[int, int],
+                  flight_nodes: dict[tuple[int, int], int], offset: int) -> None:
+        """Holds the point's first node at the previous window's state and its last at the next one's start,
+        where the window continues or arrives in a neighbour (contact_at, flight_nodes: program indices)."""
+        if window.start is not None:  # continue from the previous window
+            s = window.start
+            if phases[0].contact:
+                self._fix(contact_at[0] - offset, s.feet[index, :2])
+            else:
+                self._fix(flight_nodes[(0, 0)] - offset, np.concatenate([s.feet[index], s.feet_rate[index]]))
+        last = len(phases) - 1
+        if window.end is not None:  # arrive where the next window starts
+            s = window.end
+            if not phases[last].contact:
+                self._fix(flight_nodes[(last, self.segment_counts[last])] - offset,
+                          np.concatenate([s.feet[index], s.feet_rate[index]]))
+            elif last > 0 or window.start is None:
+                # A contact held through the whole window keeps the previous window's place: the next window's
+                # fit of the same planted point differs by millimetres, a step at the junction.
+                self._fix(contact_at[last] - offset, s.feet[index, :2])
 
     def _fix(self, local: int, values: np.ndarray) -> None:
         sl = slice(local, local + len(values))

@@ -244,28 +244,36 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
             _solve_run(out, reduced, flags, first, end, fps, settings, progress, solver)
     finally:
         solver.close()
-    done = out.converged
     ik_start = time.perf_counter()
-    if done.any():
-        targets = ik_targets(body, qpos_kin[done], reduced.frames(done), out.com[done], out.euler[done],
-                             out.feet[done], settings)
-        solved = np.array(qpos_kin)
-        solved[done] = targets.qpos
-        markers = np.zeros((T,) + targets.markers.shape[1:])
-        weights = np.zeros((T,) + targets.weights.shape[1:])
-        markers[done], weights[done] = targets.markers, targets.weights
-        # Frames kept kinematic are fitted to themselves (then restored exactly): the smoothing term links
-        # neighbours only across converged frames' edges.
-        if (~done).any():
-            own = ik_targets(body, qpos_kin[~done], reduced.frames(~done), reduced.com[~done], reduced.euler[~done],
-                             reduced.feet[~done], settings)
-            markers[~done], weights[~done] = own.markers, own.weights
-        qpos = solve_ik(body, IkTargets(markers, weights, solved), fps, settings)
-        out.qpos[done] = qpos[done]
+    _full_body(out, body, qpos_kin, reduced, fps, settings)
     out.qp_failures = (~out.converged).astype(int)
     out.ik_seconds = time.perf_counter() - ik_start
     out.seconds = time.perf_counter() - start_time
     return out
+
+
+def _full_body(out: TrajoptMotion, body: BodyModel, qpos_kin: np.ndarray, reduced, fps: float,
+               settings: TrajoptSettings) -> None:
+    """out.qpos on the converged frames: the full body (IK, Rempe 3.1) following the optimised COM, orientation
+    and feet; the other frames keep qpos_kin (T, nq)."""
+    done, T = out.converged, len(qpos_kin)
+    if not done.any():
+        return
+    targets = ik_targets(body, qpos_kin[done], reduced.frames(done), out.com[done], out.euler[done],
+                         out.feet[done], settings)
+    solved = np.array(qpos_kin)
+    solved[done] = targets.qpos
+    markers = np.zeros((T,) + targets.markers.shape[1:])
+    weights = np.zeros((T,) + targets.weights.shape[1:])
+    markers[done], weights[done] = targets.markers, targets.weights
+    # Frames kept kinematic are fitted to themselves (then restored exactly): the smoothing term links
+    # neighbours only across converged frames' edges.
+    if (~done).any():
+        own = ik_targets(body, qpos_kin[~done], reduced.frames(~done), reduced.com[~done], reduced.euler[~done],
+                         reduced.feet[~done], settings)
+        markers[~done], weights[~done] = own.markers, own.weights
+    qpos = solve_ik(body, IkTargets(markers, weights, solved), fps, settings)
+    out.qpos[done] = qpos[done]
 
 
 def _support_held_flights(flags: np.ndarray, reduced, valid: np.ndarray, settings: TrajoptSettings) -> np.ndarray:
@@ -461,6 +469,14 @@ def _solve_run(out: TrajoptMotion, reduced, flags: np.ndarray, first: int, end: 
             outcome = solver.map([task])[0]
             state = outcome.states[0] if record(task, outcome) and outcome.states else None
         return
+    _solve_in_two_passes(out, ranges, window, record, times, first, end, solver)
+
+
+def _solve_in_two_passes(out: TrajoptMotion, ranges: list[tuple[int, int, int]], window, record,
+                         times: np.ndarray, first: int, end: int, solver: _Solver) -> None:
+    """The windows `ranges` ((start, stop, keep) frames) of the run [first, end) in two passes: the even ones from
+    free starts, then each odd one from its predecessor's state to its successor's start; `window` builds a
+    Window, `record` files a solved task into `out` (see _solve_run); the reports in window order."""
     reports: dict[int, WindowReport] = {}
     states: dict[int, dict[int, WindowStart]] = {}  # window -> frame -> its solved state there
     even = [k for k in range(len(ranges)) if k % 2 == 0]
