@@ -39,7 +39,15 @@ from physmocap.trajopt.phases import (
     split_drifting,
     support_held_flights,
 )
-from physmocap.trajopt.problem import STALL_ITERATIONS, ConstraintSet, CostTerm, IterationWatch, Program, VariableSet
+from physmocap.trajopt.problem import (
+    STALL_ITERATIONS,
+    STALLED_STATUS,
+    ConstraintSet,
+    CostTerm,
+    IterationWatch,
+    Program,
+    VariableSet,
+)
 from physmocap.trajopt.reduced import boundary_velocity, euler_to_matrix, matrix_to_euler, reduced_motion, world_inertia
 from physmocap.trajopt.splines import Node, Segment, Trajectory, hermite_weights
 from physmocap.trajopt.stage import run_trajopt, window_ranges
@@ -434,11 +442,29 @@ def test_an_infeasible_program_stops_once_its_violation_stalls():
     contradicting.add(ca.vertcat(x[0] * x[1] - 1, x[0] * x[1] + 1 + x[2] ** 2), [0, 0], [0, 0])
     program = Program(x, [v], [contradicting], [CostTerm("c", (x[0] - 2) ** 2 + x[1] ** 4)], {"max_iter": 1000})
     sol = program.solve(np.array([1.0, 1.0, 1.0]), stop_stalled=True)
-    assert sol.status == "Stalled_Constraint_Violation" and not sol.converged
+    assert sol.status == STALLED_STATUS and not sol.converged
     assert STALL_ITERATIONS <= sol.iterations < 2 * STALL_ITERATIONS and sol.max_violation > 1
     unwatched = program.solve(np.array([1.0, 1.0, 1.0]), max_iterations=2 * STALL_ITERATIONS)
-    assert unwatched.status != "Stalled_Constraint_Violation" and unwatched.iterations > sol.iterations
+    assert unwatched.status != STALLED_STATUS and unwatched.iterations > sol.iterations
 
+
+
+def test_a_first_try_whose_fit_stalls_skips_its_dynamics_and_gives_way_to_the_retry(body, monkeypatch):
+    """The fit's constraints are the dynamics stage's: a window whose fit stalls goes straight to its retry."""
+    q, in_air = jump(body, frames=40, takeoff=12)
+    contacts = np.repeat(~in_air[:, None], 4, axis=1)
+    solve, runs = Program.solve, []
+
+    def first_stalls(self, *args, **kwargs):
+        sol = solve(self, *args, **kwargs)
+        runs.append(kwargs.get("stop_stalled", False))
+        return dataclasses.replace(sol, status=STALLED_STATUS, converged=False) if len(runs) == 1 else sol
+
+    monkeypatch.setattr(Program, "solve", first_stalls)
+    result = run_trajopt(body, q, FPS, contacts, TrajoptSettings(optimize_durations=False))
+    names = [st.name for st in result.windows[0].stages]
+    assert names == ["fit", "restart fit", "restart dynamics"] and runs == [True, False, False]
+    assert result.converged.all() and result.windows[0].restarted
 
 def test_the_watch_stops_only_a_violation_that_is_not_feasible_and_not_halving():
     watch = IterationWatch(1, 1, feasible=1e-4)

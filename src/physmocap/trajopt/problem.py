@@ -152,6 +152,7 @@ class Solution:
 
 
 CONVERGED_STATUSES = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+STALLED_STATUS = "Stalled_Constraint_Violation"  # stopped by IterationWatch
 
 
 @contextmanager
@@ -429,7 +430,7 @@ class Program:
         costs = [float(c) for c in self.cost_values.call([x])] if self.costs else []
         status = str(stats.get("return_status", "unknown"))
         if status == "User_Requested_Stop" and watch.stalled:
-            status = "Stalled_Constraint_Violation"  # stopped by the watch: wandering, not converging
+            status = STALLED_STATUS  # stopped by the watch: wandering, not converging
         elif (max_iterations is not None and status == "User_Requested_Stop"
                 and watch.count > max_iterations):
             status = "Maximum_Iterations_Exceeded"  # stopped by max_iterations, not by the user

@@ -20,8 +20,8 @@ import numpy as np
 
 from ..config import TrajoptSettings
 from .formulation import DurationVariables, Window, WindowProblem, WindowStart, build_window_problem
-from .phases import Phase
-from .problem import Program, Solution
+from .phases import Phase, flags_from_phases
+from .problem import STALLED_STATUS, Program, Solution
 
 
 @dataclass
@@ -172,6 +172,10 @@ def solve_window(window: Window, settings: TrajoptSettings, budget: int | None =
     fit = program.solve(program.initial(), fixed=problem.force_set_names, relaxed=fit_relaxed,
                         max_iterations=max(1, budget // 2), stop_stalled=stop_stalled)
     stages.append(_report("fit", fit))
+    if fit.status == STALLED_STATUS:
+        # The fit's constraints are the dynamics stage's on the same variables (the forces enter only the relaxed
+        # sets): where they stall, so would the dynamics stage. Not run; the window is not solved.
+        return _result(window, problem, program, fit.x, window.phases, "fit", False, stages, build, settings)
     x0 = _force_guess(problem, program, fit.x)
     dyn = program.solve(x0, max_iterations=max(1, budget - fit.iterations), stop_stalled=stop_stalled)
     stages.append(_report("dynamics", dyn))
@@ -191,15 +195,20 @@ def solve_window(window: Window, settings: TrajoptSettings, budget: int | None =
             if dur.converged and dur.objective < dyn.objective:
                 chosen, chosen_problem, x = "durations", dproblem, dur.x
                 phases = _schedule_from(dproblem.window.phases, durations, dur.values["durations"])
-    frames_fn, state_fn = _outputs(chosen_problem)
+    return _result(window, chosen_problem, program, x, phases, chosen, dyn.converged, stages, build, settings)
+
+
+def _result(window: Window, problem: WindowProblem, program: Program, x: np.ndarray, phases: list[list[Phase]],
+            chosen: str, converged: bool, stages: list[StageReport], build: float,
+            settings: TrajoptSettings) -> WindowResult:
+    """The window's motion at its frames from the solution x of `problem` (the stage `chosen`)."""
+    frames_fn, state_fn = _outputs(problem)
     com, acc, euler, feet, forces = frames_fn(x)
     n = window.reduced.num_frames
     weight = window.reduced.mass * settings.gravity
-    from .phases import flags_from_phases
-
     contacts = np.stack([flags_from_phases(p, window.reduced.times) for p in phases], axis=1)
     return WindowResult(
-        converged=dyn.converged, chosen=chosen, com=com.T, com_acceleration=acc.T, euler=euler.T,
+        converged=converged, chosen=chosen, com=com.T, com_acceleration=acc.T, euler=euler.T,
         feet=feet.reshape(4, 3, n).transpose(2, 0, 1), forces=weight * forces.reshape(4, 3, n).transpose(2, 0, 1),
         contacts=contacts, phases=phases, stages=stages, variables=program.num_variables,
         constraints=program.num_constraints, build_seconds=build, _state_at=lambda t: state_fn(x, t))
