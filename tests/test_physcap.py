@@ -9,7 +9,7 @@ from physmocap.body.kinematics import rigid_transform_qpos
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
 from physmocap.body.rotations import quat_exp, quat_multiply
 from physmocap.config import PhysicsSettings
-from physmocap.dynamics.balance import inside_support
+from physmocap.dynamics.balance import BalanceCorrector, inside_support
 from physmocap.dynamics.physcap import PhysCapTracker
 from physmocap.dynamics.qp import DenseQP
 from physmocap.dynamics.stage import PhysicsStream, kinematic_derivatives, run_physcap
@@ -179,6 +179,28 @@ def test_stationary_leaning_pose_is_brought_back_to_balance(body):
     assert result.corrected.any()
     assert all(inside_support(c[:2], f[contacts[0], :2]) for c, f in zip(com, feet, strict=True))
 
+
+
+def test_a_correction_relaxes_once_the_observed_pose_is_balanced_again(body):
+    """A person leaning out of balance for a second, then standing upright and still: the accumulated tilt
+    decays at the rate it grew and is dropped, so the upright frames end as observed (not moved for good)."""
+    upright = standing(body, 1)[0]
+    toes = kin.forward_kinematics(body, body.rest_qpos).points[0, body.point_index(["left_toe", "right_toe"])]
+    pivot = toes.mean(axis=0)
+    angle = np.radians(25)
+    R = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
+    leaning = rigid_transform_qpos(upright[None], R, pivot - R @ pivot)[0]
+    corrector = BalanceCorrector(body)
+    contacts = np.ones(4, bool)
+    for _ in range(int(FPS)):
+        _, corrected = corrector.correct(leaning, True, contacts)
+    assert corrected and corrector.tilt > 0.1
+    tilts = []
+    for _ in range(int(3 * FPS)):
+        q, corrected = corrector.correct(upright, True, contacts)
+        tilts.append(corrector.tilt)
+    assert all(b <= a for a, b in zip(tilts, tilts[1:], strict=False))
+    assert not corrected and corrector.tilt == 0.0 and np.array_equal(q, upright)
 
 def test_the_support_test_agrees_with_qhull_on_sole_points():
     """inside_support's own hull (monotone chain) decides as scipy's Qhull did, on random sets of 1-4 sole points

@@ -16,6 +16,7 @@ from ..body.support import convex_hull_2d
 
 UP = np.array([0.0, 0.0, 1.0])
 SMALL_LEAN = np.radians(2.0)  # below this the tilt is done and the legs are straightened instead
+RELAXED = 1e-3  # rad of tilt, share of the bend: a relaxing correction below this is dropped (invisible)
 
 
 def inside_support(point: np.ndarray, support: np.ndarray, margin: float = 0.02) -> bool:
@@ -81,20 +82,17 @@ class BalanceCorrector:
             return q_kin, False
         com, sites, spine = self._state(q_kin)
         support = sites[contacts, :2]
-        if self.tilt == 0.0 and self.straighten == 0.0 and inside_support(com[:2], support):
-            return q_kin, False
-        lean = _angle_to_up(spine)
-        q = q_kin
-        axis = np.array([spine[1], -spine[0], 0.0])  # spine x UP
-        length = _norm(axis)
-        if length > 1e-9:
-            axis /= length
-            tilt = min(self.tilt, lean)
-            pivot = np.zeros(3)
-            pivot[:2] = support.mean(axis=0)
-            R = axis_angle_matrix(axis, np.array(tilt))
-            q = rigid_transform_qpos(q[None], R, pivot - R @ pivot)[0]
-        q = self._straightened(q)
+        if inside_support(com[:2], support):
+            # The pose as observed is balanced: a correction accumulated for an earlier, unbalanced one relaxes at
+            # the rate it grew. Kept instead, one transient imbalance moved a person standing still for seconds
+            # (docs/decisions/physics-balance.md).
+            self.tilt *= 1.0 - self.rate
+            self.straighten *= 1.0 - self.rate
+            if self.tilt < RELAXED and self.straighten < RELAXED:
+                self.reset()
+                return q_kin, False
+            return self._corrected(q_kin, spine, support), True
+        q = self._corrected(q_kin, spine, support)
         com, _, spine_now = self._state(q)
         if inside_support(com[:2], support):
             return q, True  # balanced: keep the accumulated correction while the person stands still
@@ -104,6 +102,21 @@ class BalanceCorrector:
         else:
             self.straighten = min(1.0, self.straighten + self.rate)
         return q, True
+
+    def _corrected(self, q_kin: np.ndarray, spine: np.ndarray, support: np.ndarray) -> np.ndarray:
+        """q_kin (nq,) tilted upright by the accumulated angle (at most its lean, `spine` the neck - pelvis vector)
+        about the middle of the `support` points (k, 2), then straightened."""
+        q = q_kin
+        axis = np.array([spine[1], -spine[0], 0.0])  # spine x UP
+        length = _norm(axis)
+        if length > 1e-9 and self.tilt > 0.0:
+            axis /= length
+            tilt = min(self.tilt, _angle_to_up(spine))
+            pivot = np.zeros(3)
+            pivot[:2] = support.mean(axis=0)
+            R = axis_angle_matrix(axis, np.array(tilt))
+            q = rigid_transform_qpos(q[None], R, pivot - R @ pivot)[0]
+        return self._straightened(q)
 
     def _straightened(self, qpos: np.ndarray) -> np.ndarray:
         """Knees and hips moved `straighten` of the way towards straight."""
