@@ -50,7 +50,7 @@ from physmocap.contacts.dataset import (
     mocap_files,
     split_by_subject,
 )
-from physmocap.contacts.labels import CONTACT_SITES
+from physmocap.contacts.labels import CONTACT_SITES, seconds_to_label_change
 from physmocap.contacts.predict import MODES, WEIGHTS_DIR, predict_contacts
 from physmocap.contacts.real_videos import REAL_VIDEOS, cached_detection, load_real_labels
 from physmocap.mocap.synthetic import FOOT_KEYPOINTS
@@ -182,17 +182,6 @@ def motion_kind(clip_name: str) -> str:
         subject, trial = clip_name.split("_")[:2]
         description = cmu_descriptions().get(f"{int(subject)}_{int(trial)}", "")
     return next((kind for kind, words in MOTION_KINDS if any(w in description for w in words)), "other")
-
-
-def seconds_to_label_change(contacts: np.ndarray, fps: float) -> np.ndarray:
-    """(T, 4) seconds from each entry to the nearest change of its site's label (inf where it never changes)."""
-    frames = np.arange(len(contacts))
-    distance = np.full(contacts.shape, np.inf)
-    for site in range(contacts.shape[1]):
-        changes = np.flatnonzero(np.diff(contacts[:, site].astype(np.int8))) + 0.5
-        if len(changes):
-            distance[:, site] = np.abs(frames[:, None] - changes[None]).min(axis=1) / fps
-    return distance
 
 
 def error_locations(sequences: list[SyntheticSequence], weights: Path) -> dict[str, dict[str, dict[str, float]]]:

@@ -41,7 +41,13 @@ from physmocap.contacts.dataset import (
     mocap_files,
     split_by_subject,
 )
-from physmocap.contacts.labels import CONTACT_SITE_INDICES, LabelSettings, contact_labels, point_speed
+from physmocap.contacts.labels import (
+    CONTACT_SITE_INDICES,
+    LabelSettings,
+    contact_labels,
+    point_speed,
+    seconds_to_label_change,
+)
 
 MOCAP = Path(__file__).resolve().parents[2] / "shared" / "data" / "mocap"
 DISTANCE_BINS = (0.0, 0.025, 0.05, 0.1, 0.2, np.inf)  # s from the nearest change of a site's shipped label
@@ -67,18 +73,6 @@ def flat_stance_spread(clips) -> dict[str, list[float]]:
             "speed_m_per_s": np.percentile(np.concatenate(speeds), percentiles).round(3).tolist()}
 
 
-def seconds_to_change(labels: np.ndarray, fps: float) -> np.ndarray:
-    """(T, 4) seconds from each entry to the nearest change of its site's label, inf where it never changes (as
-    bench_contacts.py's `seconds_to_label_change`: an entry beside a change is half a frame from it)."""
-    frames = np.arange(len(labels))
-    distance = np.full(labels.shape, np.inf)
-    for site in range(labels.shape[1]):
-        changes = np.flatnonzero(np.diff(labels[:, site].astype(np.int8))) + 0.5
-        if len(changes):
-            distance[:, site] = np.abs(frames[:, None] - changes[None]).min(axis=1) / fps
-    return distance
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--height", type=float, default=0.01, help="height threshold moved by +-this, m")
@@ -91,7 +85,7 @@ def main() -> None:
     base = held_out_settings(SyntheticSettings())
     reference = make_sequences(clips, 1, base, variants=4)
     truth = np.concatenate([s.contacts for s in reference])
-    distance = np.concatenate([seconds_to_change(s.contacts, s.fps) for s in reference])
+    distance = np.concatenate([seconds_to_label_change(s.contacts, s.fps) for s in reference])
     bins = {f"{low}-{high} s": (distance >= low) & (distance < high)
             for low, high in itertools.pairwise(DISTANCE_BINS)}
     shares = {name: round(float(inside.mean()), 4) for name, inside in bins.items()}

@@ -26,6 +26,7 @@ from physmocap.contacts.labels import (
     hard_frames,
     motion_labels,
     point_speed,
+    seconds_to_label_change,
     stationary_labels,
     without_short_phases,
 )
@@ -511,3 +512,11 @@ def test_shipped_weights_beat_the_heuristics_on_held_out_subjects():
     velocity_3d_accuracy = np.mean(velocity_3d_flags == truth)
     for mode, value in accuracy.items():
         assert value > max(always, velocity, velocity_3d_accuracy) + 0.03, (mode, accuracy, always, velocity)
+
+
+def test_seconds_to_a_label_change_count_half_a_frame_beside_it():
+    contacts = np.zeros((6, 4), bool)
+    contacts[3:, 0] = True  # site 0 lands between frames 2 and 3; the others never change
+    distance = seconds_to_label_change(contacts, 30.0)
+    assert np.allclose(distance[:, 0] * 30.0, [2.5, 1.5, 0.5, 0.5, 1.5, 2.5])
+    assert np.isinf(distance[:, 1:]).all()

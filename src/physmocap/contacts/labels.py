@@ -236,3 +236,15 @@ def motion_labels(
     contacts = contact_labels(positions[:, CONTACT_SITE_INDICES], fps, settings)
     stationary = stationary_labels(positions[:, JOINT_INDEX["pelvis"]], fps, settings)
     return contacts, stationary
+
+
+def seconds_to_label_change(contacts: np.ndarray, fps: float) -> np.ndarray:
+    """(T, 4) seconds from each entry of the labels `contacts` (T, 4) to the nearest change of its site's label,
+    inf where it never changes; an entry beside a change is half a frame from it."""
+    frames = np.arange(len(contacts))
+    distance = np.full(contacts.shape, np.inf)
+    for site in range(contacts.shape[1]):
+        changes = np.flatnonzero(np.diff(contacts[:, site].astype(np.int8))) + 0.5
+        if len(changes):
+            distance[:, site] = np.abs(frames[:, None] - changes[None]).min(axis=1) / fps
+    return distance
