@@ -187,6 +187,12 @@ IPOPT_CONSTR_VIOL_TOL = 1e-4
 STALL_ITERATIONS = 100
 
 
+def max_violation(g: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> float:
+    """The most any row of g (rows,) lies outside its bounds lower <= g <= upper: 0 inside them or without rows,
+    NaN where g is."""
+    return max(float(np.max(lower - g, initial=0.0)), float(np.max(g - upper, initial=0.0)))
+
+
 class IterationWatch(ca.Callback):
     """IPOPT's iteration callback, which stops a run after `limit` iterations (one solver serves runs with
     different limits; IPOPT's own max_iter is fixed when the solver is built) and, where asked, once it has
@@ -231,8 +237,7 @@ class IterationWatch(ca.Callback):
 
     def eval(self, arg):
         self.count += 1  # called once for the starting point too
-        g = np.asarray(arg[self.g_index]).ravel()
-        violation = max(float(np.max(self.lower - g, initial=0.0)), float(np.max(g - self.upper, initial=0.0)))
+        violation = max_violation(np.asarray(arg[self.g_index]).ravel(), self.lower, self.upper)
         if violation < 0.5 * self.best:
             self.best, self.best_at = violation, self.count
         self.stalled = (self.stop_stalled and self.best > self.feasible
@@ -425,8 +430,7 @@ class Program:
         stats = solver.stats()
         x = np.asarray(out["x"]).ravel()
         g = np.asarray(out["g"]).ravel()
-        violation = np.maximum(lbg - g, 0) + np.maximum(g - ubg, 0)
-        violation = float(violation.max()) if len(violation) else 0.0
+        violation = max_violation(g, lbg, ubg)
         costs = [float(c) for c in self.cost_values.call([x])] if self.costs else []
         status = str(stats.get("return_status", "unknown"))
         if status == "User_Requested_Stop" and watch.stalled:
