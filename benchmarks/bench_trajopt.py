@@ -26,6 +26,8 @@ Writes benchmarks/results/trajopt.json and trajopt.md. Other modes (issues 23, 2
     --window 60 178 297      one window of that looped dance (seconds, first and last frame) from a free start
     --flights                the labels' whole-body flights on validation clips (subjects 1, 2, 5, 7) at 24 and
                              30 fps: the support their COM needs; writes results/trajopt_flights.json
+    --framerate test|validation  the same motion at 10, 24, 30 and 60 fps (issue 17): trajopt's joints against
+                             its 60 fps run; writes results/trajopt_framerate_SET.json
     --videos RUN ...         trajopt on capture run folders' refined motion: solved against implied forces;
                              writes results/trajopt_videos.json
 """
@@ -456,6 +458,54 @@ def compare_parallel(lengths: list[float], repeats: int) -> list[dict]:
     return out
 
 
+def framerate(validation: bool) -> list[dict]:
+    """Issue 17's frame-rate target for trajopt: bench_physics_limits' framerate cases (a clip's 60 fps offline fit
+    refined by B.4, that motion resampled to 10, 24 and 30 fps: the same motion), trajopt at each rate with its
+    defaults; converged share, largest contact force, and the joints against the 60 fps run at common times from
+    0.5 s on (mean, 95th percentile, root-relative, and both over frames converged at both rates)."""
+    import bench_physics_limits as limits
+
+    clips = (limits.VALIDATION_CLIPS if validation else limits.CLIPS)[:2]
+    rows = []
+    for name in clips:
+        case = limits.build_case(name, 0, 60.0, online=False)
+        refined = case["refined"]
+        body = refined.motion.body
+        runs = {}
+        for fps in limits.RATES:
+            qpos, source = limits.resample_motion(body, refined.motion.qpos, 60.0, fps)
+            cpu = cpu_seconds()
+            result = run_trajopt(body, qpos, fps, refined.contacts[source], TrajoptSettings())
+            runs[fps] = dict(result=result, cpu=cpu_seconds() - cpu, times=np.arange(len(qpos)) / fps,
+                             points=kin.forward_kinematics(body, result.qpos).points)
+        reference = runs[60.0]
+        for fps in limits.RATES:
+            run, result = runs[fps], runs[fps]["result"]
+            index = [i for i, t in enumerate(run["times"]) if t >= 0.5
+                     and np.isclose(reference["times"], t, atol=1e-6).any()]
+            match = [int(np.argmin(np.abs(reference["times"] - run["times"][i]))) for i in index]
+            a, b = run["points"][index], reference["points"][match]
+            distance = np.linalg.norm(a - b, axis=-1).mean(axis=1)
+            relative = np.linalg.norm((a - a[:, :1]) - (b - b[:, :1]), axis=-1).mean(axis=1)
+            both = result.converged[index] & reference["result"].converged[match]
+            weight = body.mass * metrics.GRAVITY
+            rows.append(dict(clip=name.split("/")[-1], fps=fps, frames=len(result.qpos), cpu_seconds=run["cpu"],
+                             finite=bool(np.isfinite(result.qpos).all() and np.isfinite(result.grf).all()),
+                             converged_percent=100 * float(result.converged.mean()),
+                             largest_force_bw=float(np.linalg.norm(result.grf.sum(axis=1), axis=-1).max() / weight),
+                             vs_60_mm=1000 * float(distance.mean()),
+                             vs_60_p95_mm=1000 * float(np.percentile(distance, 95)),
+                             root_relative_vs_60_mm=1000 * float(relative.mean()),
+                             both_converged_percent=100 * float(both.mean()),
+                             vs_60_both_converged_mm=1000 * float(distance[both].mean()) if both.any() else None))
+            r = rows[-1]
+            print(f"framerate {r['clip']} {fps:.0f} fps: converged {r['converged_percent']:.0f}%, largest force "
+                  f"{r['largest_force_bw']:.2f} BW, vs 60 fps {r['vs_60_mm']:.1f} mm (p95 {r['vs_60_p95_mm']:.1f}, "
+                  f"root-relative {r['root_relative_vs_60_mm']:.1f}; {r['vs_60_both_converged_mm']} mm over the "
+                  f"{r['both_converged_percent']:.0f}% converged at both), CPU {r['cpu_seconds']:.1f} s", flush=True)
+    return rows
+
+
 def one_window(seconds: float, first: int, last: int) -> dict:
     """Frames first..last of the looped dance of `long_scaling` (looped to `seconds`) as one window from a free
     start (its start velocity the input's), solved as run_trajopt solves a window: every IPOPT run's status,
@@ -619,6 +669,9 @@ def main(argv=None) -> dict:
     parser.add_argument("--compare-parallel", type=float, nargs="+", metavar="SECONDS",
                         help="only windows one after another against two at a time on the looped dance, "
                              "interleaved --repeats times")
+    parser.add_argument("--framerate", choices=("test", "validation"),
+                        help="only the same motion at 10, 24, 30 and 60 fps (bench_physics_limits' framerate cases "
+                             "of that set): joints against the 60 fps run")
     parser.add_argument("--parallel-windows", choices=("on", "off"),
                         help="trajopt.parallel_windows for the accuracy rows and --long (default: the setting's)")
     args = parser.parse_args(argv)
@@ -635,6 +688,11 @@ def main(argv=None) -> dict:
     if args.compare_parallel:
         rows = compare_parallel(args.compare_parallel, args.repeats)
         write_text(RESULTS / "trajopt_parallel.json", json.dumps(dict(
+            machine=machine_description(), revision=git_revision(), rows=rows), indent=2, default=float))
+        return dict(rows=rows)
+    if args.framerate:
+        rows = framerate(args.framerate == "validation")
+        write_text(RESULTS / f"trajopt_framerate_{args.framerate}.json", json.dumps(dict(
             machine=machine_description(), revision=git_revision(), rows=rows), indent=2, default=float))
         return dict(rows=rows)
     if args.window:
