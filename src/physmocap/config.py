@@ -11,14 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .errors import SettingsError
-from .settings_fields import (
-    Section,
-    floor_plane,
-    image_box,
-    load_toml,
-    read_toml as read_toml,  # retarget.mapping reads character maps with it
-    setting,
-)
+from .settings_fields import Section, floor_plane, image_box, load_toml, setting
 
 
 @dataclass(frozen=True)

@@ -29,8 +29,8 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..config import read_toml
 from ..errors import InputError
+from ..settings_fields import read_toml
 from .rig import Rig
 
 SIDES = ("left", "right")
