@@ -7,7 +7,8 @@ MediaPipe-like noise, the true intrinsics and height, 8 s at 30 fps, seeds 0 and
 
   framerate  131_01 and 006_01 at 60 fps (offline fit refined by B.4), that kinematic motion resampled to 10, 24
              and 30 fps (the same motion), PhysCap at each rate: finite values, largest force, and the physics
-             joints of each rate against the 60 fps run at common times.
+             joints of each rate against the 60 fps run at common times (--set validation: every validation clip,
+             walks, jump, dance and bend).
   diagnosis  the walking clips with a box: from 3.0 to 5.5 s the whole motion is raised 0.3 m (0.5 s ramps),
              the floor staying at z = 0 (a raised floor, or hands carrying the body). Truly unexplainable frames:
              lifted by 0.1 m or more (the feet above the contact height while bearing weight). Reports the share
@@ -783,7 +784,9 @@ def main(argv=None) -> dict:
     for part in args.parts:
         start = time.perf_counter()
         if part == "framerate":
-            out[part] = part_framerate(all_clips[:2], settings_overrides(args.physics))
+            # validation: the jump, dance and bend clips too, where the diagnosis flags frames (the walks flag none)
+            out[part] = part_framerate(all_clips if args.set == "validation" else all_clips[:2],
+                                       settings_overrides(args.physics))
         elif part == "diagnosis":
             out[part] = part_diagnosis(walking, seeds)
         elif part == "online":

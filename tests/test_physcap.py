@@ -202,6 +202,25 @@ def test_a_correction_relaxes_once_the_observed_pose_is_balanced_again(body):
     assert all(b <= a for a, b in zip(tilts, tilts[1:], strict=False))
     assert not corrected and corrector.tilt == 0.0 and np.array_equal(q, upright)
 
+def test_the_correction_grows_at_the_same_pace_in_seconds_at_any_frame_rate(body):
+    """PhysicsStream's balance correction takes its share per frame from correction_time: after 0.3 s of the same
+    leaning pose the accumulated tilt is the same at 10 and 60 fps (per frame, 60 fps grew it six times faster)."""
+    upright = standing(body, 1)[0]
+    toes = kin.forward_kinematics(body, body.rest_qpos).points[0, body.point_index(["left_toe", "right_toe"])]
+    pivot = toes.mean(axis=0)
+    angle = np.radians(25)
+    R = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
+    leaning = rigid_transform_qpos(upright[None], R, pivot - R @ pivot)[0]
+    tilts = {}
+    for fps in (10.0, 60.0):
+        corrector = PhysicsStream(body, PhysicsSettings(), fps).balance
+        for _ in range(round(0.3 * fps)):
+            corrector.correct(leaning, True, np.ones(4, bool))
+        tilts[fps] = corrector.tilt
+    assert tilts[10.0] > 0.05
+    assert abs(tilts[10.0] - tilts[60.0]) < 0.15 * tilts[60.0]
+
+
 def test_the_support_test_agrees_with_qhull_on_sole_points():
     """inside_support's own hull (monotone chain) decides as scipy's Qhull did, on random sets of 1-4 sole points
     and points around them, collinear and coincident sets included (Qhull refuses those: the segment test)."""

@@ -117,7 +117,8 @@ class PhysicsSettings(Section):
     floor_tilt_rate: float = setting(1.0, "deg/s", (0.01, 90.0), "the fastest the refined floor turns")
     floor_lift_rate: float = setting(0.05, "m/s", (0.001, 1.0), "the fastest the refined floor moves along its normal")
     balance_correction: bool = setting(True, help="4.3.1: straighten stationary poses leaning off their support")
-    correction_rate: float = setting(0.1, "", (0.0, 1.0), "share of the lean corrected per frame (paper theta / 10)")
+    correction_time: float = setting(0.316, "s", (0.01, 10.0), "time constant of that correction (the paper's "
+                                     "theta / 10 per frame at 30 fps)")
     stationary_max_speed: float | None = setting(0.25, "m/s", (0.01, 10.0), "the stationary flag is believed only "
                                                  "while the root is slower (None: always)")
     stationary_speed_interval: float = setting(0.2, "s", (0.01, 2.0), "over which that speed is measured")

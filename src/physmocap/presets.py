@@ -58,7 +58,7 @@ PRESETS: dict[str, Preset] = {
     "standing": Preset(
         {"fit": {"weight_smooth": 0.5, "weight_depth": 0.1},
          "physics": {"contact_height": 0.1, "slide_speed": 0.01, "balance_correction": True,
-                     "correction_rate": 0.2}},
+                     "correction_time": 0.149}},
         "Near-static poses: five times the smoothing removes detector jitter without visible lag, feet may "
         "barely slide (1 cm/s), and balance correction straightens leans twice as fast as the default.",
     ),

@@ -79,7 +79,9 @@ class PhysicsStream:
         # Held contacts are settled onto B.4's feet; targets this stream lifts itself (online fits) are not: there
         # it doubled the held contacts' p95 slide on the estimated floor (docs/decisions/physics-default.md).
         self.tracker = PhysCapTracker(body, settings, fps, settle_contacts=refined_input)
-        self.balance = BalanceCorrector(body, settings.correction_rate)
+        # 4.3.1's share of the lean corrected per frame, from a time constant: per frame, the correction grew six
+        # times faster in seconds at 60 fps than at 10 (docs/decisions/physics-balance.md)
+        self.balance = BalanceCorrector(body, 1.0 - math.exp(-1.0 / (fps * settings.correction_time)))
         self._previous: np.ndarray | None = None  # last kinematic pose
         self._velocity = np.zeros(body.nv)  # smoothed kinematic velocity of the last frame
         # share of the newest backward difference in the smoothed velocity (1: no smoothing)
