@@ -293,6 +293,15 @@ def test_foot_contact_errors_hand_computed():
     assert errors["skate_percent_of_contact"] == pytest.approx(100 / 39)
 
 
+def test_no_skate_into_a_row_that_follows_a_gap():
+    """Rows of the frames with a person: a foot in contact on both sides of a gap has not slid between them."""
+    points = feet_at_heights(np.zeros((3, 1)))
+    points[1:, 0, 0] += 1.0  # the source walked a metre while nobody was seen
+    contacts = np.ones((3, 1), bool)
+    assert metrics.foot_contact_errors(points, contacts)["skate_percent"] == pytest.approx(100 / 3)
+    assert metrics.foot_contact_errors(points, contacts, breaks=np.array([False, True, False]))["skate_percent"] == 0
+
+
 def test_skate_needs_contact_in_both_frames_and_rescales_with_fps():
     points = feet_at_heights(np.zeros((4, 1)))
     points[2:, 0, 0] += 0.05  # 5 cm jump between frames 1 and 2

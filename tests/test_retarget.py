@@ -19,6 +19,7 @@ from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, JOINT_NAMES, SkeletonLengths, build_body_model, template_lengths
 from physmocap.body.rotations import quat_exp
 from physmocap.errors import InputError
+from physmocap.export import body_from_result
 from physmocap.io.bvh_export import write_bvh
 from physmocap.io.glb import write_glb
 from physmocap.mocap.bvh_reader import forward_kinematics, read_bvh
@@ -272,6 +273,23 @@ def test_feet_stay_planted_while_the_source_slides_and_the_pose_stays_the_source
     joints = points[:, body.point_index(JOINT_NAMES)]
     source = kin.forward_kinematics(body, qpos).points[:, body.point_index(JOINT_NAMES)]
     assert np.allclose(joints - joints[:, :1], source - source[:, :1], atol=1e-3)
+
+
+def test_no_foot_is_held_through_frames_without_a_person(tmp_path):
+    """The person is lost for half a second while the capture's interpolated body walks 0.9 m and its labels keep
+    the feet in contact there: the character walks on with the source instead of staying on the old spots."""
+    result = stepping_result()
+    body = body_from_result(result)
+    qpos = result["qpos"].copy()
+    qpos[20:, 0] += np.clip((np.arange(40) + 1) / 15, 0, 1) * 0.9
+    valid = np.ones(60, bool)
+    valid[20:35] = False
+    points = kin.forward_kinematics(body, qpos).points[:, body.point_index(RESULT_POINTS)]
+    result.update(qpos=qpos, joints_world=points, valid=valid)
+    save_result(tmp_path / "result.npz", result)
+    report = retarget_result(tmp_path / "result.npz", mixamo_rig(tmp_path / "rig.bvh"), tmp_path / "out",
+                             physics="none")
+    assert report.metrics["path_departure_mean_m"] < 0.05, report.metrics
 
 
 def test_a_foot_held_off_its_reach_stays_out_of_the_floor():

@@ -366,7 +366,7 @@ def foot_contact_errors(foot_points: np.ndarray, contacts: np.ndarray, fps: floa
                         floating_threshold: float = FLOATING_THRESHOLD,
                         penetration_threshold: float = PENETRATION_THRESHOLD,
                         skate_threshold: float = SKATE_THRESHOLD, floor_height: float = 0.0,
-                        floor_plane: np.ndarray | None = None) -> dict[str, float]:
+                        floor_plane: np.ndarray | None = None, breaks: np.ndarray | None = None) -> dict[str, float]:
     """Rempe et al. 2020's foot position metrics (Sec. 4.3, Table 2 right), percent of foot-joint frames.
 
     Paper: "Floating is the fraction of foot joints more than 3 cm off the ground when they should be in
@@ -387,6 +387,8 @@ def foot_contact_errors(foot_points: np.ndarray, contacts: np.ndarray, fps: floa
     fps: frame rate of the clip. The 2 cm skate threshold is per frame of Rempe's 30 fps data; with fps given
         it is rescaled to the same speed, skate_threshold * 30 / fps; with None it is used per frame as is.
     floor_height, floor_plane: see `height_above_floor`.
+    breaks: (T,) bool, frames that do not follow the previous row in time (rows of a clip with gaps): no skate
+        into them.
     Returns dict with floating_percent, penetration_percent, skate_percent, floating_percent_of_contact,
     skate_percent_of_contact.
     """
@@ -402,6 +404,8 @@ def foot_contact_errors(foot_points: np.ndarray, contacts: np.ndarray, fps: floa
     sliding_steps = steps - (steps @ normal)[..., None] * normal
     skating = np.zeros_like(in_contact)
     skating[1:] = in_contact[1:] & in_contact[:-1] & (np.linalg.norm(sliding_steps, axis=-1) > step_threshold)
+    if breaks is not None:
+        skating[np.asarray(breaks, bool)] = False
 
     contact_count = in_contact.sum()
     return {

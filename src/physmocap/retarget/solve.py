@@ -178,18 +178,25 @@ def solve_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray,
     q = qpos.copy()
     q[:, hinge_q] = np.clip(q[:, hinge_q], limits[:, 0], limits[:, 1])
     point_ids = np.concatenate([joints, feet])
-    for _ in range(iterations):
+    # The wall's active set can make a frame alternate between two poses (one through the floor) instead of
+    # settling: each frame keeps its iterate of least cost, not its last.
+    best, best_cost = q.copy(), np.full(len(q), np.inf)
+    for iteration in range(iterations + 1):
         pose = kin.forward_kinematics(body, q)
-        J_all = kin.point_jacobian(body, pose, point_ids)  # (T, n, 3, nv)
         p_joints = pose.points[:, joints]
-        r_pose = weights[..., None] * (p_joints - goal)  # (T, 20, 3)
-        J_pose = weights[..., None, None] * J_all[:, :len(joints)]
         heights = pose.points[:, feet, 2]
         below = heights < 0.0  # the wall's active set, found again each iteration
-        r_floor = FLOOR_WEIGHT * np.where(below, heights, 0.0)  # (T, 4)
-        J_floor = FLOOR_WEIGHT * below[..., None] * J_all[:, len(joints):, 2]  # (T, 4, nv)
         T, nv = len(q), body.nv
-        r = np.concatenate([r_pose.reshape(T, -1), r_floor], axis=1)
+        r = np.concatenate([(weights[..., None] * (p_joints - goal)).reshape(T, -1),  # (T, 20 x 3)
+                            FLOOR_WEIGHT * np.where(below, heights, 0.0)], axis=1)  # (T, 4)
+        cost = (r ** 2).sum(axis=1)
+        lower = cost < best_cost
+        best[lower], best_cost[lower] = q[lower], cost[lower]
+        if iteration == iterations:
+            break
+        J_all = kin.point_jacobian(body, pose, point_ids)  # (T, n, 3, nv)
+        J_pose = weights[..., None, None] * J_all[:, :len(joints)]
+        J_floor = FLOOR_WEIGHT * below[..., None] * J_all[:, len(joints):, 2]  # (T, 4, nv)
         J = np.concatenate([J_pose.reshape(T, -1, nv), J_floor], axis=1)
         H = J.transpose(0, 2, 1) @ J
         g = (J.transpose(0, 2, 1) @ r[..., None])[..., 0]
@@ -198,8 +205,8 @@ def solve_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray,
         q = kin.integrate(body, q, step)
         q[:, hinge_q] = np.clip(q[:, hinge_q], limits[:, 0], limits[:, 1])
         if np.abs(step).max() < STEP_TOLERANCE:
-            break
-    return q, spots
+            return q, spots
+    return best, spots
 
 
 def retarget_qpos(body: BodyModel, source_qpos: np.ndarray, source_lengths, contacts: np.ndarray) -> Retargeted:

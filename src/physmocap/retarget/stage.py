@@ -91,8 +91,15 @@ def _rig_role_points(character: Character, positions: np.ndarray) -> tuple[np.nd
     return np.stack(pts, axis=1), roles
 
 
+def follows_gap(frames: np.ndarray) -> np.ndarray:
+    """(n,) bool for the n selected frames of a (T,) mask: those whose previous selected frame is not the one
+    just before them."""
+    index = np.flatnonzero(frames)
+    return np.concatenate([[False], np.diff(index) > 1])
+
+
 def retarget_metrics(character: Character, source_points: np.ndarray, qpos: np.ndarray, positions: np.ndarray,
-                     contacts: np.ndarray, fps: float, grf: np.ndarray | None) -> dict:
+                     contacts: np.ndarray, fps: float, grf: np.ndarray | None, breaks: np.ndarray) -> dict:
     """Figures of a retargeted motion (issue 19), all finite or None:
 
     skate_percent, penetration_percent, floating_percent: Rempe's foot metrics (metrics.foot_contact_errors) of
@@ -104,17 +111,19 @@ def retarget_metrics(character: Character, source_points: np.ndarray, qpos: np.n
         mean magnitude of the net ground reaction force in the character's body weights (Rempe's measure; None
         without physics), grf_vertical_mean_percent_bw: the mean of its vertical component, which over a clip
         equals the weight less what the root's residual force carries, plus the change of vertical momentum
-        (docs/decisions/retarget-grf.md); com: mean centre of mass height as a share of the standing height."""
+        (docs/decisions/retarget-grf.md); com: mean centre of mass height as a share of the standing height.
+    The rows are the frames with a person; breaks (n,) bool marks those that follow a gap: nothing slides into them."""
     body = character.body
     pose = kin.forward_kinematics(body, qpos)
     feet = pose.points[:, body.point_index(CONTACT_POINTS)]
     contacts = np.asarray(contacts, bool)
-    foot = foot_contact_errors(feet, contacts, fps)
+    foot = foot_contact_errors(feet, contacts, fps, breaks=breaks)
     heights = feet[..., 2]
     steps = np.zeros(contacts.shape)
     steps[1:] = np.linalg.norm(np.diff(feet[..., :2], axis=0), axis=-1)
     sliding = np.zeros_like(contacts)
     sliding[1:] = contacts[1:] & contacts[:-1] & (steps[1:] > SKATE_THRESHOLD * SKATE_REFERENCE_FPS / fps)
+    sliding[breaks] = False
     kept = contacts & (np.abs(heights) <= FLOATING_THRESHOLD) & ~sliding
     names = list(RESULT_POINTS)
     body_points = pose.points[:, body.point_index(RESULT_POINTS)]
@@ -214,7 +223,7 @@ def _simulated_metrics(character: Character, source_points: np.ndarray, simulate
     moved the points (metres: mean, 99th percentile of each frame's largest)."""
     before = retarget_metrics(character, source_points[frames], simulated[frames],
                               rig_positions(character, rig_motion(character, simulated[frames])),
-                              contacts[frames], fps, grf[frames])
+                              contacts[frames], fps, grf[frames], follows_gap(frames))
     shift = np.linalg.norm(final - kin.forward_kinematics(character.body, simulated).points[:, points],
                            axis=-1)[frames]
     return {"simulated": {k: before[k] for k in ("skate_percent", "penetration_percent", "floating_percent",
@@ -263,8 +272,10 @@ def retarget_result(result_path: str | os.PathLike, character_path: str | os.Pat
     character = build_character(rig, config, float(source["body_mass"]), float(source["body_height"]))
     body = character.body
     fps = float(source["fps"])
-    contacts = np.asarray(source["contacts"], bool)
     valid = np.asarray(source["valid"], bool)
+    # A frame without a person carries no contact evidence (its labels come from interpolated keypoints): no foot
+    # is held through it, or the character stays on the spot while the source walks on across the gap.
+    contacts = np.asarray(source["contacts"], bool) & valid[:, None]
     T = len(source["qpos"])
 
     started = time.perf_counter()
@@ -285,7 +296,7 @@ def retarget_result(result_path: str | os.PathLike, character_path: str | os.Pat
     frames = valid if valid.any() else np.ones(T, bool)  # figures over the frames with a person
     grf = outcome.grf
     metrics = retarget_metrics(character, source["joints_world"][frames], outcome.qpos[frames], positions[frames],
-                               contacts[frames], fps, None if grf is None else grf[frames])
+                               contacts[frames], fps, None if grf is None else grf[frames], follows_gap(frames))
     # How far the character's path leaves the capture's (its pelvis at the source's size, along the floor): the
     # price of feet that stay where the source's slid (solve.follow_planted_feet).
     departure = np.linalg.norm(final[frames, 0, :2] / retargeted.scale - source["joints_world"][frames, 0, :2], axis=-1)
