@@ -14,9 +14,9 @@ height, how far the character's path leaves the source's (pelvis along the floor
 frame of the retargeting (IK) and of the physics.
 
     .venv/bin/python benchmarks/bench_retarget.py [--quick] [--trajopt] [--source-physics physcap|none] [--work DIR]
-        [--set test|validation] [--step-adjustment LEG_LENGTHS]
+        [--set test|validation|every] [--step-adjustment LEG_LENGTHS]
 
-Writes benchmarks/results/retarget.json and retarget.md (retarget_validation.* with --set validation).
+Writes benchmarks/results/retarget.json and retarget.md (retarget_SET.* with another --set).
 """
 
 from __future__ import annotations
@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
+from bench_synthetic import CLIPS as SYNTHETIC_TEST_SET  # noqa: E402
 from common import MOCAP, RESULTS, VIDEOS, machine_description  # noqa: E402
 from physmocap.body import kinematics as kin  # noqa: E402
 from physmocap.body.model import CONTACT_POINTS, SkeletonLengths, build_body_model, template_lengths  # noqa: E402
@@ -49,6 +50,7 @@ from physmocap.pipeline import run_capture  # noqa: E402
 from physmocap.result import load_result  # noqa: E402
 from physmocap.retarget import retarget_result, solve  # noqa: E402
 from physmocap.retarget.solve import contact_runs  # noqa: E402
+from physmocap.retarget.stage import follows_gap  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 TEST_DATA = REPO / "tests" / "data"
@@ -57,6 +59,10 @@ REAL = ("hybrik_taiji.mp4", "sports2d_demo.mp4", "intel_highcam_walk_stand.mp4")
 # Where retargeting's own constants are chosen: walks of CMU training subjects 2 and 7, and taiji.
 VALIDATION_SYNTHETIC = ("cmu_raw_cgspeed/02_01.bvh", "cmu_iclone_cc3_retarget/007_01.bvh")
 VALIDATION_REAL = ("hybrik_taiji.mp4",)
+# --set every: the whole synthetic test set and every shared video (about 15 minutes).
+EVERY_SYNTHETIC = SYNTHETIC_TEST_SET
+EVERY_REAL = REAL + ("mmhuman3d_single_person_demo.mp4", "sam2_soccer_juggling.mp4",
+                     "pose2sim_demo_singleperson/cam01.mp4")
 FPS, SECONDS = 30.0, 8.0
 CARTOON = dict(hip_width=0.16, thigh=0.22, shank=0.20, ankle_height=0.05, heel_back=0.03, toe_front=0.12,
                spine_low=0.06, spine_up=0.30, shoulder_width=0.30, upper_arm=0.33, forearm=0.31, hand_length=0.09,
@@ -126,7 +132,7 @@ def source_feet(result: dict) -> dict:
     body = body_from_result(result)
     feet = kin.forward_kinematics(body, result["qpos"]).points[:, body.point_index(CONTACT_POINTS)]
     valid, contacts = np.asarray(result["valid"], bool), np.asarray(result["contacts"], bool)
-    errors = foot_contact_errors(feet[valid], contacts[valid], float(result["fps"]))
+    errors = foot_contact_errors(feet[valid], contacts[valid], float(result["fps"]), breaks=follows_gap(valid))
     drifts = [float(np.linalg.norm(feet[s:e, k, :2] - feet[s, k, :2], axis=1).max())
               for k in range(len(CONTACT_POINTS)) for s, e in contact_runs(contacts[:, k])]
     return dict(skate_percent=errors["skate_percent"], penetration_percent=errors["penetration_percent"],
@@ -154,9 +160,10 @@ def needed_force_percent_bw(result: dict, frames: int = 9) -> float:
     return float(100 * np.linalg.norm(need, axis=1).mean() / GRAVITY)
 
 
-def run(work: Path, quick: bool, trajopt: bool, source_physics: str, validation: bool = False) -> dict:
+def run(work: Path, quick: bool, trajopt: bool, source_physics: str, source_set: str = "test") -> dict:
     rigs = make_rigs(work)
-    synthetic, real = (VALIDATION_SYNTHETIC, VALIDATION_REAL) if validation else (SYNTHETIC, REAL)
+    synthetic, real = {"test": (SYNTHETIC, REAL), "validation": (VALIDATION_SYNTHETIC, VALIDATION_REAL),
+                       "every": (EVERY_SYNTHETIC, EVERY_REAL)}[source_set]
     sources = {f"synthetic {Path(n).stem}": synthetic_source(n, work, source_physics)
                for n in synthetic[: 1 if quick else None]}
     sources.update({f"real {Path(v).stem}": real_source(v, work, source_physics) for v in real[: 1 if quick else None]})
@@ -197,7 +204,7 @@ def run(work: Path, quick: bool, trajopt: bool, source_physics: str, validation:
             for a, b in (("cartoon 40% head", "mixamo"), ("cartoon de Leva", "mixamo"),
                          ("cartoon 40% head", "cartoon de Leva"))}))
     own = {name: source_feet(load_result(path)) for name, path in sources.items()}
-    return dict(machine=machine_description(), source_set="validation" if validation else "test",
+    return dict(machine=machine_description(), source_set=source_set,
                 source_physics=source_physics, rows=rows, com_paths=com, sources=own)
 
 
@@ -242,9 +249,10 @@ def markdown(data: dict) -> str:
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="one synthetic clip and one video")
-    parser.add_argument("--set", choices=("test", "validation"), default="test",
-                        help="sources: the test clips and videos, or the validation clips (CMU subjects 2 and 7) and "
-                             "taiji, where retargeting's constants are chosen")
+    parser.add_argument("--set", choices=("test", "validation", "every"), default="test",
+                        help="sources: the test clips and videos; the validation clips (CMU subjects 2 and 7) and "
+                             "taiji, where retargeting's constants are chosen; or every clip of the synthetic test "
+                             "set and every shared video")
     parser.add_argument("--trajopt", action="store_true",
                         help="also trajectory optimisation (two rigs on two sources; several minutes)")
     parser.add_argument("--source-physics", choices=("physcap", "none"), default=Settings().physics.method,
@@ -257,9 +265,9 @@ def main(argv=None) -> dict:
     args = parser.parse_args(argv)
     if args.step_adjustment is not None:
         solve.STEP_ADJUSTMENT = args.step_adjustment
-    data = run(args.work, args.quick, args.trajopt, args.source_physics, args.set == "validation")
+    data = run(args.work, args.quick, args.trajopt, args.source_physics, args.set)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    stem = "retarget" if args.set == "test" else "retarget_validation"
+    stem = "retarget" if args.set == "test" else f"retarget_{args.set}"
     (RESULTS / f"{stem}.json").write_text(json.dumps(data, indent=1))
     (RESULTS / f"{stem}.md").write_text(markdown(data))
     print(markdown(data))
