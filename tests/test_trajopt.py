@@ -25,6 +25,7 @@ from physmocap.trajopt.formulation import (
     acceleration_continuity,
     angular_velocity,
     build_window_problem,
+    clock_times,
     euler_torque,
     frame_sample_times,
     phase_layout,
@@ -594,6 +595,24 @@ def test_frame_samples_hold_every_frame_whatever_the_rate():
         assert np.isin(frames, times).all()
         assert np.diff(times).max() <= 1.0 / 60.0 + 1e-9 and np.diff(times).min() > 0
     assert np.array_equal(frame_sample_times(frames, 0.0), frames)
+
+
+def test_com_knots_stay_on_the_clock_whatever_the_rate_or_length(body):
+    """The COM's knots (and the constraint grids) sit on multiples of their interval in seconds: the same motion at
+    another frame rate, or a clip a frame shorter, keeps every knot away from its end (an even spread over the
+    window moved them all, and the joints by 4-7 mm)."""
+    knots = {}
+    for fps, T in ((10.0, 29), (24.0, 69), (30.0, 86), (60.0, 172), (60.0, 171)):
+        red = reduced_motion(body, sway(body, T), fps)
+        phases = [contact_phases(np.ones(T, bool), red.times)] * 4
+        t = build_window_problem(Window(red, phases), QUICK).com.node_times
+        assert t[0] == red.times[0] and t[-1] == red.times[-1]
+        assert QUICK.com_interval / 2 < np.diff(t).min() and np.diff(t).max() < 1.5 * QUICK.com_interval
+        knots[(fps, T)] = t[1:-1]
+    inner = knots[(10.0, 29)]  # 0.05 .. 2.75 s
+    for t in knots.values():
+        assert np.allclose(t[:len(inner)], inner)
+    assert np.allclose(clock_times(0.31, 0.72, 0.1), [0.31, 0.4, 0.5, 0.6, 0.72])
 
 
 def test_force_limits_hold_wherever_newton_is_held(body):
