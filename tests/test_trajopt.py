@@ -843,11 +843,13 @@ def test_com_acceleration_may_jump_only_where_a_contact_begins_or_ends(body):
     knots = np.array([seg.nominal[0] for seg in problem.com.position.segments[1:]])
     changes = np.array([p.start for p in phases[0][1:]])  # lift-off and touch-down
     near = (np.abs(knots[:, None] - changes[None]) <= s.contact_change_reach * s.com_interval + 1e-9).any(axis=1)
-    assert len(changes) == 2 and 2 <= near.sum() < len(knots) // 2
+    assert len(changes) == 2 and 2 <= near.sum() <= len(knots) // 2
     rows = lambda settings: acceleration_continuity(build_window_problem(window, settings)).size  # noqa: E731
     everywhere = rows(dataclasses.replace(s, contact_change_reach=0.0))
-    assert everywhere == 2 * 3 * len(knots)  # position and orientation, 3 each, at every inner knot
-    assert everywhere - rows(s) == 2 * 3 * near.sum()
+    on_change = (np.abs(knots[:, None] - changes[None]) <= 1e-9).any(axis=1)  # the touch-down, 0.55 s
+    assert on_change.sum() == 1
+    assert everywhere == 2 * 3 * (len(knots) - 1)  # position and orientation, 3 each, at every other inner knot
+    assert everywhere - rows(s) == 2 * 3 * (near.sum() - 1)
 
 
 @pytest.mark.slow
@@ -866,10 +868,10 @@ def test_frames_without_observations_split_the_clip(body):
 
 @pytest.mark.slow
 def test_a_solution_far_from_the_input_is_not_used(body, caplog):
-    """Feet labelled in contact while they slide 40 cm: the converged motion keeps them still, so its centre of
+    """Feet labelled in contact while they slide 60 cm: the converged motion keeps them still, so its centre of
     mass ends far from the input's; beyond reject_departure the window is flagged and the input kept."""
     q = standing(body, 36)
-    q[:, 0] += np.linspace(0, 0.4, 36)
+    q[:, 0] += np.linspace(0, 0.6, 36)
     contacts = np.ones((36, 4), bool)
     kept = run_trajopt(body, q, FPS, contacts, TrajoptSettings(contact_drift=0.0))
     departure = kept.windows[0].com_departure
