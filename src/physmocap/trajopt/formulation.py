@@ -3,7 +3,7 @@ of frames, as named pieces (chosen by name in TrajoptSettings, as ifopt/TOWR ass
 
 variable sets
   com                 COM position and Z-Y-X Euler orientation: Hermite nodes (value, rate) every com_interval
-                      (0.05 s; the paper 0.1 s)
+                      (0.05 s; the paper 0.1 s), on multiples of it in seconds (the clock)
   foot_<point>        per heel/toe: one (x, y) per contact phase (z = 0: on the floor; constant: no slip), and
                       Hermite nodes through each flight (at least 6 polynomials per phase)
   force_<point>       per heel/toe, in body weights: Hermite nodes through each contact phase (at least 6
@@ -101,10 +101,10 @@ def clock_times(t0: float, t1: float, interval: float) -> np.ndarray:
     """t0, t1 and the multiples of `interval` seconds between them (times from the clip's first frame), none
     nearer than half an interval to t0 or t1: a grid fixed in seconds, so that the same motion at another frame
     rate, or a clip a frame shorter, keeps the same knots and samples (a grid spread evenly over [t0, t1] moves
-    all of them when t1 moves; measured: a 60 fps clip one frame shorter moved the joints 4-7 mm on average)."""
+    all of them when t1 moves: docs/decisions/trajopt-frame-rate.md)."""
     inner = np.arange(np.ceil(t0 / interval - 1e-9), np.floor(t1 / interval + 1e-9) + 1) * interval
     inner = inner[(inner > t0 + interval / 2) & (inner < t1 - interval / 2)]
-    return np.concatenate([[t0], inner, [t1]]) if t1 > t0 else np.array([t0, t1])
+    return np.concatenate([[t0], inner, [t1]])
 
 
 def sample_times(t0: float, t1: float, interval: float, frames: np.ndarray) -> np.ndarray:
@@ -209,8 +209,8 @@ def euler_torque(e, de, dde, inertia: np.ndarray):
 
 # ---- variable sets -----------------------------------------------------------------------------------------
 class ComVariables:
-    """COM position and orientation: Hermite nodes (value and rate of both) at n + 1 evenly spaced times over the
-    window, about `interval` apart; 12 numbers per node. Initialised from the input."""
+    """COM position and orientation: Hermite nodes (value and rate of both) at the window's ends and every
+    `interval` seconds of the clock between them (`clock_times`); 12 numbers per node. Initialised from the input."""
 
     def __init__(self, window: Window, interval: float, offset: int):
         red = window.reduced
