@@ -3,7 +3,7 @@ of frames, as named pieces (chosen by name in TrajoptSettings, as ifopt/TOWR ass
 
 variable sets
   com                 COM position and Z-Y-X Euler orientation: Hermite nodes (value, rate) every com_interval
-                      (0.05 s; the paper 0.1 s)
+                      (0.05 s; the paper 0.1 s), on multiples of it in seconds (the clock)
   foot_<point>        per heel/toe: one (x, y) per contact phase (z = 0: on the floor; constant: no slip), and
                       Hermite nodes through each flight (at least 6 polynomials per phase)
   force_<point>       per heel/toe, in body weights: Hermite nodes through each contact phase (at least 6
@@ -97,13 +97,22 @@ class Window:
         return float(self.reduced.times[-1])
 
 
+def clock_times(t0: float, t1: float, interval: float) -> np.ndarray:
+    """t0, t1 and the multiples of `interval` seconds between them (times from the clip's first frame), none
+    nearer than half an interval to t0 or t1: a grid fixed in seconds, so that the same motion at another frame
+    rate, or a clip a frame shorter, keeps the same knots and samples (a grid spread evenly over [t0, t1] moves
+    all of them when t1 moves: docs/decisions/trajopt-frame-rate.md)."""
+    inner = np.arange(np.ceil(t0 / interval - 1e-9), np.floor(t1 / interval + 1e-9) + 1) * interval
+    inner = inner[(inner > t0 + interval / 2) & (inner < t1 - interval / 2)]
+    return np.concatenate([[t0], inner, [t1]])
+
+
 def sample_times(t0: float, t1: float, interval: float, frames: np.ndarray) -> np.ndarray:
-    """Constraint sample times: every `interval` seconds from t0 to t1 (both included, spacing adjusted to fit),
+    """Constraint sample times: t0, t1 and every `interval` seconds of the clock between them (`clock_times`),
     or the frame times when interval is 0."""
     if interval <= 0:
         return np.asarray(frames, float)
-    n = max(1, int(round((t1 - t0) / interval)))
-    return np.linspace(t0, t1, n + 1)
+    return clock_times(t0, t1, interval)
 
 
 def frame_sample_times(frames: np.ndarray, interval: float) -> np.ndarray:
@@ -200,13 +209,13 @@ def euler_torque(e, de, dde, inertia: np.ndarray):
 
 # ---- variable sets -----------------------------------------------------------------------------------------
 class ComVariables:
-    """COM position and orientation: Hermite nodes (value and rate of both) at n + 1 evenly spaced times over the
-    window, about `interval` apart; 12 numbers per node. Initialised from the input."""
+    """COM position and orientation: Hermite nodes (value and rate of both) at the window's ends and every
+    `interval` seconds of the clock between them (`clock_times`); 12 numbers per node. Initialised from the input."""
 
     def __init__(self, window: Window, interval: float, offset: int):
         red = window.reduced
-        n = max(1, int(round((window.t1 - window.t0) / interval)))
-        self.node_times = t = np.linspace(window.t0, window.t1, n + 1)
+        self.node_times = t = clock_times(window.t0, window.t1, interval)
+        n = len(t) - 1
         self.set = VariableSet.create("com", 12 * (n + 1))
         pos = interpolate(red.times, red.com, t)
         vel = interpolate(red.times, rate(red.times, red.com), t)
