@@ -180,16 +180,20 @@ def test_stationary_leaning_pose_is_brought_back_to_balance(body):
     assert all(inside_support(c[:2], f[contacts[0], :2]) for c, f in zip(com, feet, strict=True))
 
 
-
-def test_a_correction_relaxes_once_the_observed_pose_is_balanced_again(body):
-    """A person leaning out of balance for a second, then standing upright and still: the accumulated tilt
-    decays at the rate it grew and is dropped, so the upright frames end as observed (not moved for good)."""
+def upright_and_leaning(body) -> tuple[np.ndarray, np.ndarray]:
+    """A standing pose (nq,) and the same pose tipped 25 degrees forward about the toes: out of balance."""
     upright = standing(body, 1)[0]
     toes = kin.forward_kinematics(body, body.rest_qpos).points[0, body.point_index(["left_toe", "right_toe"])]
     pivot = toes.mean(axis=0)
     angle = np.radians(25)
     R = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
-    leaning = rigid_transform_qpos(upright[None], R, pivot - R @ pivot)[0]
+    return upright, rigid_transform_qpos(upright[None], R, pivot - R @ pivot)[0]
+
+
+def test_a_correction_relaxes_once_the_observed_pose_is_balanced_again(body):
+    """A person leaning out of balance for a second, then standing upright and still: the accumulated tilt
+    decays at the rate it grew and is dropped, so the upright frames end as observed (not moved for good)."""
+    upright, leaning = upright_and_leaning(body)
     corrector = BalanceCorrector(body)
     contacts = np.ones(4, bool)
     for _ in range(int(FPS)):
@@ -202,15 +206,11 @@ def test_a_correction_relaxes_once_the_observed_pose_is_balanced_again(body):
     assert all(b <= a for a, b in zip(tilts, tilts[1:], strict=False))
     assert not corrected and corrector.tilt == 0.0 and np.array_equal(q, upright)
 
+
 def test_the_correction_grows_at_the_same_pace_in_seconds_at_any_frame_rate(body):
     """PhysicsStream's balance correction takes its share per frame from correction_time: after 0.3 s of the same
     leaning pose the accumulated tilt is the same at 10 and 60 fps (per frame, 60 fps grew it six times faster)."""
-    upright = standing(body, 1)[0]
-    toes = kin.forward_kinematics(body, body.rest_qpos).points[0, body.point_index(["left_toe", "right_toe"])]
-    pivot = toes.mean(axis=0)
-    angle = np.radians(25)
-    R = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
-    leaning = rigid_transform_qpos(upright[None], R, pivot - R @ pivot)[0]
+    upright, leaning = upright_and_leaning(body)
     tilts = {}
     for fps in (10.0, 60.0):
         corrector = PhysicsStream(body, PhysicsSettings(), fps).balance
