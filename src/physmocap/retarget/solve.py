@@ -146,15 +146,10 @@ def _extend_spots(spots: np.ndarray, contacts: np.ndarray) -> np.ndarray:
     return out
 
 
-def solve_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray,
-               iterations: int = IK_ITERATIONS) -> tuple[np.ndarray, np.ndarray]:
-    """IK of every frame: joints (JOINT_NAMES) towards their positions in `qpos` (T, nq) (a frame whose lowest
-    contact point is below the floor lifted out of it first, then every frame moved by `follow_planted_feet`),
-    contact points (CONTACT_POINTS) in contact (T, 4) onto their planted spots, every contact point on or above
-    z = 0, hinges within their limits. Returns the solved qpos (T, nq) and the planted spots (T, 4, 3)."""
-    joints = body.point_index(JOINT_NAMES)
-    feet = body.point_index(CONTACT_POINTS)
-    contact_columns = np.array([list(JOINT_NAMES).index(n) for n in CONTACT_POINTS])
+def _ik_goals(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, joints: np.ndarray, feet: np.ndarray,
+              contact_columns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """solve_feet's starting motion (T, nq) (lifted out of the floor, moved by `follow_planted_feet`), the joints'
+    goals (T, J, 3) with the contact points eased onto their spots, their weights (T, J), and the spots (T, 4, 3)."""
     qpos = np.array(qpos, dtype=float)
     # A frame sunk into the floor is first lifted whole out of it, so that the joints' targets stand on the floor.
     qpos[:, 2] += np.maximum(0.0, -kin.forward_kinematics(body, qpos).points[:, feet, 2].min(axis=1))
@@ -172,6 +167,19 @@ def solve_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray,
     goal[:, contact_columns] = goal_feet
     weights = np.full(goal.shape[:2], POSE_WEIGHT)
     weights[:, contact_columns] = POSE_WEIGHT + (CONTACT_WEIGHT - POSE_WEIGHT) * blend
+    return qpos, goal, weights, spots
+
+
+def solve_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray,
+               iterations: int = IK_ITERATIONS) -> tuple[np.ndarray, np.ndarray]:
+    """IK of every frame: joints (JOINT_NAMES) towards their positions in `qpos` (T, nq) (a frame whose lowest
+    contact point is below the floor lifted out of it first, then every frame moved by `follow_planted_feet`),
+    contact points (CONTACT_POINTS) in contact (T, 4) onto their planted spots, every contact point on or above
+    z = 0, hinges within their limits. Returns the solved qpos (T, nq) and the planted spots (T, 4, 3)."""
+    joints = body.point_index(JOINT_NAMES)
+    feet = body.point_index(CONTACT_POINTS)
+    contact_columns = np.array([list(JOINT_NAMES).index(n) for n in CONTACT_POINTS])
+    qpos, goal, weights, spots = _ik_goals(body, qpos, contacts, joints, feet, contact_columns)
     tab = kin.tables(body)
     hinge_q = tab.qadr[tab.hinge_bodies]
     limits = np.array([body.bodies[b].limit for b in tab.hinge_bodies])

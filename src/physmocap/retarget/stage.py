@@ -257,6 +257,13 @@ def _character_result(source: dict[str, np.ndarray], character: Character, chara
     return result
 
 
+def _path_departure(final: np.ndarray, source: np.ndarray, scale: float) -> np.ndarray:
+    """(n,) m: how far the character's pelvis (final (n, points, 3), at the source's size) leaves the capture's
+    (source (n, points, 3)) along the floor: the price of feet that stay where the source's slid
+    (solve.follow_planted_feet)."""
+    return np.linalg.norm(final[:, 0, :2] / scale - source[:, 0, :2], axis=-1)
+
+
 def retarget_result(result_path: str | os.PathLike, character_path: str | os.PathLike, out_dir: str | os.PathLike,
                     *, character_map: str | os.PathLike | None = None, physics: str = "physcap",
                     settings: Settings | None = None) -> RetargetReport:
@@ -273,8 +280,7 @@ def retarget_result(result_path: str | os.PathLike, character_path: str | os.Pat
     body = character.body
     fps = float(source["fps"])
     valid = np.asarray(source["valid"], bool)
-    # A frame without a person carries no contact evidence (its labels come from interpolated keypoints): no foot
-    # is held through it, or the character stays on the spot while the source walks on across the gap.
+    # No foot is held through a frame without a person (its labels come from interpolated keypoints).
     contacts = np.asarray(source["contacts"], bool) & valid[:, None]
     T = len(source["qpos"])
 
@@ -297,9 +303,7 @@ def retarget_result(result_path: str | os.PathLike, character_path: str | os.Pat
     grf = outcome.grf
     metrics = retarget_metrics(character, source["joints_world"][frames], outcome.qpos[frames], positions[frames],
                                contacts[frames], fps, None if grf is None else grf[frames], follows_gap(frames))
-    # How far the character's path leaves the capture's (its pelvis at the source's size, along the floor): the
-    # price of feet that stay where the source's slid (solve.follow_planted_feet).
-    departure = np.linalg.norm(final[frames, 0, :2] / retargeted.scale - source["joints_world"][frames, 0, :2], axis=-1)
+    departure = _path_departure(final[frames], source["joints_world"][frames], retargeted.scale)
     metrics.update(retarget_ms_per_frame=1000 * retarget_seconds / T, physics_ms_per_frame=1000 * physics_seconds / T,
                    physics=physics, scale=retargeted.scale, path_departure_mean_m=float(departure.mean()),
                    path_departure_max_m=float(departure.max()),
