@@ -362,6 +362,24 @@ def mpe_pnp(foot_points: np.ndarray, contacts: np.ndarray, floor_height: float =
     return mpe, mpe_std, float(100.0 * non_penetrating.mean())
 
 
+def contact_skating(foot_points: np.ndarray, contacts: np.ndarray, fps: float | None = None,
+                    skate_threshold: float = SKATE_THRESHOLD, floor_plane: np.ndarray | None = None,
+                    breaks: np.ndarray | None = None) -> np.ndarray:
+    """(T, F) bool: foot joints (T, F, 3) m in contact (T, F) on this frame and the one before that moved along
+    the floor by more than the skate threshold between them (per frame at 30 fps, rescaled to the same speed
+    when fps is given); none into a row of `breaks` (T,) bool, which does not follow the previous row in time.
+    Frame 0 never skates. The skate of `foot_contact_errors`."""
+    step_threshold = skate_threshold if fps is None else skate_threshold * SKATE_REFERENCE_FPS / fps
+    normal = _floor_normal(floor_plane)
+    steps = np.diff(foot_points, axis=0)
+    sliding_steps = steps - (steps @ normal)[..., None] * normal
+    skating = np.zeros(contacts.shape, bool)
+    skating[1:] = contacts[1:] & contacts[:-1] & (np.linalg.norm(sliding_steps, axis=-1) > step_threshold)
+    if breaks is not None:
+        skating[np.asarray(breaks, bool)] = False
+    return skating
+
+
 def foot_contact_errors(foot_points: np.ndarray, contacts: np.ndarray, fps: float | None = None,
                         floating_threshold: float = FLOATING_THRESHOLD,
                         penetration_threshold: float = PENETRATION_THRESHOLD,
@@ -398,14 +416,7 @@ def foot_contact_errors(foot_points: np.ndarray, contacts: np.ndarray, fps: floa
     floating = in_contact & (heights > floating_threshold)
     penetrating = heights < -penetration_threshold
 
-    step_threshold = skate_threshold if fps is None else skate_threshold * SKATE_REFERENCE_FPS / fps
-    normal = _floor_normal(floor_plane)
-    steps = np.diff(points, axis=0)
-    sliding_steps = steps - (steps @ normal)[..., None] * normal
-    skating = np.zeros_like(in_contact)
-    skating[1:] = in_contact[1:] & in_contact[:-1] & (np.linalg.norm(sliding_steps, axis=-1) > step_threshold)
-    if breaks is not None:
-        skating[np.asarray(breaks, bool)] = False
+    skating = contact_skating(points, in_contact, fps, skate_threshold, floor_plane, breaks)
 
     contact_count = in_contact.sum()
     return {

@@ -31,8 +31,7 @@ from ..io.atomic import write_text
 from ..metrics import (
     FLOATING_THRESHOLD,
     GRAVITY,
-    SKATE_REFERENCE_FPS,
-    SKATE_THRESHOLD,
+    contact_skating,
     foot_contact_errors,
     grf_statistics,
 )
@@ -119,11 +118,7 @@ def retarget_metrics(character: Character, source_points: np.ndarray, qpos: np.n
     contacts = np.asarray(contacts, bool)
     foot = foot_contact_errors(feet, contacts, fps, breaks=breaks)
     heights = feet[..., 2]
-    steps = np.zeros(contacts.shape)
-    steps[1:] = np.linalg.norm(np.diff(feet[..., :2], axis=0), axis=-1)
-    sliding = np.zeros_like(contacts)
-    sliding[1:] = contacts[1:] & contacts[:-1] & (steps[1:] > SKATE_THRESHOLD * SKATE_REFERENCE_FPS / fps)
-    sliding[breaks] = False
+    sliding = contact_skating(feet, contacts, fps, breaks=breaks)
     kept = contacts & (np.abs(heights) <= FLOATING_THRESHOLD) & ~sliding
     names = list(RESULT_POINTS)
     body_points = pose.points[:, body.point_index(RESULT_POINTS)]
