@@ -209,6 +209,18 @@ def explained_jitter(points: np.ndarray, fps: float, explained: np.ndarray) -> f
     return float(np.linalg.norm(second[inner], axis=-1).mean() * fps ** 2) if inner.any() else float("nan")
 
 
+def against_reference(run: dict, reference: dict) -> tuple[list[int], list[int], np.ndarray, np.ndarray]:
+    """A rate's run against the 60 fps one (each with "times" (T,) s and joint "points" (T, J, 3) m), at the
+    times both hold from 0.5 s on: the run's frames there, the reference's matching frames, and per common time
+    the mean joint distance (m) and the same for the posture alone (joints relative to the root)."""
+    index = [i for i, time in enumerate(run["times"]) if time >= 0.5
+             and np.isclose(reference["times"], time, atol=1e-6).any()]
+    match = [int(np.argmin(np.abs(reference["times"] - run["times"][i]))) for i in index]
+    a, b = run["points"][index], reference["points"][match]
+    return (index, match, np.linalg.norm(a - b, axis=-1).mean(axis=1),
+            np.linalg.norm((a - a[:, :1]) - (b - b[:, :1]), axis=-1).mean(axis=1))
+
+
 def part_framerate(clips, overrides=None) -> dict:
     """The 60 fps offline case's B.4-refined kinematic motion resampled to each rate (the same motion), PhysCap at
     each rate as offline capture runs it (refined_input); joints against the 60 fps run at common times."""
@@ -233,14 +245,7 @@ def part_framerate(clips, overrides=None) -> dict:
         reference = runs[60.0]
         for fps in RATES:
             run, physics = runs[fps], runs[fps]["physics"]
-            index = [i for i, time in enumerate(run["times"]) if time >= 0.5
-                     and np.isclose(reference["times"], time, atol=1e-6).any()]
-            match = [int(np.argmin(np.abs(reference["times"] - run["times"][i]))) for i in index]
-            distance = np.linalg.norm(run["points"][index] - reference["points"][match], axis=-1).mean(axis=1)
-            # the posture alone (joints relative to the root) and the root's horizontal placement
-            relative = np.linalg.norm((run["points"][index] - run["points"][index, :1])
-                                      - (reference["points"][match] - reference["points"][match, :1]),
-                                      axis=-1).mean(axis=1)
+            index, match, distance, relative = against_reference(run, reference)
             root_horizontal = np.linalg.norm(physics.qpos[index, :2] - reference["physics"].qpos[match, :2], axis=-1)
             flagged = getattr(physics, "unexplained", None)
             rows.append(dict(clip=name.split("/")[-1], fps=fps,

@@ -481,12 +481,7 @@ def framerate(validation: bool) -> list[dict]:
         reference = runs[60.0]
         for fps in limits.RATES:
             run, result = runs[fps], runs[fps]["result"]
-            index = [i for i, t in enumerate(run["times"]) if t >= 0.5
-                     and np.isclose(reference["times"], t, atol=1e-6).any()]
-            match = [int(np.argmin(np.abs(reference["times"] - run["times"][i]))) for i in index]
-            a, b = run["points"][index], reference["points"][match]
-            distance = np.linalg.norm(a - b, axis=-1).mean(axis=1)
-            relative = np.linalg.norm((a - a[:, :1]) - (b - b[:, :1]), axis=-1).mean(axis=1)
+            index, match, distance, relative = limits.against_reference(run, reference)
             both = result.converged[index] & reference["result"].converged[match]
             weight = body.mass * metrics.GRAVITY
             rows.append(dict(clip=name.split("/")[-1], fps=fps, frames=len(result.qpos), cpu_seconds=run["cpu"],
