@@ -50,6 +50,9 @@ def test_capture_from_observations_with_physics_and_export(captured, tmp_path):
 def test_bad_arguments_are_one_sentence_input_errors(tmp_path):
     with pytest.raises(InputError, match="unknown setting 'fit_no_such_thing'"):
         physmocap.capture(DEMO_VIDEO, tmp_path / "x", fit_no_such_thing=1)
+    with pytest.raises(InputError, match="unknown setting 'physics_correction_rate' \\(did you mean "
+                                         "physics_correction_time\\?\\)"):
+        physmocap.capture(DEMO_VIDEO, tmp_path / "x", physics_correction_rate=0.1)
     with pytest.raises(InputError, match="physics.method"):
         physmocap.capture(DEMO_VIDEO, tmp_path / "x", physics="magic")
     with pytest.raises(InputError, match="no such video"):

@@ -12,7 +12,7 @@ import pytest
 
 from physmocap.cli import build_parser
 from physmocap.config import Settings, load_settings
-from physmocap.errors import SettingsError
+from physmocap.errors import InputError, SettingsError
 from physmocap.settings_fields import Section, describe
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -87,6 +87,20 @@ def test_a_settings_file_out_of_range_is_named_with_the_key(tmp_path):
     path.write_text("online = true\noverlay_width = 640\n[fit]\nweight_depth = 0.5\n")
     settings = load_settings(path)
     assert (settings.online, settings.overlay_width, settings.fit.weight_depth) == (True, 640, 0.5)
+
+
+def test_an_unknown_setting_names_the_nearest_known_one(tmp_path):
+    path = tmp_path / "settings.toml"
+    path.write_text("[physics]\ncorrection_rate = 0.1\n")  # renamed to correction_time (seconds)
+    with pytest.raises(InputError, match=r"unknown setting physics.correction_rate \(did you mean "
+                                         r"physics.correction_time\?\)\.$"):
+        load_settings(path)
+    path.write_text("overlay_widht = 640\n")
+    with pytest.raises(InputError, match=r"unknown setting 'overlay_widht' \(did you mean overlay_width\?\)"):
+        load_settings(path)
+    path.write_text("[physics]\nzzz = 1\n")
+    with pytest.raises(InputError, match=r"unknown setting physics.zzz\.$"):
+        load_settings(path)
 
 
 def test_help_of_capture_options_comes_from_the_declarations():

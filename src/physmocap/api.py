@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from .errors import InputError
+from .settings_fields import nearest
 
 PathLike = str | os.PathLike
 
@@ -148,8 +149,9 @@ def _with_overrides(settings: Any, overrides: Mapping[str, Any]) -> Any:
         section = next((s for s in sections if name.startswith(s + "_")), None)
         field = name[len(section) + 1:] if section else ""
         if section is None or field not in {f.name for f in dataclasses.fields(getattr(settings, section))}:
-            raise InputError(f"capture() got an unknown setting '{name}': write <section>_<field>, with section one "
-                             f"of {', '.join(sections)} (e.g. fit_weight_smooth).")
+            known = [f"{s}_{f.name}" for s in sections for f in dataclasses.fields(getattr(settings, s))]
+            raise InputError(f"capture() got an unknown setting '{name}'{nearest(name, known)}: write "
+                             f"<section>_<field>, with section one of {', '.join(sections)} (e.g. fit_weight_smooth).")
         settings = settings.replace(section, **{field: tuple(value) if isinstance(value, list) else value})
     return settings
 

@@ -4,6 +4,7 @@ declarations themselves are in `physmocap.config`."""
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import functools
 import math
 import tomllib
@@ -168,6 +169,12 @@ def read_toml(path: Path, what: str) -> dict:
         raise InputError(f"{path}: not a valid TOML {what} file ({exc}).") from None
 
 
+def nearest(name: str, known, prefix: str = "") -> str:
+    """" (did you mean PREFIX+X?)" for the known name closest to a misspelt or renamed `name`, else ""."""
+    match = difflib.get_close_matches(name, list(known), n=1, cutoff=0.6)
+    return f" (did you mean {prefix}{match[0]}?)" if match else ""
+
+
 def _typed(path: Path, owner: type, values: dict) -> dict:
     """`values` for fields of the dataclass `owner` (lists as tuples); SettingsError naming the file and the first
     value of the wrong type."""
@@ -191,12 +198,14 @@ def load_toml(root: type, path: Path):
         if isinstance(value, dict):
             if key not in sections:
                 raise InputError(f"{path}: unknown settings section [{key}].")
-            unknown = set(value) - {f.name for f in dataclasses.fields(getattr(settings, key))}
+            names = [f.name for f in dataclasses.fields(getattr(settings, key))]
+            unknown = set(value) - set(names)
             if unknown:
-                raise InputError(f"{path}: unknown setting {key}.{sorted(unknown)[0]}.")
+                name = sorted(unknown)[0]
+                raise InputError(f"{path}: unknown setting {key}.{name}{nearest(name, names, key + '.')}.")
             settings = settings.replace(key, **_typed(path, type(getattr(settings, key)), value))
         elif key not in top_level:
-            raise InputError(f"{path}: unknown setting '{key}'.")
+            raise InputError(f"{path}: unknown setting '{key}'{nearest(key, sorted(top_level | sections))}.")
     settings = settings.replace(None, **_typed(path, root, {k: v for k, v in data.items() if not isinstance(v, dict)}))
     try:
         return settings.check()
