@@ -866,6 +866,21 @@ def test_frames_without_observations_split_the_clip(body):
     assert not tiny.converged.any() and np.array_equal(tiny.qpos, q[:2])
 
 
+def test_frames_whose_com_is_below_the_floor_are_kept_kinematic_and_flagged(body, caplog):
+    """A COM below the floor (a person leaving the view, a floor at another height) is not a motion the feet on
+    the floor explain: optimised, such an island at the clip's end asked for several body weights."""
+    q = sway(body, 50)
+    q[40:, 2] -= 1.5  # the last 10 frames sink below the floor
+    with caplog.at_level(logging.WARNING, logger="physmocap"):
+        result = run_trajopt(body, q, FPS, np.ones((50, 4), bool), TrajoptSettings(contact_drift=0.0))
+    assert np.array_equal(result.unexplained, np.arange(50) >= 40)
+    assert result.converged[:40].all() and not result.converged[40:].any()
+    assert np.array_equal(result.qpos[40:], q[40:]) and np.all(result.grf[40:] == 0)
+    assert "40-49" in caplog.text and "below the floor" in caplog.text
+    again = stage.TrajoptMotion.from_arrays(result.to_arrays())
+    assert np.array_equal(again.unexplained, result.unexplained)
+
+
 @pytest.mark.slow
 def test_a_solution_far_from_the_input_is_not_used(body, caplog):
     """Feet labelled in contact while they slide 60 cm: the converged motion keeps them still, so its centre of
