@@ -658,6 +658,33 @@ def test_force_rate_cost_is_the_frames_force_differences(body):
     assert np.isclose(cost, expected, rtol=1e-9)
 
 
+def test_smoothing_is_read_between_frames_below_30_fps(body):
+    """At 10 fps the velocity and force_rate terms read at the frames only let the polynomials swing between
+    frames without cost; they are read every 1/30 s, each sample weighing a third of a frame interval."""
+    fps, n = 10.0, 12
+    q = sway(body, n)
+    red = reduced_motion(body, q, fps)
+    flags = np.ones(n, bool)
+    flags[5:7] = False
+    phases = [contact_phases(flags, red.times)] + [contact_phases(np.ones(n, bool), red.times)] * 3
+    settings = TrajoptSettings(force_rate=0.3, velocity_com=0.7, velocity_orientation=0.0, velocity_feet=0.0)
+    problem = build_window_problem(Window(red, phases), settings)
+    x = np.random.default_rng(1).normal(size=int(problem.x.shape[0]))
+    samples = np.arange(3 * (n - 1) + 1) / 30.0
+
+    def term(name):
+        return float(ca.Function("c", [problem.x], [problem.costs[name].expression(problem.x)])(x))
+
+    def read(trajectory, order=0):
+        return np.asarray(ca.Function("f", [problem.x], [problem.sample(trajectory, samples, order)])(x))
+
+    expected = sum(settings.force_rate / 3 * np.sum((np.diff(read(f.trajectory), axis=1) * 30.0) ** 2)
+                   for f in problem.forces)
+    assert np.isclose(term("force_rate"), expected, rtol=1e-9)
+    velocity = settings.velocity_com / 3 * np.sum(read(problem.com.position, 1) ** 2)
+    assert np.isclose(term("velocity"), velocity, rtol=1e-9)
+
+
 @pytest.mark.slow
 def test_forces_at_24_fps_obey_newton_at_every_frame_without_chatter(body):
     """At 24 fps a grid of 1/60 s from the first frame missed every other frame, and there the forces, free,
