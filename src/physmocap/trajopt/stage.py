@@ -157,6 +157,9 @@ class TrajoptMotion:
         if done < len(self.converged):
             why = " or departed from the input" if any(w.departed for w in self.windows) else ""
             line += f"; NOT converged{why} (kinematic motion kept): frames {', '.join(self.failed_frames)}"
+        if self.unexplained is not None and self.unexplained.any():
+            below = ", ".join(frame_ranges(np.flatnonzero(self.unexplained)))
+            line += f"; of these, the input's centre of mass is below the floor on frames {below}"
         return line
 
     def to_arrays(self) -> dict[str, np.ndarray]:
