@@ -658,6 +658,33 @@ def test_force_rate_cost_is_the_frames_force_differences(body):
     assert np.isclose(cost, expected, rtol=1e-9)
 
 
+def test_smoothing_is_read_between_frames_below_30_fps(body):
+    """At 10 fps the velocity and force_rate terms read at the frames only let the polynomials swing between
+    frames without cost; they are read every 1/30 s, each sample weighing a third of a frame interval."""
+    fps, n = 10.0, 12
+    q = sway(body, n)
+    red = reduced_motion(body, q, fps)
+    flags = np.ones(n, bool)
+    flags[5:7] = False
+    phases = [contact_phases(flags, red.times)] + [contact_phases(np.ones(n, bool), red.times)] * 3
+    settings = TrajoptSettings(force_rate=0.3, velocity_com=0.7, velocity_orientation=0.0, velocity_feet=0.0)
+    problem = build_window_problem(Window(red, phases), settings)
+    x = np.random.default_rng(1).normal(size=int(problem.x.shape[0]))
+    samples = np.arange(3 * (n - 1) + 1) / 30.0
+
+    def term(name):
+        return float(ca.Function("c", [problem.x], [problem.costs[name].expression(problem.x)])(x))
+
+    def read(trajectory, order=0):
+        return np.asarray(ca.Function("f", [problem.x], [problem.sample(trajectory, samples, order)])(x))
+
+    expected = sum(settings.force_rate / 3 * np.sum((np.diff(read(f.trajectory), axis=1) * 30.0) ** 2)
+                   for f in problem.forces)
+    assert np.isclose(term("force_rate"), expected, rtol=1e-9)
+    velocity = settings.velocity_com / 3 * np.sum(read(problem.com.position, 1) ** 2)
+    assert np.isclose(term("velocity"), velocity, rtol=1e-9)
+
+
 @pytest.mark.slow
 def test_forces_at_24_fps_obey_newton_at_every_frame_without_chatter(body):
     """At 24 fps a grid of 1/60 s from the first frame missed every other frame, and there the forces, free,
@@ -864,6 +891,22 @@ def test_frames_without_observations_split_the_clip(body):
     assert result.failed_frames == ["30-35"]
     tiny = run_trajopt(body, q[:2], FPS, np.ones((2, 4), bool), QUICK)
     assert not tiny.converged.any() and np.array_equal(tiny.qpos, q[:2])
+
+
+def test_frames_whose_com_is_below_the_floor_are_kept_kinematic_and_flagged(body, caplog):
+    """A COM below the floor (a person leaving the view, a floor at another height) is not a motion the feet on
+    the floor explain: optimised, such an island at the clip's end asked for several body weights."""
+    q = sway(body, 50)
+    q[40:, 2] -= 1.5  # the last 10 frames sink below the floor
+    with caplog.at_level(logging.WARNING, logger="physmocap"):
+        result = run_trajopt(body, q, FPS, np.ones((50, 4), bool), TrajoptSettings(contact_drift=0.0))
+    assert np.array_equal(result.unexplained, np.arange(50) >= 40)
+    assert result.converged[:40].all() and not result.converged[40:].any()
+    assert np.array_equal(result.qpos[40:], q[40:]) and np.all(result.grf[40:] == 0)
+    assert "40-49" in caplog.text and "below the floor" in caplog.text
+    assert "below the floor on frames 40-49" in result.summary()
+    again = stage.TrajoptMotion.from_arrays(result.to_arrays())
+    assert np.array_equal(again.unexplained, result.unexplained)
 
 
 @pytest.mark.slow

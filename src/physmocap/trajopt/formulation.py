@@ -24,9 +24,10 @@ constraint sets
   force_limits        0 <= f_n <= f_max and |f_t| <= mu f_n (friction pyramid) at force nodes and frames
   above_floor         z >= 0 for feet in flight
 cost terms
-  data, velocity, acceleration   equations (1), (3), (4) at every frame (the feet's derivatives per 1/30 s)
+  data, velocity, acceleration   equations (1), (3), (4) at every frame (the feet's derivatives per 1/30 s); the
+                                 smoothing terms also between frames below 30 fps (ours, smoothing_samples)
   duration                       equation (2) (last stage only)
-  force_rate                     the contact forces' rates at every frame (ours)
+  force_rate                     the contact forces' rates between the same samples (ours)
 
 Everything is written on whole rows of samples (3, n): a trajectory sampled at fixed times is one sparse
 product with x, so building the program costs little more than its size. World frame: Z up, floor z = 0 (the
@@ -775,19 +776,32 @@ CONSTRAINTS = dict(dynamics=dynamics, acceleration_continuity=acceleration_conti
 # COM's acceleration unsmoothed, and the forces at the frames noisy (max 239% of body weight against 137% on
 # the synthetic walks, measured).
 FEET_SMOOTHING_STEP = 1.0 / 30.0  # s
+# The smoothing terms (velocity, acceleration, force_rate) are read at the frames and, below 30 fps, also between
+# them at most this far apart, each sample weighted 1 / samples per frame interval (a frame interval weighs as
+# before against the data term; 30 and 60 fps unchanged): read at 10 fps frames only, the polynomials swung
+# between frames without cost (docs/decisions/trajopt-frame-rate.md).
+SMOOTHING_INTERVAL = 1.0 / 30.0  # s
+
+
+def smoothing_samples(frames: np.ndarray) -> tuple[np.ndarray, float]:
+    """Times (n,) s at which the smoothing terms are read (`frame_sample_times` every SMOOTHING_INTERVAL) and each
+    sample's weight: 1 / samples per frame interval."""
+    times = frame_sample_times(frames, SMOOTHING_INTERVAL)
+    return times, (len(frames) - 1) / max(1, len(times) - 1)
 
 
 def _frame_cost(problem: WindowProblem, name: str, order: int, weights: tuple[float, float, float],
                 targets: bool) -> CostTerm:
     red = problem.window.reduced
-    times = red.times
+    times, share = (red.times, 1.0) if targets else smoothing_samples(red.times)
     w_p = weights[2] * FEET_SMOOTHING_STEP ** (2 * order)
-    parts = [(weights[0], problem.com.position, red.com), (weights[1], problem.com.orientation, red.euler)]
-    parts += [(w_p, foot.trajectory, red.feet[:, i]) for i, foot in enumerate(problem.feet)]
+    parts = [(share * weights[0], problem.com.position, red.com),
+             (share * weights[1], problem.com.orientation, red.euler)]
+    parts += [(share * w_p, foot.trajectory, red.feet[:, i]) for i, foot in enumerate(problem.feet)]
     if not any(trajectory.symbolic_times for _, trajectory, _ in parts):
         size = int(problem.x.shape[0])
         return CostTerm.least_squares(name, [
-            (weight, trajectory.matrix(times, order, size), target.ravel() if targets else np.zeros(target.size))
+            (weight, trajectory.matrix(times, order, size), target.ravel() if targets else np.zeros(3 * len(times)))
             for weight, trajectory, target in parts])
     total: Any = 0
     for weight, trajectory, target in parts:
@@ -803,15 +817,15 @@ def data(problem: WindowProblem) -> CostTerm:
 
 
 def velocity(problem: WindowProblem) -> CostTerm:
-    """E_vel (3): gamma_r |r'|^2 + gamma_theta |theta'|^2 + gamma_p sum |p_i'|^2 at every frame (the feet's per
-    1/30 s step)."""
+    """E_vel (3): gamma_r |r'|^2 + gamma_theta |theta'|^2 + gamma_p sum |p_i'|^2 at every frame and between frames
+    (smoothing_samples; the feet's per 1/30 s step)."""
     s = problem.settings
     return _frame_cost(problem, "velocity", 1, (s.velocity_com, s.velocity_orientation, s.velocity_feet), False)
 
 
 def acceleration(problem: WindowProblem) -> CostTerm:
-    """E_acc (4): beta_r |r''|^2 + beta_theta |theta''|^2 + beta_p sum |p_i''|^2 at every frame (the feet's per
-    (1/30 s)^2)."""
+    """E_acc (4): beta_r |r''|^2 + beta_theta |theta''|^2 + beta_p sum |p_i''|^2 at every frame and between frames
+    (smoothing_samples; the feet's per (1/30 s)^2)."""
     s = problem.settings
     return _frame_cost(problem, "acceleration", 2,
                        (s.acceleration_com, s.acceleration_orientation, s.acceleration_feet), False)
@@ -831,12 +845,14 @@ def duration(problem: WindowProblem) -> CostTerm:
 
 
 def force_rate(problem: WindowProblem) -> CostTerm:
-    """E_force_rate (ours): w_f sum |(f_i(t_k+1) - f_i(t_k)) / (t_k+1 - t_k)|^2 over consecutive frames, forces in
-    body weights: their rate as read at the frames. Without it the split of the load among the points in contact
-    is free, and the forces read at the frames chatter (docs/decisions/trajopt-force-chatter.md). Differences of
-    the frames' values, not the polynomials' derivative there, which the optimiser could keep at zero at the
-    frames and steep between them."""
-    s, times = problem.settings, problem.window.reduced.times
+    """E_force_rate (ours): w_f sum |(f_i(t_k+1) - f_i(t_k)) / (t_k+1 - t_k)|^2 over consecutive samples (the
+    frames and, below 30 fps, between them: smoothing_samples, each weighted), forces in body weights. Without it
+    the split of the load among the points in contact is free, and the forces read at the frames chatter
+    (docs/decisions/trajopt-force-chatter.md). Differences of the samples' values, not the polynomials'
+    derivative there, which the optimiser could keep at zero at the samples and steep between them."""
+    s = problem.settings
+    times, share = smoothing_samples(problem.window.reduced.times)
+    weight = share * s.force_rate
     total: Any = 0  # a CasADi expression once a force adds to it
     if len(times) < 2:
         return CostTerm("force_rate", total)
@@ -850,12 +866,12 @@ def force_rate(problem: WindowProblem) -> CostTerm:
                                                                  np.concatenate([rows, rows + 3]))),
                                 shape=(3 * (n - 1), 3 * n))
         return CostTerm.least_squares("force_rate", [
-            (s.force_rate, rate_of @ force.trajectory.matrix(times, 0, size), np.zeros(3 * (n - 1)))
+            (weight, rate_of @ force.trajectory.matrix(times, 0, size), np.zeros(3 * (n - 1)))
             for force in forces])
     rate = ca.DM(1.0 / np.diff(times)).T
     for force in forces:
         f = problem.sample(force.trajectory, times)
-        total = total + s.force_rate * ca.sumsqr((f[:, 1:] - f[:, :-1]) * ca.repmat(rate, 3, 1))
+        total = total + weight * ca.sumsqr((f[:, 1:] - f[:, :-1]) * ca.repmat(rate, 3, 1))
     return CostTerm("force_rate", total)
 
 

@@ -116,7 +116,9 @@ class TrajoptMotion:
     qp_failures: (T,) int, 1 where not converged (so `qp_failures > 0` flags fallback frames as for PhysCap);
     com, com_acceleration, euler, feet: (T, 3), (T, 3), (T, 3), (T, 4, 3) the optimised reduced motion (m,
         m/s^2, Z-Y-X Euler angles in rad, m; nan where not converged);
-    windows: one report per window; seconds: time spent, ik_seconds of it in the full-body output (C.4).
+    windows: one report per window; seconds: time spent, ik_seconds of it in the full-body output (C.4);
+    unexplained: (T,) bool, observed frames the contact model cannot explain (`unexplained_frames`), not optimised
+        and kept kinematic (so also not converged); None: not diagnosed.
     """
 
     qpos: np.ndarray
@@ -133,6 +135,7 @@ class TrajoptMotion:
     windows: list[WindowReport] = field(default_factory=list)
     seconds: float = 0.0
     ik_seconds: float = 0.0
+    unexplained: np.ndarray | None = None
 
     @property
     def failed_frames(self) -> list[str]:
@@ -154,6 +157,9 @@ class TrajoptMotion:
         if done < len(self.converged):
             why = " or departed from the input" if any(w.departed for w in self.windows) else ""
             line += f"; NOT converged{why} (kinematic motion kept): frames {', '.join(self.failed_frames)}"
+        if self.unexplained is not None and self.unexplained.any():
+            below = ", ".join(frame_ranges(np.flatnonzero(self.unexplained)))
+            line += f"; of these, the input's centre of mass is below the floor on frames {below}"
         return line
 
     def to_arrays(self) -> dict[str, np.ndarray]:
@@ -163,6 +169,7 @@ class TrajoptMotion:
 
         arrays = {f.name: np.asarray(getattr(self, f.name)) for f in dataclasses.fields(self)}
         arrays["windows"] = np.array(json.dumps([w.to_dict() for w in self.windows]))
+        arrays["unexplained"] = np.zeros(0, bool) if self.unexplained is None else np.asarray(self.unexplained, bool)
         return arrays
 
     @classmethod
@@ -173,6 +180,7 @@ class TrajoptMotion:
         values = {f.name: arrays[f.name] for f in dataclasses.fields(cls)}
         values["windows"] = [WindowReport.from_dict(w) for w in json.loads(str(values["windows"]))]
         values["seconds"], values["ik_seconds"] = float(values["seconds"]), float(values["ik_seconds"])
+        values["unexplained"] = None if len(values["unexplained"]) == 0 else values["unexplained"]
         return cls(**values)
 
 
@@ -223,8 +231,14 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     settings = TrajoptSettings() if settings is None else settings
     settings.check()
     T = len(qpos_kin)
-    valid = np.ones(T, bool) if valid is None else np.asarray(valid, bool)
+    observed = np.ones(T, bool) if valid is None else np.asarray(valid, bool)
     reduced = reduced_motion(body, qpos_kin, fps)
+    unexplained = observed & unexplained_frames(reduced.com)
+    if unexplained.any():
+        log.warning("trajopt: on frames %s the input's centre of mass lies below the floor, which contacts on the "
+                    "floor cannot explain: the kinematic motion is kept there.",
+                    ", ".join(frame_ranges(np.flatnonzero(unexplained))))
+    valid = observed & ~unexplained
     min_frames = max(1, math.ceil(settings.min_phase_seconds * fps - 1e-9))
     flags = np.stack([clean_flags(contacts[:, i], min_frames) for i in range(4)], axis=1) & valid[:, None]
     flags = _support_held_flights(flags, reduced, valid, settings)
@@ -233,7 +247,7 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
         qpos=qpos_kin.copy(), grf=np.zeros((T, 4, 3)), residual=np.zeros((T, 6)), contacts=flags.copy(),
         converged=np.zeros(T, bool), corrected=np.zeros(T, bool), qp_failures=np.ones(T, int),
         com=np.full((T, 3), np.nan), com_acceleration=np.full((T, 3), np.nan), euler=np.full((T, 3), np.nan),
-        feet=np.full((T, 4, 3), np.nan))
+        feet=np.full((T, 4, 3), np.nan), unexplained=unexplained)
     solver = _Solver(settings)
     try:
         for first, end in valid_runs(valid):
@@ -250,6 +264,14 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     out.ik_seconds = time.perf_counter() - ik_start
     out.seconds = time.perf_counter() - start_time
     return out
+
+
+def unexplained_frames(com: np.ndarray) -> np.ndarray:
+    """(T,) bool: frames whose input centre of mass (T, 3) m lies below the floor (z = 0). The body stands on the
+    floor in the contact model, so its COM is above it; a COM below it is a detection or floor error (a person
+    leaving the view, a floor at another height). Optimised, such frames asked for forces of several body weights
+    (intel_highcam_walk_stand at 10 fps: docs/decisions/trajopt-frame-rate.md)."""
+    return np.asarray(com)[:, 2] < 0.0
 
 
 def _full_body(out: TrajoptMotion, body: BodyModel, qpos_kin: np.ndarray, reduced, fps: float,
