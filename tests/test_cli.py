@@ -313,3 +313,17 @@ def test_train_contacts_passes_the_foot_keypoints(tmp_path, monkeypatch):
     assert physmocap_in_process(*base, "--foot-keypoints", "sole").returncode == 0
     assert [s.synthetic.foot_keypoints for s in seen] == ["mediapipe", "sole"] and seen[0].folders is None
     assert_clean_failure(physmocap_in_process(*base, "--foot-keypoints", "heel"), "foot-keypoints")
+
+
+@pytest.mark.parametrize("method, blended", [("physcap", True), ("trajopt", False)])
+def test_unexplained_frames_note_says_what_each_method_hands_back(capsys, method, blended):
+    from types import SimpleNamespace
+
+    from physmocap.cli import _note_physics_floor_height
+
+    summary = SimpleNamespace(physics=method, physics_unexplained_frame_count=3, physics_unexplained_frames=["4-6"],
+                              floor=None, body_height_note="height: 1.70 m")
+    _note_physics_floor_height(summary)
+    note = capsys.readouterr().out.splitlines()[0]
+    assert "3 frames (4-6)" in note and "the kinematic motion is kept there" in note
+    assert ("blended" in note) == blended

@@ -582,8 +582,9 @@ def _note_physics_floor_height(summary) -> None:
     if summary.physics_unexplained_frame_count:
         print(f"note: physics: {summary.physics_unexplained_frame_count} frames "
               f"({_first_ranges(summary.physics_unexplained_frames)}) could not be explained by the feet on the "
-              "floor (hands, a raised floor or a jump off an object?); the kinematic motion is kept there, blended "
-              "over 0.2 s (result.npz physics_unexplained)")
+              "floor (hands, a raised floor or a jump off an object?); the kinematic motion is kept there"
+              + (", blended at its edges" if summary.physics == "physcap" else "")
+              + " (result.npz physics_unexplained)")
     if summary.floor and not summary.floor.get("trusted", True):
         print("warning: the floor fitted to the feet disagrees with the person's own vertical by "
               f"{summary.floor.get('prior_disagreement_degrees') or float('nan'):.0f} degrees: it is not trusted, "
