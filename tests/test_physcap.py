@@ -459,6 +459,21 @@ def test_the_character_starts_at_the_first_frame_with_a_person(body):
     assert np.abs(launched.qpos[5:, 2] - q[5:, 2]).max() > 0.05  # what starting on the extrapolated frames does
 
 
+def test_frames_without_a_person_carry_no_contacts_or_forces(body):
+    """A person lost for a few frames mid-clip (the fit extrapolates them, the labels still say planted): the
+    character is tracked through as before, but those frames claim no contact and no force; the flags stay."""
+    q = standing(body, 40)
+    valid = np.ones(40, bool)
+    valid[15:22] = False
+    args = (body, q, FPS, np.ones((40, 4), bool), np.ones(40, bool), PhysicsSettings())
+    result, everywhere = run_physcap(*args, valid=valid), run_physcap(*args)
+    assert everywhere.grf[~valid].any() and everywhere.contacts[~valid].any()  # what was written before
+    assert not result.grf[~valid].any() and not result.residual[~valid].any() and not result.contacts[~valid].any()
+    np.testing.assert_array_equal(result.qpos, everywhere.qpos)
+    np.testing.assert_array_equal(result.grf[valid], everywhere.grf[valid])
+    np.testing.assert_array_equal(result.unexplained, everywhere.unexplained)
+
+
 def test_physics_smooths_a_jittery_target_instead_of_passing_the_jitter_on(body):
     """Standing still with pose noise of a few centimetres: the character's joints shake less than the target's
     (the smoothed kinematic velocity keeps the derivative term from feeding frame-to-frame noise through)."""
