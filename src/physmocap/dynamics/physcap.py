@@ -180,6 +180,10 @@ class PhysCapTracker:
         # 1e-4 N^-2 costs a bias of 1e-4 of the force. Per number of active contacts k: the regularisation (3k, 3k)
         # and a workspace holding the pyramid rows (4k, 3k) and their bounds (each row >= 0).
         self._grf_regularisation = [1e-4 * np.eye(3 * k) for k in range(5)]
+        # Eq. (6)'s norm adds the root's force (N) and torque (N m) errors: the torque is divided by the standing
+        # pelvis height, the lever at which foot forces act on the root, so that both count as forces at the feet
+        # (docs/decisions/physics-grf-chatter.md)
+        self._wrench_scale = np.r_[np.ones(3), np.full(3, 1.0 / float(self.body.rest_qpos[2]))]
         self._grf_qps = [DenseQP(3 * k, 4 * k) for k in range(5)]
         for k, qp in enumerate(self._grf_qps):
             qp.A[:] = np.kron(np.eye(k), self.pyramid)
@@ -244,16 +248,18 @@ class PhysCapTracker:
     def forces_for_root_wrench(self, target: np.ndarray, active: tuple[bool, ...],
                                unexplained: bool) -> tuple[np.ndarray, bool, np.ndarray | None]:
         """Eq. (6-7) for a given root wrench (6,): ground_reaction_forces' fit, at the contact Jacobians in the
-        step buffers, and its returns."""
+        step buffers, and its returns. The fit's norm weighs the torque (N m) divided by the standing pelvis height
+        (m) against the force (N)."""
         index = self._contact_index[active][1]
         forces = np.zeros((4, 3))
         k = len(index)
         if not k:
             return forces, True, target
         root_rows = self.contact_jacobian[index, :, :6].reshape(3 * k, 6)  # (J^T restricted to the root)^T
+        scaled = root_rows * self._wrench_scale
         qp = self._grf_qps[k]
-        np.add(np.matmul(root_rows, root_rows.T, out=qp.H), self._grf_regularisation[k], out=qp.H)
-        np.matmul(np.negative(root_rows), target, out=qp.f)
+        np.add(np.matmul(scaled, scaled.T, out=qp.H), self._grf_regularisation[k], out=qp.H)
+        np.matmul(np.negative(scaled), target * self._wrench_scale, out=qp.f)
         x, exitflag = qp.solve(4 * k)
         if exitflag != 1:
             return forces, False, target
