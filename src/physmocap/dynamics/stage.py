@@ -312,9 +312,10 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     come from the contact stage. Causal: frame t uses frames up to t only. refine_floor: see PhysicsStream.
     valid: (T,) frames with a detected person (default all); the character starts at the first, and the frames
     before it keep the kinematic pose without forces (a whole-clip fit extrapolates them without data, and a
-    character started there can begin metres off). refined_input: the kinematics come from Rempe's B.4 refinement
-    (offline, PhysicsSettings.refine_offline), whose feet already rest on the floor: targets are not lifted or
-    flattened (target_lift_time, flatten_feet are for fits whose feet sink)."""
+    character started there can begin metres off); frames after it without a person are tracked through but carry
+    no contacts, contact forces or residual (their flags stay). refined_input: the kinematics come from Rempe's B.4
+    refinement (offline, PhysicsSettings.refine_offline), whose feet already rest on the floor: targets are not
+    lifted or flattened (target_lift_time, flatten_feet are for fits whose feet sink)."""
     start = time.perf_counter()
     T = len(qpos_kin)
     stream = PhysicsStream(body, settings, fps, refine_floor, refined_input)
@@ -328,6 +329,9 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
             frame.contact_forces, frame.residual, frame.active, frame.qp_failures, frame.unexplained_flag)
         if progress:
             progress(t + 1, T)
+    if valid is not None:  # no person: the character is tracked through, but no contact or force is claimed
+        gone = ~np.asarray(valid, bool)
+        out.grf[gone], out.residual[gone], out.contacts[gone] = 0.0, 0.0, False
     out.seconds = time.perf_counter() - start
     out.floor_plane = stream.floor_plane
     return out
