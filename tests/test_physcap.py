@@ -474,28 +474,6 @@ def test_frames_without_a_person_carry_no_contacts_or_forces(body):
     np.testing.assert_array_equal(result.unexplained, everywhere.unexplained)
 
 
-def test_the_reported_forces_are_the_same_on_a_body_half_the_size():
-    """The reported forces' fit (eq. 6-7 on the root wrench the motion made) adds the root's force and torque
-    errors. In newtons and newton metres as they are, a body half the size, asked for the same forces and the
-    torques its halved lever arms give, got other foot forces (its torques weighed a quarter as much); with the
-    torque over the pelvis height the two fits are the same problem. The wrench asks more torque than pushing-only
-    feet can give, so that the weighting decides."""
-    wrench = np.array([60.0, -40.0, 300.0, 150.0, -120.0, 30.0])  # N at the root; N m at the 1.75 m body's pelvis
-    fits = []
-    for factor in (1.0, 0.5):
-        sized = build_body_model(template_lengths(1.75 * factor), 72.0)
-        tracker = PhysCapTracker(sized, PhysicsSettings(), FPS)
-        tracker.reset(sized.rest_qpos, np.zeros(sized.nv))
-        tracker._step_state()
-        fit = tracker._motion_forces(wrench * np.r_[1.0, 1.0, 1.0, factor, factor, factor], (True,) * 4)
-        assert fit is not None
-        fits.append(fit)
-    (forces, residual), (half_forces, half_residual) = fits
-    assert np.linalg.norm(residual[3:]) > 10.0  # the torque is not all given
-    np.testing.assert_allclose(half_forces, forces, atol=1e-3 * np.abs(forces).max())
-    np.testing.assert_allclose(half_residual[:3], residual[:3], atol=1e-2)
-
-
 def test_physics_smooths_a_jittery_target_instead_of_passing_the_jitter_on(body):
     """Standing still with pose noise of a few centimetres: the character's joints shake less than the target's
     (the smoothed kinematic velocity keeps the derivative term from feeding frame-to-frame noise through)."""

@@ -180,10 +180,6 @@ class PhysCapTracker:
         # 1e-4 N^-2 costs a bias of 1e-4 of the force. Per number of active contacts k: the regularisation (3k, 3k)
         # and a workspace holding the pyramid rows (4k, 3k) and their bounds (each row >= 0).
         self._grf_regularisation = [1e-4 * np.eye(3 * k) for k in range(5)]
-        # The reported forces' fit (_motion_forces) divides the root torque by the standing pelvis height, the lever
-        # at which foot forces act on the root, so that force and torque errors both count in newtons at the feet
-        # (docs/decisions/physics-grf-chatter.md)
-        self._wrench_scale = np.r_[np.ones(3), np.full(3, 1.0 / float(self.body.rest_qpos[2]))]
         self._grf_qps = [DenseQP(3 * k, 4 * k) for k in range(5)]
         for k, qp in enumerate(self._grf_qps):
             qp.A[:] = np.kron(np.eye(k), self.pyramid)
@@ -245,21 +241,19 @@ class PhysCapTracker:
         forces leave unexplained (the desired one where no contact is active or the QP failed)."""
         return self.forces_for_root_wrench(self._mass_root @ qdd_des + self._bias_root, active, unexplained)
 
-    def forces_for_root_wrench(self, target: np.ndarray, active: tuple[bool, ...], unexplained: bool,
-                               scale: np.ndarray | None = None) -> tuple[np.ndarray, bool, np.ndarray | None]:
+    def forces_for_root_wrench(self, target: np.ndarray, active: tuple[bool, ...],
+                               unexplained: bool) -> tuple[np.ndarray, bool, np.ndarray | None]:
         """Eq. (6-7) for a given root wrench (6,): ground_reaction_forces' fit, at the contact Jacobians in the
-        step buffers, and its returns; scale (6,): the wrench's components are multiplied by it in the fit's norm
-        (None: the paper's norm, newtons and newton metres added as they are)."""
+        step buffers, and its returns."""
         index = self._contact_index[active][1]
         forces = np.zeros((4, 3))
         k = len(index)
         if not k:
             return forces, True, target
         root_rows = self.contact_jacobian[index, :, :6].reshape(3 * k, 6)  # (J^T restricted to the root)^T
-        scaled, aim = (root_rows, target) if scale is None else (root_rows * scale, target * scale)
         qp = self._grf_qps[k]
-        np.add(np.matmul(scaled, scaled.T, out=qp.H), self._grf_regularisation[k], out=qp.H)
-        np.matmul(np.negative(scaled), aim, out=qp.f)
+        np.add(np.matmul(root_rows, root_rows.T, out=qp.H), self._grf_regularisation[k], out=qp.H)
+        np.matmul(np.negative(root_rows), target, out=qp.f)
         x, exitflag = qp.solve(4 * k)
         if exitflag != 1:
             return forces, False, target
@@ -426,11 +420,10 @@ class PhysCapTracker:
     def _motion_forces(self, root_wrench: np.ndarray,
                        active: tuple[bool, ...]) -> tuple[np.ndarray, np.ndarray] | None:
         """FrameOutput.motion_forces: eq. (6-7) fitted to the root wrench (6,) the frame's steps needed, at the active
-        contacts and Jacobians of its last step (still in the step buffers), the torque over the standing pelvis
-        height in the fit's norm; None without contacts or solution."""
+        contacts and Jacobians of its last step (still in the step buffers); None without contacts or solution."""
         if not any(active):
             return None
-        forces, solved, left = self.forces_for_root_wrench(root_wrench, active, True, self._wrench_scale)
+        forces, solved, left = self.forces_for_root_wrench(root_wrench, active, True)
         return (forces, cast(np.ndarray, left)) if solved else None
 
     def _rigid_body_terms(self, d: mujoco.MjData, collide: bool) -> None:
