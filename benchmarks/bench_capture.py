@@ -375,7 +375,7 @@ def overlay_pieces(video: Path, width: int, frames: int = 300) -> dict:
     def encode(pictures) -> int:
         with tempfile.TemporaryDirectory() as folder:
             path = Path(folder) / "overlay.mp4"
-            with VideoWriter(path, 30.0, width, height, crf=overlay.OVERLAY_CRF, preset=overlay.OVERLAY_PRESET) as out:
+            with VideoWriter(path, 30.0, width, height, qp=overlay.OVERLAY_QP, preset=overlay.OVERLAY_PRESET) as out:
                 for picture in pictures:  # through a picture of our own, as render_overlay does
                     out.write_yuv420(copy_yuv420(picture, canvas))
             return path.stat().st_size

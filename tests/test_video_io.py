@@ -119,6 +119,22 @@ def test_writer_makes_browser_playable_h264(tmp_path: Path) -> None:
     assert error < 4.0
 
 
+def test_writer_rate_control_and_index_placement(tmp_path: Path) -> None:
+    frames = gradient_frames(6, 64, 48)
+    for name, options in (("crf", {}), ("cqp", {"qp": 19, "faststart": False})):
+        path = tmp_path / f"{name}.mp4"
+        with VideoWriter(path, 25.0, 64, 48, preset="ultrafast", **options) as writer:
+            for frame in frames:
+                writer.write(frame)
+        data = path.read_bytes()
+        assert f"rc={name}".encode() in data  # x264 states its settings in the stream
+        if name == "cqp":
+            assert b" qp=19 " in data
+            assert data.index(b"mdat") < data.index(b"moov")  # no faststart: the index stays at the end
+        reread = [frame for _, frame in iter_frames(path)]
+        assert len(reread) == 6 and np.abs(reread[3].astype(float) - frames[3]).mean() < 4.0
+
+
 def test_writer_leaves_nothing_when_interrupted(tmp_path: Path) -> None:
     path = tmp_path / "out.mp4"
     with pytest.raises(KeyboardInterrupt):
@@ -233,6 +249,16 @@ def test_prefetching_reader_gives_the_same_frames_and_stops_early_cleanly() -> N
         if index == 5:
             break
     assert prefetched.frames_read <= 6 + 4 + 1
+
+
+def test_one_decoding_thread_gives_the_same_pictures() -> None:
+    automatic = iter_frames(DEMO, pixel_format="yuv420p", start_frame=7)
+    single = iter_frames(DEMO, pixel_format="yuv420p", start_frame=7, threads=1, prefetch=2)
+    pairs = list(zip(automatic, single, strict=True))
+    assert len(pairs) > 20 and pairs[0][1][0] == 7
+    for (index, picture), (same_index, same) in pairs:
+        assert index == same_index
+        assert all(np.array_equal(a, b) for a, b in zip(yuv420_planes(picture), yuv420_planes(same), strict=True))
 
 
 @pytest.mark.parametrize("rotation_cw", [0, 90])

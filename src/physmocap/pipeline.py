@@ -54,6 +54,7 @@ from .stages import (
 if TYPE_CHECKING:
     from .dynamics.stage import PhysicsMotion
     from .trajopt.stage import TrajoptMotion
+    from .viz.report import ReportParts
 
 log = logging.getLogger("physmocap")
 
@@ -246,7 +247,8 @@ def write_outputs(out_dir: Path, source: str, obs: Observations, motion: Kinemat
         started = time.perf_counter()
         result = build_result(obs, motion, seconds, settings.as_dict(), contacts, stationary, physics, predicted,
                               settings.physics.method)
-        files, overlay_parts = _write_files(out_dir, obs, motion, result, overlay_video, progress, settings)
+        files, overlay_parts, report_parts = _write_files(out_dir, obs, motion, result, overlay_video, progress,
+                                                          settings)
         seconds["outputs"] = time.perf_counter() - started
         summary = _summary(out_dir, source, obs, motion, result, settings, seconds, cached, physics_report or {},
                            files)
@@ -254,19 +256,20 @@ def write_outputs(out_dir: Path, source: str, obs: Observations, motion: Kinemat
         files["summary"] = str(out_dir / "summary.json")
         summary.removed_stale_outputs = [str(p) for p in remove_stale_outputs(earlier, files)]
         write_text(files["summary"], summary.to_json())
-        write_report(out_dir, result)  # last: it links every output that exists
+        write_report(out_dir, result, report_parts)  # last: it links every output that exists
     return summary
 
 
 def _write_files(out_dir: Path, obs: Observations, motion: KinematicMotion, result: dict[str, np.ndarray],
                  overlay_video: Path | None, progress: ProgressFactory | None,
-                 settings: Settings) -> tuple[dict[str, str], int]:
-    """Every output file but summary.json and the report; returns {kind: path} and the parts the overlay was
-    rendered in (0 without one). The overlay renders in a worker thread while the other files are written (an
-    error or Ctrl-C cancels it and leaves no overlay.mp4)."""
+                 settings: Settings) -> tuple[dict[str, str], int, ReportParts]:
+    """Every output file but summary.json and the report's page; returns {kind: path}, the parts the overlay was
+    rendered in (0 without one) and the report's plots and metrics. The overlay renders in a worker thread while
+    the other files are written (an error or Ctrl-C cancels it and leaves no overlay.mp4)."""
     from .export import export_result
     from .io.bvh_export import write_bvh
     from .io.glb import write_glb
+    from .viz.report import write_report_parts
     from .viz.viewer import write_viewer
 
     files = {"result": str(out_dir / "result.npz"), "bvh": str(out_dir / "motion.bvh"),
@@ -280,12 +283,13 @@ def _write_files(out_dir: Path, obs: Observations, motion: KinematicMotion, resu
         files.update(export_result(files["result"], "opensim", out_dir))
         files["viewer"] = str(out_dir / "viewer.html")
         write_viewer(result, files["viewer"], video="overlay.mp4" if overlay_video is not None else None)
+        report_parts = write_report_parts(out_dir, result)
         report = None if job is None else job.result()
     if report is not None and report.nonfinite_frames:
         log.warning("overlay.mp4: frames %s drawn without some fitted points (non-finite or far outside the image)",
                     ", ".join(frame_ranges(np.asarray(report.nonfinite_frames))[:6]))
     files["report"] = str(out_dir / "report.html")
-    return files, 0 if report is None else report.parts
+    return files, 0 if report is None else report.parts, report_parts
 
 
 def _start_overlay(path: str | None, video: Path | None, obs: Observations, motion: KinematicMotion,

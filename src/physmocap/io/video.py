@@ -225,10 +225,12 @@ class FrameReader(Generic[Frame]):
     pixel_format: "bgr24" yields BGR arrays (H, W, 3) of the caller's own; "yuv420p" yields av.VideoFrame
     pictures in yuv420p at an even size (odd sizes are stretched by one pixel), often the decoder's own, shared
     with later frames: read them, or copy them (`copy_yuv420`) to draw on.
+    threads: FFmpeg's decoding threads, 0 for its own choice (frame and slice threads on every core), 1 to decode
+    in the reader's thread alone (where the caller keeps the other cores busy already; saves the threads' upkeep).
     """
 
     def __init__(self, path: str | os.PathLike, max_width: int | None = None, prefetch: int = 0,
-                 pixel_format: str = "bgr24", start_frame: int = 0) -> None:
+                 pixel_format: str = "bgr24", start_frame: int = 0, threads: int = 0) -> None:
         if pixel_format not in PIXEL_FORMATS:
             raise ValueError(f"pixel_format must be one of {PIXEL_FORMATS}, got {pixel_format!r}.")
         if start_frame < 0:
@@ -240,6 +242,7 @@ class FrameReader(Generic[Frame]):
         self.max_width = max_width
         self.prefetch = prefetch
         self.pixel_format = pixel_format
+        self.threads = threads
         self.frames_read = 0
 
     @property
@@ -297,6 +300,7 @@ class FrameReader(Generic[Frame]):
         try:
             stream = container.streams.video[0]
             stream.thread_type = "AUTO"
+            stream.thread_count = self.threads
             # index: the grid frame where the next source frame starts showing
             try:
                 position = self._seek(container, stream) if seek else (0, None)
@@ -407,23 +411,26 @@ def _decoded_frames(container: av.container.InputContainer, stream: av.VideoStre
 
 @overload
 def iter_frames(path: str | os.PathLike, max_width: int | None = None, prefetch: int = 0,
-                pixel_format: Literal["bgr24"] = "bgr24", start_frame: int = 0) -> FrameReader[np.ndarray]: ...
+                pixel_format: Literal["bgr24"] = "bgr24", start_frame: int = 0,
+                threads: int = 0) -> FrameReader[np.ndarray]: ...
 
 
 @overload
 def iter_frames(path: str | os.PathLike, max_width: int | None = None, prefetch: int = 0, *,
-                pixel_format: Literal["yuv420p"], start_frame: int = 0) -> FrameReader[av.VideoFrame]: ...
+                pixel_format: Literal["yuv420p"], start_frame: int = 0,
+                threads: int = 0) -> FrameReader[av.VideoFrame]: ...
 
 
 def iter_frames(path: str | os.PathLike, max_width: int | None = None, prefetch: int = 0,
-                pixel_format: str = "bgr24", start_frame: int = 0) -> FrameReader:
+                pixel_format: str = "bgr24", start_frame: int = 0, threads: int = 0) -> FrameReader:
     """Frames of `path` as (index, upright BGR frame) at a constant rate; frames wider than `max_width` are
     scaled down to it, `prefetch` frames are decoded ahead in a thread (see FrameReader; pixel_format "yuv420p"
-    yields the decoder's pictures instead of BGR arrays; start_frame: the first frame, indices unchanged).
+    yields the decoder's pictures instead of BGR arrays; start_frame: the first frame, indices unchanged;
+    threads: FFmpeg's decoding threads, 0 for its choice).
 
     With max_width None the frames keep the native resolution. Raises InputError as probe_video does.
     """
-    return FrameReader(path, max_width, prefetch, pixel_format, start_frame)
+    return FrameReader(path, max_width, prefetch, pixel_format, start_frame, threads)
 
 
 def mp4_output_path(path: str | os.PathLike) -> Path:
@@ -440,6 +447,10 @@ class VideoWriter:
     Odd frame sizes are padded by one replicated row/column, as yuv420p needs even sizes. The file appears under
     `path` only when close() succeeds; until then it is written to a temporary file beside it, which is removed
     if the writer leaves its `with` block through an exception.
+    crf: x264's constant rate factor (0-51, lower: better and larger); qp: a constant quantiser instead (0-51),
+    which spares x264 the half-size analysis its rate control runs on every frame. faststart: the moov atom
+    before the frames, so that a browser plays the file while loading it (closing then rewrites the file once);
+    False for files only read back whole, such as the parts join_video_parts joins.
     """
 
     def __init__(
@@ -450,7 +461,9 @@ class VideoWriter:
         height: int,
         *,
         crf: int = 23,
+        qp: int | None = None,
         preset: str = "medium",
+        faststart: bool = True,
     ) -> None:
         self.path = mp4_output_path(path)
         if width <= 0 or height <= 0:
@@ -461,13 +474,15 @@ class VideoWriter:
         self._tmp_path = self._files.enter_context(atomic_path(self.path))
         self._closed = False
         try:
-            self._container = av.open(str(self._tmp_path), "w", format="mp4", options={"movflags": "+faststart"})
+            self._container = av.open(str(self._tmp_path), "w", format="mp4",
+                                      options={"movflags": "+faststart"} if faststart else {})
             # 23.976... fps must stay 24000/1001, not a long binary fraction.
             self._stream = self._container.add_stream("libx264", rate=Fraction(fps).limit_denominator(1001))
             self._stream.width = self.width + self.width % 2
             self._stream.height = self.height + self.height % 2
             self._stream.pix_fmt = "yuv420p"
-            self._stream.options = {"crf": str(crf), "preset": preset}
+            rate = {"crf": str(crf)} if qp is None else {"qp": str(qp)}
+            self._stream.options = {**rate, "preset": preset}
         except BaseException as error:
             self._abort(error)
             raise
