@@ -71,9 +71,9 @@ OUTPUT_WRITERS = (
     ("physmocap.io.bvh_export", "write_bvh"), ("physmocap.io.glb", "write_glb"),
     ("physmocap.export", "export_result"), ("physmocap.viz.overlay", "render_overlay"),
     ("physmocap.viz.viewer", "write_viewer"), ("physmocap.viz.report", "write_report"),
-    ("physmocap.viz.report", "write_report_parts"),  # from outputs2 on: the plots and metrics beside the overlay
+    ("physmocap.viz.report", "write_report_parts"),  # from outputs2 on: the plots and metrics, before summary.json
 )
-# Writers that run in the outputs stage's own thread, beside the overlay's worker.
+# Writers that run in the outputs stage's own thread: beside the overlay's worker, the report's parts after it.
 MAIN_THREAD_WRITERS = ("build_result", "save_result", "write_bvh", "write_glb", "export_result", "write_viewer",
                        "write_report_parts")
 # Stages whose own peak resident memory the child records (the kernel's high-water mark, reset before each).
@@ -447,26 +447,24 @@ def _run_drawing(run: Path):
 
 
 def _overlay_steps(video: Path, drawing: dict, folder: Path) -> dict:
-    """CPU and wall seconds of the overlay's steps over every frame, each pass in this thread: decoding alone
-    (FFmpeg's threads; one thread where the reader takes `threads`), decoding with the copy and the drawing, and
-    decoding with the copy and x264 at CRF 23 and at QP 21 (where the writer takes `qp`), nothing drawn."""
+    """CPU and wall seconds of the overlay's steps over every frame, each pass in this thread: decoding alone,
+    decoding with the copy and the drawing, and decoding with the copy and x264 at CRF 23 and at QP 21 (where the
+    writer takes `qp`), nothing drawn."""
     import inspect
 
     from physmocap.io.video import VideoWriter, copy_yuv420, iter_frames, yuv420_planes
     from physmocap.viz import overlay
 
     state = overlay._overlay_drawing(**drawing)
-    new_reader = "threads" in inspect.signature(iter_frames).parameters
     new_writer = "qp" in inspect.signature(VideoWriter).parameters
 
-    def frames(threads: int = 0):
+    def frames():
         """(reader, its first state.frames pictures): the frames the overlay draws."""
-        reader = iter_frames(video, max_width=1280, pixel_format="yuv420p",
-                             **({"threads": threads} if threads else {}))
+        reader = iter_frames(video, max_width=1280, pixel_format="yuv420p")
         return reader, itertools.islice(reader, state.frames)
 
-    def decode(threads: int = 0) -> None:
-        for _ in frames(threads)[1]:
+    def decode() -> None:
+        for _ in frames()[1]:
             pass
 
     def draw() -> None:
@@ -489,8 +487,6 @@ def _overlay_steps(video: Path, drawing: dict, folder: Path) -> dict:
                 writer.write_yuv420(canvas)
 
     steps = {"decode": decode, "decode_copy_draw": draw, "decode_copy_x264_crf23": lambda: encode(crf=23)}
-    if new_reader:
-        steps["decode_one_thread"] = lambda: decode(1)
     if new_writer:
         steps["decode_copy_x264_qp21"] = lambda: encode(qp=21)
     row = {}

@@ -116,7 +116,7 @@ def test_overlay_video_draws_force_arrows(tmp_path):
 
 
 def test_report_page_from_parts_written_earlier_is_the_same(result, tmp_path):
-    """The pipeline writes the plots and metrics while the overlay renders, the page last."""
+    """The pipeline writes the plots and metrics within its outputs stage, the page after summary.json."""
     early, late = tmp_path / "early" / "run", tmp_path / "late" / "run"
     early.mkdir(parents=True)
     parts = write_report_parts(early, result)

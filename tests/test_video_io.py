@@ -251,16 +251,6 @@ def test_prefetching_reader_gives_the_same_frames_and_stops_early_cleanly() -> N
     assert prefetched.frames_read <= 6 + 4 + 1
 
 
-def test_one_decoding_thread_gives_the_same_pictures() -> None:
-    automatic = iter_frames(DEMO, pixel_format="yuv420p", start_frame=7)
-    single = iter_frames(DEMO, pixel_format="yuv420p", start_frame=7, threads=1, prefetch=2)
-    pairs = list(zip(automatic, single, strict=True))
-    assert len(pairs) > 20 and pairs[0][1][0] == 7
-    for (index, picture), (same_index, same) in pairs:
-        assert index == same_index
-        assert all(np.array_equal(a, b) for a, b in zip(yuv420_planes(picture), yuv420_planes(same), strict=True))
-
-
 @pytest.mark.parametrize("rotation_cw", [0, 90])
 def test_yuv420_pictures_are_the_bgr_frames_without_conversion(tmp_path: Path, rotation_cw: int) -> None:
     # A variable rate (one frame shown twice) and odd scaled sizes: the pictures follow the BGR frames.

@@ -54,7 +54,6 @@ from .stages import (
 if TYPE_CHECKING:
     from .dynamics.stage import PhysicsMotion
     from .trajopt.stage import TrajoptMotion
-    from .viz.report import ReportParts
 
 log = logging.getLogger("physmocap")
 
@@ -239,7 +238,7 @@ def write_outputs(out_dir: Path, source: str, obs: Observations, motion: Kinemat
     overlay.mp4 (when `overlay_video` is given), viewer.html, summary.json (with `physics_report`, the physics
     stage's own account, e.g. trajopt's solver reports) and report.html. An earlier run's outputs that this one
     does not write (overlay.mp4 after --no-overlay) are removed before the report links what exists."""
-    from .viz.report import write_report
+    from .viz.report import write_report, write_report_parts
 
     out_dir = Path(out_dir)
     with locked_run_folder(out_dir):
@@ -247,8 +246,9 @@ def write_outputs(out_dir: Path, source: str, obs: Observations, motion: Kinemat
         started = time.perf_counter()
         result = build_result(obs, motion, seconds, settings.as_dict(), contacts, stationary, physics, predicted,
                               settings.physics.method)
-        files, overlay_parts, report_parts = _write_files(out_dir, obs, motion, result, overlay_video, progress,
-                                                          settings)
+        files, overlay_parts = _write_files(out_dir, obs, motion, result, overlay_video, progress, settings)
+        # the report's plots and metrics count in the stage; its page comes last, once every output exists
+        report_parts = write_report_parts(out_dir, result)
         seconds["outputs"] = time.perf_counter() - started
         summary = _summary(out_dir, source, obs, motion, result, settings, seconds, cached, physics_report or {},
                            files)
@@ -262,14 +262,13 @@ def write_outputs(out_dir: Path, source: str, obs: Observations, motion: Kinemat
 
 def _write_files(out_dir: Path, obs: Observations, motion: KinematicMotion, result: dict[str, np.ndarray],
                  overlay_video: Path | None, progress: ProgressFactory | None,
-                 settings: Settings) -> tuple[dict[str, str], int, ReportParts]:
-    """Every output file but summary.json and the report's page; returns {kind: path}, the parts the overlay was
-    rendered in (0 without one) and the report's plots and metrics. The overlay renders in a worker thread while
-    the other files are written (an error or Ctrl-C cancels it and leaves no overlay.mp4)."""
+                 settings: Settings) -> tuple[dict[str, str], int]:
+    """Every output file but summary.json and the report; returns {kind: path} and the parts the overlay was
+    rendered in (0 without one). The overlay renders in a worker thread while the other files are written (an
+    error or Ctrl-C cancels it and leaves no overlay.mp4)."""
     from .export import export_result
     from .io.bvh_export import write_bvh
     from .io.glb import write_glb
-    from .viz.report import write_report_parts
     from .viz.viewer import write_viewer
 
     files = {"result": str(out_dir / "result.npz"), "bvh": str(out_dir / "motion.bvh"),
@@ -283,13 +282,12 @@ def _write_files(out_dir: Path, obs: Observations, motion: KinematicMotion, resu
         files.update(export_result(files["result"], "opensim", out_dir))
         files["viewer"] = str(out_dir / "viewer.html")
         write_viewer(result, files["viewer"], video="overlay.mp4" if overlay_video is not None else None)
-        report_parts = write_report_parts(out_dir, result)
         report = None if job is None else job.result()
     if report is not None and report.nonfinite_frames:
         log.warning("overlay.mp4: frames %s drawn without some fitted points (non-finite or far outside the image)",
                     ", ".join(frame_ranges(np.asarray(report.nonfinite_frames))[:6]))
     files["report"] = str(out_dir / "report.html")
-    return files, 0 if report is None else report.parts, report_parts
+    return files, 0 if report is None else report.parts
 
 
 def _start_overlay(path: str | None, video: Path | None, obs: Observations, motion: KinematicMotion,

@@ -225,12 +225,10 @@ class FrameReader(Generic[Frame]):
     pixel_format: "bgr24" yields BGR arrays (H, W, 3) of the caller's own; "yuv420p" yields av.VideoFrame
     pictures in yuv420p at an even size (odd sizes are stretched by one pixel), often the decoder's own, shared
     with later frames: read them, or copy them (`copy_yuv420`) to draw on.
-    threads: FFmpeg's decoding threads, 0 for its own choice (frame and slice threads on every core), 1 to decode
-    in the reader's thread alone (where the caller keeps the other cores busy already; saves the threads' upkeep).
     """
 
     def __init__(self, path: str | os.PathLike, max_width: int | None = None, prefetch: int = 0,
-                 pixel_format: str = "bgr24", start_frame: int = 0, threads: int = 0) -> None:
+                 pixel_format: str = "bgr24", start_frame: int = 0) -> None:
         if pixel_format not in PIXEL_FORMATS:
             raise ValueError(f"pixel_format must be one of {PIXEL_FORMATS}, got {pixel_format!r}.")
         if start_frame < 0:
@@ -242,7 +240,6 @@ class FrameReader(Generic[Frame]):
         self.max_width = max_width
         self.prefetch = prefetch
         self.pixel_format = pixel_format
-        self.threads = threads
         self.frames_read = 0
 
     @property
@@ -300,7 +297,6 @@ class FrameReader(Generic[Frame]):
         try:
             stream = container.streams.video[0]
             stream.thread_type = "AUTO"
-            stream.thread_count = self.threads
             # index: the grid frame where the next source frame starts showing
             try:
                 position = self._seek(container, stream) if seek else (0, None)
@@ -411,26 +407,23 @@ def _decoded_frames(container: av.container.InputContainer, stream: av.VideoStre
 
 @overload
 def iter_frames(path: str | os.PathLike, max_width: int | None = None, prefetch: int = 0,
-                pixel_format: Literal["bgr24"] = "bgr24", start_frame: int = 0,
-                threads: int = 0) -> FrameReader[np.ndarray]: ...
+                pixel_format: Literal["bgr24"] = "bgr24", start_frame: int = 0) -> FrameReader[np.ndarray]: ...
 
 
 @overload
 def iter_frames(path: str | os.PathLike, max_width: int | None = None, prefetch: int = 0, *,
-                pixel_format: Literal["yuv420p"], start_frame: int = 0,
-                threads: int = 0) -> FrameReader[av.VideoFrame]: ...
+                pixel_format: Literal["yuv420p"], start_frame: int = 0) -> FrameReader[av.VideoFrame]: ...
 
 
 def iter_frames(path: str | os.PathLike, max_width: int | None = None, prefetch: int = 0,
-                pixel_format: str = "bgr24", start_frame: int = 0, threads: int = 0) -> FrameReader:
+                pixel_format: str = "bgr24", start_frame: int = 0) -> FrameReader:
     """Frames of `path` as (index, upright BGR frame) at a constant rate; frames wider than `max_width` are
     scaled down to it, `prefetch` frames are decoded ahead in a thread (see FrameReader; pixel_format "yuv420p"
-    yields the decoder's pictures instead of BGR arrays; start_frame: the first frame, indices unchanged;
-    threads: FFmpeg's decoding threads, 0 for its choice).
+    yields the decoder's pictures instead of BGR arrays; start_frame: the first frame, indices unchanged).
 
     With max_width None the frames keep the native resolution. Raises InputError as probe_video does.
     """
-    return FrameReader(path, max_width, prefetch, pixel_format, start_frame, threads)
+    return FrameReader(path, max_width, prefetch, pixel_format, start_frame)
 
 
 def mp4_output_path(path: str | os.PathLike) -> Path:

@@ -632,9 +632,8 @@ def _render_two_parts(video_path: str | os.PathLike, out_path: Path, drawing: _O
 
         def render(part: int, first: int, end: int) -> None:
             try:
-                # one decoding thread per part: the two parts keep both cores busy
                 frames = iter_frames(video_path, max_width=max_width, prefetch=PREFETCH_FRAMES,
-                                     pixel_format="yuv420p", start_frame=first, threads=1)
+                                     pixel_format="yuv420p", start_frame=first)
                 _render_part(frames, paths[part], drawing, end, count, stops, out_path)
             except _VideoEnded as ended:  # the other part goes on: where the video ends is the error's message
                 outcomes[part] = ended

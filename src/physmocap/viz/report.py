@@ -230,7 +230,7 @@ class ReportParts:
 
 def write_report_parts(run_dir: str | os.PathLike, result: dict[str, np.ndarray]) -> ReportParts:
     """The plots (run_dir/plots/*.png) and metrics.json of the report on `result`: they need only the result, so
-    the pipeline writes them while the overlay renders, and the page last (write_report)."""
+    the pipeline counts them in its outputs stage and writes the page last (write_report), after summary.json."""
     run_dir = Path(run_dir)
     result = finite_result(result, str(run_dir / "report.html"))
     plots = write_plots(result, run_dir / "plots")
