@@ -59,7 +59,7 @@ UNEXPLAINED_TEXT = "physics cannot explain this frame"
 
 DEFAULT_OVERLAY_WIDTH = 1280  # px: wider videos are drawn and encoded at this width (None: native); 160 .. 7680
 OVERLAY_PRESET = "ultrafast"  # libx264 speed preset of overlay.mp4 (docs/decisions/overlay-speed.md)
-OVERLAY_QP = 21  # libx264 constant quantiser: CRF 23's quality for less CPU (docs/decisions/overlay-speed.md)
+OVERLAY_QP = 21  # libx264 constant quantiser: about CRF 23's quality, less CPU (docs/decisions/overlay-speed.md)
 PREFETCH_FRAMES = 8  # frames decoded ahead of the drawing, in the reader's thread
 MAX_DRAWN_COORDINATE = 1e5  # px: cv2 takes coordinates * 2**SHIFT as int32; points farther out are not drawn
 MIN_FRAMES_FOR_PARTS = 150  # frames a video needs before two parts pay (docs/decisions/overlay-speed.md, round 3)
