@@ -19,6 +19,8 @@ every loop, as in any looped clip.
     .venv/bin/python benchmarks/bench_capture.py --overlay-only --overlay-parts --seconds 10 60 --heights 720
                                                            # the overlay in one part against two, alternating
     .venv/bin/python benchmarks/bench_capture.py --overlay-gil         # a Python thread beside the rendering
+    .venv/bin/python benchmarks/bench_capture.py --outputs-pieces RUNS/720p_60s --before ../old/src
+                                                           # each output of a capture on its own, side by side
     .venv/bin/python benchmarks/bench_capture.py --time-orientation    # issue 24: variable rate, rotation
 
 A capture with --before SRC runs first with the physmocap in SRC, then with this checkout's, on the same video.
@@ -69,9 +71,11 @@ OUTPUT_WRITERS = (
     ("physmocap.io.bvh_export", "write_bvh"), ("physmocap.io.glb", "write_glb"),
     ("physmocap.export", "export_result"), ("physmocap.viz.overlay", "render_overlay"),
     ("physmocap.viz.viewer", "write_viewer"), ("physmocap.viz.report", "write_report"),
+    ("physmocap.viz.report", "write_report_parts"),  # from outputs2 on: the plots and metrics, before summary.json
 )
-# Writers that run in the outputs stage's own thread, beside the overlay's worker.
-MAIN_THREAD_WRITERS = ("build_result", "save_result", "write_bvh", "write_glb", "export_result", "write_viewer")
+# Writers that run in the outputs stage's own thread: beside the overlay's worker, the report's parts after it.
+MAIN_THREAD_WRITERS = ("build_result", "save_result", "write_bvh", "write_glb", "export_result", "write_viewer",
+                       "write_report_parts")
 # Stages whose own peak resident memory the child records (the kernel's high-water mark, reset before each).
 STAGES = ("detect_stage", "stream_stage", "kinematics_stage", "contacts_stage", "refine_stage", "physics_stage",
           "trajopt_stage", "write_outputs")
@@ -163,6 +167,11 @@ def run_case(video: Path, run_dir: Path, extra_args: list[str], source: Path = R
         writer_cpu_seconds={k: round(v, 2) for k, v in writer_cpu.items()},
         # the stage's CPU without the report, as its wall clock stops before the report
         outputs_cpu_seconds=round(outputs_cpu, 1),
+        # and all of write_outputs, the report (its plots, metrics and page) and summary.json included
+        outputs_with_report_cpu_seconds=round(child_report["cpu_seconds"]["write_outputs"], 1),
+        outputs_with_report_seconds=round(child_report.get("wall_seconds", {}).get("write_outputs", 0.0), 1),
+        outputs_with_report_over_detection_cpu=None if not detect_cpu
+        else round(child_report["cpu_seconds"]["write_outputs"] / detect_cpu, 3),
         overlay_cpu_seconds=round(outputs_cpu - sum(writer_cpu.get(k, 0.0) for k in MAIN_THREAD_WRITERS), 1)
         if overlay_seconds else None,
         outputs_over_detection_cpu=None if not detect_cpu else round(outputs_cpu / detect_cpu, 3),
@@ -192,22 +201,25 @@ def child(timings_path: str, cli_args: list[str]) -> int:
 
     peak_mb: dict[str, float] = {}
     cpu_seconds: dict[str, float] = {}
+    wall_seconds: dict[str, float] = {}
 
     def high_water(name, function):
         def wrapper(*args, **kwargs):
             Path("/proc/self/clear_refs").write_text("5")  # resets VmHWM to the current resident size
-            cpu_started = time.process_time()  # all threads of the process
+            cpu_started, started = time.process_time(), time.perf_counter()  # CPU: all threads of the process
             try:
                 return function(*args, **kwargs)
             finally:
                 cpu_seconds[name] = time.process_time() - cpu_started
+                wall_seconds[name] = time.perf_counter() - started
                 status = Path("/proc/self/status").read_text()
                 peak_mb[name] = int(re.search(r"VmHWM:\s+(\d+) kB", status).group(1)) / 1024
         return wrapper
 
     for module_name, attribute in OUTPUT_WRITERS:
         module = importlib.import_module(module_name)
-        setattr(module, attribute, timed(attribute, getattr(module, attribute)))
+        if hasattr(module, attribute):  # an older checkout may lack a newer writer
+            setattr(module, attribute, timed(attribute, getattr(module, attribute)))
     detection = importlib.import_module("physmocap.detect.mediapipe_pose")  # the detect stage looks it up there
     detection.detect_video = high_water("detect_video", detection.detect_video)
     pipeline = importlib.import_module("physmocap.pipeline")
@@ -216,7 +228,7 @@ def child(timings_path: str, cli_args: list[str]) -> int:
             setattr(pipeline, stage, high_water(stage, getattr(pipeline, stage)))
     code = cli.main(cli_args)
     Path(timings_path).write_text(json.dumps({"seconds": seconds, "peak_mb": peak_mb, "cpu_seconds": cpu_seconds,
-                                              "writer_cpu_seconds": writer_cpu}))
+                                              "writer_cpu_seconds": writer_cpu, "wall_seconds": wall_seconds}))
     return code or 0
 
 
@@ -375,7 +387,7 @@ def overlay_pieces(video: Path, width: int, frames: int = 300) -> dict:
     def encode(pictures) -> int:
         with tempfile.TemporaryDirectory() as folder:
             path = Path(folder) / "overlay.mp4"
-            with VideoWriter(path, 30.0, width, height, crf=overlay.OVERLAY_CRF, preset=overlay.OVERLAY_PRESET) as out:
+            with VideoWriter(path, 30.0, width, height, qp=overlay.OVERLAY_QP, preset=overlay.OVERLAY_PRESET) as out:
                 for picture in pictures:  # through a picture of our own, as render_overlay does
                     out.write_yuv420(copy_yuv420(picture, canvas))
             return path.stat().st_size
@@ -402,6 +414,151 @@ def overlay_pieces(video: Path, width: int, frames: int = 300) -> dict:
     row["cv2_threads"] = cv2.getNumThreads()
     row["load_average"] = load_average()
     return row
+
+
+def _timed(step) -> tuple[float, float]:
+    """CPU seconds (all threads of the process) and wall seconds of step()."""
+    cpu_started, started = time.process_time(), time.perf_counter()
+    step()
+    return time.process_time() - cpu_started, time.perf_counter() - started
+
+
+def _run_drawing(run: Path):
+    """The overlay's drawing of a capture's run folder, as the pipeline's _start_overlay makes it, from
+    result.npz: (video, result, body, render_overlay's arguments after the video and output path)."""
+    from physmocap.body.model import CONTACT_POINTS
+    from physmocap.camera import Camera
+    from physmocap.export import body_from_result
+    from physmocap.result import RESULT_POINTS, load_result
+    from physmocap.viz import overlay
+
+    result = load_result(run / "result.npz")
+    video = Path(json.loads((run / "summary.json").read_text())["input"])
+    body = body_from_result(result)
+    camera = Camera(result["camera_K"], result["camera_R"], result["camera_t"],
+                    tuple(int(v) for v in result["image_size"]))
+    soles = result["joints_world"][:, [RESULT_POINTS.index(n) for n in CONTACT_POINTS]]
+    arrows = overlay.force_arrows_2d(soles, result["grf"], camera.project,
+                                     overlay.force_arrow_scale(body.mass, body.height))
+    drawing = dict(points_2d=camera.project(result["joints_world"]), edges=overlay.skeleton_edges(body),
+                   valid=result["valid"], keypoints=result["keypoints_2d"], contacts=result["contacts"],
+                   labels=RESULT_POINTS, force_arrows=arrows, unexplained=result["physics_unexplained"])
+    return video, result, body, drawing
+
+
+def _overlay_steps(video: Path, drawing: dict, folder: Path) -> dict:
+    """CPU and wall seconds of the overlay's steps over every frame, each pass in this thread: decoding alone,
+    decoding with the copy and the drawing, and decoding with the copy and x264 at CRF 23 and at QP 21 (where the
+    writer takes `qp`), nothing drawn."""
+    import inspect
+
+    from physmocap.io.video import VideoWriter, copy_yuv420, iter_frames, yuv420_planes
+    from physmocap.viz import overlay
+
+    state = overlay._overlay_drawing(**drawing)
+    new_writer = "qp" in inspect.signature(VideoWriter).parameters
+
+    def frames():
+        """(reader, its first state.frames pictures): the frames the overlay draws."""
+        reader = iter_frames(video, max_width=1280, pixel_format="yuv420p")
+        return reader, itertools.islice(reader, state.frames)
+
+    def decode() -> None:
+        for _ in frames()[1]:
+            pass
+
+    def draw() -> None:
+        (reader, pictures), canvas = frames(), None
+        scale = np.array(reader.output_size) / [reader.info.width, reader.info.height]
+        scratch = overlay.YuvScratch(*reader.output_size)
+        for index, picture in pictures:
+            canvas = copy_yuv420(picture, canvas)
+            overlay._draw_yuv420(yuv420_planes(canvas), scratch, state.points_2d[index] * scale, state.edges,
+                                 state.labels, state.keypoints[index] * np.append(scale, 1.0), state.contacts[index],
+                                 state.force_arrows[index] * scale, bool(state.valid[index]),
+                                 bool(state.unexplained[index]))
+
+    def encode(**rate) -> None:
+        (reader, pictures), canvas = frames(), None
+        with VideoWriter(folder / "encoded.mp4", reader.info.fps, *reader.output_size, preset="ultrafast",
+                         **rate) as writer:
+            for _, picture in pictures:
+                canvas = copy_yuv420(picture, canvas)
+                writer.write_yuv420(canvas)
+
+    steps = {"decode": decode, "decode_copy_draw": draw, "decode_copy_x264_crf23": lambda: encode(crf=23)}
+    if new_writer:
+        steps["decode_copy_x264_qp21"] = lambda: encode(qp=21)
+    row = {}
+    for name, step in steps.items():
+        row[name] = _timed(step)
+        if name.startswith("decode_copy_x264"):
+            row[name.replace("decode_copy_", "") + "_megabytes"] = round((folder / "encoded.mp4").stat().st_size / 1e6, 1)
+    return row
+
+
+def outputs_pieces(run: Path) -> dict:
+    """CPU and wall seconds of each output of a capture's run folder on its own, from its result.npz and video:
+    the writers one after the other, the overlay's steps (_overlay_steps) and the whole overlay in one part and
+    in two. Runs the physmocap on PYTHONPATH."""
+    from physmocap.export import EXPORTERS
+    from physmocap.io.bvh_export import write_bvh
+    from physmocap.io.glb import write_glb
+    from physmocap.result import save_result
+    from physmocap.viz.overlay import render_overlay
+    from physmocap.viz.plots import write_plots
+    from physmocap.viz.report import run_metrics, write_report
+    from physmocap.viz.viewer import write_viewer
+
+    video, result, body, drawing = _run_drawing(run)
+    fps = float(result["fps"])
+    with tempfile.TemporaryDirectory() as name:
+        folder = Path(name)
+        writers = {
+            "result.npz": lambda: save_result(folder / "result.npz", result),
+            "motion.bvh": lambda: write_bvh(folder / "motion.bvh", body, result["qpos"], fps),
+            "motion.glb": lambda: write_glb(folder / "motion.glb", body, result["qpos"], fps),
+            "opensim": lambda: EXPORTERS["opensim"](result, folder),
+            "viewer.html": lambda: write_viewer(result, folder / "viewer.html"),
+            "plots": lambda: write_plots(result, folder / "plots"),
+            "metrics": lambda: run_metrics(result),
+            "report (plots, metrics, page)": lambda: write_report(folder, result),
+        }
+        row = {name: _timed(step) for name, step in writers.items()}
+        row.update(_overlay_steps(video, drawing, folder))
+        for parts in (1, 2):
+            row[f"overlay, {parts} part{'s' * (parts > 1)}"] = _timed(
+                lambda parts=parts: render_overlay(video, folder / "overlay.mp4", **drawing, max_width=1280,
+                                                   parts=parts))
+        row["overlay_megabytes"] = round((folder / "overlay.mp4").stat().st_size / 1e6, 1)
+    return dict(frames=len(result["valid"]), **{k: [round(x, 3) for x in v] if isinstance(v, tuple) else v
+                                                for k, v in row.items()}, load_average=load_average())
+
+
+def outputs_pieces_side_by_side(run: Path, repeats: int, before: Path | None) -> list[dict]:
+    """outputs_pieces of this checkout and, where given, of the physmocap in `before`, one child process each,
+    alternating run by run; each figure's median over the `repeats` runs of its side."""
+    sides = [("after", REPO / "src")] if before is None else [("before", before), ("after", REPO / "src")]
+    runs: dict[str, list[dict]] = {side: [] for side, _ in sides}
+    for _ in range(repeats):
+        for side, source in sides:
+            command = [sys.executable, __file__, "--pieces-child", str(run)]
+            done = subprocess.run(command, capture_output=True, text=True, check=True,
+                                  env={**os.environ, "PYTHONPATH": str(source)})
+            runs[side].append(json.loads(done.stdout.splitlines()[-1]))
+            print(json.dumps(dict(side=side, **runs[side][-1])), flush=True)
+    rows = []
+    for side, source in sides:
+        row: dict = dict(code=f"{side} ({source})", repeats=repeats, frames=runs[side][0]["frames"])
+        for key, value in runs[side][0].items():
+            if isinstance(value, list):  # [CPU s, wall s] -> medians, and CPU ms per frame
+                cpu, wall = np.median([run[key] for run in runs[side]], axis=0)
+                row[key] = dict(cpu_s=round(float(cpu), 3), wall_s=round(float(wall), 3),
+                                cpu_ms_per_frame=round(1000 * float(cpu) / row["frames"], 2))
+            elif key.endswith("megabytes"):
+                row[key] = value
+        rows.append(row)
+    return rows
 
 
 def time_and_orientation(folder: Path) -> list[dict]:
@@ -449,6 +606,9 @@ def time_and_orientation(folder: Path) -> list[dict]:
 def main() -> int:
     if len(sys.argv) > 2 and sys.argv[1] == "--child":
         return child(sys.argv[2], sys.argv[3:])
+    if len(sys.argv) == 3 and sys.argv[1] == "--pieces-child":  # RUN
+        print(json.dumps(outputs_pieces(Path(sys.argv[2]))))
+        return 0
     if len(sys.argv) in (4, 5) and sys.argv[1] == "--overlay-child":  # VIDEO WIDTH [PARTS]
         parts = int(sys.argv[4]) if len(sys.argv) == 5 else None
         print(json.dumps(overlay_speed(Path(sys.argv[2]), int(sys.argv[3]) or None, 1, parts)))
@@ -469,6 +629,9 @@ def main() -> int:
     parser.add_argument("--overlay-gil", action="store_true", help="a Python thread beside the overlay's rendering")
     parser.add_argument("--overlay-parts", action="store_true",
                         help="overlay-only: one part against two, alternating (--seconds: the looped videos' lengths)")
+    parser.add_argument("--outputs-pieces", type=Path, default=None, metavar="RUN",
+                        help="each output's CPU and wall seconds from a capture's run folder (with --before: side by "
+                             "side, alternating; --repeats runs each)")
     parser.add_argument("--time-orientation", action="store_true", help="only issue 24's time and rotation cases")
     parser.add_argument("--json", type=Path, default=None, help="also write the rows here")
     args = parser.parse_args()
@@ -477,6 +640,10 @@ def main() -> int:
     rows = []
     if args.time_orientation:
         rows = time_and_orientation(Path(tempfile.mkdtemp(prefix="bench_time_")))
+        print("\n".join(json.dumps(row) for row in rows), flush=True)
+    elif args.outputs_pieces is not None:
+        rows = outputs_pieces_side_by_side(args.outputs_pieces, args.repeats,
+                                           None if args.before is None else args.before.resolve())
         print("\n".join(json.dumps(row) for row in rows), flush=True)
     elif args.overlay_pieces:
         for height in args.heights:

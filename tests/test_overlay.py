@@ -18,8 +18,12 @@ from physmocap.viz.figures import result_figure
 from physmocap.viz.overlay import (
     BANNER_COLOUR,
     YuvScratch,
+    _banner_box,
+    _banner_layout,
+    _banners,
     _draw_in_place,
     _draw_yuv420,
+    _drawn_box,
     render_overlay,
     skeleton_edges,
     start_overlay,
@@ -99,6 +103,7 @@ def test_overlay_video_is_h264_with_the_skeleton_drawn(body, scene, video, tmp_p
 
     codec, frames = decode(out)
     assert codec == "h264"
+    assert b"rc=cqp" in out.read_bytes()  # a constant quantiser: no rate control's analysis per frame
     assert len(frames) == FRAMES and frames[0].shape == (HEIGHT, WIDTH, 3)
     assert done == list(range(1, FRAMES + 1))
     index = {name: i for i, name in enumerate(body.point_names)}
@@ -145,6 +150,21 @@ def test_drawing_in_yuv420_equals_drawing_in_bgr_and_converting(body, scene, val
         difference = np.abs(drawn.astype(int) - wanted)
         # chroma: averaged 2 x 2 here, filtered by swscale there: alike but at the strokes' edges
         assert difference.mean() < 1.0 and np.percentile(difference, 99) <= 12
+
+
+def test_banners_are_drawn_in_their_own_band(body, scene):
+    """A banner spans the width: drawn in one box with the skeleton, that box would reach from the skeleton to the
+    frame's edge. Each banner has its band, even-aligned for the 2 x 2 chroma, the skeleton its own box."""
+    _, pixels = scene
+    points = pixels * 0.4 + [0.0, 10.0]  # a small skeleton near the top
+    size, line = (WIDTH, HEIGHT), 2
+    skeleton = _drawn_box(size, line, points, None, None, True)
+    assert skeleton is not None and skeleton[3] < HEIGHT // 2
+    for text, at_top in _banners(valid=True, unexplained=True) + _banners(valid=False, unexplained=True):
+        x0, y0, x1, y1 = _banner_box(size, text, at_top)
+        band = _banner_layout(text, WIDTH, HEIGHT)[-1]
+        assert (x0, x1) == (0, WIDTH) and y1 - y0 in (band, band + 1) and y0 % 2 == 0 and y1 % 2 == 0
+        assert (y0 == 0) if at_top else (y1 == HEIGHT)
 
 
 def test_contacts_are_filled_only_while_in_contact(body, scene, video, tmp_path):

@@ -16,7 +16,7 @@ from physmocap.io.video import VideoWriter
 from physmocap.result import save_result
 from physmocap.viz.overlay import FORCE_COLOUR, draw_overlay, force_arrow_scale, force_arrows_2d, render_overlay
 from physmocap.viz.plots import PLOT_FILES, write_plots
-from physmocap.viz.report import run_metrics, write_report
+from physmocap.viz.report import run_metrics, write_report, write_report_parts
 from physmocap.viz.viewer import write_viewer
 from test_export import synthetic_result
 
@@ -113,3 +113,14 @@ def test_overlay_video_draws_force_arrows(tmp_path):
     with pytest.raises(ValueError, match="force_arrows"):
         render_overlay(tmp_path / "input.mp4", tmp_path / "bad.mp4", np.zeros((frames, 0, 2)), [],
                        np.ones(frames, bool), force_arrows=arrows[:, :, 0])
+
+
+def test_report_page_from_parts_written_earlier_is_the_same(result, tmp_path):
+    """The pipeline writes the plots and metrics within its outputs stage, the page after summary.json."""
+    early, late = tmp_path / "early" / "run", tmp_path / "late" / "run"
+    early.mkdir(parents=True)
+    parts = write_report_parts(early, result)
+    assert Path(parts.metrics_path).is_file() and all(Path(p).is_file() for p in parts.plots.values())
+    assert not (early / "report.html").exists()
+    files = write_report(early, result, parts)
+    assert Path(files["report"]).read_text() == Path(write_report(late, result)["report"]).read_text()

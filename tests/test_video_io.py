@@ -119,6 +119,22 @@ def test_writer_makes_browser_playable_h264(tmp_path: Path) -> None:
     assert error < 4.0
 
 
+def test_writer_rate_control_and_index_placement(tmp_path: Path) -> None:
+    frames = gradient_frames(6, 64, 48)
+    for name, options in (("crf", {}), ("cqp", {"qp": 19, "faststart": False})):
+        path = tmp_path / f"{name}.mp4"
+        with VideoWriter(path, 25.0, 64, 48, preset="ultrafast", **options) as writer:
+            for frame in frames:
+                writer.write(frame)
+        data = path.read_bytes()
+        assert f"rc={name}".encode() in data  # x264 states its settings in the stream
+        if name == "cqp":
+            assert b" qp=19 " in data
+            assert data.index(b"mdat") < data.index(b"moov")  # no faststart: the index stays at the end
+        reread = [frame for _, frame in iter_frames(path)]
+        assert len(reread) == 6 and np.abs(reread[3].astype(float) - frames[3]).mean() < 4.0
+
+
 def test_writer_leaves_nothing_when_interrupted(tmp_path: Path) -> None:
     path = tmp_path / "out.mp4"
     with pytest.raises(KeyboardInterrupt):

@@ -238,7 +238,7 @@ def write_outputs(out_dir: Path, source: str, obs: Observations, motion: Kinemat
     overlay.mp4 (when `overlay_video` is given), viewer.html, summary.json (with `physics_report`, the physics
     stage's own account, e.g. trajopt's solver reports) and report.html. An earlier run's outputs that this one
     does not write (overlay.mp4 after --no-overlay) are removed before the report links what exists."""
-    from .viz.report import write_report
+    from .viz.report import write_report, write_report_parts
 
     out_dir = Path(out_dir)
     with locked_run_folder(out_dir):
@@ -247,6 +247,8 @@ def write_outputs(out_dir: Path, source: str, obs: Observations, motion: Kinemat
         result = build_result(obs, motion, seconds, settings.as_dict(), contacts, stationary, physics, predicted,
                               settings.physics.method)
         files, overlay_parts = _write_files(out_dir, obs, motion, result, overlay_video, progress, settings)
+        # the report's plots and metrics count in the stage; its page comes last, once every output exists
+        report_parts = write_report_parts(out_dir, result)
         seconds["outputs"] = time.perf_counter() - started
         summary = _summary(out_dir, source, obs, motion, result, settings, seconds, cached, physics_report or {},
                            files)
@@ -254,7 +256,7 @@ def write_outputs(out_dir: Path, source: str, obs: Observations, motion: Kinemat
         files["summary"] = str(out_dir / "summary.json")
         summary.removed_stale_outputs = [str(p) for p in remove_stale_outputs(earlier, files)]
         write_text(files["summary"], summary.to_json())
-        write_report(out_dir, result)  # last: it links every output that exists
+        write_report(out_dir, result, report_parts)  # last: it links every output that exists
     return summary
 
 

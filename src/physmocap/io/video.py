@@ -440,6 +440,10 @@ class VideoWriter:
     Odd frame sizes are padded by one replicated row/column, as yuv420p needs even sizes. The file appears under
     `path` only when close() succeeds; until then it is written to a temporary file beside it, which is removed
     if the writer leaves its `with` block through an exception.
+    crf: x264's constant rate factor (0-51, lower: better and larger); qp: a constant quantiser instead (0-51),
+    which spares x264 the half-size analysis its rate control runs on every frame. faststart: the moov atom
+    before the frames, so that a browser plays the file while loading it (closing then rewrites the file once);
+    False for files only read back whole, such as the parts join_video_parts joins.
     """
 
     def __init__(
@@ -450,7 +454,9 @@ class VideoWriter:
         height: int,
         *,
         crf: int = 23,
+        qp: int | None = None,
         preset: str = "medium",
+        faststart: bool = True,
     ) -> None:
         self.path = mp4_output_path(path)
         if width <= 0 or height <= 0:
@@ -461,13 +467,15 @@ class VideoWriter:
         self._tmp_path = self._files.enter_context(atomic_path(self.path))
         self._closed = False
         try:
-            self._container = av.open(str(self._tmp_path), "w", format="mp4", options={"movflags": "+faststart"})
+            self._container = av.open(str(self._tmp_path), "w", format="mp4",
+                                      options={"movflags": "+faststart"} if faststart else {})
             # 23.976... fps must stay 24000/1001, not a long binary fraction.
             self._stream = self._container.add_stream("libx264", rate=Fraction(fps).limit_denominator(1001))
             self._stream.width = self.width + self.width % 2
             self._stream.height = self.height + self.height % 2
             self._stream.pix_fmt = "yuv420p"
-            self._stream.options = {"crf": str(crf), "preset": preset}
+            rate = {"crf": str(crf)} if qp is None else {"qp": str(qp)}
+            self._stream.options = {**rate, "preset": preset}
         except BaseException as error:
             self._abort(error)
             raise

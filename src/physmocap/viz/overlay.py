@@ -59,7 +59,7 @@ UNEXPLAINED_TEXT = "physics cannot explain this frame"
 
 DEFAULT_OVERLAY_WIDTH = 1280  # px: wider videos are drawn and encoded at this width (None: native); 160 .. 7680
 OVERLAY_PRESET = "ultrafast"  # libx264 speed preset of overlay.mp4 (docs/decisions/overlay-speed.md)
-OVERLAY_CRF = 23  # libx264 constant rate factor (its default; lower: better and larger)
+OVERLAY_QP = 21  # libx264 constant quantiser: about CRF 23's quality, less CPU (docs/decisions/overlay-speed.md)
 PREFETCH_FRAMES = 8  # frames decoded ahead of the drawing, in the reader's thread
 MAX_DRAWN_COORDINATE = 1e5  # px: cv2 takes coordinates * 2**SHIFT as int32; points farther out are not drawn
 MIN_FRAMES_FOR_PARTS = 150  # frames a video needs before two parts pay (docs/decisions/overlay-speed.md, round 3)
@@ -200,13 +200,31 @@ def _draw_in_place(image: np.ndarray, points_2d: np.ndarray, edges: Sequence[tup
                    force_arrows: np.ndarray | None, valid: bool, unexplained: bool,
                    ink: Callable[[Colour], Colour] = _as_is, width: int | None = None) -> None:
     """Draw on `image` in place; `ink` turns each BGR colour into the image's colour space (e.g. yuv_colour);
-    width: the line width in pixels (default: line_width(image); a part of a frame takes the whole frame's)."""
+    width: the line width in pixels (default: line_width(image); a part of a frame takes the whole frame's).
+    The markers first, the banners over them."""
+    _draw_markers(image, points_2d, edges, labels, keypoints, contacts, force_arrows, valid, ink, width)
+    for text, at_top in _banners(valid, unexplained):
+        _draw_banner(image, text, at_top, ink=ink)
+
+
+def _banners(valid: bool, unexplained: bool) -> list[tuple[str, bool]]:
+    """(text, at the top) of the banners a frame carries: not reconstructed (top), else unexplained (bottom)."""
+    if not valid:
+        return [(BANNER_TEXT, True)]
+    return [(UNEXPLAINED_TEXT, False)] if unexplained else []
+
+
+def _draw_markers(image: np.ndarray, points_2d: np.ndarray, edges: Sequence[tuple[int, int]],
+                  labels: Sequence[str] | None, keypoints: np.ndarray | None, contacts: np.ndarray | None,
+                  force_arrows: np.ndarray | None, valid: bool, ink: Callable[[Colour], Colour] = _as_is,
+                  width: int | None = None) -> None:
+    """_draw_in_place without the banners: keypoints, and for a reconstructed frame the skeleton, contacts and
+    force arrows."""
     width = line_width(image) if width is None else width
     if keypoints is not None:
         for centre in _fixed(_seen_keypoints(keypoints)[:, :2]):
             _circle(image, centre, width, ink(KEYPOINT_COLOUR), cv2.FILLED)
     if not valid:
-        _draw_banner(image, BANNER_TEXT, at_top=True, ink=ink)
         return
     finite = drawable(points_2d)
     fixed = _fixed(np.where(finite[:, None], points_2d, 0.0))
@@ -233,16 +251,23 @@ def _draw_in_place(image: np.ndarray, points_2d: np.ndarray, edges: Sequence[tup
                 # The head is at most 6 line widths long: DRAWN_MARGIN_LINE_WIDTHS counts on it.
                 cv2.arrowedLine(image, start_fixed, tip_fixed, ink(FORCE_COLOUR), width, cv2.LINE_AA, SHIFT,
                                 tipLength=min(0.3, 6.0 * width / length))
-    if unexplained:
-        _draw_banner(image, UNEXPLAINED_TEXT, at_top=False, ink=ink)
+
+
+def _even_box(size: tuple[int, int], x0: float, y0: float, x1: float, y1: float) -> tuple[int, int, int, int] | None:
+    """(x0, y0, x1, y1) widened to even pixel bounds within the (width, height) image (yuv420p's chroma covers
+    2 x 2 pixels); None when empty."""
+    width, height = size
+    x0, y0 = int(np.clip(np.floor(x0), 0, width)), int(np.clip(np.floor(y0), 0, height))
+    x1, y1 = int(np.clip(np.ceil(x1), 0, width)), int(np.clip(np.ceil(y1), 0, height))
+    if x1 <= x0 or y1 <= y0:
+        return None
+    return x0 // 2 * 2, y0 // 2 * 2, min(width, -(-x1 // 2) * 2), min(height, -(-y1 // 2) * 2)
 
 
 def _drawn_box(size: tuple[int, int], line: int, points_2d: np.ndarray, keypoints: np.ndarray | None,
-               force_arrows: np.ndarray | None, valid: bool, unexplained: bool) -> tuple[int, int, int, int] | None:
-    """(x0, y0, x1, y1), even pixel bounds within the (width, height) image, of all that _draw_in_place draws
-    with these inputs and lines `line` pixels wide; None when it draws nothing. Banners span the whole width and
-    reach the image's edge, so that _draw_banner places them alike in the box and in the image."""
-    width, height = size
+               force_arrows: np.ndarray | None, valid: bool) -> tuple[int, int, int, int] | None:
+    """(x0, y0, x1, y1), even pixel bounds within the (width, height) image, of all that _draw_markers draws
+    with these inputs and lines `line` pixels wide; None when it draws nothing."""
     margin = DRAWN_MARGIN_LINE_WIDTHS * line + DRAWN_MARGIN_PX
     drawn = [] if keypoints is None else [_seen_keypoints(keypoints)[:, :2]]
     if valid:
@@ -250,20 +275,18 @@ def _drawn_box(size: tuple[int, int], line: int, points_2d: np.ndarray, keypoint
         if force_arrows is not None:
             drawn.append(force_arrows[drawable(force_arrows).all(axis=-1)].reshape(-1, 2))
     points = np.concatenate(drawn) if drawn else np.zeros((0, 2))
-    if len(points):
-        low, high = points.min(axis=0) - margin, points.max(axis=0) + margin
-        x0, y0, x1, y1 = np.clip(np.floor(low[0]), 0, width), np.clip(np.floor(low[1]), 0, height), \
-            np.clip(np.ceil(high[0]), 0, width), np.clip(np.ceil(high[1]), 0, height)
-    else:
-        x0, y0, x1, y1 = width, height, 0, 0
-    for text, at_top, shown in ((BANNER_TEXT, True, not valid), (UNEXPLAINED_TEXT, False, valid and unexplained)):
-        if shown:  # banners span the whole width
-            band = _banner_layout(text, width, height)[-1]
-            x0, x1 = 0, width
-            y0, y1 = (0, max(y1, band)) if at_top else (min(y0, height - band), height)
-    if x1 <= x0 or y1 <= y0:
+    if not len(points):
         return None
-    return int(x0) // 2 * 2, int(y0) // 2 * 2, min(width, -(-int(x1) // 2) * 2), min(height, -(-int(y1) // 2) * 2)
+    low, high = points.min(axis=0) - margin, points.max(axis=0) + margin
+    return _even_box(size, low[0], low[1], high[0], high[1])
+
+
+def _banner_box(size: tuple[int, int], text: str, at_top: bool) -> tuple[int, int, int, int] | None:
+    """Even pixel bounds of a banner's band: the whole width, from the image's top or bottom edge, so that
+    _draw_banner places it alike in the box and in the image."""
+    width, height = size
+    band = _banner_layout(text, width, height)[-1]
+    return _even_box(size, 0, 0 if at_top else height - band, width, band if at_top else height)
 
 
 class YuvScratch:
@@ -281,16 +304,32 @@ def _draw_yuv420(planes: tuple[np.ndarray, np.ndarray, np.ndarray], scratch: Yuv
                  unexplained: bool) -> None:
     """_draw_in_place on a yuv420p picture's planes (Y (H, W), U and V (H/2, W/2), modified in place).
 
-    Only the box the markers cover is touched: there the planes are merged into one Y, U, V image (chroma
-    repeated 2 x 2), drawn on with the colours in Y, U, V (blending is linear, so this equals drawing in BGR and
-    converting) and split back, chroma averaged 2 x 2 (unchanged where nothing was drawn).
+    Only the boxes the markers and each banner cover are touched (a banner spans the width: one box for both
+    would cover everything between the skeleton and the frame's edge), markers first, banners over them.
     """
+    height, width = planes[0].shape
+    line = line_width(planes[0])  # the whole frame's, not the box's
+    box = _drawn_box((width, height), line, points_2d, keypoints, force_arrows, valid)
+    if box is not None:
+        origin = np.array(box[:2], dtype=float)
+        _draw_box_yuv420(planes, scratch, box, lambda region: _draw_markers(
+            region, points_2d - origin, edges, labels,
+            None if keypoints is None else keypoints - np.append(origin, 0.0), contacts,
+            None if force_arrows is None else force_arrows - origin, valid, ink=yuv_colour, width=line))
+    for text, at_top in _banners(valid, unexplained):
+        band = _banner_box((width, height), text, at_top)
+        if band is not None:
+            _draw_box_yuv420(planes, scratch, band,
+                             functools.partial(_draw_banner, text=text, at_top=at_top, ink=yuv_colour))
+
+
+def _draw_box_yuv420(planes: tuple[np.ndarray, np.ndarray, np.ndarray], scratch: YuvScratch,
+                     box: tuple[int, int, int, int], draw: Callable[[np.ndarray], None]) -> None:
+    """`draw` on the (x0, y0, x1, y1) box (even bounds) of a yuv420p picture's planes: there the planes are merged
+    into one Y, U, V image (chroma repeated 2 x 2), drawn on with the colours in Y, U, V (blending is linear, so
+    this equals drawing in BGR and converting) and split back, chroma averaged 2 x 2 (unchanged where nothing was
+    drawn)."""
     y_plane, u_plane, v_plane = planes
-    height, width = y_plane.shape
-    line = line_width(y_plane)  # the whole frame's, not the box's
-    box = _drawn_box((width, height), line, points_2d, keypoints, force_arrows, valid, unexplained)
-    if box is None:
-        return
     x0, y0, x1, y1 = box
     size = (x1 - x0, y1 - y0)
     luma = y_plane[y0:y1, x0:x1]
@@ -300,11 +339,7 @@ def _draw_yuv420(planes: tuple[np.ndarray, np.ndarray, np.ndarray], scratch: Yuv
     for half, chroma in zip(halves, full, strict=True):
         cv2.resize(half, size, dst=chroma, interpolation=cv2.INTER_NEAREST)
     cv2.merge([luma, *full], dst=region)
-    origin = np.array([x0, y0], dtype=float)
-    _draw_in_place(region, points_2d - origin, edges, labels,
-                   None if keypoints is None else keypoints - np.append(origin, 0.0), contacts,
-                   None if force_arrows is None else force_arrows - origin, valid, unexplained,
-                   ink=yuv_colour, width=line)
+    draw(region)
     cv2.extractChannel(region, 0, dst=luma)
     for channel, (half, chroma) in enumerate(zip(halves, full, strict=True), start=1):
         cv2.extractChannel(region, channel, dst=chroma)
@@ -567,8 +602,8 @@ def _render_part(frames: FrameReader[av.VideoFrame], path: str | os.PathLike, dr
     """The drawing's frames from frames.start_frame up to `end` drawn and encoded into MP4 `path`; _VideoEnded
     (and no file) where the video ends before `end`, OverlayCancelled once any of `stops` is set."""
     out_width, out_height = frames.output_size
-    with VideoWriter(path, frames.info.fps, out_width, out_height, crf=OVERLAY_CRF,
-                     preset=OVERLAY_PRESET) as writer:
+    with VideoWriter(path, frames.info.fps, out_width, out_height, qp=OVERLAY_QP, preset=OVERLAY_PRESET,
+                     faststart=Path(path) == Path(out_path)) as writer:  # a part is only read back by the join
         _draw_frames(frames, writer, drawing, end, count, stops, out_path)
         if writer.frames_written < end - frames.start_frame:
             raise _VideoEnded(frames.start_frame + writer.frames_written)

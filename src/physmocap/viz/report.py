@@ -218,16 +218,37 @@ contacts the run used.</p>
 """
 
 
-def write_report(run_dir: str | os.PathLike, result: dict[str, np.ndarray]) -> dict[str, str]:
-    """Write the plots (run_dir/plots/*.png), metrics.json and report.html into the run folder `run_dir`, linking
-    the outputs already there (write the viewer, overlay and exports first). Returns {kind: path}."""
+@dataclass(frozen=True)
+class ReportParts:
+    """The costly part of a report, written before its page: the plots (kind -> path) and the metric rows (also
+    in metrics.json, `metrics_path`)."""
+
+    plots: dict[str, str]
+    rows: list[Metric]
+    metrics_path: str
+
+
+def write_report_parts(run_dir: str | os.PathLike, result: dict[str, np.ndarray]) -> ReportParts:
+    """The plots (run_dir/plots/*.png) and metrics.json of the report on `result`: they need only the result, so
+    the pipeline counts them in its outputs stage and writes the page last (write_report), after summary.json."""
     run_dir = Path(run_dir)
     result = finite_result(result, str(run_dir / "report.html"))
     plots = write_plots(result, run_dir / "plots")
     rows = run_metrics(result)
-    metrics_path, report_path = run_dir / "metrics.json", run_dir / "report.html"
+    metrics_path = run_dir / "metrics.json"
     finite = {r.key: {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(r).items()}
               for r in rows}
     write_text(metrics_path, json.dumps(finite, indent=1, allow_nan=False))
-    write_text(report_path, report_html(run_dir, result, rows, plots))
-    return {"report": str(report_path), "metrics": str(metrics_path), **plots}
+    return ReportParts(plots, rows, str(metrics_path))
+
+
+def write_report(run_dir: str | os.PathLike, result: dict[str, np.ndarray],
+                 parts: ReportParts | None = None) -> dict[str, str]:
+    """Write report.html into the run folder `run_dir`, linking the outputs already there (write the viewer,
+    overlay and exports first), with its plots and metrics.json (`parts` where write_report_parts wrote them
+    already). Returns {kind: path}."""
+    run_dir = Path(run_dir)
+    parts = write_report_parts(run_dir, result) if parts is None else parts
+    report_path = run_dir / "report.html"
+    write_text(report_path, report_html(run_dir, result, parts.rows, parts.plots))
+    return {"report": str(report_path), "metrics": parts.metrics_path, **parts.plots}
