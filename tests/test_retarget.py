@@ -353,6 +353,8 @@ def test_motion_on_each_rig_meets_the_targets_and_reads_back(tmp_path, source, n
     assert m["contact_frames_kept"] >= 0.95, m
     assert m["bone_length_error_m"] < 1e-9
     assert 80.0 < m["grf_mean_percent_bw"] < 120.0, m
+    assert m["unexplained_frames"] == int(load_result(report.files["result"])["physics_unexplained"][
+        load_result(report.files["result"])["valid"]].sum())  # the character's own flags
 
     # The `bvh` package reads the hierarchy back unchanged: names, parents, offsets.
     original = Bvh(Path(rig_path).read_text())
@@ -574,3 +576,29 @@ def test_khronos_validator_finds_no_new_issue_in_the_characters_glb(tmp_path, so
     assert issue_counts(clean_in) == issue_counts(clean_out) == (0, 0, 0, 0), clean_out["messages"]
     assert blender_out["messages"] == blender_in["messages"]
     assert issue_counts(blender_out)[:2] == (0, 0)
+
+
+def test_vertical_force_over_the_explained_frames_leaves_the_flagged_ones_out(tmp_path):
+    """Frames the character's physics flags (handed back as kinematic motion, no contact force claimed) would
+    pull the mean vertical force below the weight; the explained figure reads only the frames it explains."""
+    from physmocap.retarget.stage import follows_gap, retarget_metrics
+    from physmocap.retarget.writers import rig_motion, rig_positions
+
+    character = build_character(read_rig(_rigs(tmp_path)["mixamo"]))
+    body, n = character.body, 12
+    qpos = np.repeat(body.rest_qpos[None], n, axis=0)
+    points = kin.forward_kinematics(body, qpos).points[:, body.point_index(RESULT_POINTS)]
+    weight = body.mass * 9.81
+    grf = np.zeros((n, 4, 3))
+    grf[:, :, 2] = weight / 4  # the four points carry the weight ...
+    flagged = np.zeros(n, bool)
+    flagged[8:] = True
+    grf[flagged] = 0.0  # ... except on the flagged frames
+    every = np.ones(n, bool)
+    m = retarget_metrics(character, points, qpos, rig_positions(character, rig_motion(character, qpos)),
+                         np.ones((n, 4), bool), 30.0, grf, follows_gap(every), flagged)
+    assert m["grf_vertical_mean_percent_bw"] == pytest.approx(100.0 * 8 / 12, abs=0.1)
+    assert m["grf_vertical_explained_mean_percent_bw"] == pytest.approx(100.0, abs=0.1)
+    unflagged = retarget_metrics(character, points, qpos, rig_positions(character, rig_motion(character, qpos)),
+                                 np.ones((n, 4), bool), 30.0, grf, follows_gap(every))
+    assert unflagged["grf_vertical_explained_mean_percent_bw"] == unflagged["grf_vertical_mean_percent_bw"]

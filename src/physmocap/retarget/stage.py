@@ -98,7 +98,8 @@ def follows_gap(frames: np.ndarray) -> np.ndarray:
 
 
 def retarget_metrics(character: Character, source_points: np.ndarray, qpos: np.ndarray, positions: np.ndarray,
-                     contacts: np.ndarray, fps: float, grf: np.ndarray | None, breaks: np.ndarray) -> dict:
+                     contacts: np.ndarray, fps: float, grf: np.ndarray | None, breaks: np.ndarray,
+                     unexplained: np.ndarray | None = None) -> dict:
     """Figures of a retargeted motion (issue 19), all finite or None:
 
     skate_percent, penetration_percent, floating_percent: Rempe's foot metrics (metrics.foot_contact_errors) of
@@ -110,7 +111,10 @@ def retarget_metrics(character: Character, source_points: np.ndarray, qpos: np.n
         mean magnitude of the net ground reaction force in the character's body weights (Rempe's measure; None
         without physics), grf_vertical_mean_percent_bw: the mean of its vertical component, which over a clip
         equals the weight less what the root's residual force carries, plus the change of vertical momentum
-        (docs/decisions/retarget-grf.md); com: mean centre of mass height as a share of the standing height.
+        (docs/decisions/retarget-grf.md); grf_vertical_explained_mean_percent_bw: the same over the frames the
+        physics explains (unexplained (n,) bool: the frames it flagged and handed back, where no contact force is
+        claimed to carry the body; None: all explained); com: mean centre of mass height as a share of the
+        standing height.
     The rows are the frames with a person; breaks (n,) bool marks those that follow a gap: nothing slides into them."""
     body = character.body
     pose = kin.forward_kinematics(body, qpos)
@@ -146,15 +150,26 @@ def retarget_metrics(character: Character, source_points: np.ndarray, qpos: np.n
         grf_mean_percent_bw=None if grf is None else grf_statistics(grf, body.mass)["mean_percent_bw"],
         grf_vertical_mean_percent_bw=None if grf is None else grf_statistics(grf, body.mass,
                                                                              measure="vertical")["mean_percent_bw"],
+        grf_vertical_explained_mean_percent_bw=_explained_vertical(grf, body.mass, unexplained),
         com_height_share=float(com[:, 2].mean() / body.height),
     )
+
+
+def _explained_vertical(grf: np.ndarray | None, mass: float, unexplained: np.ndarray | None) -> float | None:
+    """Mean vertical net GRF (% of the weight, mass kg) over the frames of grf (n, 4, 3) N not flagged in
+    unexplained (n,); None without physics or without such frames."""
+    if grf is None:
+        return None
+    explained = np.ones(len(grf), bool) if unexplained is None else ~np.asarray(unexplained, bool)
+    return grf_statistics(grf[explained], mass, measure="vertical")["mean_percent_bw"] if explained.any() else None
 
 
 @dataclass
 class _PhysicsOutcome:
     """The retargeted motion after physics (T frames): qpos with the feet planted again, the contacts used, and
-    where physics ran the simulated qpos, grf (T, 4, 3) N, residual (T, 6), fallback and corrected flags (T,);
-    without physics qpos is the retargeted motion, simulated and grf None, the rest zeros."""
+    where physics ran the simulated qpos, grf (T, 4, 3) N, residual (T, 6), fallback, corrected and unexplained
+    flags (T,) (the character's own: frames its contact model could not explain); without physics qpos is the
+    retargeted motion, simulated and grf None, the rest zeros."""
 
     qpos: np.ndarray
     contacts: np.ndarray
@@ -163,6 +178,7 @@ class _PhysicsOutcome:
     residual: np.ndarray
     fallback: np.ndarray
     corrected: np.ndarray
+    unexplained: np.ndarray
 
 
 def _run_physics(body: BodyModel, retargeted_qpos: np.ndarray, fps: float, contacts: np.ndarray, stationary: np.ndarray,
@@ -172,7 +188,7 @@ def _run_physics(body: BodyModel, retargeted_qpos: np.ndarray, fps: float, conta
     as the pipeline's physics does. A note says how many frames fell back."""
     T = len(retargeted_qpos)
     outcome = _PhysicsOutcome(retargeted_qpos, contacts, None, None, np.zeros((T, 6)), np.zeros(T, bool),
-                              np.zeros(T, bool))
+                              np.zeros(T, bool), np.zeros(T, bool))
     span = slice(*((int(np.argmax(valid)), T - int(np.argmax(valid[::-1]))) if valid.any() else (0, 0)))
     if physics == "none" or span.stop - span.start < 3:
         return outcome
@@ -190,6 +206,8 @@ def _run_physics(body: BodyModel, retargeted_qpos: np.ndarray, fps: float, conta
     grf[span], outcome.residual[span], used_contacts[span] = motion.grf, motion.residual, motion.contacts
     outcome.fallback[span], outcome.corrected[span], simulated[span] = motion.qp_failures > 0, motion.corrected, \
         motion.qpos
+    if motion.unexplained is not None:
+        outcome.unexplained[span] = motion.unexplained
     if outcome.fallback.any():
         notes.append(f"physics fell back on {int(outcome.fallback.sum())} frames (kinematic motion kept there)")
     # The tracker's feet can drift a few centimetres off their spots (balance correction, soft contacts); the
@@ -238,7 +256,7 @@ def _character_result(source: dict[str, np.ndarray], character: Character, chara
         joints_world=final, joints_world_kinematic=kinematic, qpos=outcome.qpos, qpos_kinematic=retargeted.qpos,
         contacts=np.asarray(outcome.contacts, bool), grf=np.zeros((T, 4, 3)) if outcome.grf is None else outcome.grf,
         residual_root_force=outcome.residual, physics=np.array(physics), physics_fallback=outcome.fallback,
-        balance_corrected=outcome.corrected,
+        physics_unexplained=outcome.unexplained, balance_corrected=outcome.corrected,
         physics_deviation=np.linalg.norm(final - kinematic, axis=-1).mean(axis=1),
         body_mass=np.array(body.mass, dtype=np.float64), body_height=np.array(body.height, dtype=np.float64),
         body_lengths=np.array(json.dumps(body.lengths.__dict__)), body_segment_masses=np.array(json.dumps(masses)),
@@ -297,9 +315,11 @@ def retarget_result(result_path: str | os.PathLike, character_path: str | os.Pat
     frames = valid if valid.any() else np.ones(T, bool)  # figures over the frames with a person
     grf = outcome.grf
     metrics = retarget_metrics(character, source["joints_world"][frames], outcome.qpos[frames], positions[frames],
-                               contacts[frames], fps, None if grf is None else grf[frames], follows_gap(frames))
+                               contacts[frames], fps, None if grf is None else grf[frames], follows_gap(frames),
+                               outcome.unexplained[frames])
     departure = _path_departure(final[frames], source["joints_world"][frames], retargeted.scale)
     metrics.update(retarget_ms_per_frame=1000 * retarget_seconds / T, physics_ms_per_frame=1000 * physics_seconds / T,
+                   unexplained_frames=int(outcome.unexplained[frames].sum()),
                    physics=physics, scale=retargeted.scale, path_departure_mean_m=float(departure.mean()),
                    path_departure_max_m=float(departure.max()),
                    residual_vertical_mean_percent_bw=None if grf is None else float(
