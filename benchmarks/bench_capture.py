@@ -425,7 +425,8 @@ def _timed(step) -> tuple[float, float]:
 
 def _run_drawing(run: Path):
     """The overlay's drawing of a capture's run folder, as the pipeline's _start_overlay makes it, from
-    result.npz: (video, result, body, render_overlay's arguments after the video and output path)."""
+    result.npz: (video, result, body, render_overlay's arguments after the video and output path). Rebuilt here
+    from public pieces so that an older checkout, run with --before, draws the same."""
     from physmocap.body.model import CONTACT_POINTS
     from physmocap.camera import Camera
     from physmocap.export import body_from_result

@@ -45,7 +45,7 @@ def build_result(obs: Observations, motion: KinematicMotion, stage_seconds: dict
     with physics, `contacts` become the flags the physics used. Per-run numbers and texts are 0-d arrays, as
     load_result reads them back."""
     body, T = motion.body, len(motion.qpos)
-    unexplained = getattr(physics, "unexplained", None)  # trajopt's motion has none
+    unexplained = None if physics is None else physics.unexplained
     points = body.point_index(RESULT_POINTS)
     kinematic = kin.forward_kinematics(body, motion.qpos).points[:, points]
     final = kinematic if physics is None else kin.forward_kinematics(body, physics.qpos).points[:, points]
@@ -67,8 +67,8 @@ def build_result(obs: Observations, motion: KinematicMotion, stage_seconds: dict
         physics=np.array("none" if physics is None else physics_method),
         physics_fallback=np.zeros(T, bool) if physics is None else physics.qp_failures > 0,
         # frames the physics' contact model could not explain (hands or a raised floor carrying the body, a force
-        # over PhysicsSettings.max_force, a failed solver): the final motion there is the kinematic one, blended in
-        # and out over PhysicsSettings.unexplained_blend
+        # over PhysicsSettings.max_force, a failed solver; for trajopt an input COM below the floor): the final
+        # motion there is the kinematic one (PhysCap blends in and out over PhysicsSettings.unexplained_blend)
         physics_unexplained=np.zeros(T, bool) if unexplained is None else np.asarray(unexplained, bool),
         balance_corrected=np.zeros(T, bool) if physics is None else physics.corrected,
         camera_K=motion.camera.K,
