@@ -91,6 +91,29 @@ def test_observations_file_round_trip_and_online(demo_run, tmp_path):
     assert (tmp_path / "r" / "result.npz").is_file() and not (tmp_path / "r" / "overlay.mp4").exists()
 
 
+def test_observations_with_their_video_are_fitted_and_drawn_over_it(demo_run, tmp_path):
+    out, _ = demo_run
+    observations = Observations.load(out / "cache" / "observations.npz")
+    moved = dataclasses.replace(observations, keypoints_2d=observations.keypoints_2d.copy())
+    moved.keypoints_2d[..., 0] += 40.0  # the person 40 px to the right: not what the detector would find
+    moved.save(tmp_path / "moved.npz")
+    proc = physmocap_in_process("capture", DEMO_VIDEO, "--observations", tmp_path / "moved.npz", "-o", tmp_path / "r",
+                                "--physics", "none")
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((tmp_path / "r" / "summary.json").read_text())
+    assert summary["input"].endswith("moved.npz") and "detect" not in summary["stage_seconds"]
+    assert (tmp_path / "r" / "overlay.mp4").is_file()
+    np.testing.assert_allclose(load_result(tmp_path / "r" / "result.npz")["keypoints_2d"], moved.keypoints_2d,
+                               atol=1e-4)
+
+    short = dataclasses.replace(observations, **{name: getattr(observations, name)[:-5] for name in
+                                                 ("keypoints_2d", "landmarks_3d", "valid", "invalid_reason")})
+    short.save(tmp_path / "short.npz")
+    assert_clean_failure(physmocap_in_process("capture", DEMO_VIDEO, "--observations", tmp_path / "short.npz",
+                                              "-o", tmp_path / "s"), "short.npz", "frames")
+    assert not (tmp_path / "s" / "result.npz").exists()
+
+
 def test_help_teaches_the_commands():
     proc = physmocap("--help")
     assert proc.returncode == 0

@@ -92,7 +92,8 @@ def _add_capture_command(sub: argparse._SubParsersAction) -> None:
     cap.add_argument("video", nargs="?", type=Path, help="input video file (mp4, mov, webm, ...)")
     cap.add_argument("-o", "--output", type=Path, default=None,
                      help="run folder (default: runs/<video name>)")
-    cap.add_argument("--observations", type=Path, help="fit this observations .npz instead of detecting")
+    cap.add_argument("--observations", type=Path,
+                     help="fit this observations .npz instead of detecting (a video given as well is only drawn over)")
     _add_capture_options(cap)
     _add_character_arguments(cap, required=False)
 

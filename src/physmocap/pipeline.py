@@ -117,7 +117,7 @@ def run_capture(out_dir: str | os.PathLike, settings: Settings, *, video: str | 
         contacts = lock_feet(predicted, motion.body, motion.qpos, settings.physics)
         runner.seconds["contacts"] = time.perf_counter() - started
         motion, contacts, physics, report = _physics(runner, obs, motion, contacts, stationary)
-        return write_outputs(out_dir, str(observations if video is None else video), obs, motion, contacts,
+        return write_outputs(out_dir, str(video if observations is None else observations), obs, motion, contacts,
                              stationary, physics, settings, runner.seconds, runner.cached,
                              video if overlay else None, progress, predicted, report)
 
@@ -130,11 +130,13 @@ def _observe_and_fit(runner: Runner, video: Path | None,
     after it."""
     from .plausibility import check_observations
 
-    source = str(observations if video is None else video)
-    if video is None:
-        assert observations is not None, "run_capture needs a video or an observations file"
+    source = str(video if observations is None else observations)
+    if observations is not None:  # with a video too, the video is only drawn over (the overlay)
         obs = Observations.load(observations)
+        if video is not None:
+            check_observations_fit_video(video, obs, observations)
     else:
+        assert video is not None, "run_capture needs a video or an observations file"
         video_key = (file_digest(video),)
         cached = runner.lookup(DETECT, video_key) if runner.settings.online else None
         if cached is None and runner.settings.online:
@@ -215,6 +217,17 @@ def check_truncation(video: Path, obs: Observations, settings: Settings) -> None
     if obs.num_frames < announced - max(2, 0.02 * announced) and not settings.detect.accept_truncated:
         raise InputError(f"{video}: the video is truncated: only {obs.num_frames} of the {announced} frames it "
                          "announces decode (use --accept-truncated to capture those).")
+
+
+def check_observations_fit_video(video: Path, obs: Observations, observations: str | os.PathLike) -> None:
+    """InputError when an observations file was not made from `video`: other frame count or picture size."""
+    from .io.video import probe_video
+
+    info = probe_video(video)
+    if obs.num_frames != info.frame_count or tuple(obs.image_size) != (info.width, info.height):
+        raise InputError(f"{observations}: {obs.num_frames} frames of {obs.image_size[0]}x{obs.image_size[1]} px, "
+                         f"but {video} has {info.frame_count} frames of {info.width}x{info.height}: give the "
+                         "observations made from this video, or no video.")
 
 
 def contacts_stage(obs: Observations, settings: Settings) -> tuple[np.ndarray, np.ndarray]:
