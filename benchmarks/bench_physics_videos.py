@@ -74,6 +74,11 @@ def slide_cm(points: np.ndarray, contacts: np.ndarray) -> np.ndarray:
     return step[contacts[1:] & contacts[:-1]]
 
 
+def mean_acceleration(points: np.ndarray, fps: float) -> float:
+    """m/s^2: `metrics.mean_acceleration`, NaN for fewer than three frames (a clip too short for jitter)."""
+    return metrics.mean_acceleration(points, fps) if len(points) >= 3 else float("nan")
+
+
 def feet_only_jitter(points: np.ndarray, fps: float, explained: np.ndarray) -> float:
     """m/s^2: mean joint acceleration (central second differences) at the frames whose neighbours and themselves
     are all `explained` (valid and not flagged: where only the feet carry the body, as far as the physics knows)."""
@@ -120,8 +125,7 @@ def score(result_path: Path) -> dict:
                 largest_contact_force_bw=float(np.linalg.norm(result["grf"].sum(axis=1), axis=-1).max() / weight),
                 largest_residual_force_bw=float(np.linalg.norm(result["residual_root_force"][:, :3], axis=-1).max()
                                                 / weight),
-                jitter=metrics.mean_acceleration(final, fps),
-                kinematic_jitter=metrics.mean_acceleration(kinematic, fps),
+                jitter=mean_acceleration(final, fps), kinematic_jitter=mean_acceleration(kinematic, fps),
                 feet_only_jitter=feet_only_jitter(result["joints_world"], fps, explained),
                 feet_only_kinematic_jitter=feet_only_jitter(result["joints_world_kinematic"], fps, explained),
                 feet_only_reprojection_px=float(np.median(result["reprojection_error_final"][measured])),
