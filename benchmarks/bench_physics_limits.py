@@ -523,20 +523,28 @@ def part_speed_alternating(against: str, rounds: int = 7) -> dict:
     physics_settings = {"this branch": PhysicsSettings(), "before": settings_against}
     case = build_case(CLIPS[0], 0, 60.0, online=False)
     motion, refined = case["refined"].motion, case["refined"]
+    online_case = build_case(CLIPS[1], 0)
+    online = online_case["online"]
     out: dict = {"this branch": {}, "before": {}, "this branch best": {}, "before best": {}}
-    for fps in SPEED_RATES:
-        qpos, source = resample_motion(motion.body, motion.qpos, 60.0, fps)
+    # per column: the motion, its frame rate, contacts, stationary flags and run_physcap's keywords
+    columns = {f"{fps:g}": (qpos, fps, refined.contacts[source], case["stationary"][source],
+                            dict(refined_input=True))
+               for fps in SPEED_RATES for qpos, source in [resample_motion(motion.body, motion.qpos, 60.0, fps)]}
+    # the online path (planted feet, refined floor): 006_01's online fit
+    columns[f"{online_case['obs'].fps:g} online"] = (online.qpos, online_case["obs"].fps, online_case["causal"],
+                                                      online_case["causal_stationary"], dict(refine_floor=True))
+    for column, (qpos, fps, contacts, stationary, keywords) in columns.items():
         seconds: dict[str, list[float]] = {label: [] for label in runners}
         for round_ in range(rounds + 1):  # the first round warms both up
             for label, run in runners.items():
                 start = time.process_time()
-                run(motion.body, qpos, fps, refined.contacts[source], case["stationary"][source],
-                    physics_settings[label], refined_input=True)
+                run(motion.body if "refined_input" in keywords else online.body, qpos, fps, contacts, stationary,
+                    physics_settings[label], **keywords)
                 if round_:
                     seconds[label].append((time.process_time() - start) / len(qpos))
         for label, runs in seconds.items():
-            out[label][f"{fps:g}"] = 1.0 / float(np.median(runs))
-            out[f"{label} best"][f"{fps:g}"] = 1.0 / float(np.min(runs))
+            out[label][column] = 1.0 / float(np.median(runs))
+            out[f"{label} best"][column] = 1.0 / float(np.min(runs))
     return out | dict(against=against, load_average=os.getloadavg()[0], rounds=rounds)
 
 

@@ -34,10 +34,13 @@ class FootPlanter:
         self.sites = [model.site(name).id for name in CONTACT_POINTS]
         self.keep = math.exp(-1.0 / (fps * follow_time))  # share of the shift left after a frame
         self.reach = math.inf if reach is None else reach
-        self.shifts = np.zeros((4, 2))  # m, each contact point's shift along the floor (planted minus fitted point)
+        # The per-frame bookkeeping of four points runs on Python floats: numpy's cost per call outweighs the
+        # arithmetic (as in physcap.PhysCapTracker).
+        self.shifts = [[0.0, 0.0] for _ in range(4)]  # m, each point's shift along the floor (planted minus fitted)
         self.holding = [False, False, False, False]  # the points planted in the last frame
-        self._fitted = np.zeros((4, 2))  # m, the last frame's fitted points along the floor
-        self._jacobian = np.zeros((3, model.nv))
+        self._fitted = [[0.0, 0.0] for _ in range(4)]  # m, the last frame's fitted points along the floor
+        self._jacobians = np.zeros((6, model.nv))  # a foot's two contact points' Jacobians, stacked
+        self._damping = [DAMPING * DAMPING * np.eye(3 * k) for k in range(3)]  # per number of points moved
         self._step = np.zeros(model.nv)
         self.legs = []  # per side: the contact points' indices (into CONTACT_POINTS) and the leg's DOFs
         for side in ("left", "right"):
@@ -67,41 +70,44 @@ class FootPlanter:
         """q_kin (nq,) with its legs bent so that its held contact points (flags of four) lie on their planted
         points, and points let go keep their fading shift. fitted_points (4, 3) m: q_kin's, from
         contact_points(q_kin), which must be the last call; character_points (4, 3) m: the character's. A copy."""
-        for j in range(4):
+        keep, reach = self.keep, self.reach
+        fitted_xy = [point[:2] for point in fitted_points.tolist()]
+        for j, ((x, y), (last_x, last_y), (char_x, char_y, _)) in enumerate(zip(
+                fitted_xy, self._fitted, character_points.tolist(), strict=True)):
+            shift_x, shift_y = self.shifts[j]
             if held[j] and not self.holding[j]:  # planted where the character holds it: no jump in the target
-                self.shifts[j] = character_points[j, :2] - fitted_points[j, :2]
+                shift_x, shift_y = char_x - x, char_y - y
             elif held[j]:  # the planted point stays, but for its share following the fit's point
-                self.shifts[j] = self.keep * (self.shifts[j] + self._fitted[j] - fitted_points[j, :2])
-                length = math.hypot(*self.shifts[j].tolist())
-                if length > self.reach:
-                    self.shifts[j] *= self.reach / length
+                shift_x, shift_y = keep * (shift_x + last_x - x), keep * (shift_y + last_y - y)
+                length = math.hypot(shift_x, shift_y)
+                if length > reach:
+                    shift_x, shift_y = shift_x * reach / length, shift_y * reach / length
             else:
-                self.shifts[j] *= self.keep
-                if abs(self.shifts[j]).max() < FADED:
-                    self.shifts[j] = 0.0
-        self.holding = list(held)
-        self._fitted[:] = fitted_points[:, :2]
+                shift_x, shift_y = keep * shift_x, keep * shift_y
+                if max(abs(shift_x), abs(shift_y)) < FADED:
+                    shift_x = shift_y = 0.0
+            self.shifts[j] = [shift_x, shift_y]
+        self.holding, self._fitted = list(held), fitted_xy
         target = q_kin.copy()
-        self._step[:] = 0.0
-        moved = False
-        for points, dofs in self.legs:
-            moving = [j for j in points if self.shifts[j].any()]
-            if moving:
+        moving_legs = [(moving, dofs) for points, dofs in self.legs
+                       if (moving := [j for j in points if self.shifts[j] != [0.0, 0.0]])]
+        if moving_legs:
+            self._step[:] = 0.0
+            for moving, dofs in moving_legs:
                 self._step[dofs] = self._leg_step(moving, dofs)
-                moved = True
-        if moved:
             mujoco.mj_integratePos(self.model, target, self._step, 1.0)
         return target
 
     def _leg_step(self, points: list[int], dofs: np.ndarray) -> np.ndarray:
         """(len(dofs),) rad: the leg's joint step that moves the contact points `points` (of one foot) by their
         shifts along the floor and keeps their heights, to first order (damped least squares, DAMPING)."""
-        rows: list[np.ndarray] = []
         error: list[float] = []
-        for j in points:
-            mujoco.mj_jacSite(self.model, self.data, self._jacobian, None, self.sites[j])
-            rows.append(self._jacobian[:, dofs])
-            error += (self.shifts[j, 0], self.shifts[j, 1], 0.0)
-        jacobian = np.concatenate(rows)
-        normal = jacobian @ jacobian.T + DAMPING * DAMPING * np.eye(len(jacobian))
-        return jacobian.T @ np.linalg.solve(normal, np.array(error))
+        for k, j in enumerate(points):
+            mujoco.mj_jacSite(self.model, self.data, self._jacobians[3 * k:3 * k + 3], None, self.sites[j])
+            error += (*self.shifts[j], 0.0)
+        jacobian = self._jacobians[:len(error), dofs]
+        normal = jacobian @ jacobian.T + self._damping[len(points)]
+        mujoco.mju_cholFactor(normal, 0.0)  # positive definite: the damping bounds it from below
+        weights = np.zeros(len(error))
+        mujoco.mju_cholSolve(weights, normal, np.array(error))
+        return jacobian.T @ weights
