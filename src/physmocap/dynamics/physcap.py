@@ -349,9 +349,10 @@ class PhysCapTracker:
         return released
 
     def release_contacts(self, kinematic_points: np.ndarray) -> tuple[list[bool], np.ndarray]:
-        """The frame's released contacts (_released_contacts) judged before `track`, against kinematic_points
-        (4, 3) m: the fit's contact points, where the target's own were moved (planting.FootPlanter). Returns
-        them and the character's contact points (4, 3) m at the current state."""
+        """The frame's released contacts (_released_contacts) judged before `track` (which then takes them),
+        against kinematic_points (4, 3) m: for a target whose feet the stream plants (planting.FootPlanter), where
+        the planted target's points lie. Returns them and the character's contact points (4, 3) m at the current
+        state."""
         mujoco.mj_kinematics(self.model, self.data)
         return self._released_contacts(kinematic_points), self.data.site_xpos[self.sites].copy()
 
