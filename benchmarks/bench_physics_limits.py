@@ -317,11 +317,15 @@ def part_online(clips, seeds, physics_settings=None) -> dict:
                 kinematic_slide = contact_slide_cm(body, motion.qpos, physics.contacts)
                 joints = kin.forward_kinematics(body, physics.qpos).points
                 joints_kin = kin.forward_kinematics(body, motion.qpos).points
+                scores, kinematic_scores = (truth_scores(case, motion, qpos) for qpos in (physics.qpos, motion.qpos))
                 rows.append(dict(clip=name.split("/")[-1], seed=seed, calibrated=calibrated, slides=slide.tolist(),
                                  kinematic_slides=kinematic_slide.tolist(),
                                  jitter=metrics.mean_acceleration(joints, fps),
                                  kinematic_jitter=metrics.mean_acceleration(joints_kin, fps),
-                                 flagged_percent=100 * float(physics.unexplained.mean())))
+                                 flagged_percent=100 * float(physics.unexplained.mean()),
+                                 root_relative_mm=scores["mpjpe_root_mm"], skate_percent=scores["skate_percent"],
+                                 kinematic_root_relative_mm=kinematic_scores["mpjpe_root_mm"],
+                                 kinematic_skate_percent=kinematic_scores["skate_percent"]))
                 print("online", {k: v for k, v in rows[-1].items() if "slides" not in k},
                       f"median slide {np.median(slide):.2f} cm", flush=True)
     summary = {}
@@ -335,8 +339,18 @@ def part_online(clips, seeds, physics_settings=None) -> dict:
             kinematic_slide_p95_cm=float(np.percentile(kinematic, 95)),
             jitter=float(np.mean([r["jitter"] for r in sel])),
             kinematic_jitter=float(np.mean([r["kinematic_jitter"] for r in sel])),
-            flagged_percent=float(np.mean([r["flagged_percent"] for r in sel])))
+            flagged_percent=float(np.mean([r["flagged_percent"] for r in sel])),
+            **{key: float(np.mean([r[key] for r in sel])) for key in (
+                "root_relative_mm", "skate_percent", "kinematic_root_relative_mm", "kinematic_skate_percent")})
     return dict(rows=[{k: v for k, v in r.items() if "slides" not in k} for r in rows], summary=summary)
+
+
+def truth_scores(case: dict, motion, qpos: np.ndarray) -> dict:
+    """The synthetic table's metrics (score_against_truth) of a motion (T, nq) in motion's world."""
+    pose = kin.forward_kinematics(motion.body, qpos)
+    points = to_truth_world(pose.points, motion.camera.R, motion.camera.t, case["truth"])
+    com = to_truth_world(kin.center_of_mass(motion.body, pose), motion.camera.R, motion.camera.t, case["truth"])
+    return score_against_truth(points, motion.body.point_names, com, case["truth"], motion.body.mass)
 
 
 METHODS = ("kinematic offline", "kinematic refined (B.4)", "physcap on refined", "trajopt")
@@ -509,20 +523,28 @@ def part_speed_alternating(against: str, rounds: int = 7) -> dict:
     physics_settings = {"this branch": PhysicsSettings(), "before": settings_against}
     case = build_case(CLIPS[0], 0, 60.0, online=False)
     motion, refined = case["refined"].motion, case["refined"]
+    online_case = build_case(CLIPS[1], 0)
+    online = online_case["online"]
     out: dict = {"this branch": {}, "before": {}, "this branch best": {}, "before best": {}}
-    for fps in SPEED_RATES:
-        qpos, source = resample_motion(motion.body, motion.qpos, 60.0, fps)
+    # per column: the motion, its frame rate, contacts, stationary flags and run_physcap's keywords
+    columns = {f"{fps:g}": (qpos, fps, refined.contacts[source], case["stationary"][source],
+                            dict(refined_input=True))
+               for fps in SPEED_RATES for qpos, source in [resample_motion(motion.body, motion.qpos, 60.0, fps)]}
+    # the online path (planted feet, refined floor): 006_01's online fit
+    columns[f"{online_case['obs'].fps:g} online"] = (online.qpos, online_case["obs"].fps, online_case["causal"],
+                                                      online_case["causal_stationary"], dict(refine_floor=True))
+    for column, (qpos, fps, contacts, stationary, keywords) in columns.items():
         seconds: dict[str, list[float]] = {label: [] for label in runners}
         for round_ in range(rounds + 1):  # the first round warms both up
             for label, run in runners.items():
                 start = time.process_time()
-                run(motion.body, qpos, fps, refined.contacts[source], case["stationary"][source],
-                    physics_settings[label], refined_input=True)
+                run(motion.body if "refined_input" in keywords else online.body, qpos, fps, contacts, stationary,
+                    physics_settings[label], **keywords)
                 if round_:
                     seconds[label].append((time.process_time() - start) / len(qpos))
         for label, runs in seconds.items():
-            out[label][f"{fps:g}"] = 1.0 / float(np.median(runs))
-            out[f"{label} best"][f"{fps:g}"] = 1.0 / float(np.min(runs))
+            out[label][column] = 1.0 / float(np.median(runs))
+            out[f"{label} best"][column] = 1.0 / float(np.min(runs))
     return out | dict(against=against, load_average=os.getloadavg()[0], rounds=rounds)
 
 
@@ -685,11 +707,14 @@ def markdown(out: dict) -> str:
     if "online" in out:
         lines += ["**Online PhysCap: contact slide and jitter**", "",
                   "| floor | slide median cm/frame | slide p95 cm/frame | input's slide at those contacts median "
-                  "(p95) | jitter m/s² | input's jitter m/s² | flagged % |", "|---|---|---|---|---|---|---|"]
+                  "(p95) | jitter m/s² | input's jitter m/s² | flagged % | root-rel. mm (input) | skate % (input) |",
+                  "|---|---|---|---|---|---|---|---|---|"]
         for floor, s in out["online"]["summary"].items():
             lines.append(f"| {floor} | {s['slide_median_cm']:.2f} | {s['slide_p95_cm']:.2f} | "
                          f"{s['kinematic_slide_median_cm']:.2f} ({s['kinematic_slide_p95_cm']:.2f}) | "
-                         f"{s['jitter']:.2f} | {s['kinematic_jitter']:.2f} | {s['flagged_percent']:.2f} |")
+                         f"{s['jitter']:.2f} | {s['kinematic_jitter']:.2f} | {s['flagged_percent']:.2f} | "
+                         f"{s.get('root_relative_mm', np.nan):.1f} ({s.get('kinematic_root_relative_mm', np.nan):.1f}) "
+                         f"| {s.get('skate_percent', np.nan):.1f} ({s.get('kinematic_skate_percent', np.nan):.1f}) |")
         lines.append("")
     if "speed" in out:
         sp = out["speed"]

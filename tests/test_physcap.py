@@ -588,3 +588,29 @@ def test_a_non_finite_target_restarts_the_character_instead_of_integrating_it(bo
     frame = tracker.track(target, np.zeros(body.nv), np.zeros(body.nv), np.ones(4, bool))
     assert frame.diverged and frame.qp_failures >= tracker.substeps
     assert np.isfinite(frame.contact_forces).all() and np.isfinite(frame.residual).all()
+
+
+def test_an_online_foot_stays_planted_while_its_fitted_foot_wanders(body):
+    """Online (a fit not refined by B.4), the fitted left foot wanders about 2 cm from frame to frame while it
+    is predicted in contact: the character's held points stay planted (the target's foot is moved onto them)
+    instead of being dragged after the fitted foot at slide_speed."""
+    rng = np.random.default_rng(0)
+    frames = 75
+    names = [b.joint for b in body.bodies]
+    hip = body.dof_address[names.index("left_hip")]
+    wander = np.zeros((frames, body.nv))
+    wander[:, hip:hip + 2] = rng.uniform(-0.02, 0.02, (frames, 2))  # rad: about 2 cm at the sole, each frame
+    q = kin.integrate(body, standing(body, frames), wander)
+    contacts = np.ones((frames, 4), bool)
+
+    def left_sole_slides(qpos):  # m per frame along the floor, after the first 5 frames
+        soles = kin.forward_kinematics(body, qpos[5:]).points[:, body.point_index(CONTACT_POINTS[:2])]
+        return np.linalg.norm(np.diff(soles[:, :, :2], axis=0), axis=-1)
+
+    motion = run_physcap(body, q, FPS, contacts, np.zeros(frames, bool), PhysicsSettings())
+    assert motion.contacts[5:, :2].all()
+    assert np.median(left_sole_slides(motion.qpos)) < 0.25 * np.median(left_sole_slides(q))
+    assert left_sole_slides(motion.qpos).max() < 0.01  # below slide_speed's 1.2 cm per frame
+    # Without planting, as offline on B.4's feet, the held points follow the fitted foot.
+    unplanted = run_physcap(body, q, FPS, contacts, np.zeros(frames, bool), PhysicsSettings(plant_time=None))
+    assert np.median(left_sole_slides(unplanted.qpos)) > 0.4 * np.median(left_sole_slides(q))

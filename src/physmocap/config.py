@@ -109,6 +109,9 @@ class PhysicsSettings(Section):
     penetration_recovery: float = setting(0.1, "s", (1e-3, 1.0), "a point under the floor rises back at depth / this")
     contact_settle_time: float = setting(0.05, "s", (1e-3, 1.0), "a held point above its target drops at height / this")
     release_distance: float | None = setting(0.05, "m", (0.0, 1.0), "freed past this slide of its target (None: never)")
+    plant_time: float | None = setting(0.1, "s", (0.01, 10.0), "fits not refined by B.4 (online): a held target foot "
+                                       "moves to where the character planted it, which follows the fit's with this "
+                                       "time constant, at most release_distance away (None: off)")
     touch_margin: float = setting(0.003, "m", (0.0, 0.1), "sole points this close collide with the floor (eq. 5)")
     floor_clearance: float = setting(0.0005, "m", (0.0, 0.01), "physics floor this far up: turning feet dip under it")
     floor_refit_interval: float | None = setting(3.0, "s", (0.1, 60.0), "between online refits of the floor to the "

@@ -348,10 +348,19 @@ class PhysCapTracker:
         self._previous_target_xy = target_sites[:, :2].tolist()
         return released
 
+    def release_contacts(self, kinematic_points: np.ndarray) -> tuple[list[bool], np.ndarray]:
+        """The frame's released contacts (_released_contacts) judged before `track` (which then takes them),
+        against kinematic_points (4, 3) m: for a target whose feet the stream plants (planting.FootPlanter), where
+        the planted target's points lie. Returns them and the character's contact points (4, 3) m at the current
+        state."""
+        mujoco.mj_kinematics(self.model, self.data)
+        return self._released_contacts(kinematic_points), self.data.site_xpos[self.sites].copy()
+
     # ---- one video frame ----------------------------------------------------------------------------------
     def track(self, q_kin: np.ndarray, qd_kin: np.ndarray, qdd_kin: np.ndarray,
-              predicted_contacts: np.ndarray) -> FrameOutput:
-        """Advance the character by one frame towards the kinematic pose (steps ii-v, n times)."""
+              predicted_contacts: np.ndarray, released: list[bool] | None = None) -> FrameOutput:
+        """Advance the character by one frame towards the kinematic pose (steps ii-v, n times). released: the
+        frame's released contacts from release_contacts (None: judged here against the target's points)."""
         s, n = self.settings, self.substeps
         forces_sum, residual_sum, root_forces_sum = np.zeros((4, 3)), np.zeros(6), np.zeros(6)
         failures, diverged = 0, False
@@ -378,7 +387,7 @@ class PhysCapTracker:
             target[:] = self._previous_target
             mujoco.mj_integratePos(self.model, target, self._target_step, (i + 1) / n)
             heights, touching = self._step_state()
-            if i == 0:  # judged once per frame against the frame's target (per step it split walks further)
+            if released is None:  # judged once per frame against the frame's target (per step it split walks)
                 released = self._released_contacts(target_sites)
             predicted = earlier_contacts if (i + 0.5) / n < 0.5 else later_contacts
             # eq. (5): predicted, within contact_height and not released; or touching the floor

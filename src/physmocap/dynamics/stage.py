@@ -20,6 +20,7 @@ from ..kinematics.stage import KinematicMotion
 from .balance import BalanceCorrector
 from .floor import FloorRefiner, floor_frame
 from .physcap import FrameOutput, PhysCapTracker
+from .planting import FootPlanter
 
 GRAVITY = 9.81  # m/s^2
 MAX_FLATTENING = np.radians(20.0)  # a foot tilted more than this with heel and toe predicted down is a wrong label
@@ -118,6 +119,11 @@ class PhysicsStream:
         self._drop: float | None = None
         self._drop_keep = (math.exp(-1.0 / (fps * settings.start_drop_time))
                            if settings.start_drop_time is not None else 0.0)
+        # Online fits' held feet are planted where the character holds them (B.4 already planted offline ones)
+        self.planter = (FootPlanter(model, fps, settings.plant_time, settings.release_distance)
+                        if settings.plant_time is not None and settings.foot_lock != "never"
+                        and not refined_input else None)
+        self._held = np.zeros(4, bool)  # the contacts the character held at the end of the last frame
 
     @property
     def floor_plane(self) -> np.ndarray | None:
@@ -135,6 +141,9 @@ class PhysicsStream:
             q_kin = self._target_on_floor(q_kin, contacts)
         if self._drop_keep:
             q_kin = self._start_on_floor(q_kin)
+        released = None
+        if self.planter is not None and self._previous is not None:
+            q_kin, released = self._plant_feet(q_kin, contacts)
         # Backward differences (as kinematic_derivatives), the velocity smoothed causally from the second one on
         # (settings.velocity_smoothing); no acceleration before the third frame.
         velocity, acceleration = np.zeros(self.body.nv), np.zeros(self.body.nv)
@@ -155,13 +164,29 @@ class PhysicsStream:
             stationary = self.root_speed() < self.settings.stationary_max_speed
         if self.settings.balance_correction:
             target, corrected = self.balance.correct(q_kin, stationary, contacts)
-        frame = self.tracker.track(target, velocity, acceleration, contacts)
+        frame = self.tracker.track(target, velocity, acceleration, contacts, released)
+        self._held = frame.active
         pose = self._diagnose(frame, target, velocity)
         if self.floor is None:
             return pose, frame, corrected
         frame.contact_forces = self.floor.vector_to_kinematic(frame.contact_forces)
         frame.residual[:3] = self.floor.vector_to_kinematic(frame.residual[:3])
         return self.floor.to_kinematic(pose), frame, corrected
+
+    def _plant_feet(self, q_kin: np.ndarray, contacts: np.ndarray) -> tuple[np.ndarray, list[bool]]:
+        """q_kin (nq,) with the contact points the character held in the last frame, still predicted (contacts
+        (4,)) and not released, moved onto their planted points (FootPlanter), and the frame's released contacts.
+        Those are judged against where the target's points lay (the fit's moved by the planter's shifts): judged
+        on the fit's own, planted points that lagged the fit's were let go and caught up at once more often than
+        without planting (docs/decisions/physics-online-feet.md). None is held while the balance correction
+        turns the body about its feet: planted as well, the feet it had turned misled its support test, and the
+        correction tipped a body leaning on its toes over backwards."""
+        assert self.planter is not None
+        fitted = self.planter.contact_points(q_kin)
+        released, character = self.tracker.release_contacts(self.planter.shifted(fitted))
+        correcting = self.balance.tilt > 0.0 or self.balance.straighten > 0.0
+        held = [bool(self._held[j] and contacts[j]) and not released[j] and not correcting for j in range(4)]
+        return self.planter.plant(q_kin, fitted, character, held), released
 
     def _diagnose(self, frame: FrameOutput, target: np.ndarray, velocity: np.ndarray) -> np.ndarray:
         """Bounds the frame's forces (settings.max_force) and judges whether the contact model explains the

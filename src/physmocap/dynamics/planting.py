@@ -1,0 +1,113 @@
+"""Planted feet for the online tracker (issue 17; docs/decisions/physics-online-feet.md): the kinematic target's
+held feet are moved onto where the character planted them, as Rempe's B.4 foot-locks the kinematics offline
+before PhysCap tracks them. A fit's foot keeps wandering during a contact; tracked as it is, the PD drags the
+planted foot after it (the contact constraint then lets it slide at slide_speed). Causal: each frame uses the
+character's state and the contacts it held up to then.
+"""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+
+from ..body.model import CONTACT_POINTS
+
+LEG_JOINTS = ("hip", "knee", "ankle")  # the joints bent to move a foot, per side
+DAMPING = 0.01  # m: damped least squares' lambda; a leg straight enough to be singular moves its foot along it
+FADED = 1e-4  # m: a shift below this is gone
+
+
+class FootPlanter:
+    """The target's held contact points moved along the floor onto their planted points (plant). A point is
+    planted where the character holds it when the contact begins; the planted point then follows the fit's with
+    the time constant follow_time (s), and never lies farther than reach (m; None: any distance) from it, so that
+    a fit's foot that moves on is followed at slide_speed instead of being let go at once. Once the point is no
+    longer held, its shift fades with the same time constant, so that the target does not jump. The shift bends
+    the target's hip, knee and ankle (one damped least squares step on the contact points, their heights kept):
+    the root and the upper body stay the fit's."""
+
+    def __init__(self, model: mujoco.MjModel, fps: float, follow_time: float, reach: float | None):
+        self.model = model
+        self.data = mujoco.MjData(model)  # the kinematics of the frame's unshifted target
+        self.sites = [model.site(name).id for name in CONTACT_POINTS]
+        self.keep = math.exp(-1.0 / (fps * follow_time))  # share of the shift left after a frame
+        self.reach = math.inf if reach is None else reach
+        # The per-frame bookkeeping of four points runs on Python floats: numpy's cost per call outweighs the
+        # arithmetic (as in physcap.PhysCapTracker).
+        self.shifts = [[0.0, 0.0] for _ in range(4)]  # m, each point's shift along the floor (planted minus fitted)
+        self.holding = [False, False, False, False]  # the points planted in the last frame
+        self._fitted = [[0.0, 0.0] for _ in range(4)]  # m, the last frame's fitted points along the floor
+        self._jacobians = np.zeros((6, model.nv))  # a foot's two contact points' Jacobians, stacked
+        self._damping = [DAMPING * DAMPING * np.eye(3 * k) for k in range(3)]  # per number of points moved
+        self._step = np.zeros(model.nv)
+        self.legs = []  # per side: the contact points' indices (into CONTACT_POINTS) and the leg's DOFs
+        for side in ("left", "right"):
+            dofs: list[int] = []
+            for name in LEG_JOINTS:
+                joint = model.joint(f"{side}_{name}").id
+                count = 3 if model.jnt_type[joint] == mujoco.mjtJoint.mjJNT_BALL else 1
+                dofs += range(model.jnt_dofadr[joint], model.jnt_dofadr[joint] + count)
+            points = [j for j, name in enumerate(CONTACT_POINTS) if name.startswith(side)]
+            self.legs.append((points, np.array(dofs)))
+
+    def contact_points(self, q_kin: np.ndarray) -> np.ndarray:
+        """(4, 3) m: the contact points of the fitted target q_kin (nq,), whose kinematics `plant` then uses."""
+        self.data.qpos[:] = q_kin
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_comPos(self.model, self.data)  # the Jacobians' reference point
+        return self.data.site_xpos[self.sites].copy()
+
+    def shifted(self, fitted_points: np.ndarray) -> np.ndarray:
+        """(4, 3) m: fitted_points (4, 3) m moved by the last frame's shifts, where the target's points would lie."""
+        points = fitted_points.copy()
+        points[:, :2] += self.shifts
+        return points
+
+    def plant(self, q_kin: np.ndarray, fitted_points: np.ndarray, character_points: np.ndarray,
+              held: list[bool]) -> np.ndarray:
+        """q_kin (nq,) with its legs bent so that its held contact points (flags of four) lie on their planted
+        points, and points let go keep their fading shift. fitted_points (4, 3) m: q_kin's, from
+        contact_points(q_kin), which must be the last call; character_points (4, 3) m: the character's. A copy."""
+        keep, reach = self.keep, self.reach
+        fitted_xy = [point[:2] for point in fitted_points.tolist()]
+        for j, ((x, y), (last_x, last_y), (char_x, char_y, _)) in enumerate(zip(
+                fitted_xy, self._fitted, character_points.tolist(), strict=True)):
+            shift_x, shift_y = self.shifts[j]
+            if held[j] and not self.holding[j]:  # planted where the character holds it: no jump in the target
+                shift_x, shift_y = char_x - x, char_y - y
+            elif held[j]:  # the planted point stays, but for its share following the fit's point
+                shift_x, shift_y = keep * (shift_x + last_x - x), keep * (shift_y + last_y - y)
+                length = math.hypot(shift_x, shift_y)
+                if length > reach:
+                    shift_x, shift_y = shift_x * reach / length, shift_y * reach / length
+            else:
+                shift_x, shift_y = keep * shift_x, keep * shift_y
+                if max(abs(shift_x), abs(shift_y)) < FADED:
+                    shift_x = shift_y = 0.0
+            self.shifts[j] = [shift_x, shift_y]
+        self.holding, self._fitted = list(held), fitted_xy
+        target = q_kin.copy()
+        moving_legs = [(moving, dofs) for points, dofs in self.legs
+                       if (moving := [j for j in points if self.shifts[j] != [0.0, 0.0]])]
+        if moving_legs:
+            self._step[:] = 0.0
+            for moving, dofs in moving_legs:
+                self._step[dofs] = self._leg_step(moving, dofs)
+            mujoco.mj_integratePos(self.model, target, self._step, 1.0)
+        return target
+
+    def _leg_step(self, points: list[int], dofs: np.ndarray) -> np.ndarray:
+        """(len(dofs),) rad: the leg's joint step that moves the contact points `points` (of one foot) by their
+        shifts along the floor and keeps their heights, to first order (damped least squares, DAMPING)."""
+        error: list[float] = []
+        for k, j in enumerate(points):
+            mujoco.mj_jacSite(self.model, self.data, self._jacobians[3 * k:3 * k + 3], None, self.sites[j])
+            error += (*self.shifts[j], 0.0)
+        jacobian = self._jacobians[:len(error), dofs]
+        normal = jacobian @ jacobian.T + self._damping[len(points)]
+        mujoco.mju_cholFactor(normal, 0.0)  # positive definite: the damping bounds it from below
+        weights = np.zeros(len(error))
+        mujoco.mju_cholSolve(weights, normal, np.array(error))
+        return jacobian.T @ weights
