@@ -274,6 +274,23 @@ def test_lengths_measured_again_along_the_fitted_axes_lose_the_noise_bias(camera
 
 
 @pytest.mark.slow
+def test_online_warmup_starts_again_after_a_gap_without_a_person(body, camera):
+    """A lone small detection (a quarter of the person's size: four times as far), then frames without anyone,
+    then the person: the warm-up fits the person's run from a cold start, as offline, instead of carrying the
+    lone frame's distance into it (a real video's walk-in, docs/decisions/physics-online-feet.md)."""
+    truth = walking_motion(body, 100)
+    obs = observe(body, truth, camera)
+    centre = obs.keypoints_2d[10, :, :2][obs.keypoints_2d[10, :, 2] > 0].mean(axis=0)
+    obs.keypoints_2d[0, :, :2] = centre + 0.25 * (obs.keypoints_2d[10, :, :2] - centre)
+    obs.landmarks_3d[0] = obs.landmarks_3d[10]
+    obs.valid[1:10] = False
+    up = camera.R[:, 2]
+    settings = Settings(online=True).replace("body", height=body.height, mass=body.mass)
+    motion = fit_motion(obs, settings.replace("camera", floor=tuple(np.append(up, -up @ camera.t))))
+    error = np.linalg.norm(motion.camera.to_camera(motion.qpos[:, :3]) - camera.to_camera(truth[:, :3]), axis=1)
+    assert error[10:20].max() < 0.15
+
+
 def test_online_warmup_measures_the_lengths_again(body, camera):
     """The online fit's warm-up measures the lengths again as the offline fit does: with noisy 3D landmarks the
     arms and the heel come out nearer the truth than the calibration's medians make them."""

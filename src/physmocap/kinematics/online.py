@@ -235,11 +235,18 @@ class OnlineFitter:
 
     def _fit_held(self, k2: np.ndarray, k3: np.ndarray, valid: np.ndarray, depth: np.ndarray,
                   first: int) -> list[tuple[np.ndarray, bool]]:
-        """The held warm-up frames from `first` on, fitted causally from a cold start: per frame (qpos, swapped)."""
-        self._past, self._foot_swaps.swapped = CausalPast([], []), False
-        self._depths.clear()
-        self._depths.append(float(depth[first]))
-        return [self._fit(k2[t], k3[t], valid[t]) for t in range(first, len(valid))]
+        """The held warm-up frames from `first` on, fitted causally from a cold start: per frame (qpos, swapped).
+        A run of frames after a gap without a person starts cold again, as offline (`fit_streams`): the past of a
+        lone detection before the gap would otherwise carry its depth into the person who then walks in."""
+        self._foot_swaps.swapped = False
+        fitted = []
+        for t in range(first, len(valid)):
+            if t == first or (valid[t] and not valid[t - 1] and np.isfinite(depth[t])):
+                self._past = CausalPast([], [])
+                self._depths.clear()
+                self._depths.append(float(depth[t]))
+            fitted.append(self._fit(k2[t], k3[t], valid[t]))
+        return fitted
 
     def _fit(self, keypoints_2d: np.ndarray, landmarks_3d: np.ndarray, valid: bool) -> tuple[np.ndarray, bool]:
         """One frame fitted from the past: its pose (nq,) and whether its feet were read swapped."""
