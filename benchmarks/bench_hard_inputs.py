@@ -117,15 +117,25 @@ def variants() -> dict[str, Callable[[], tuple[Pictures, float]]]:
         return p[:count], fps
 
     def each(f: Callable[[np.ndarray], np.ndarray], clip: Callable[[], tuple[Pictures, float]]):
-        return lambda: ([f(q) for q in clip()[0]], clip()[1])
+        def made() -> tuple[Pictures, float]:
+            pictures, fps = clip()
+            return [f(q) for q in pictures], fps
+        return made
+
+    def repeated(p: Pictures, fps: float, times: int) -> tuple[Pictures, float]:
+        return [q for q in p for _ in range(times)], fps * times
+
+    def still() -> tuple[Pictures, float]:
+        p, fps = taiji(0.1)
+        return [p[0]] * 72, fps
 
     return {
         "feet_cropped": each(lambda q: q[: int(q.shape[0] * 0.62)], sports),
         "upper_body_only": each(lambda q: q[: q.shape[0] // 2], taiji),
         "juggling_8fps": juggling,
-        "taiji_120fps_dup": lambda: ([q for q in taiji()[0] for _ in range(5)], taiji()[1] * 5),
+        "taiji_120fps_dup": lambda: repeated(*taiji(), 5),
         "taiji_pulldown30": lambda: pulldown(*taiji(17.0)),
-        "sports2d_doubled60": lambda: ([q for q in sports(8.0)[0] for _ in range(2)], sports()[1] * 2),
+        "sports2d_doubled60": lambda: repeated(*sports(8.0), 2),
         "mirrored": each(lambda q: q[:, ::-1], sports),
         "tiny_160": each(lambda q: cv2.resize(q, (160, 90), interpolation=cv2.INTER_AREA), sports),
         "dark_noisy": lambda: dark(*taiji()),
@@ -134,7 +144,7 @@ def variants() -> dict[str, Callable[[], tuple[Pictures, float]]]:
         "three_frames": lambda: head(3),
         "person_leaves": leaves,
         "upside_down": each(lambda q: q[::-1, ::-1], lambda: taiji(5.0)),
-        "still_frame": lambda: ([taiji(0.1)[0][0]] * 72, taiji(0.1)[1]),
+        "still_frame": still,
         "odd_size": each(lambda q: cv2.resize(q, (641, 361)), sports),
         "no_person": empty,
         "zoom_jump_cut": lambda: zoom_cut(*sports()),

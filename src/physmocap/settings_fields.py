@@ -10,7 +10,7 @@ import math
 import tomllib
 import types
 import typing
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -169,7 +169,7 @@ def read_toml(path: Path, what: str) -> dict:
         raise InputError(f"{path}: not a valid TOML {what} file ({exc}).") from None
 
 
-def nearest(name: str, known, prefix: str = "") -> str:
+def nearest(name: str, known: Iterable[str], prefix: str = "") -> str:
     """" (did you mean PREFIX+X?)" for the known name closest to a misspelt or renamed `name`, else ""."""
     match = difflib.get_close_matches(name, list(known), n=1, cutoff=0.6)
     return f" (did you mean {prefix}{match[0]}?)" if match else ""
