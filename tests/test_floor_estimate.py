@@ -11,6 +11,7 @@ from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
 from physmocap.camera import Camera, angle_degrees, robust_offset
 from physmocap.kinematics import floor as floor_module
+from physmocap.landmarks import LANDMARK_INDEX
 
 
 def standing_and_travelling(body, frames, fps=30.0):
@@ -125,3 +126,53 @@ def test_robust_offset_ignores_a_few_points_far_off_the_plane():
     points -= np.outer(points @ normal + 1.5, normal)  # on the plane normal . x + 1.5 = 0
     points[:20] += 0.5 * normal  # a lifted foot
     assert robust_offset(points, normal) == pytest.approx(1.5, abs=0.01)
+
+
+def test_a_lone_detection_far_behind_the_person_is_no_evidence_of_the_floor(scene):
+    """A single valid frame between frames without a person (held at its pose, as the online warm-up holds its
+    first one), 8 m deeper and 1.5 m lower than the person who then walks in: its feet have no measured speed,
+    are not taken as resting on the floor, and do not lean the floor."""
+    body, camera, walk = scene
+    lone = walk[:1].copy()
+    lone[:, 1] += 8.0  # away from the camera, which looks along +y
+    lone[:, 2] -= 1.5
+    qpos = np.concatenate([np.repeat(lone, 10, axis=0), walk[:30]])
+    valid = np.zeros(len(qpos), bool)
+    valid[5] = valid[10:] = True
+    floor = floor_module.estimate_floor(body, qpos, camera, 30.0, valid)
+    assert floor.trusted and angle_degrees(floor.normal, camera.R[:, 2]) < 2.0
+
+
+def test_feet_outside_the_picture_are_no_evidence_of_the_floor(scene):
+    """The first half of a walk with its feet fitted 0.3 m under the floor where the detector placed them below
+    the picture's edge: given which sole points were seen, the floor is the seen feet's; without, it is not."""
+    body, camera, qpos = scene
+    qpos = qpos.copy()
+    qpos[:45, 2] -= 0.3
+    seen = np.ones((len(qpos), 4), bool)
+    seen[:45] = False
+    valid = np.ones(len(qpos), bool)
+    guessed = floor_module.estimate_floor(body, qpos, camera, 30.0, valid)
+    floor = floor_module.estimate_floor(body, qpos, camera, 30.0, valid, seen)
+    soles = camera.to_camera(kin.forward_kinematics(body, qpos[45:]).points[:, body.point_index(CONTACT_POINTS)])
+    assert np.abs(soles.reshape(-1, 3) @ floor.normal + floor.offset).min() < 0.01
+    assert floor.inlier_fraction > 0.9 and guessed.inlier_fraction < floor.inlier_fraction
+
+
+def test_a_sole_point_is_seen_inside_the_picture_with_confidence():
+    keypoints = np.zeros((3, 33, 3))
+    keypoints[..., :2] = (100.0, 200.0)
+    keypoints[..., 2] = 0.9
+    keypoints[1, LANDMARK_INDEX["right_heel"], 1] = 481.0  # below a 640 x 480 picture
+    keypoints[2, LANDMARK_INDEX["left_foot_index"], 2] = 0.05  # inside, unsure
+    seen = floor_module.seen_sole_points(keypoints, (640, 480), 0.1)
+    assert seen.tolist() == [[True] * 4, [True, True, False, True], [True, False, True, True]]
+
+
+def test_feet_never_seen_give_a_floor_that_is_not_trusted(scene, caplog):
+    body, camera, qpos = scene
+    valid = np.ones(len(qpos), bool)
+    with caplog.at_level(logging.WARNING, logger="physmocap"):
+        floor = floor_module.estimate_floor(body, qpos, camera, 30.0, valid, np.zeros((len(qpos), 4), bool))
+    assert not floor.trusted and floor.source == "posture" and np.isnan(floor.prior_disagreement)
+    assert any("outside the picture" in r.message for r in caplog.records)

@@ -614,3 +614,57 @@ def test_an_online_foot_stays_planted_while_its_fitted_foot_wanders(body):
     # Without planting, as offline on B.4's feet, the held points follow the fitted foot.
     unplanted = run_physcap(body, q, FPS, contacts, np.zeros(frames, bool), PhysicsSettings(plant_time=None))
     assert np.median(left_sole_slides(unplanted.qpos)) > 0.4 * np.median(left_sole_slides(q))
+
+
+def test_the_base_of_support_is_the_soles_of_the_feet_that_touch(body):
+    """A person standing upright and still whose labels name only the two heels (a line behind the centre of
+    mass) is balanced on both soles and is not corrected; the soles of a foot count whichever of its points
+    touches."""
+    from physmocap.dynamics.balance import sole_support
+
+    assert sole_support(np.array([True, False, False, True])).all()
+    assert sole_support(np.array([False, False, True, False])).tolist() == [False, False, True, True]
+    upright, _ = upright_and_leaning(body)
+    corrector = BalanceCorrector(body)
+    for _ in range(int(FPS)):
+        q, corrected = corrector.correct(upright, True, np.array([True, False, True, False]))
+    assert not corrected and np.array_equal(q, upright)
+
+
+def test_online_feet_resting_on_the_floor_count_though_no_contact_was_predicted(body):
+    """A person standing upright and still whose network saw only the right heel: online (a fit not refined by
+    B.4) the sole points resting on the floor count as contacts, the person stands on both soles and the balance
+    correction leaves the pose as observed; with rest_height None, or after B.4 (which adds resting points itself), the
+    right heel alone is the support and the upright pose is "corrected". Points gliding over the floor faster
+    than slide_speed do not rest."""
+    q = standing(body, 50)
+    right_heel = np.repeat(np.array([[False, False, True, False]]), 50, axis=0)
+    stationary = np.ones(50, bool)
+    # The first frame has no speed yet: what its correction started relaxes, and the standing pose ends as observed.
+    assert not run_physcap(body, q, FPS, right_heel, stationary, PhysicsSettings()).corrected[-10:].any()
+    assert run_physcap(body, q, FPS, right_heel, stationary, PhysicsSettings(rest_height=None)).corrected[-10:].all()
+    assert run_physcap(body, q, FPS, right_heel, stationary, PhysicsSettings(),
+                       refined_input=True).corrected[-10:].all()
+    for speed, resting in ((0.0, True), (1.0, False)):  # m/s along the floor
+        stream = PhysicsStream(body, PhysicsSettings(), FPS)
+        moved = q[:5].copy()
+        moved[:, 0] += speed * np.arange(5) / FPS
+        assert [stream._resting(pose).all() for pose in moved][1:] == [resting] * 4
+
+
+def test_a_lone_frames_contacts_are_no_evidence_of_the_floor(body):
+    """FloorRefiner takes a contact point as floor evidence from the second frame of its contact on: frames in
+    contact one at a time, 0.5 m above the floor (a lone detection between frames without a person), never
+    move the floor; the same frames held in contact do."""
+    from physmocap.dynamics.floor import FloorRefiner
+
+    raised = standing(body, 1)[0].copy()
+    raised[2] += 0.5
+    offsets = []
+    for alternating in (True, False):
+        refiner = FloorRefiner(body, FPS, refit_interval=0.5, tilt_rate=np.radians(1.0), lift_rate=1.0,
+                               first_refit=1.0)
+        for t in range(100):
+            refiner.push(raised, np.full(4, t % 2 == 0 or not alternating))
+        offsets.append(refiner.offset)
+    assert offsets[0] == 0.0 and abs(offsets[1] + 0.5) < 0.05

@@ -87,8 +87,7 @@ class PhysicsSettings(Section):
     kd_root_rotation: float = setting(70.0, "1/s", (0.0, 1e4), "damping of the root's orientation (paper 30)")
     kp_root_translation: float = setting(1000.0, "1/s^2", (0.0, 1e4), "stiffness of the root's position")
     kd_root_translation: float = setting(80.0, "1/s", (0.0, 1e4), "damping of the root's position")
-    kp_root_horizontal: float | None = setting(250.0, "1/s^2", (0.0, 1e4), "stiffness of its horizontal position "
-                                               "(ours; None: kp_root_translation): stiffer passes fit noise to forces")
+    kp_root_horizontal: float | None = setting(250.0, "1/s^2", (0.0, 1e4), "horizontal stiffness (ours; None: above)")
     kd_root_horizontal: float | None = setting(32.0, "1/s", (0.0, 1e4), "its damping (None: kd_root_translation)")
     acceleration_feedforward: float = setting(1.0, "", (0.0, 1.0), "eq. (4) feed-forward times x/(e^x-1), x = kd/fps")
     velocity_smoothing: float = setting(0.03, "s", (0.0, 1.0), "smoothing of eq. (4)'s kinematic velocity; 0: none")
@@ -110,8 +109,9 @@ class PhysicsSettings(Section):
     contact_settle_time: float = setting(0.05, "s", (1e-3, 1.0), "a held point above its target drops at height / this")
     release_distance: float | None = setting(0.05, "m", (0.0, 1.0), "freed past this slide of its target (None: never)")
     plant_time: float | None = setting(0.1, "s", (0.01, 10.0), "fits not refined by B.4 (online): a held target foot "
-                                       "moves to where the character planted it, which follows the fit's with this "
-                                       "time constant, at most release_distance away (None: off)")
+                                       "follows the fit's with this time constant, within release_distance (None: off)")
+    rest_height: float | None = setting(0.02, "m", (0.0, 0.5), "the same fits: a target sole point under this "
+                                        "height, slower than slide_speed, is in contact (None: off)")
     touch_margin: float = setting(0.003, "m", (0.0, 0.1), "sole points this close collide with the floor (eq. 5)")
     floor_clearance: float = setting(0.0005, "m", (0.0, 0.01), "physics floor this far up: turning feet dip under it")
     floor_refit_interval: float | None = setting(3.0, "s", (0.1, 60.0), "between online refits of the floor to the "
@@ -133,8 +133,7 @@ class PhysicsSettings(Section):
     unexplained_time: float = setting(0.2, "s", (0.01, 2.0), "time constant of that force's average")
     unexplained_blend: float = setting(0.2, "s", (0.0, 2.0), "output passes to the kinematic motion and back over it")
     start_drop_time: float | None = setting(0.5, "s", (0.01, 10.0), "a target starting with its feet above the floor "
-                                            "(under contact_height) is lowered onto it; the drop fades with this time "
-                                            "constant (None: off)")
+                                            "(under contact_height) is lowered onto it, fading so (None: off)")
 
 
 TRAJOPT_CONSTRAINTS: tuple[str, ...] = ("dynamics", "acceleration_continuity", "velocity_boundaries", "foot_length",
@@ -231,8 +230,7 @@ class Settings(Section):
 
     @property
     def refines_before_physics(self) -> bool:
-        """Whether the physics starts from Rempe et al.'s B.4 refinement of the whole clip: trajopt always, PhysCap
-        offline unless physics.refine_offline is off."""
+        """Whether the physics starts from B.4's refinement of the clip: trajopt always, PhysCap offline by default."""
         method = self.physics.method
         return method == "trajopt" or (method == "physcap" and self.physics.refine_offline and not self.online)
 

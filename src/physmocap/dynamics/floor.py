@@ -54,15 +54,21 @@ class FloorRefiner:
         self.fitted_normal, self.fitted_offset = UP.copy(), 0.0  # the latest fit, approached at the rates above
         self._points = np.empty((MAX_POINTS, 3))
         self._count = self._frames = 0
+        self._previous_contacts = np.zeros(len(CONTACT_POINTS), bool)
         self.rotation, self.shift = np.eye(3), np.zeros(3)  # kinematic world -> physics frame: x' = R x + shift
         self.quat, self.inverse_quat = np.array([1.0, 0.0, 0.0, 0.0]), np.array([1.0, 0.0, 0.0, 0.0])  # of R, R'
 
     def push(self, q_kin: np.ndarray, contacts: np.ndarray) -> None:
-        """Add a frame's kinematic pose (nq,) and its predicted contacts (4,); refit and step the estimate."""
-        if contacts.any():
+        """Add a frame's kinematic pose (nq,) and its predicted contacts (4,); refit and step the estimate. A
+        point is evidence of the floor from the second frame of its contact on: a landing foot is still moving,
+        and a lone detection between frames without a person (whose contacts have no neighbour) can be anywhere
+        (on one video 12 m behind the person, which lifted the floor 0.5 m over the standing feet)."""
+        resting = contacts & self._previous_contacts
+        self._previous_contacts = contacts.copy()
+        if resting.any():
             self.data.qpos[:] = q_kin
             mujoco.mj_kinematics(self.model, self.data)
-            points = self.data.site_xpos[self.sites[contacts]]
+            points = self.data.site_xpos[self.sites[resting]]
             if self._count + len(points) > MAX_POINTS:
                 kept = self._points[:self._count:2]
                 self._count = len(kept)

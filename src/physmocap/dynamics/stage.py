@@ -24,6 +24,7 @@ from .planting import FootPlanter
 
 GRAVITY = 9.81  # m/s^2
 MAX_FLATTENING = np.radians(20.0)  # a foot tilted more than this with heel and toe predicted down is a wrong label
+REST_SPEED_INTERVAL = 0.1  # s over which a resting sole point's speed is measured (B.4's contact_slip_interval)
 # or a wrong fit, not a flat foot to correct
 
 
@@ -124,6 +125,11 @@ class PhysicsStream:
                         if settings.plant_time is not None and settings.foot_lock != "never"
                         and not refined_input else None)
         self._held = np.zeros(4, bool)  # the contacts the character held at the end of the last frame
+        # Online fits' sole points resting on the floor are contacts though not predicted (as B.4 adds offline);
+        # the window holds their positions over REST_SPEED_INTERVAL, oldest first.
+        self._resting_window: deque[np.ndarray] | None = (
+            deque(maxlen=max(1, round(REST_SPEED_INTERVAL * fps)) + 1)
+            if settings.rest_height is not None and settings.foot_lock == "auto" and not refined_input else None)
 
     @property
     def floor_plane(self) -> np.ndarray | None:
@@ -137,6 +143,8 @@ class PhysicsStream:
         if self.floor is not None:
             self.floor.push(q_kin, contacts)
             q_kin = self.floor.to_physics(q_kin)
+        if self._resting_window is not None:
+            contacts = contacts | self._resting(q_kin)
         if self._lift_share:
             q_kin = self._target_on_floor(q_kin, contacts)
         if self._drop_keep:
@@ -290,6 +298,25 @@ class PhysicsStream:
             self._lift += self._lift_share * (max(depth, 0.0) - self._lift)
         target[2] += self._lift
         return target
+
+    def _resting(self, q_kin: np.ndarray) -> np.ndarray:
+        """(4,) the target's sole points that rest on the floor (z = 0): below settings.rest_height (under the
+        floor too) and slower than settings.slide_speed, eq. (9)'s slip of a held contact, over the last
+        REST_SPEED_INTERVAL (causal). A contact network misses contacts on footage unlike its training (on one
+        standing video it labelled one heel or none for seconds), and the character then had fewer supports than
+        the person stood on: the balance correction leant it off the feet it saw."""
+        assert self._resting_window is not None and self.settings.rest_height is not None
+        data = self.tracker.target_data  # scratch: _target_on_floor computes its own kinematics next
+        data.qpos[:] = q_kin
+        mujoco.mj_kinematics(self.tracker.model, data)
+        points = data.site_xpos[self.tracker.sites].copy()
+        window = self._resting_window
+        window.append(points)
+        if len(window) < 2:
+            return np.zeros(len(points), bool)
+        travel = points[:, :2] - window[0][:, :2]
+        speed = np.sqrt((travel * travel).sum(axis=1)) * self.fps / (len(window) - 1)
+        return (points[:, 2] < self.settings.rest_height) & (speed < self.settings.slide_speed)
 
     def _start_on_floor(self, q_kin: np.ndarray) -> np.ndarray:
         """q_kin lowered by the drop: on the first frame, the height of the target's lowest sole point where that

@@ -11,6 +11,8 @@ from ..body import kinematics as kin
 from ..body.model import CONTACT_POINTS, BodyModel
 from ..body.rotations import unit_vectors
 from ..camera import Camera, Floor, angle_degrees, fit_floor, robust_offset, world_from_floor
+from ..landmarks import LANDMARK_INDEX
+from .fit import MARKERS
 
 log = logging.getLogger("physmocap")
 
@@ -55,13 +57,33 @@ def lowest_points(soles: np.ndarray, up: np.ndarray, valid: np.ndarray) -> np.nd
     return (height <= height.min(axis=1, keepdims=True) + 0.03) & valid[:, None]
 
 
-def floor_points(soles: np.ndarray, up: np.ndarray, fps: float, valid: np.ndarray) -> np.ndarray:
+def seen_sole_points(keypoints_2d: np.ndarray, image_size: tuple[int, int], min_confidence: float) -> np.ndarray:
+    """(T, 4) whether each sole point (CONTACT_POINTS) was seen: its keypoint in keypoints_2d (T, 33, 3: x, y px,
+    confidence) lies inside the picture of image_size (width, height) px with at least min_confidence. MediaPipe
+    also places feet beyond the picture's edge, with confidences up to 0.9; the fit follows them, but where they
+    are placed shows nothing of the floor."""
+    landmark_of = {point: LANDMARK_INDEX[landmark] for landmark, point in MARKERS}
+    points = keypoints_2d[:, [landmark_of[name] for name in CONTACT_POINTS]]
+    width, height = image_size
+    inside = (points[..., 0] >= 0) & (points[..., 0] < width) & (points[..., 1] >= 0) & (points[..., 1] < height)
+    return inside & (points[..., 2] >= min_confidence)
+
+
+def floor_points(soles: np.ndarray, up: np.ndarray, fps: float, valid: np.ndarray,
+                 seen: np.ndarray | None = None) -> np.ndarray:
     """(T, 4) the sole points of soles (T, 4, 3) that show the floor below `up`: the lowest (`lowest_points`)
-    while slower than the clip's median sole speed; the lowest alone where fewer than 8 are slow."""
-    lowest = lowest_points(soles, up, valid)
+    that were seen (`seen` (T, 4), None: all) while slower than the clip's median sole speed; the lowest seen
+    alone where fewer than 8 are slow. A lowest point not seen is no evidence, and the other foot is not
+    taken in its place: it may be the lifted one. Nor is a lone valid frame, between frames without a person:
+    nothing measures its speed (on one video such a detection, 12 m behind the person, leant the floor 41
+    degrees)."""
+    lowest = lowest_points(soles, up, valid) & (True if seen is None else seen)
+    neighbour = np.zeros_like(valid)
+    neighbour[1:] |= valid[:-1]
+    neighbour[:-1] |= valid[1:]
     speed = np.zeros(soles.shape[:2])
     speed[1:] = np.linalg.norm(np.diff(soles, axis=0), axis=2) * fps
-    slow = speed <= np.percentile(speed[valid], 50)
+    slow = (speed <= np.percentile(speed[valid], 50)) & neighbour[:, None]
     return lowest & slow if (lowest & slow).sum() >= 8 else lowest
 
 
@@ -81,24 +103,32 @@ def floor_tilt_spread(points: np.ndarray, frames: np.ndarray, up: np.ndarray, fi
         angles.append(angle_degrees(fit_floor(sample, up, prior_weight=FLOOR_PRIOR_WEIGHT)[0].normal, fitted))
     return float(np.sqrt(np.mean(np.square(angles))))
 
-def estimate_floor(body: BodyModel, qpos: np.ndarray, camera: Camera, fps: float, valid: np.ndarray) -> Floor:
+def estimate_floor(body: BodyModel, qpos: np.ndarray, camera: Camera, fps: float, valid: np.ndarray,
+                   seen: np.ndarray | None = None) -> Floor:
     """Floor from the feet and the person's posture, in the camera frame, when no contact labels exist yet.
 
-    A robust (Huber) plane through the lowest sole point of each frame while it is slow, its tilt pulled
-    towards the person's own vertical (`posture_vertical`) with FLOOR_PRIOR_WEIGHT. Its confidence: the share of
-    those points within FLOOR_OUTLIER_DISTANCE of it, the spread of its normal under a bootstrap over seconds
-    (`floor_tilt_spread`), and the angle between the vertical and the plane the feet alone give (nearly free of
-    the prior). Beyond FLOOR_AGREEMENT degrees the feet say something no posture explains (points taken from a
-    lifted foot, a wrong depth) and the floor is not trusted: it is then level with the posture, through the
-    same points, a warning is logged and Floor.trusted says so."""
+    A robust (Huber) plane through the lowest sole point of each frame while it is slow and seen (`seen` (T, 4)
+    from `seen_sole_points`; None: all are), its tilt pulled towards the person's own vertical
+    (`posture_vertical`) with FLOOR_PRIOR_WEIGHT. Its confidence: the share of those points within
+    FLOOR_OUTLIER_DISTANCE of it, the spread of its normal under a bootstrap over seconds (`floor_tilt_spread`),
+    and the angle between the vertical and the plane the feet alone give (nearly free of the prior). Beyond
+    FLOOR_AGREEMENT degrees the feet say something no posture explains (points taken from a lifted foot, a wrong
+    depth) and the floor is not trusted: it is then level with the posture, through the same points, a warning
+    is logged and Floor.trusted says so. Where no lowest sole point was ever seen, the fitted feet are all there
+    is: the floor goes through them, level with the posture, and is not trusted either."""
     soles = camera.to_camera(kin.forward_kinematics(body, qpos).points[:, body.point_index(CONTACT_POINTS)])
     # The support is the lowest points along the feet's own plane: the posture's first guess leans with a
     # runner, and the lowest points along it are then the trailing foot's.
     first = posture_vertical(body, qpos, camera, valid)
-    feet_first, _ = fit_floor(soles[floor_points(soles, first, fps, valid)], first,
+    if seen is not None and not floor_points(soles, first, fps, valid, seen).any():
+        log.warning("The feet are outside the picture on every frame: the floor is placed under the fitted feet, "
+                    "level with the person's posture, and cannot be trusted; give it with --floor if it is known.")
+        points = soles[floor_points(soles, first, fps, valid)]
+        return Floor(first, robust_offset(points, first), float("nan"), 90.0, float("nan"), False, "posture")
+    feet_first, _ = fit_floor(soles[floor_points(soles, first, fps, valid, seen)], first,
                               prior_weight=FEET_ONLY_PRIOR_WEIGHT)
     up = posture_vertical(body, qpos, camera, valid, lowest_points(soles, feet_first.normal, valid))
-    chosen = floor_points(soles, up, fps, valid)
+    chosen = floor_points(soles, up, fps, valid, seen)
     points, frames = soles[chosen], np.nonzero(chosen)[0]
     floor, _ = fit_floor(points, up, prior_weight=FLOOR_PRIOR_WEIGHT)
     feet_only, _ = fit_floor(points, up, prior_weight=FEET_ONLY_PRIOR_WEIGHT)

@@ -20,7 +20,7 @@ from ..landmarks import NUM_LANDMARKS
 from ..motion import Observations
 from .calibration import Calibration, calibrate, resolve_height
 from .fit import FitTargets, KinematicFitter, initial_qpos
-from .floor import estimate_floor, move_world_to_floor
+from .floor import estimate_floor, move_world_to_floor, seen_sole_points
 from .targets import make_targets, raw_depth, refine_lengths, smooth_depth
 
 FIRST_FRAME_ITERATIONS = 60  # the first frame starts from a generic pose and needs more steps
@@ -227,7 +227,8 @@ class OnlineFitter:
         self._foot_swaps.swapped = bool(swaps[np.flatnonzero(valid)[-1]])  # the detector's reading at the end
         qpos = np.concatenate([np.repeat(qpos[:1], first, axis=0), qpos])  # hold the first pose before it
         if s.camera.floor is None:
-            self.floor = estimate_floor(self.body, qpos, self.camera, self.fps, valid)
+            self.floor = estimate_floor(self.body, qpos, self.camera, self.fps, valid,
+                                        seen_sole_points(k2, self.image_size, s.fit.min_confidence))
             qpos, self.camera = move_world_to_floor(qpos, self.camera, self.floor, first)
             self.fitter = KinematicFitter(self.body, self.camera, s.fit, self.fps)
             self._past = CausalPast.of(self.fitter, [q[None] for q in qpos[-2:]])

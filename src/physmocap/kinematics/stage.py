@@ -22,7 +22,7 @@ from ..motion import Observations
 from .calibration import Calibration, calibrate, resolve_height
 from .filters import one_euro_qpos
 from .fit import MARKER_LANDMARKS, MARKERS, KinematicFitter
-from .floor import estimate_floor, move_world_to_floor
+from .floor import estimate_floor, move_world_to_floor, seen_sole_points
 from .online import OnlineFitter, fit_streams
 from .targets import landmark_depth_scale, make_targets, raw_depth, refine_lengths, smooth_depth
 
@@ -171,7 +171,8 @@ def _fit_offline(obs: Observations, settings: Settings, progress: ProgressFactor
     bar = progress("fit clip", fitter.planned_passes(len(qpos)), "frame passes") if progress else None
     qpos = hold_outside_valid(fitter.fit_offline(qpos, targets, bar).qpos, obs.valid)
     floor = (Floor.from_plane(s.camera.floor) if s.camera.floor is not None
-             else estimate_floor(body, qpos, camera, obs.fps, obs.valid))
+             else estimate_floor(body, qpos, camera, obs.fps, obs.valid,
+                                 seen_sole_points(obs.keypoints_2d, obs.image_size, s.fit.min_confidence)))
     qpos, camera = move_world_to_floor(qpos, camera, floor, int(np.argmax(obs.valid)))
     unmeasured = np.full(obs.num_frames, np.nan)  # fit_motion measures the reprojection errors
     return KinematicMotion(body, calibration, camera, floor, qpos, unmeasured, obs.valid.copy(), 0.0, False, swaps)
