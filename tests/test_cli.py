@@ -350,3 +350,17 @@ def test_unexplained_frames_note_says_what_each_method_hands_back(capsys, method
     note = capsys.readouterr().out.splitlines()[0]
     assert "3 frames (4-6)" in note and "the kinematic motion is kept there" in note
     assert ("blended" in note) == blended
+
+
+@pytest.mark.parametrize("disagreement, says", [(41.0, "disagrees with the person's own vertical by 41 degrees"),
+                                                (None, "the feet are outside the picture on every frame")])
+def test_an_untrusted_floor_says_why_in_one_line(capsys, disagreement, says):
+    from types import SimpleNamespace
+
+    from physmocap.cli import _note_physics_floor_height
+
+    summary = SimpleNamespace(physics="physcap", physics_unexplained_frame_count=0, body_height_note="height",
+                              floor={"trusted": False, "prior_disagreement_degrees": disagreement})
+    _note_physics_floor_height(summary)
+    warning = capsys.readouterr().out.splitlines()[0]
+    assert warning.startswith("warning: ") and says in warning and "give --floor" in warning
