@@ -164,7 +164,8 @@ def test_a_sole_point_is_seen_inside_the_picture_with_confidence():
     keypoints[..., :2] = (100.0, 200.0)
     keypoints[..., 2] = 0.9
     keypoints[1, LANDMARK_INDEX["right_heel"], 1] = 481.0  # below a 640 x 480 picture
-    keypoints[2, LANDMARK_INDEX["left_foot_index"], 2] = 0.05  # inside, unsure
+    keypoints[2, LANDMARK_INDEX["left_foot_index"], 2] = 0.05  # inside, unsure: its ankle decides
+    keypoints[2, LANDMARK_INDEX["left_ankle"], 0] = -5.0  # left of the picture
     seen = floor_module.seen_sole_points(keypoints, (640, 480), 0.1)
     assert seen.tolist() == [[True] * 4, [True, True, False, True], [True, False, True, True]]
 
@@ -176,3 +177,14 @@ def test_feet_never_seen_give_a_floor_that_is_not_trusted(scene, caplog):
         floor = floor_module.estimate_floor(body, qpos, camera, 30.0, valid, np.zeros((len(qpos), 4), bool))
     assert not floor.trusted and floor.source == "posture" and np.isnan(floor.prior_disagreement)
     assert any("outside the picture" in r.message for r in caplog.records)
+
+
+def test_a_detector_without_feet_keypoints_sees_the_soles_by_the_ankles():
+    """COCO's 17 joints have no heel or toe (NaN in an observations file): the soles count as seen where their
+    ankle is inside the picture."""
+    keypoints = np.full((2, 33, 3), np.nan)
+    for side in ("left", "right"):
+        keypoints[:, LANDMARK_INDEX[f"{side}_ankle"]] = (300.0, 400.0, 0.8)
+    keypoints[1, LANDMARK_INDEX["left_ankle"], 1] = 500.0  # below a 640 x 480 picture
+    seen = floor_module.seen_sole_points(keypoints, (640, 480), 0.1)
+    assert seen.tolist() == [[True] * 4, [False, False, True, True]]

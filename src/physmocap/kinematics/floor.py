@@ -59,11 +59,14 @@ def lowest_points(soles: np.ndarray, up: np.ndarray, valid: np.ndarray) -> np.nd
 
 def seen_sole_points(keypoints_2d: np.ndarray, image_size: tuple[int, int], min_confidence: float) -> np.ndarray:
     """(T, 4) whether each sole point (CONTACT_POINTS) was seen: its keypoint in keypoints_2d (T, 33, 3: x, y px,
-    confidence) lies inside the picture of image_size (width, height) px with at least min_confidence. MediaPipe
-    also places feet beyond the picture's edge, with confidences up to 0.9; the fit follows them, but where they
-    are placed shows nothing of the floor."""
+    confidence), or its ankle's where the detector gives it no confident one (COCO's 17 joints have no heel or
+    toe), lies inside the picture of image_size (width, height) px with at least min_confidence. MediaPipe also
+    places feet beyond the picture's edge, with confidences up to 0.9; the fit follows them, but where they are
+    placed shows nothing of the floor."""
     landmark_of = {point: LANDMARK_INDEX[landmark] for landmark, point in MARKERS}
     points = keypoints_2d[:, [landmark_of[name] for name in CONTACT_POINTS]]
+    ankles = keypoints_2d[:, [LANDMARK_INDEX[f"{name.split('_')[0]}_ankle"] for name in CONTACT_POINTS]]
+    points = np.where((points[..., 2] >= min_confidence)[..., None], points, ankles)
     width, height = image_size
     inside = (points[..., 0] >= 0) & (points[..., 0] < width) & (points[..., 1] >= 0) & (points[..., 1] < height)
     return inside & (points[..., 2] >= min_confidence)
