@@ -19,7 +19,7 @@ from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
 from physmocap.config import TrajoptSettings
 from physmocap.errors import InputError
-from physmocap.trajopt import stage
+from physmocap.trajopt import ik, stage
 from physmocap.trajopt.formulation import (
     Window,
     acceleration_continuity,
@@ -190,12 +190,12 @@ def test_flight_the_motion_does_not_fall_through_keeps_a_support():
     flags[27:29, 2] = False  # the right heel resumes two frames after the flight: its contact bridges them
     com = np.zeros((frames, 3))
     com[:, 2] = 0.95 + 0.002 * np.sin(times)
-    out, changed = support_held_flights(flags, com, points, times, G, 0.5)
-    assert [(a, b, p) for a, b, p, _ in changed] == [(20, 29, 2)] and changed[0][3] > 0.9
+    out, changed, unsupported = support_held_flights(flags, com, points, times, G, 0.5)
+    assert unsupported == [] and [(a, b, p) for a, b, p, _ in changed] == [(20, 29, 2)] and changed[0][3] > 0.9
     assert out[:, 2].all() and not out[20:27, [0, 1, 3]].any() and np.array_equal(out[:20], flags[:20])
     edge = flags.copy()
     edge[27:] = False  # a flight to the clip's end: its take-off is in the clip, its own frames do not fall
-    out, changed = support_held_flights(edge, com, points, times, G, 0.5)
+    out, changed, _ = support_held_flights(edge, com, points, times, G, 0.5)
     assert [(a, b, p) for a, b, p, _ in changed] == [(20, 48, 2)] and out[20:, 2].all()
     tau = np.clip(times - 19 / fps, 0.0, 8 / fps)  # take-off at frame 19, landing at frame 27
     com[:, 2] = 0.95 + 0.5 * G * (8 / fps) * tau - 0.5 * G * tau ** 2
@@ -203,6 +203,46 @@ def test_flight_the_motion_does_not_fall_through_keeps_a_support():
     assert support_held_flights(flags, com, points, times, G, 0.5)[1] == []
     com[:, 2] = 0.95 + 0.5 * G * (8 / fps) * (times - 19 / fps) - 0.5 * G * (times - 19 / fps) ** 2
     assert support_held_flights(edge, com, points, times, G, 0.5)[1] == []  # falling to the clip's end
+
+
+def test_flight_support_is_a_point_that_stays_put():
+    """A point that travels along the floor through the flight is no support: the next candidate holds the body
+    up, and with none left the flight is returned as unexplained, its flags unchanged."""
+    fps, frames = 24.0, 48
+    times = np.arange(frames) / fps
+    points = np.zeros((frames, 4, 3))
+    points[:, :, 0] = [-0.05, 0.1, -0.05, 0.1]
+    points[:, :, 1] = [0.3, 0.3, -0.05, -0.05]
+    flags = np.zeros((frames, 4), bool)
+    flags[:20, 2] = flags[27:, 2:] = True
+    com = np.zeros((frames, 3))
+    com[:, 2] = 0.95
+    points[20:27, 2, 0] += np.linspace(0.0, 0.2, 7)  # the right heel, nearest the COM, slides 20 cm
+    out, changed, unsupported = support_held_flights(flags, com, points, times, G, 0.5, drift=0.05)
+    assert unsupported == [] and [(a, b, p) for a, b, p, _ in changed] == [(20, 27, 3)] and out[20:27, 3].all()
+    points[20:27, 3, 1] += np.linspace(0.0, 0.2, 7)  # and the right toe
+    out, changed, unsupported = support_held_flights(flags, com, points, times, G, 0.5, drift=0.05)
+    assert changed == [] and [(a, b) for a, b, _ in unsupported] == [(20, 27)] and np.array_equal(out, flags)
+
+
+def test_swing_path_follows_the_input_and_meets_the_contact_points():
+    frames = 11
+    carried = np.zeros((frames, 1, 3))
+    carried[:, 0, 0] = np.linspace(0.0, 0.5, frames)
+    carried[:, 0, 2] = np.sin(np.linspace(0.0, np.pi, frames)) * 0.1 - 0.02  # a swing, a little below the floor
+    contacts = np.zeros((frames, 1), bool)
+    contacts[:3] = contacts[8:] = True
+    feet = carried.copy()
+    feet[:3, 0] = [0.02, 0.0, 0.0]  # held 2 cm ahead of the input's point ...
+    feet[8:, 0] = [0.5, 0.04, 0.0]  # ... and landed 4 cm to its side
+    out = ik.swing_paths(feet, carried, contacts)
+    assert np.array_equal(out[contacts[:, 0]], feet[contacts[:, 0]])
+    s = (np.arange(3, 8) - 2) / 6
+    offset = np.outer(1 - s, feet[2, 0] - carried[2, 0]) + np.outer(s, feet[8, 0] - carried[8, 0])
+    expected = carried[3:8, 0] + offset
+    expected[:, 2] = np.maximum(expected[:, 2], 0.0)
+    assert np.allclose(out[3:8, 0], expected)
+    assert np.array_equal(ik.swing_paths(feet, carried, np.zeros_like(contacts))[..., :2], carried[..., :2])
 
 
 @pytest.mark.slow

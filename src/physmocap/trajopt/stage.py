@@ -117,8 +117,9 @@ class TrajoptMotion:
     com, com_acceleration, euler, feet: (T, 3), (T, 3), (T, 3), (T, 4, 3) the optimised reduced motion (m,
         m/s^2, Z-Y-X Euler angles in rad, m; nan where not converged);
     windows: one report per window; seconds: time spent, ik_seconds of it in the full-body output (C.4);
-    unexplained: (T,) bool, observed frames the contact model cannot explain (`unexplained_frames`), not optimised
-        and kept kinematic (so also not converged); None: not diagnosed.
+    unexplained: (T,) bool, observed frames the contact model cannot explain (`unexplained_frames`, and flights
+        of the labels that the COM does not fall through with no foot to hold it up), not optimised and kept
+        kinematic (so also not converged); None: not diagnosed.
     """
 
     qpos: np.ndarray
@@ -159,7 +160,8 @@ class TrajoptMotion:
             line += f"; NOT converged{why} (kinematic motion kept): frames {', '.join(self.failed_frames)}"
         if self.unexplained is not None and self.unexplained.any():
             below = ", ".join(frame_ranges(np.flatnonzero(self.unexplained)))
-            line += f"; of these, the input's centre of mass is below the floor on frames {below}"
+            line += (f"; of these, the contact model cannot explain frames {below} (the input's centre of mass "
+                     "below the floor, or held up with no foot on it)")
         return line
 
     def to_arrays(self) -> dict[str, np.ndarray]:
@@ -241,7 +243,10 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     valid = observed & ~unexplained
     min_frames = max(1, math.ceil(settings.min_phase_seconds * fps - 1e-9))
     flags = np.stack([clean_flags(contacts[:, i], min_frames) for i in range(4)], axis=1) & valid[:, None]
-    flags = _support_held_flights(flags, reduced, valid, settings)
+    flags, unheld = _support_held_flights(flags, reduced, valid, settings)
+    unexplained |= unheld
+    valid &= ~unheld
+    flags &= valid[:, None]
     flags = split_drifting(flags, reduced.feet[..., :2], settings.contact_drift, min_frames)
     out = TrajoptMotion(
         qpos=qpos_kin.copy(), grf=np.zeros((T, 4, 3)), residual=np.zeros((T, 6)), contacts=flags.copy(),
@@ -292,19 +297,26 @@ def _full_body(out: TrajoptMotion, body: BodyModel, qpos_kin: np.ndarray, reduce
     out.qpos[done] = qpos[done]
 
 
-def _support_held_flights(flags: np.ndarray, reduced, valid: np.ndarray, settings: TrajoptSettings) -> np.ndarray:
+def _support_held_flights(flags: np.ndarray, reduced, valid: np.ndarray,
+                          settings: TrajoptSettings) -> tuple[np.ndarray, np.ndarray]:
     """The flags with each whole-body flight that the input's COM does not fall through given back a support
-    (phases.support_held_flights), within each run of valid frames; each one logged."""
-    flags = flags.copy()
+    (phases.support_held_flights), within each run of valid frames, and (T,) bool the frames of such flights
+    that no point can hold up (every foot travels: the contact model cannot explain them); each one logged."""
+    flags, unheld = flags.copy(), np.zeros(len(flags), bool)
     for first, end in valid_runs(valid):
-        flags[first:end], changed = support_held_flights(
+        flags[first:end], changed, unsupported = support_held_flights(
             flags[first:end], reduced.com[first:end], reduced.feet[first:end], reduced.times[first:end],
-            settings.gravity, FLIGHT_MAX_SUPPORT)
+            settings.gravity, FLIGHT_MAX_SUPPORT, settings.contact_drift)
         for start, stop, point, support in changed:
             log.warning("trajopt: around frames %d-%d the labels give a flight, but the motion's centre of mass needs "
                         "%.0f%% of body weight there: the %s is kept in contact over these frames.", first + start,
                         first + stop - 1, 100 * support, CONTACT_POINTS[point].replace("_", " "))
-    return flags
+        for start, stop, support in unsupported:
+            unheld[first + start:first + stop] = True
+            log.warning("trajopt: on frames %d-%d the labels give a flight, the motion's centre of mass needs %.0f%% "
+                        "of body weight there, and every foot that could hold it up moves: the kinematic motion is "
+                        "kept there.", first + start, first + stop - 1, 100 * support)
+    return flags, unheld
 
 
 def _measure_departure(report: WindowReport, result, red, n: int, limit: float | None) -> None:
