@@ -45,9 +45,9 @@ def swing_paths(feet: np.ndarray, carried: np.ndarray, contacts: np.ndarray) -> 
     """(T, P, 3) m: the points `feet` where `contacts` (T, P) holds; in each flight between, the input's path
     `carried` (T, P, 3) displaced by an offset that moves linearly in time from the one at the last contact frame
     (feet - carried there) to the one at the next (an end of the clip keeps the other side's; a point never in
-    contact keeps its input path); in flight never below the floor. A swing foot carries no force, so its path is not the
-    physics': the optimised one is a few polynomials per flight that cut the input's swing short (measured on
-    the real videos: docs/decisions/trajopt-real-videos.md)."""
+    contact keeps its input path); in flight never below the floor. A swing foot carries no force, so its path is
+    not the physics': the optimised one is a few polynomials per flight that cut the input's swing short
+    (measured on the real videos: docs/decisions/trajopt-real-videos.md)."""
     out = np.array(feet, dtype=float)
     T = len(feet)
     for i in range(feet.shape[1]):
