@@ -161,15 +161,15 @@ def _bridge(flags: np.ndarray, a: int, b: int) -> tuple[int, int]:
 
 def support_held_flights(flags: np.ndarray, com: np.ndarray, points: np.ndarray, times: np.ndarray,
                          gravity: float, max_support: float,
-                         drift: float = np.inf) -> tuple[np.ndarray, list[tuple], list[tuple]]:
+                         drift: np.ndarray | float = np.inf) -> tuple[np.ndarray, list[tuple], list[tuple]]:
     """(T, P) contact flags in which every whole-body flight (no point in contact; one at the clip's first or
     last frame too, judged by its own frames) that the input motion does not fall through is given back a
     support: a flight whose COM (T, 3) needs more than `max_support` body weights (`flight_support`) is the
     labels' error (the body is held up), and physics would have to launch and land it with forces the motion
     never shows. The support is the point, of those in contact on the frame before or after the flight, nearest
     below the COM on average (points (T, P, 3); a support far to one side would turn the body) whose input stays
-    within `drift` m of its median position along the floor over the flight (a held contact does not travel; 0:
-    no limit);
+    within `drift` m (a number, or one per point (P,)) of its median position along the floor over the flight (a
+    held contact does not travel; 0: no limit);
     its contact continues through the flight. Returns the flags, (start, stop, point, support) of each
     relabelled flight, [start, stop) the frames put in contact, and (start, stop, support) of each flight that
     no point could hold up (every candidate travels): the contact model cannot explain it."""
@@ -192,7 +192,8 @@ def support_held_flights(flags: np.ndarray, com: np.ndarray, points: np.ndarray,
         for point in np.argsort(np.where(candidates, reach, np.inf))[:int(candidates.sum())]:
             a, b = _bridge(flags[:, point], int(s), int(s + n))
             p = points[a:b, point, :2]
-            if drift > 0 and np.linalg.norm(p - np.median(p, axis=0), axis=1).max() > drift:
+            limit = np.broadcast_to(drift, (flags.shape[1],))[point]
+            if limit > 0 and np.linalg.norm(p - np.median(p, axis=0), axis=1).max() > limit:
                 continue
             flags[a:b, point] = True
             changed.append((a, b, int(point), support))

@@ -301,12 +301,13 @@ def _support_held_flights(flags: np.ndarray, reduced, valid: np.ndarray,
                           settings: TrajoptSettings) -> tuple[np.ndarray, np.ndarray]:
     """The flags with each whole-body flight that the input's COM does not fall through given back a support
     (phases.support_held_flights), within each run of valid frames, and (T,) bool the frames of such flights
-    that no point can hold up (every foot travels: the contact model cannot explain them); each one logged."""
+    that no point can hold up (each candidate strays farther than its foot's length, more than a foot turning
+    about its other end: the contact model cannot explain them); each one logged."""
     flags, unheld = flags.copy(), np.zeros(len(flags), bool)
     for first, end in valid_runs(valid):
         flags[first:end], changed, unsupported = support_held_flights(
             flags[first:end], reduced.com[first:end], reduced.feet[first:end], reduced.times[first:end],
-            settings.gravity, FLIGHT_MAX_SUPPORT, settings.contact_drift)
+            settings.gravity, FLIGHT_MAX_SUPPORT, np.repeat(reduced.foot_length, 2))
         for start, stop, point, support in changed:
             log.warning("trajopt: around frames %d-%d the labels give a flight, but the motion's centre of mass needs "
                         "%.0f%% of body weight there: the %s is kept in contact over these frames.", first + start,
