@@ -19,7 +19,7 @@ from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
 from physmocap.config import TrajoptSettings
 from physmocap.errors import InputError
-from physmocap.trajopt import ik, stage
+from physmocap.trajopt import stage
 from physmocap.trajopt.formulation import (
     Window,
     acceleration_continuity,
@@ -223,26 +223,6 @@ def test_flight_support_is_a_point_that_stays_put():
     points[20:27, 3, 1] += np.linspace(0.0, 0.2, 7)  # and the right toe
     out, changed, unsupported = support_held_flights(flags, com, points, times, G, 0.5, drift=0.05)
     assert changed == [] and [(a, b) for a, b, _ in unsupported] == [(20, 27)] and np.array_equal(out, flags)
-
-
-def test_swing_path_follows_the_input_and_meets_the_contact_points():
-    frames = 11
-    carried = np.zeros((frames, 1, 3))
-    carried[:, 0, 0] = np.linspace(0.0, 0.5, frames)
-    carried[:, 0, 2] = np.sin(np.linspace(0.0, np.pi, frames)) * 0.1 - 0.02  # a swing, a little below the floor
-    contacts = np.zeros((frames, 1), bool)
-    contacts[:3] = contacts[8:] = True
-    feet = carried.copy()
-    feet[:3, 0] = [0.02, 0.0, 0.0]  # held 2 cm ahead of the input's point ...
-    feet[8:, 0] = [0.5, 0.04, 0.0]  # ... and landed 4 cm to its side
-    out = ik.swing_paths(feet, carried, contacts)
-    assert np.array_equal(out[contacts[:, 0]], feet[contacts[:, 0]])
-    s = (np.arange(3, 8) - 2) / 6
-    offset = np.outer(1 - s, feet[2, 0] - carried[2, 0]) + np.outer(s, feet[8, 0] - carried[8, 0])
-    expected = carried[3:8, 0] + offset
-    expected[:, 2] = np.maximum(expected[:, 2], 0.0)
-    assert np.allclose(out[3:8, 0], expected)
-    assert np.array_equal(ik.swing_paths(feet, carried, np.zeros_like(contacts))[..., :2], carried[..., :2])
 
 
 @pytest.mark.slow

@@ -1,13 +1,11 @@
 """Full-body motion from the optimised reduced motion (Rempe et al. 2020, C.4), by the kinematic fitter used as IK.
 
 The upper body (and the pelvis) keeps its offsets from the COM of the input motion, added to the optimised COM
-(turned by the change of orientation when `rotate_upper_body`); heels and toes in contact go to their optimised
-contact points; a heel or toe in flight follows its input path carried along with the optimised COM, displaced so
-as to leave and reach its optimised contact points (`swing_paths`, ours); knees and ankles follow from the IK,
-pulled to their input offsets too (`ik_leg_weight`, ours) so that they do not swivel away. The fitter
-(kinematics.fit.KinematicFitter) runs with only its 3D term (pelvis-relative targets), the pose prior and joint
-limits, and the joint-angle velocity term: the root starts at its target and no term moves its translation, so
-the pelvis lands where the COM puts it.
+(turned by the change of orientation when `rotate_upper_body`); heels and toes go to their optimised positions;
+knees and ankles follow from the IK, pulled to their input offsets too (`ik_leg_weight`, ours) so that they do
+not swivel away. The fitter (kinematics.fit.KinematicFitter) runs with only its 3D term (pelvis-relative
+targets), the pose prior and joint limits, and the joint-angle velocity term: the root starts at its target and
+no term moves its translation, so the pelvis lands where the COM puts it.
 """
 
 from __future__ import annotations
@@ -41,31 +39,10 @@ class IkTargets:
     qpos: np.ndarray
 
 
-def swing_paths(feet: np.ndarray, carried: np.ndarray, contacts: np.ndarray) -> np.ndarray:
-    """(T, P, 3) m: the points `feet` where `contacts` (T, P) holds; in each flight between, the input's path
-    `carried` (T, P, 3) displaced by an offset that moves linearly in time from the one at the last contact frame
-    (feet - carried there) to the one at the next (an end of the clip keeps the other side's; a point never in
-    contact keeps its input path); in flight never below the floor. A swing foot carries no force, so its path is
-    not the physics': the optimised one is a few polynomials per flight that cut the input's swing short
-    (measured on the real videos: docs/decisions/trajopt-real-videos.md)."""
-    out = np.array(feet, dtype=float)
-    T = len(feet)
-    for i in range(feet.shape[1]):
-        held = np.flatnonzero(contacts[:, i])
-        shift = feet[held, i] - carried[held, i]
-        for axis in range(3):  # np.interp holds the end values beyond the first and last contact frames
-            offset = np.interp(np.arange(T), held, shift[:, axis]) if len(held) else np.zeros(T)
-            out[~contacts[:, i], i, axis] = (carried[:, i, axis] + offset)[~contacts[:, i]]
-    out[..., 2] = np.where(contacts, out[..., 2], np.maximum(out[..., 2], 0.0))
-    return out
-
-
 def ik_targets(body: BodyModel, qpos_in: np.ndarray, reduced: ReducedMotion, com: np.ndarray, euler: np.ndarray,
-               feet: np.ndarray, settings: TrajoptSettings, contacts: np.ndarray | None = None) -> IkTargets:
+               feet: np.ndarray, settings: TrajoptSettings) -> IkTargets:
     """Targets for frames (T) from the input motion qpos_in (T, nq), its reduced form, and the optimised COM
-    (T, 3), orientation (T, 3) and contact points (T, 4, 3). contacts (T, 4) bool: the points in contact, held to
-    `feet` with weight ik_feet_weight; the others follow `swing_paths` with the weight of every other marker
-    (they only need to look like the input's swing). None: every point held to `feet` on every frame."""
+    (T, 3), orientation (T, 3) and contact points (T, 4, 3)."""
     names = [b for _, b in MARKERS]
     points = kin.forward_kinematics(body, qpos_in).points
     markers_in = points[:, body.point_index(names)]
@@ -77,13 +54,9 @@ def ik_targets(body: BodyModel, qpos_in: np.ndarray, reduced: ReducedMotion, com
     weights = np.ones((len(com), len(names)))
     for name in FREE_MARKERS:
         weights[:, names.index(name)] = np.sqrt(settings.ik_leg_weight)
-    held = np.ones(feet.shape[:2], bool) if contacts is None else np.asarray(contacts, bool)
-    # Carried untouched, not turned: the swing foot then keeps its input place relative to the COM (turned, it
-    # measured worse on five of the seven real videos).
-    paths = swing_paths(feet, com[:, None] + reduced.feet - reduced.com[:, None], held)
     for name, k in FOOT_MARKERS.items():
-        markers[:, names.index(name)] = paths[:, k]
-        weights[:, names.index(name)] = np.where(held[:, k], np.sqrt(settings.ik_feet_weight), 1.0)
+        markers[:, names.index(name)] = feet[:, k]
+        weights[:, names.index(name)] = np.sqrt(settings.ik_feet_weight)
     # The root starts in place: pelvis at its target, orientation turned likewise.
     qpos = qpos_in.copy()
     pelvis_in = points[:, body.point_index(["pelvis"])[0]]

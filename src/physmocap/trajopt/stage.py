@@ -35,7 +35,7 @@ from ..config import TrajoptSettings
 from ..cores import may_use_two_cores, usable_cores
 from ..motion import frame_ranges
 from .formulation import Window, WindowStart
-from .ik import ik_targets, solve_ik
+from .ik import IkTargets, ik_targets, solve_ik
 from .phases import clean_flags, contact_phases, split_drifting, support_held_flights
 from .reduced import boundary_velocity, reduced_motion
 from .solve import StageReport, WindowResult, solve_window
@@ -283,17 +283,23 @@ def _full_body(out: TrajoptMotion, body: BodyModel, qpos_kin: np.ndarray, reduce
                settings: TrajoptSettings) -> None:
     """out.qpos on the converged frames: the full body (IK, Rempe 3.1) following the optimised COM, orientation
     and feet; the other frames keep qpos_kin (T, nq)."""
-    done = out.converged
+    done, T = out.converged, len(qpos_kin)
     if not done.any():
         return
-    # Frames kept kinematic are fitted to themselves (then restored exactly), their points held where they are:
-    # the smoothing term links neighbours only across converged frames' edges.
-    com = np.where(done[:, None], out.com, reduced.com)
-    euler = np.where(done[:, None], out.euler, reduced.euler)
-    feet = np.where(done[:, None, None], out.feet, reduced.feet)
-    targets = ik_targets(body, qpos_kin, reduced, com, euler, feet, settings, out.contacts | ~done[:, None])
-    targets.qpos[~done] = qpos_kin[~done]
-    qpos = solve_ik(body, targets, fps, settings)
+    targets = ik_targets(body, qpos_kin[done], reduced.frames(done), out.com[done], out.euler[done],
+                         out.feet[done], settings)
+    solved = np.array(qpos_kin)
+    solved[done] = targets.qpos
+    markers = np.zeros((T,) + targets.markers.shape[1:])
+    weights = np.zeros((T,) + targets.weights.shape[1:])
+    markers[done], weights[done] = targets.markers, targets.weights
+    # Frames kept kinematic are fitted to themselves (then restored exactly): the smoothing term links
+    # neighbours only across converged frames' edges.
+    if (~done).any():
+        own = ik_targets(body, qpos_kin[~done], reduced.frames(~done), reduced.com[~done], reduced.euler[~done],
+                         reduced.feet[~done], settings)
+        markers[~done], weights[~done] = own.markers, own.weights
+    qpos = solve_ik(body, IkTargets(markers, weights, solved), fps, settings)
     out.qpos[done] = qpos[done]
 
 
