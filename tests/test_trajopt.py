@@ -913,6 +913,22 @@ def test_frames_without_observations_split_the_clip(body):
     assert not tiny.converged.any() and np.array_equal(tiny.qpos, q[:2])
 
 
+def test_the_motion_passes_to_frames_kept_kinematic_without_a_jump(body):
+    """Next to frames handed back to the kinematic motion (here a COM below the floor), the output is blended
+    into it over stage.BLEND_SECONDS instead of jumping there."""
+    q = sway(body, 50)
+    q[40:, 2] -= 1.5
+    result = run_trajopt(body, q, FPS, np.ones((50, 4), bool), TrajoptSettings(contact_drift=0.0))
+    gap = np.linalg.norm(kin.forward_kinematics(body, result.qpos).points - kin.forward_kinematics(body, q).points,
+                         axis=-1).mean(axis=1)
+    blend = int(stage.BLEND_SECONDS * FPS)
+    assert result.converged[:40].all() and np.all(gap[40:] == 0)
+    assert gap[39] < 0.5 * gap[10:40 - blend].mean()
+    assert np.all(np.diff(gap[40 - blend:40]) < 1e-3)  # handed over gradually
+    share = stage._kinematic_share(result.converged, FPS)
+    assert np.all(share[:40 - blend - 1] == 0) and np.all(share[40:] == 1) and 0.8 < share[39] < 1
+
+
 def test_frames_whose_com_is_below_the_floor_are_kept_kinematic_and_flagged(body, caplog):
     """A COM below the floor (a person leaving the view, a floor at another height) is not a motion the feet on
     the floor explain: optimised, such an island at the clip's end asked for several body weights."""
