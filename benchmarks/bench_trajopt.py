@@ -83,6 +83,7 @@ LONG_CLIP = "cmu_iclone_cc3_retarget/005_07.bvh"  # dance: small jetes, attitude
 VALIDATION_CLIPS = ("cmu_iclone_cc3_retarget/002_01.bvh", "cmu_iclone_cc3_retarget/002_04.bvh",
                     "cmu_iclone_cc3_retarget/005_11.bvh", "cmu_iclone_cc3_retarget/007_04.bvh",
                     "cmu_iclone_cc3_retarget/002_06.bvh")
+ALIGNED_KEYS = ("mpjpe_root_mm", "mpjpe_procrustes_mm", "floating_percent")  # --validation's pose figures
 KEYS = ("global_mpjpe_mm", "first_frame_aligned_mm", "mpjpe_root_mm", "floating_percent", "penetration_percent",
         "skate_percent", "grf_mean_percent_bw", "grf_max_percent_bw", "grf_ballistic_percent_bw", "e_smooth_mm")
 
@@ -230,6 +231,7 @@ def validation(weights: list[float], fps_values: list[float]) -> list[dict]:
             names = [str(n) for n in truth["joint_names"]]
             true_com = kin.center_of_mass_from_points(body, truth["joints_world"], names)
             implied = implied_vertical_force(true_com, body.mass, fps)
+            given = score(refined.motion, refined.motion.qpos, truth)
             for weight in weights:
                 settings_trajopt = TrajoptSettings(force_rate=weight)
                 start = time.perf_counter()
@@ -238,13 +240,17 @@ def validation(weights: list[float], fps_values: list[float]) -> list[dict]:
                 scores = score(refined.motion, result.qpos, truth)
                 rows.append(dict(clip=name.split("/")[-1], fps=fps, force_rate=weight, seconds=seconds,
                                  global_mpjpe_mm=scores["global_mpjpe_mm"], skate_percent=scores["skate_percent"],
+                                 **{k: scores[k] for k in ALIGNED_KEYS},
+                                 **{f"input_{k}": given[k] for k in ("global_mpjpe_mm", "skate_percent") + ALIGNED_KEYS},
                                  **force_check(result.grf, result.converged, implied, body.mass)))
                 r = rows[-1]
                 print(f"validation {r['clip']} {fps:.0f} fps force_rate {weight:g}: {seconds:.1f} s, global "
                       f"{r['global_mpjpe_mm']:.1f} mm, skate {r['skate_percent']:.1f}%, solved max "
                       f"{r['solved_max_percent_bw']:.0f}% BW / implied {r['implied_max_percent_bw']:.0f}% = "
                       f"{r['ratio']:.2f}, alternation {r['alternation_percent_bw']:.0f}% BW, converged "
-                      f"{r['converged_fraction']:.2f}", flush=True)
+                      f"{r['converged_fraction']:.2f}; root-relative / Procrustes {r['mpjpe_root_mm']:.1f} / "
+                      f"{r['mpjpe_procrustes_mm']:.1f} mm (input {r['input_mpjpe_root_mm']:.1f} / "
+                      f"{r['input_mpjpe_procrustes_mm']:.1f}), floating {r['floating_percent']:.1f}%", flush=True)
     return rows
 
 

@@ -190,12 +190,12 @@ def test_flight_the_motion_does_not_fall_through_keeps_a_support():
     flags[27:29, 2] = False  # the right heel resumes two frames after the flight: its contact bridges them
     com = np.zeros((frames, 3))
     com[:, 2] = 0.95 + 0.002 * np.sin(times)
-    out, changed = support_held_flights(flags, com, points, times, G, 0.5)
-    assert [(a, b, p) for a, b, p, _ in changed] == [(20, 29, 2)] and changed[0][3] > 0.9
+    out, changed, unsupported = support_held_flights(flags, com, points, times, G, 0.5)
+    assert unsupported == [] and [(a, b, p) for a, b, p, _ in changed] == [(20, 29, 2)] and changed[0][3] > 0.9
     assert out[:, 2].all() and not out[20:27, [0, 1, 3]].any() and np.array_equal(out[:20], flags[:20])
     edge = flags.copy()
     edge[27:] = False  # a flight to the clip's end: its take-off is in the clip, its own frames do not fall
-    out, changed = support_held_flights(edge, com, points, times, G, 0.5)
+    out, changed, _ = support_held_flights(edge, com, points, times, G, 0.5)
     assert [(a, b, p) for a, b, p, _ in changed] == [(20, 48, 2)] and out[20:, 2].all()
     tau = np.clip(times - 19 / fps, 0.0, 8 / fps)  # take-off at frame 19, landing at frame 27
     com[:, 2] = 0.95 + 0.5 * G * (8 / fps) * tau - 0.5 * G * tau ** 2
@@ -203,6 +203,26 @@ def test_flight_the_motion_does_not_fall_through_keeps_a_support():
     assert support_held_flights(flags, com, points, times, G, 0.5)[1] == []
     com[:, 2] = 0.95 + 0.5 * G * (8 / fps) * (times - 19 / fps) - 0.5 * G * (times - 19 / fps) ** 2
     assert support_held_flights(edge, com, points, times, G, 0.5)[1] == []  # falling to the clip's end
+
+
+def test_flight_support_is_a_point_that_stays_put():
+    """A point that travels along the floor through the flight is no support: the next candidate holds the body
+    up, and with none left the flight is returned as unexplained, its flags unchanged."""
+    fps, frames = 24.0, 48
+    times = np.arange(frames) / fps
+    points = np.zeros((frames, 4, 3))
+    points[:, :, 0] = [-0.05, 0.1, -0.05, 0.1]
+    points[:, :, 1] = [0.3, 0.3, -0.05, -0.05]
+    flags = np.zeros((frames, 4), bool)
+    flags[:20, 2] = flags[27:, 2:] = True
+    com = np.zeros((frames, 3))
+    com[:, 2] = 0.95
+    points[20:27, 2, 0] += np.linspace(0.0, 0.2, 7)  # the right heel, nearest the COM, slides 20 cm
+    out, changed, unsupported = support_held_flights(flags, com, points, times, G, 0.5, drift=0.05)
+    assert unsupported == [] and [(a, b, p) for a, b, p, _ in changed] == [(20, 27, 3)] and out[20:27, 3].all()
+    points[20:27, 3, 1] += np.linspace(0.0, 0.2, 7)  # and the right toe
+    out, changed, unsupported = support_held_flights(flags, com, points, times, G, 0.5, drift=0.05)
+    assert changed == [] and [(a, b) for a, b, _ in unsupported] == [(20, 27)] and np.array_equal(out, flags)
 
 
 @pytest.mark.slow
@@ -893,6 +913,22 @@ def test_frames_without_observations_split_the_clip(body):
     assert not tiny.converged.any() and np.array_equal(tiny.qpos, q[:2])
 
 
+def test_the_motion_passes_to_frames_kept_kinematic_without_a_jump(body):
+    """Next to frames handed back to the kinematic motion (here a COM below the floor), the output is blended
+    into it over stage.BLEND_SECONDS instead of jumping there."""
+    q = sway(body, 50)
+    q[40:, 2] -= 1.5
+    result = run_trajopt(body, q, FPS, np.ones((50, 4), bool), TrajoptSettings(contact_drift=0.0))
+    gap = np.linalg.norm(kin.forward_kinematics(body, result.qpos).points - kin.forward_kinematics(body, q).points,
+                         axis=-1).mean(axis=1)
+    blend = int(stage.BLEND_SECONDS * FPS)
+    assert result.converged[:40].all() and np.all(gap[40:] == 0)
+    assert gap[39] < 0.5 * gap[10:40 - blend].mean()
+    assert np.all(np.diff(gap[40 - blend:40]) < 1e-3)  # handed over gradually
+    share = stage._kinematic_share(result.converged, FPS)
+    assert np.all(share[:40 - blend - 1] == 0) and np.all(share[40:] == 1) and 0.8 < share[39] < 1
+
+
 def test_frames_whose_com_is_below_the_floor_are_kept_kinematic_and_flagged(body, caplog):
     """A COM below the floor (a person leaving the view, a floor at another height) is not a motion the feet on
     the floor explain: optimised, such an island at the clip's end asked for several body weights."""
@@ -904,7 +940,7 @@ def test_frames_whose_com_is_below_the_floor_are_kept_kinematic_and_flagged(body
     assert result.converged[:40].all() and not result.converged[40:].any()
     assert np.array_equal(result.qpos[40:], q[40:]) and np.all(result.grf[40:] == 0)
     assert "40-49" in caplog.text and "below the floor" in caplog.text
-    assert "below the floor on frames 40-49" in result.summary()
+    assert "cannot explain frames 40-49" in result.summary()
     again = stage.TrajoptMotion.from_arrays(result.to_arrays())
     assert np.array_equal(again.unexplained, result.unexplained)
 

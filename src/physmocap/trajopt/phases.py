@@ -149,18 +149,32 @@ def flight_support(com_height: np.ndarray, times: np.ndarray, start: int, stop: 
     return 1.0 + 2.0 * float(np.polyfit(t, com_height[lo:hi], 2)[0]) / gravity
 
 
+def _bridge(flags: np.ndarray, a: int, b: int) -> tuple[int, int]:
+    """[a, b) widened to the point's own contacts (flags (T,)) before and after when they resume within the
+    flight's length (b - a): a hand-over from one point to another with no frame of both would again leave the
+    body a moment without force (each force fades to zero where its phase meets a flight)."""
+    n = b - a
+    before = np.flatnonzero(flags[max(0, a - n):a])
+    after = np.flatnonzero(flags[b:b + n])
+    return (max(0, a - n) + int(before[-1]) + 1 if len(before) else a), (b + int(after[0]) if len(after) else b)
+
+
 def support_held_flights(flags: np.ndarray, com: np.ndarray, points: np.ndarray, times: np.ndarray,
-                         gravity: float, max_support: float) -> tuple[np.ndarray, list[tuple]]:
+                         gravity: float, max_support: float,
+                         drift: np.ndarray | float = np.inf) -> tuple[np.ndarray, list[tuple], list[tuple]]:
     """(T, P) contact flags in which every whole-body flight (no point in contact; one at the clip's first or
     last frame too, judged by its own frames) that the input motion does not fall through is given back a
     support: a flight whose COM (T, 3) needs more than `max_support` body weights (`flight_support`) is the
     labels' error (the body is held up), and physics would have to launch and land it with forces the motion
-    never shows. The support is the point, of
-    those in contact on the frame before or after the flight, nearest below the COM on average (points (T, P, 3);
-    a support far to one side would turn the body); its contact continues through the flight. Returns the flags
-    and (start, stop, point, support) of each relabelled flight, [start, stop) the frames put in contact."""
+    never shows. The support is the point, of those in contact on the frame before or after the flight, nearest
+    below the COM on average (points (T, P, 3); a support far to one side would turn the body) whose input stays
+    within `drift` m (a number, or one per point (P,)) of its median position along the floor over the flight (a
+    held contact does not travel; 0: no limit);
+    its contact continues through the flight. Returns the flags, (start, stop, point, support) of each
+    relabelled flight, [start, stop) the frames put in contact, and (start, stop, support) of each flight that
+    no point could hold up (every candidate travels): the contact model cannot explain it."""
     flags = np.asarray(flags, bool).copy()
-    changed = []
+    changed, unsupported = [], []
     starts, lengths = runs(flags.any(axis=1))
     none = np.zeros(flags.shape[1], bool)
     for s, n in zip(starts, lengths, strict=True):
@@ -175,15 +189,15 @@ def support_held_flights(flags: np.ndarray, com: np.ndarray, points: np.ndarray,
         if not candidates.any():
             continue
         reach = np.linalg.norm(points[s:s + n, :, :2] - com[s:s + n, None, :2], axis=-1).mean(axis=0)
-        point = int(np.argmin(np.where(candidates, reach, np.inf)))
-        # The contact bridges to the point's own contacts before and after when they resume within the
-        # flight's length: a hand-over from one point to another with no frame of both would again leave
-        # the body a moment without force (each force fades to zero where its phase meets a flight).
-        a, b = int(s), int(s + n)
-        before = np.flatnonzero(flags[max(0, a - n):a, point])
-        after = np.flatnonzero(flags[b:b + n, point])
-        a = max(0, a - n) + int(before[-1]) + 1 if len(before) else a
-        b = b + int(after[0]) if len(after) else b
-        flags[a:b, point] = True
-        changed.append((a, b, point, support))
-    return flags, changed
+        for point in np.argsort(np.where(candidates, reach, np.inf))[:int(candidates.sum())]:
+            a, b = _bridge(flags[:, point], int(s), int(s + n))
+            p = points[a:b, point, :2]
+            limit = np.broadcast_to(drift, (flags.shape[1],))[point]
+            if limit > 0 and np.linalg.norm(p - np.median(p, axis=0), axis=1).max() > limit:
+                continue
+            flags[a:b, point] = True
+            changed.append((a, b, int(point), support))
+            break
+        else:
+            unsupported.append((int(s), int(s + n), support))
+    return flags, changed, unsupported

@@ -35,7 +35,7 @@ from ..config import TrajoptSettings
 from ..cores import may_use_two_cores, usable_cores
 from ..motion import frame_ranges
 from .formulation import Window, WindowStart
-from .ik import IkTargets, ik_targets, solve_ik
+from .ik import ik_targets, solve_ik
 from .phases import clean_flags, contact_phases, split_drifting, support_held_flights
 from .reduced import boundary_velocity, reduced_motion
 from .solve import StageReport, WindowResult, solve_window
@@ -51,6 +51,9 @@ MIN_FRAMES = 3  # a run of valid frames shorter than this keeps the kinematic mo
 # 0 in a free fall, 1 standing) is not a flight (phases.support_held_flights); chosen on validation clips of CMU
 # subjects 1, 2, 5, 7 (docs/decisions/trajopt-false-flights.md); 0 .. 1
 FLIGHT_MAX_SUPPORT = 0.5
+# The final motion passes from the physics' to frames kept kinematic (unexplained, not converged) and back over
+# this, as PhysCap's default physics.unexplained_blend: no jump at a flagged segment (issue 17)
+BLEND_SECONDS = 0.2  # s
 PARALLEL_WORKERS = 2  # windows solved at a time with settings.parallel_windows (the even, then the odd ones)
 
 
@@ -117,8 +120,9 @@ class TrajoptMotion:
     com, com_acceleration, euler, feet: (T, 3), (T, 3), (T, 3), (T, 4, 3) the optimised reduced motion (m,
         m/s^2, Z-Y-X Euler angles in rad, m; nan where not converged);
     windows: one report per window; seconds: time spent, ik_seconds of it in the full-body output (C.4);
-    unexplained: (T,) bool, observed frames the contact model cannot explain (`unexplained_frames`), not optimised
-        and kept kinematic (so also not converged); None: not diagnosed.
+    unexplained: (T,) bool, observed frames the contact model cannot explain (`unexplained_frames`, and flights
+        of the labels that the COM does not fall through with no foot to hold it up), not optimised and kept
+        kinematic (so also not converged); None: not diagnosed.
     """
 
     qpos: np.ndarray
@@ -159,7 +163,8 @@ class TrajoptMotion:
             line += f"; NOT converged{why} (kinematic motion kept): frames {', '.join(self.failed_frames)}"
         if self.unexplained is not None and self.unexplained.any():
             below = ", ".join(frame_ranges(np.flatnonzero(self.unexplained)))
-            line += f"; of these, the input's centre of mass is below the floor on frames {below}"
+            line += (f"; of these, the contact model cannot explain frames {below} (the input's centre of mass "
+                     "below the floor, or held up with no foot on it)")
         return line
 
     def to_arrays(self) -> dict[str, np.ndarray]:
@@ -241,7 +246,10 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     valid = observed & ~unexplained
     min_frames = max(1, math.ceil(settings.min_phase_seconds * fps - 1e-9))
     flags = np.stack([clean_flags(contacts[:, i], min_frames) for i in range(4)], axis=1) & valid[:, None]
-    flags = _support_held_flights(flags, reduced, valid, settings)
+    flags, unheld = _support_held_flights(flags, reduced, valid, settings)
+    unexplained |= unheld
+    valid &= ~unheld
+    flags &= valid[:, None]
     flags = split_drifting(flags, reduced.feet[..., :2], settings.contact_drift, min_frames)
     out = TrajoptMotion(
         qpos=qpos_kin.copy(), grf=np.zeros((T, 4, 3)), residual=np.zeros((T, 6)), contacts=flags.copy(),
@@ -277,40 +285,62 @@ def unexplained_frames(com: np.ndarray) -> np.ndarray:
 def _full_body(out: TrajoptMotion, body: BodyModel, qpos_kin: np.ndarray, reduced, fps: float,
                settings: TrajoptSettings) -> None:
     """out.qpos on the converged frames: the full body (IK, Rempe 3.1) following the optimised COM, orientation
-    and feet; the other frames keep qpos_kin (T, nq)."""
-    done, T = out.converged, len(qpos_kin)
+    and feet, handed over to qpos_kin (T, nq) within BLEND_SECONDS of the frames that keep it."""
+    done = out.converged
     if not done.any():
         return
     targets = ik_targets(body, qpos_kin[done], reduced.frames(done), out.com[done], out.euler[done],
                          out.feet[done], settings)
-    solved = np.array(qpos_kin)
-    solved[done] = targets.qpos
-    markers = np.zeros((T,) + targets.markers.shape[1:])
-    weights = np.zeros((T,) + targets.weights.shape[1:])
-    markers[done], weights[done] = targets.markers, targets.weights
-    # Frames kept kinematic are fitted to themselves (then restored exactly): the smoothing term links
-    # neighbours only across converged frames' edges.
-    if (~done).any():
-        own = ik_targets(body, qpos_kin[~done], reduced.frames(~done), reduced.com[~done], reduced.euler[~done],
-                         reduced.feet[~done], settings)
-        markers[~done], weights[~done] = own.markers, own.weights
-    qpos = solve_ik(body, IkTargets(markers, weights, solved), fps, settings)
+    # Every frame's targets for itself: the frames kept kinematic are fitted to them (then restored exactly, the
+    # smoothing term links neighbours only across converged frames' edges), the blend moves towards them.
+    own = ik_targets(body, qpos_kin, reduced, reduced.com, reduced.euler, reduced.feet, settings)
+    share = _kinematic_share(done, fps)[done]
+    own.markers[done] = targets.markers + share[:, None, None] * (own.markers[done] - targets.markers)
+    own.weights[done] = targets.weights + share[:, None] * (own.weights[done] - targets.weights)
+    start = own.qpos[done]
+    start[:, :3] = targets.qpos[:, :3] + share[:, None] * (start[:, :3] - targets.qpos[:, :3])
+    turn = np.sign(np.sum(start[:, 3:7] * targets.qpos[:, 3:7], axis=1, keepdims=True) + 1e-12)
+    root = targets.qpos[:, 3:7] + share[:, None] * (turn * start[:, 3:7] - targets.qpos[:, 3:7])
+    start[:, 3:7] = root / np.linalg.norm(root, axis=1, keepdims=True)
+    start[:, 7:] = targets.qpos[:, 7:]
+    own.qpos[done] = start
+    qpos = solve_ik(body, own, fps, settings)
     out.qpos[done] = qpos[done]
 
 
-def _support_held_flights(flags: np.ndarray, reduced, valid: np.ndarray, settings: TrajoptSettings) -> np.ndarray:
+def _kinematic_share(done: np.ndarray, fps: float) -> np.ndarray:
+    """(T,) 0..1, how far each frame is handed to the kinematic motion: 1 where not `done` (T,) bool, falling
+    linearly to 0 over BLEND_SECONDS on either side (0 everywhere when every frame is done)."""
+    frames = np.arange(len(done))
+    if done.all():
+        return np.zeros(len(done))
+    last = np.maximum.accumulate(np.where(done, -len(done), frames))
+    following = np.minimum.accumulate(np.where(done, 2 * len(done), frames)[::-1])[::-1]
+    distance = np.minimum(frames - last, following - frames)
+    return np.clip(1.0 - distance / (BLEND_SECONDS * fps + 1.0), 0.0, 1.0)
+
+
+def _support_held_flights(flags: np.ndarray, reduced, valid: np.ndarray,
+                          settings: TrajoptSettings) -> tuple[np.ndarray, np.ndarray]:
     """The flags with each whole-body flight that the input's COM does not fall through given back a support
-    (phases.support_held_flights), within each run of valid frames; each one logged."""
-    flags = flags.copy()
+    (phases.support_held_flights), within each run of valid frames, and (T,) bool the frames of such flights
+    that no point can hold up (each candidate strays farther than its foot's length, more than a foot turning
+    about its other end: the contact model cannot explain them); each one logged."""
+    flags, unheld = flags.copy(), np.zeros(len(flags), bool)
     for first, end in valid_runs(valid):
-        flags[first:end], changed = support_held_flights(
+        flags[first:end], changed, unsupported = support_held_flights(
             flags[first:end], reduced.com[first:end], reduced.feet[first:end], reduced.times[first:end],
-            settings.gravity, FLIGHT_MAX_SUPPORT)
+            settings.gravity, FLIGHT_MAX_SUPPORT, np.repeat(reduced.foot_length, 2))
         for start, stop, point, support in changed:
             log.warning("trajopt: around frames %d-%d the labels give a flight, but the motion's centre of mass needs "
                         "%.0f%% of body weight there: the %s is kept in contact over these frames.", first + start,
                         first + stop - 1, 100 * support, CONTACT_POINTS[point].replace("_", " "))
-    return flags
+        for start, stop, support in unsupported:
+            unheld[first + start:first + stop] = True
+            log.warning("trajopt: on frames %d-%d the labels give a flight, the motion's centre of mass needs %.0f%% "
+                        "of body weight there, and every foot that could hold it up moves: the kinematic motion is "
+                        "kept there.", first + start, first + stop - 1, 100 * support)
+    return flags, unheld
 
 
 def _measure_departure(report: WindowReport, result, red, n: int, limit: float | None) -> None:
