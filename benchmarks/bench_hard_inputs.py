@@ -1,7 +1,7 @@
 """Hard inputs made from the shared videos (issue 17: "no input produces a traceback", every number finite, every
 force within its bound, unexplained frames flagged): each variant below is written once with PyAV (H.264) from a
 shared clip, then captured as a user would (`bench_physics_videos.run_video`: `physmocap capture VIDEO --physics
-METHOD --no-overlay`) and scored like the real videos (exit code, frames flagged, largest contact force in body
+METHOD --no-overlay`; METHOD online: `--online --physics physcap`) and scored like the real videos (exit code, frames flagged, largest contact force in body
 weights, finiteness, feet-only jitter and aligned error against the physics' own kinematic input).
 
 Variants (name: what it stresses):
@@ -22,7 +22,7 @@ Variants (name: what it stresses):
   no_person           2 s of an empty grey picture (expected: a one-sentence refusal, exit 2)
   zoom_jump_cut       sports2d, its second half cropped to the central quarter and scaled up (a cut to a zoom)
 
-    .venv/bin/python benchmarks/bench_hard_inputs.py [--physics physcap trajopt] [--runs FOLDER] [--only NAME ...]
+    .venv/bin/python benchmarks/bench_hard_inputs.py [--physics physcap trajopt online] [--runs FOLDER] [--only NAME ...]
 
 Writes benchmarks/results/hard_inputs.json and .md. About 9 minutes per method on the 2-core machine at load 4.
 """
@@ -169,7 +169,8 @@ def table(rows: list[dict]) -> list[str]:
 
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--physics", nargs="+", default=["physcap", "trajopt"])
+    parser.add_argument("--physics", nargs="+", default=["physcap", "trajopt"], choices=["physcap", "trajopt", "online"],
+                        help="capture methods; online: `--online` with PhysCap")
     parser.add_argument("--only", nargs="*", default=None, help="variant names (default: all)")
     parser.add_argument("--runs", default=None, help="keep the videos and run folders here (default: temporary)")
     parser.add_argument("--json", default=str(RESULTS / "hard_inputs.json"))
@@ -184,7 +185,9 @@ def main(argv=None) -> dict:
             if not video.exists():
                 write_clip(video, *makers[name]())
             for method in args.physics:
-                row = dict(variant=name, physics=method, **run_video(video, work / f"{name}-{method}", method))
+                row = dict(variant=name, physics=method, **run_video(video, work / f"{name}-{method}",
+                                                                     "physcap" if method == "online" else method,
+                                                                     online=method == "online"))
                 row.pop("video")
                 rows.append(row)
                 print(json.dumps(row), flush=True)

@@ -153,9 +153,9 @@ def grf_means(grf: np.ndarray, weight: float) -> dict:
                 grf_horizontal_9_frames_percent_bw=float(np.linalg.norm(averaged, axis=1).mean()))
 
 
-def run_video(video: Path, out: Path, physics: str, config: str | None = None) -> dict:
+def run_video(video: Path, out: Path, physics: str, config: str | None = None, online: bool = False) -> dict:
     command = [sys.executable, "-m", "physmocap.cli", "capture", str(video), "-o", str(out), "--physics", physics,
-               "--no-overlay"] + (["--config", config] if config else [])
+               "--no-overlay"] + (["--config", config] if config else []) + (["--online"] if online else [])
     start = time.perf_counter()
     done = subprocess.run(command, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(REPO / "src")})
     row = dict(video=video.name, exit_code=done.returncode, wall_s=time.perf_counter() - start,
