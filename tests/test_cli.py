@@ -352,15 +352,15 @@ def test_unexplained_frames_note_says_what_each_method_hands_back(capsys, method
     assert ("blended" in note) == blended
 
 
-@pytest.mark.parametrize("disagreement, says", [(41.0, "disagrees with the person's own vertical by 41 degrees"),
-                                                (None, "the feet are outside the picture on every frame")])
-def test_an_untrusted_floor_says_why_in_one_line(capsys, disagreement, says):
+@pytest.mark.parametrize("source, says", [("posture", "disagrees with the person's own vertical by 41 degrees"),
+                                          ("unseen feet", "the feet are outside the picture on every frame")])
+def test_an_untrusted_floor_says_why_in_one_line(capsys, source, says):
     from types import SimpleNamespace
 
     from physmocap.cli import _note_physics_floor_height
 
     summary = SimpleNamespace(physics="physcap", physics_unexplained_frame_count=0, body_height_note="height",
-                              floor={"trusted": False, "prior_disagreement_degrees": disagreement})
+                              floor={"trusted": False, "source": source, "prior_disagreement_degrees": 41.0})
     _note_physics_floor_height(summary)
     warning = capsys.readouterr().out.splitlines()[0]
     assert warning.startswith("warning: ") and says in warning and "give --floor" in warning

@@ -175,7 +175,9 @@ def test_feet_never_seen_give_a_floor_that_is_not_trusted(scene, caplog):
     valid = np.ones(len(qpos), bool)
     with caplog.at_level(logging.WARNING, logger="physmocap"):
         floor = floor_module.estimate_floor(body, qpos, camera, 30.0, valid, np.zeros((len(qpos), 4), bool))
-    assert not floor.trusted and floor.source == "posture" and np.isnan(floor.prior_disagreement)
+    as_if_seen = floor_module.estimate_floor(body, qpos, camera, 30.0, valid)
+    assert not floor.trusted and floor.source == "unseen feet"
+    assert np.array_equal(floor.plane, as_if_seen.plane) and as_if_seen.trusted
     assert any("outside the picture" in r.message for r in caplog.records)
 
 

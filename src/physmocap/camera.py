@@ -91,7 +91,8 @@ class Floor:
     tilt_spread, degrees, the spread of its normal under a bootstrap of the foot points over seconds;
     prior_disagreement, degrees, between the plane of the feet alone and the person's own vertical (nan where
     not measured); trusted, False where they disagree so far that the normal is the person's vertical instead;
-    source: "feet and posture", "feet" (fit_floor alone), "posture" (not trusted) or "given" (the user's)."""
+    source: "feet and posture", "feet" (fit_floor alone), "posture" or "unseen feet" (not trusted: the feet's plane
+    leant from the posture, or no foot was in the picture), or "given" (the user's)."""
 
     normal: np.ndarray
     offset: float

@@ -587,12 +587,13 @@ def _note_physics_floor_height(summary) -> None:
               + (", blended at its edges" if summary.physics == "physcap" else "")
               + " (result.npz physics_unexplained)")
     if summary.floor and not summary.floor.get("trusted", True):
-        disagreement = summary.floor.get("prior_disagreement_degrees")
-        print("warning: " + ("the feet are outside the picture on every frame: the floor is placed under the "
-                             "fitted feet" if disagreement is None else "the floor fitted to the feet disagrees "
-                             f"with the person's own vertical by {disagreement:.0f} degrees")
-              + ": it is not trusted, and the person's vertical is taken as the floor's normal (give --floor if you "
-              "know it)")
+        if summary.floor.get("source") == "unseen feet":
+            print("warning: the feet are outside the picture on every frame: the floor is fitted to where the fit "
+                  "placed them and is not trusted (give --floor if you know it)")
+        else:
+            print("warning: the floor fitted to the feet disagrees with the person's own vertical by "
+                  f"{summary.floor.get('prior_disagreement_degrees') or float('nan'):.0f} degrees: it is not "
+                  "trusted, and the person's vertical is taken as the floor's normal (give --floor if you know it)")
     print(summary.body_height_note)
 
 

@@ -3,6 +3,7 @@ with its confidence, and the motion re-expressed in the world whose z = 0 plane 
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 
 import numpy as np
@@ -118,16 +119,15 @@ def estimate_floor(body: BodyModel, qpos: np.ndarray, camera: Camera, fps: float
     FLOOR_AGREEMENT degrees the feet say something no posture explains (points taken from a lifted foot, a wrong
     depth) and the floor is not trusted: it is then level with the posture, through the same points, a warning
     is logged and Floor.trusted says so. Where no lowest sole point was ever seen, the fitted feet are all there
-    is: the floor goes through them, level with the posture, and is not trusted either."""
+    is: the floor is fitted to them as if seen, and not trusted either (source "unseen feet")."""
     soles = camera.to_camera(kin.forward_kinematics(body, qpos).points[:, body.point_index(CONTACT_POINTS)])
     # The support is the lowest points along the feet's own plane: the posture's first guess leans with a
     # runner, and the lowest points along it are then the trailing foot's.
     first = posture_vertical(body, qpos, camera, valid)
     if seen is not None and not floor_points(soles, first, fps, valid, seen).any():
-        log.warning("The feet are outside the picture on every frame: the floor is placed under the fitted feet, "
-                    "level with the person's posture, and cannot be trusted; give it with --floor if it is known.")
-        points = soles[floor_points(soles, first, fps, valid)]
-        return Floor(first, robust_offset(points, first), float("nan"), 90.0, float("nan"), False, "posture")
+        log.warning("The feet are outside the picture on every frame: the floor is fitted to where the fit placed "
+                    "them and cannot be trusted; give it with --floor if it is known.")
+        return dataclasses.replace(estimate_floor(body, qpos, camera, fps, valid), trusted=False, source="unseen feet")
     feet_first, _ = fit_floor(soles[floor_points(soles, first, fps, valid, seen)], first,
                               prior_weight=FEET_ONLY_PRIOR_WEIGHT)
     up = posture_vertical(body, qpos, camera, valid, lowest_points(soles, feet_first.normal, valid))
