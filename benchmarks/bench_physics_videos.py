@@ -7,9 +7,10 @@ and foot slide during contact against its own kinematic input (result.npz joints
 median reprojection error and the Procrustes-aligned error against the detector's own metric 3D landmarks (the
 accuracies available without a 3D truth) also over the feet-only frames alone (valid, not flagged, and so their
 neighbours). --runs FOLDER keeps the run folders, whose caches a second run reuses (then
-only contacts, physics and the outputs run again).
+only contacts, physics and the outputs run again). --online captures with the causal fit (`capture --online`);
+give it its own --runs folder, or a copy of an offline one to reuse its detections.
 
-    .venv/bin/python benchmarks/bench_physics_videos.py [--physics physcap] [--videos NAME ...]
+    .venv/bin/python benchmarks/bench_physics_videos.py [--physics physcap] [--online] [--videos NAME ...]
 
 Writes benchmarks/results/physics_videos.json and .md; runs go to a temporary folder.
 """
@@ -173,6 +174,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--json", default=str(RESULTS / "physics_videos.json"))
     parser.add_argument("--runs", default=None, help="keep the run folders here (default: a temporary folder)")
     parser.add_argument("--config", default=None, help="a TOML settings file passed to every capture")
+    parser.add_argument("--online", action="store_true", help="capture --online (the causal fit and PhysCap)")
     args = parser.parse_args(argv)
     rows = []
     with tempfile.TemporaryDirectory() as folder:
@@ -184,10 +186,10 @@ def main(argv=None) -> dict:
             reencode(VIDEOS / "sports2d_demo.mp4", slow, 3)
             videos.append(slow)
         for video in videos:
-            row = run_video(video, work / video.stem, args.physics, args.config)
+            row = run_video(video, work / video.stem, args.physics, args.config, args.online)
             rows.append(row)
             print(json.dumps(row), flush=True)
-    out = dict(physics=args.physics, rows=rows, load_average=os.getloadavg()[0])
+    out = dict(physics=args.physics, online=args.online, rows=rows, load_average=os.getloadavg()[0])
     RESULTS.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(out, indent=1))
     lines = ["| video | exit | wall s | frames (fps) | flagged | largest contact force BW | largest residual BW | "
