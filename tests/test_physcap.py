@@ -634,17 +634,18 @@ def test_the_base_of_support_is_the_soles_of_the_feet_that_touch(body):
 def test_online_feet_resting_on_the_floor_count_though_no_contact_was_predicted(body):
     """A person standing upright and still whose network saw only the right heel: online (a fit not refined by
     B.4) the sole points resting on the floor count as contacts, the person stands on both soles and the balance
-    correction leaves the pose as observed; with rest_height None, or after B.4 (which adds resting points itself), the
-    right heel alone is the support and the upright pose is "corrected". Points gliding over the floor faster
-    than slide_speed do not rest."""
+    correction leaves the pose as observed; with rest_height None, after B.4 (which adds resting points itself) or
+    with contacts that hold them already (resting_labelled: a retargeted capture's), the right heel alone is the
+    support and the upright pose is "corrected". Points gliding over the floor faster than slide_speed do not
+    rest."""
     q = standing(body, 50)
     right_heel = np.repeat(np.array([[False, False, True, False]]), 50, axis=0)
     stationary = np.ones(50, bool)
     # The first frame has no speed yet: what its correction started relaxes, and the standing pose ends as observed.
     assert not run_physcap(body, q, FPS, right_heel, stationary, PhysicsSettings()).corrected[-10:].any()
     assert run_physcap(body, q, FPS, right_heel, stationary, PhysicsSettings(rest_height=None)).corrected[-10:].all()
-    assert run_physcap(body, q, FPS, right_heel, stationary, PhysicsSettings(),
-                       refined_input=True).corrected[-10:].all()
+    for given in ({"refined_input": True}, {"resting_labelled": True}):  # B.4's labels; a retargeted capture's
+        assert run_physcap(body, q, FPS, right_heel, stationary, PhysicsSettings(), **given).corrected[-10:].all()
     for speed, resting in ((0.0, True), (1.0, False)):  # m/s along the floor
         stream = PhysicsStream(body, PhysicsSettings(), FPS)
         moved = q[:5].copy()

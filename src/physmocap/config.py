@@ -110,8 +110,8 @@ class PhysicsSettings(Section):
     release_distance: float | None = setting(0.05, "m", (0.0, 1.0), "freed past this slide of its target (None: never)")
     plant_time: float | None = setting(0.1, "s", (0.01, 10.0), "fits not refined by B.4 (online): a held target foot "
                                        "follows the fit's with this time constant, within release_distance (None: off)")
-    rest_height: float | None = setting(0.02, "m", (0.0, 0.5), "the same fits: a target sole point under this "
-                                        "height, slower than slide_speed, is in contact (None: off)")
+    rest_height: float | None = setting(0.02, "m", (0.0, 0.5), "online: a target sole point under this height, "
+                                        "slower than slide_speed, is in contact (None: off)")
     touch_margin: float = setting(0.003, "m", (0.0, 0.1), "sole points this close collide with the floor (eq. 5)")
     floor_clearance: float = setting(0.0005, "m", (0.0, 0.01), "physics floor this far up: turning feet dip under it")
     floor_refit_interval: float | None = setting(3.0, "s", (0.1, 60.0), "between online refits of the floor to the "

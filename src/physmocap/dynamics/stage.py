@@ -70,10 +70,10 @@ class PhysicsStream:
     kinematic velocities causally, lifts targets whose feet sink out of the floor, corrects balance, and tracks.
     With refine_floor (an online fit whose floor was estimated, not given) the floor is refined as frames arrive
     and the character runs on the refined floor; poses and forces come back in the kinematic world
-    (`onto_refined_floor` moves both onto the final floor). refined_input: see `run_physcap`."""
+    (`onto_refined_floor` moves both onto the final floor). refined_input, resting_labelled: see `run_physcap`."""
 
     def __init__(self, body: BodyModel, settings: PhysicsSettings, fps: float, refine_floor: bool = False,
-                 refined_input: bool = False):
+                 refined_input: bool = False, resting_labelled: bool = False):
         self.body, self.settings, self.fps = body, settings, fps
         self.floor = (FloorRefiner(body, fps, settings.floor_refit_interval, np.radians(settings.floor_tilt_rate),
                                    settings.floor_lift_rate, settings.floor_refine_after)
@@ -129,7 +129,8 @@ class PhysicsStream:
         # the window holds their positions over REST_SPEED_INTERVAL, oldest first.
         self._resting_window: deque[np.ndarray] | None = (
             deque(maxlen=max(1, round(REST_SPEED_INTERVAL * fps)) + 1)
-            if settings.rest_height is not None and settings.foot_lock == "auto" and not refined_input else None)
+            if settings.rest_height is not None and settings.foot_lock == "auto" and not refined_input
+            and not resting_labelled else None)
 
     @property
     def floor_plane(self) -> np.ndarray | None:
@@ -359,7 +360,8 @@ def kinematic_derivatives(body: BodyModel, qpos: np.ndarray, fps: float) -> tupl
 
 def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.ndarray, stationary: np.ndarray,
                 settings: PhysicsSettings, progress=None, refine_floor: bool = False,
-                valid: np.ndarray | None = None, refined_input: bool = False) -> PhysicsMotion:
+                valid: np.ndarray | None = None, refined_input: bool = False,
+                resting_labelled: bool = False) -> PhysicsMotion:
     """Track the kinematic motion (T, nq) with the physics character; contacts (T, 4) and stationary (T,)
     come from the contact stage. Causal: frame t uses frames up to t only. refine_floor: see PhysicsStream.
     valid: (T,) frames with a detected person (default all); the character starts at the first, and the frames
@@ -367,10 +369,12 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     character started there can begin metres off); frames after it without a person are tracked through but carry
     no contacts, contact forces or residual (their flags stay). refined_input: the kinematics come from Rempe's B.4
     refinement (offline, PhysicsSettings.refine_offline), whose feet already rest on the floor: targets are not
-    lifted or flattened (target_lift_time, flatten_feet are for fits whose feet sink)."""
+    lifted or flattened (target_lift_time, flatten_feet are for fits whose feet sink). resting_labelled: the contacts
+    already hold the points resting on the floor (a capture's contacts in use, which retargeting carries over), so
+    none are added (rest_height; B.4's refinement implies it)."""
     start = time.perf_counter()
     T = len(qpos_kin)
-    stream = PhysicsStream(body, settings, fps, refine_floor, refined_input)
+    stream = PhysicsStream(body, settings, fps, refine_floor, refined_input, resting_labelled)
     unexplained = np.zeros(T, bool)
     out = PhysicsMotion(qpos_kin.copy(), np.zeros((T, 4, 3)), np.zeros((T, 6)), np.zeros((T, 4), bool),
                         np.zeros(T, bool), np.zeros(T, int), 0.0, unexplained=unexplained)

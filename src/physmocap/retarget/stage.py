@@ -196,8 +196,9 @@ def _run_physics(body: BodyModel, retargeted_qpos: np.ndarray, fps: float, conta
     if physics == "physcap":
         from ..dynamics.stage import run_physcap
 
+        # The source's contacts in use already hold its resting points (B.4's, or its own physics' rest test)
         motion = run_physcap(body, retargeted_qpos[span], fps, contacts[span], stationary[span], settings.physics,
-                             valid=valid[span])
+                             valid=valid[span], resting_labelled=True)
     else:
         from ..trajopt.stage import run_trajopt
 
