@@ -24,8 +24,8 @@ from .planting import FootPlanter
 
 GRAVITY = 9.81  # m/s^2
 MAX_FLATTENING = np.radians(20.0)  # a foot tilted more than this with heel and toe predicted down is a wrong label
-REST_SPEED_INTERVAL = 0.1  # s over which a resting sole point's speed is measured (B.4's contact_slip_interval)
 # or a wrong fit, not a flat foot to correct
+REST_SPEED_INTERVAL = 0.1  # s over which a resting sole point's speed is measured (B.4's contact_slip_interval)
 
 
 @dataclass
