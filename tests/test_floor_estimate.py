@@ -190,3 +190,18 @@ def test_a_detector_without_feet_keypoints_sees_the_soles_by_the_ankles():
     keypoints[1, LANDMARK_INDEX["left_ankle"], 1] = 500.0  # below a 640 x 480 picture
     seen = floor_module.seen_sole_points(keypoints, (640, 480), 0.1)
     assert seen.tolist() == [[True] * 4, [False, False, True, True]]
+
+
+def test_seen_points_lowest_along_the_first_vertical_only_give_the_unseen_feet_floor(scene, monkeypatch):
+    """The one seen sole point rests on the floor along the posture's first guess, but along the vertical that
+    estimate_floor settles on it is not among the lowest: no floor point is left, and the floor is the fitted
+    feet's, untrusted (not a fit to no points)."""
+    body, camera, qpos = scene
+    up, tilted = camera.R[:, 2], rotate_about_x(camera.R[:, 2], 60.0)
+    calls = iter(range(1000))
+    monkeypatch.setattr(floor_module, "posture_vertical", lambda *args: up if next(calls) == 0 else tilted)
+    soles = camera.to_camera(kin.forward_kinematics(body, qpos[:1]).points[0, body.point_index(CONTACT_POINTS)])
+    seen = np.zeros((len(qpos), 4), bool)
+    seen[0, np.argmax(soles @ tilted)] = True
+    floor = floor_module.estimate_floor(body, qpos, camera, 30.0, np.ones(len(qpos), bool), seen)
+    assert floor.source == "unseen feet" and not floor.trusted and np.isfinite(floor.plane).all()

@@ -125,13 +125,13 @@ def estimate_floor(body: BodyModel, qpos: np.ndarray, camera: Camera, fps: float
     # runner, and the lowest points along it are then the trailing foot's.
     first = posture_vertical(body, qpos, camera, valid)
     if seen is not None and not floor_points(soles, first, fps, valid, seen).any():
-        log.warning("The feet are outside the picture on every frame: the floor is fitted to where the fit placed "
-                    "them and cannot be trusted; give it with --floor if it is known.")
-        return dataclasses.replace(estimate_floor(body, qpos, camera, fps, valid), trusted=False, source="unseen feet")
+        return _floor_of_unseen_feet(body, qpos, camera, fps, valid)
     feet_first, _ = fit_floor(soles[floor_points(soles, first, fps, valid, seen)], first,
                               prior_weight=FEET_ONLY_PRIOR_WEIGHT)
     up = posture_vertical(body, qpos, camera, valid, lowest_points(soles, feet_first.normal, valid))
     chosen = floor_points(soles, up, fps, valid, seen)
+    if not chosen.any():  # the seen points lie lowest along the first vertical only
+        return _floor_of_unseen_feet(body, qpos, camera, fps, valid)
     points, frames = soles[chosen], np.nonzero(chosen)[0]
     floor, _ = fit_floor(points, up, prior_weight=FLOOR_PRIOR_WEIGHT)
     feet_only, _ = fit_floor(points, up, prior_weight=FEET_ONLY_PRIOR_WEIGHT)
@@ -146,3 +146,10 @@ def estimate_floor(body: BodyModel, qpos: np.ndarray, camera: Camera, fps: float
                     "--floor if it is known.", disagreement, FLOOR_AGREEMENT)
     inliers = float(np.mean(np.abs(points @ normal + offset) < FLOOR_OUTLIER_DISTANCE))
     return Floor(normal, offset, inliers, spread, disagreement, trusted, source)
+
+
+def _floor_of_unseen_feet(body: BodyModel, qpos: np.ndarray, camera: Camera, fps: float, valid: np.ndarray) -> Floor:
+    """estimate_floor's floor through the fitted feet as if they were seen, not trusted; a warning says why."""
+    log.warning("The feet are outside the picture on every frame: the floor is fitted to where the fit placed them "
+                "and cannot be trusted; give it with --floor if it is known.")
+    return dataclasses.replace(estimate_floor(body, qpos, camera, fps, valid), trusted=False, source="unseen feet")
