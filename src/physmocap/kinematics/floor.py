@@ -124,13 +124,13 @@ def estimate_floor(body: BodyModel, qpos: np.ndarray, camera: Camera, fps: float
     # The support is the lowest points along the feet's own plane: the posture's first guess leans with a
     # runner, and the lowest points along it are then the trailing foot's.
     first = posture_vertical(body, qpos, camera, valid)
-    if seen is not None and not floor_points(soles, first, fps, valid, seen).any():
+    first_points = floor_points(soles, first, fps, valid, seen)
+    if seen is not None and not first_points.any():
         return _floor_of_unseen_feet(body, qpos, camera, fps, valid)
-    feet_first, _ = fit_floor(soles[floor_points(soles, first, fps, valid, seen)], first,
-                              prior_weight=FEET_ONLY_PRIOR_WEIGHT)
+    feet_first, _ = fit_floor(soles[first_points], first, prior_weight=FEET_ONLY_PRIOR_WEIGHT)
     up = posture_vertical(body, qpos, camera, valid, lowest_points(soles, feet_first.normal, valid))
     chosen = floor_points(soles, up, fps, valid, seen)
-    if not chosen.any():  # the seen points lie lowest along the first vertical only
+    if seen is not None and not chosen.any():  # the seen points lie lowest along the first vertical only
         return _floor_of_unseen_feet(body, qpos, camera, fps, valid)
     points, frames = soles[chosen], np.nonzero(chosen)[0]
     floor, _ = fit_floor(points, up, prior_weight=FLOOR_PRIOR_WEIGHT)
