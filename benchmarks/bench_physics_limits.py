@@ -64,7 +64,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_synthetic import CLIPS, FPS, SECONDS, WALKING, first_seconds, model_height  # noqa: E402
-from common import MOCAP, RESULTS  # noqa: E402
+from common import MOCAP, RESULTS, truth_scores  # noqa: E402
 from physmocap import metrics  # noqa: E402
 from physmocap.body import kinematics as kin  # noqa: E402
 from physmocap.body.model import CONTACT_POINTS  # noqa: E402
@@ -317,7 +317,7 @@ def part_online(clips, seeds, physics_settings=None) -> dict:
                 kinematic_slide = contact_slide_cm(body, motion.qpos, physics.contacts)
                 joints = kin.forward_kinematics(body, physics.qpos).points
                 joints_kin = kin.forward_kinematics(body, motion.qpos).points
-                scores, kinematic_scores = (truth_scores(case, motion, qpos) for qpos in (physics.qpos, motion.qpos))
+                scores, kinematic_scores = (truth_scores(motion, qpos, case["truth"]) for qpos in (physics.qpos, motion.qpos))
                 rows.append(dict(clip=name.split("/")[-1], seed=seed, calibrated=calibrated, slides=slide.tolist(),
                                  kinematic_slides=kinematic_slide.tolist(),
                                  jitter=metrics.mean_acceleration(joints, fps),
@@ -343,14 +343,6 @@ def part_online(clips, seeds, physics_settings=None) -> dict:
             **{key: float(np.mean([r[key] for r in sel])) for key in (
                 "root_relative_mm", "skate_percent", "kinematic_root_relative_mm", "kinematic_skate_percent")})
     return dict(rows=[{k: v for k, v in r.items() if "slides" not in k} for r in rows], summary=summary)
-
-
-def truth_scores(case: dict, motion, qpos: np.ndarray) -> dict:
-    """The synthetic table's metrics (score_against_truth) of a motion (T, nq) in motion's world."""
-    pose = kin.forward_kinematics(motion.body, qpos)
-    points = to_truth_world(pose.points, motion.camera.R, motion.camera.t, case["truth"])
-    com = to_truth_world(kin.center_of_mass(motion.body, pose), motion.camera.R, motion.camera.t, case["truth"])
-    return score_against_truth(points, motion.body.point_names, com, case["truth"], motion.body.mass)
 
 
 METHODS = ("kinematic offline", "kinematic refined (B.4)", "physcap on refined", "trajopt")

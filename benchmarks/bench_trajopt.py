@@ -54,7 +54,7 @@ from scipy.signal import savgol_filter
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_synthetic import CLIP_SETS, FPS, SECONDS, first_seconds, model_height  # noqa: E402
-from common import MOCAP, RESULTS, git_revision, machine_description  # noqa: E402
+from common import MOCAP, RESULTS, git_revision, machine_description, truth_scores  # noqa: E402
 from physmocap import metrics  # noqa: E402
 from physmocap.body import kinematics as kin  # noqa: E402
 from physmocap.body.model import CONTACT_POINTS  # noqa: E402
@@ -63,7 +63,6 @@ from physmocap.contacts.labels import LabelSettings, contact_labels  # noqa: E40
 from physmocap.contacts.noise import MEDIAPIPE_NOISE  # noqa: E402
 from physmocap.contacts.predict import predict_contacts  # noqa: E402
 from physmocap.dynamics.stage import run_physcap  # noqa: E402
-from physmocap.evaluation import score_against_truth, to_truth_world  # noqa: E402
 from physmocap.io.atomic import write_text  # noqa: E402
 from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
 from physmocap.kinematics.stage import fit_motion  # noqa: E402
@@ -95,13 +94,6 @@ def observe(name: str, seed: int, seconds: float, fps: float = FPS):
     obs, truth = make_observations(clip, K, R, t, rng, MEDIAPIPE_NOISE)
     settings = Settings().replace("body", height=model_height(truth["landmarks_world"]))
     return obs, truth, settings
-
-
-def score(motion, qpos, truth, grf=None, residual=None) -> dict:
-    pose = kin.forward_kinematics(motion.body, qpos)
-    points = to_truth_world(pose.points, motion.camera.R, motion.camera.t, truth)
-    com = to_truth_world(kin.center_of_mass(motion.body, pose), motion.camera.R, motion.camera.t, truth)
-    return score_against_truth(points, motion.body.point_names, com, truth, motion.body.mass, grf, residual)
 
 
 def true_flight(truth: dict, body, grf: np.ndarray) -> dict:
@@ -152,14 +144,14 @@ def evaluate_case(name: str, seed: int, settings_trajopt: TrajoptSettings, piece
     result_f = run_trajopt(refined_f.motion.body, refined_f.motion.qpos, obs.fps, refined_f.contacts,
                            settings_trajopt)
     rows = {
-        "kinematic refined, true floor": score(refined_f.motion, refined_f.motion.qpos, truth),
-        "trajopt, true floor": score(refined_f.motion, result_f.qpos, truth,
+        "kinematic refined, true floor": truth_scores(refined_f.motion, refined_f.motion.qpos, truth),
+        "trajopt, true floor": truth_scores(refined_f.motion, result_f.qpos, truth,
                                      result_f.grf if result_f.converged.all() else None),
-        "kinematic offline": score(motion, motion.qpos, truth),
-        "kinematic refined (B.4)": score(refined.motion, refined.motion.qpos, truth),
-        "physcap on offline": score(refined.motion, physcap.qpos, truth, physcap.grf, physcap.residual),
+        "kinematic offline": truth_scores(motion, motion.qpos, truth),
+        "kinematic refined (B.4)": truth_scores(refined.motion, refined.motion.qpos, truth),
+        "physcap on offline": truth_scores(refined.motion, physcap.qpos, truth, physcap.grf, physcap.residual),
         # Forces only where the optimisation converged; elsewhere the kinematic motion (and its implied forces).
-        "trajopt": score(refined.motion, result.qpos, truth, result.grf if result.converged.all() else None),
+        "trajopt": truth_scores(refined.motion, result.qpos, truth, result.grf if result.converged.all() else None),
     }
     # The paper's protocol: 2 s pieces of the refined motion, each on its own.
     step = int(round(PIECE_SECONDS * obs.fps))
@@ -231,13 +223,13 @@ def validation(weights: list[float], fps_values: list[float]) -> list[dict]:
             names = [str(n) for n in truth["joint_names"]]
             true_com = kin.center_of_mass_from_points(body, truth["joints_world"], names)
             implied = implied_vertical_force(true_com, body.mass, fps)
-            given = score(refined.motion, refined.motion.qpos, truth)
+            given = truth_scores(refined.motion, refined.motion.qpos, truth)
             for weight in weights:
                 settings_trajopt = TrajoptSettings(force_rate=weight)
                 start = time.perf_counter()
                 result = run_trajopt(body, refined.motion.qpos, obs.fps, refined.contacts, settings_trajopt)
                 seconds = time.perf_counter() - start
-                scores = score(refined.motion, result.qpos, truth)
+                scores = truth_scores(refined.motion, result.qpos, truth)
                 rows.append(dict(clip=name.split("/")[-1], fps=fps, force_rate=weight, seconds=seconds,
                                  global_mpjpe_mm=scores["global_mpjpe_mm"], skate_percent=scores["skate_percent"],
                                  **{k: scores[k] for k in ALIGNED_KEYS},

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loads
+
+# isort: split
+
 import os
 import platform
 import statistics
@@ -9,7 +13,10 @@ import subprocess
 import time
 from pathlib import Path
 
-import physmocap  # noqa: F401 - single-threaded BLAS
+import numpy as np
+
+from physmocap.body import kinematics as kin
+from physmocap.evaluation import score_against_truth, to_truth_world
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("PHYSMOCAP_SHARED", REPO.parent / "shared"))
@@ -17,6 +24,15 @@ VIDEOS = SHARED / "data" / "videos"
 MOCAP = SHARED / "data" / "mocap"
 RESULTS = REPO / "benchmarks" / "results"
 
+
+
+def truth_scores(motion, qpos: np.ndarray, truth: dict, grf=None, residual=None) -> dict:
+    """The synthetic table's metrics (evaluation.score_against_truth) of qpos (T, nq) in `motion`'s world and
+    camera, against a synthetic case's `truth`; grf (T, 4, 3) and residual (T, 6) for the force figures."""
+    pose = kin.forward_kinematics(motion.body, qpos)
+    points = to_truth_world(pose.points, motion.camera.R, motion.camera.t, truth)
+    com = to_truth_world(kin.center_of_mass(motion.body, pose), motion.camera.R, motion.camera.t, truth)
+    return score_against_truth(points, motion.body.point_names, com, truth, motion.body.mass, grf, residual)
 
 
 def machine_description() -> str:
