@@ -181,7 +181,12 @@ def points_in_truth(motion, qpos: np.ndarray, truth: dict) -> np.ndarray:
 
 
 def largest_force_bw(physics, mass: float) -> float:
-    return float(np.linalg.norm(physics.grf.sum(axis=1), axis=-1).max() / (mass * GRAVITY))
+    return float(contact_force_bw(physics, mass).max())
+
+
+def contact_force_bw(physics, mass: float) -> np.ndarray:
+    """(T,) body weights: the size of the frame's summed contact force."""
+    return np.linalg.norm(physics.grf.sum(axis=1), axis=-1) / (mass * GRAVITY)
 
 
 # ---- parts ----------------------------------------------------------------------------------------------------
@@ -318,14 +323,18 @@ def part_online(clips, seeds, physics_settings=None) -> dict:
                 joints = kin.forward_kinematics(body, physics.qpos).points
                 joints_kin = kin.forward_kinematics(body, motion.qpos).points
                 scores, kinematic_scores = (truth_scores(motion, qpos, case["truth"]) for qpos in (physics.qpos, motion.qpos))
-                rows.append(dict(clip=name.split("/")[-1], seed=seed, calibrated=calibrated, slides=slide.tolist(),
+                force = contact_force_bw(physics, motion.body.mass)
+                rows.append(dict(largest_force_bw=float(force.max()),
+                                 over_2bw_percent=100 * float((force > 2.0).mean()),clip=name.split("/")[-1], seed=seed, calibrated=calibrated, slides=slide.tolist(),
                                  kinematic_slides=kinematic_slide.tolist(),
                                  jitter=metrics.mean_acceleration(joints, fps),
                                  kinematic_jitter=metrics.mean_acceleration(joints_kin, fps),
                                  flagged_percent=100 * float(physics.unexplained.mean()),
                                  root_relative_mm=scores["mpjpe_root_mm"], skate_percent=scores["skate_percent"],
+                                 floating_percent=scores["floating_percent"],
                                  kinematic_root_relative_mm=kinematic_scores["mpjpe_root_mm"],
-                                 kinematic_skate_percent=kinematic_scores["skate_percent"]))
+                                 kinematic_skate_percent=kinematic_scores["skate_percent"],
+                                 kinematic_floating_percent=kinematic_scores["floating_percent"]))
                 print("online", {k: v for k, v in rows[-1].items() if "slides" not in k},
                       f"median slide {np.median(slide):.2f} cm", flush=True)
     summary = {}
@@ -340,8 +349,11 @@ def part_online(clips, seeds, physics_settings=None) -> dict:
             jitter=float(np.mean([r["jitter"] for r in sel])),
             kinematic_jitter=float(np.mean([r["kinematic_jitter"] for r in sel])),
             flagged_percent=float(np.mean([r["flagged_percent"] for r in sel])),
+            over_2bw_percent=float(np.mean([r["over_2bw_percent"] for r in sel])),
+            largest_force_bw=float(max(r["largest_force_bw"] for r in sel)),
             **{key: float(np.mean([r[key] for r in sel])) for key in (
-                "root_relative_mm", "skate_percent", "kinematic_root_relative_mm", "kinematic_skate_percent")})
+                "root_relative_mm", "skate_percent", "kinematic_root_relative_mm", "kinematic_skate_percent",
+                "floating_percent", "kinematic_floating_percent")})
     return dict(rows=[{k: v for k, v in r.items() if "slides" not in k} for r in rows], summary=summary)
 
 
@@ -699,14 +711,17 @@ def markdown(out: dict) -> str:
     if "online" in out:
         lines += ["**Online PhysCap: contact slide and jitter**", "",
                   "| floor | slide median cm/frame | slide p95 cm/frame | input's slide at those contacts median "
-                  "(p95) | jitter m/s² | input's jitter m/s² | flagged % | root-rel. mm (input) | skate % (input) |",
-                  "|---|---|---|---|---|---|---|---|---|"]
+                  "(p95) | jitter m/s² | input's jitter m/s² | flagged % | root-rel. mm (input) | skate % (input) | "
+                  "float % (input) | frames over 2 BW % | largest contact force BW |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for floor, s in out["online"]["summary"].items():
             lines.append(f"| {floor} | {s['slide_median_cm']:.2f} | {s['slide_p95_cm']:.2f} | "
                          f"{s['kinematic_slide_median_cm']:.2f} ({s['kinematic_slide_p95_cm']:.2f}) | "
                          f"{s['jitter']:.2f} | {s['kinematic_jitter']:.2f} | {s['flagged_percent']:.2f} | "
                          f"{s.get('root_relative_mm', np.nan):.1f} ({s.get('kinematic_root_relative_mm', np.nan):.1f}) "
-                         f"| {s.get('skate_percent', np.nan):.1f} ({s.get('kinematic_skate_percent', np.nan):.1f}) |")
+                         f"| {s.get('skate_percent', np.nan):.1f} ({s.get('kinematic_skate_percent', np.nan):.1f}) | "
+                         f"{s.get('floating_percent', np.nan):.1f} ({s.get('kinematic_floating_percent', np.nan):.1f}) | "
+                         f"{s.get('over_2bw_percent', np.nan):.2f} | {s.get('largest_force_bw', np.nan):.2f} |")
         lines.append("")
     if "speed" in out:
         sp = out["speed"]

@@ -124,6 +124,8 @@ def score(result_path: Path) -> dict:
                 non_finite_keys=non_finite,
                 flagged_frames=int(np.sum(flagged)),
                 largest_contact_force_bw=float(np.linalg.norm(result["grf"].sum(axis=1), axis=-1).max() / weight),
+                unflagged_over_2bw=int(np.sum(np.linalg.norm(result["grf"].sum(axis=1), axis=-1)[explained]
+                                              > 2.0 * weight)),
                 largest_residual_force_bw=float(np.linalg.norm(result["residual_root_force"][:, :3], axis=-1).max()
                                                 / weight),
                 jitter=mean_acceleration(final, fps), kinematic_jitter=mean_acceleration(kinematic, fps),
@@ -192,7 +194,8 @@ def main(argv=None) -> dict:
     out = dict(physics=args.physics, online=args.online, rows=rows, load_average=os.getloadavg()[0])
     RESULTS.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(out, indent=1))
-    lines = ["| video | exit | wall s | frames (fps) | flagged | largest contact force BW | largest residual BW | "
+    lines = ["| video | exit | wall s | frames (fps) | flagged | largest contact force BW (unflagged frames over 2 BW) | "
+             "largest residual BW | "
              "all finite | jitter m/s² (kinematic input) | feet-only jitter m/s² (input) | feet-only reprojection "
              "px, median (input) | feet-only aligned error to the detector's 3D mm, median (input) | foot slide in contact cm/frame, median (input) | feet-only GRF mean / vertical / "
              "horizontal / horizontal 9-frame % BW |",
@@ -200,7 +203,7 @@ def main(argv=None) -> dict:
     for r in rows:
         if "frames" in r:
             lines.append(f"| {r['video']} | {r['exit_code']} | {r['wall_s']:.0f} | {r['frames']} ({r['fps']:.0f}) | "
-                         f"{r['flagged_frames']} | {r['largest_contact_force_bw']:.2f} | "
+                         f"{r['flagged_frames']} | {r['largest_contact_force_bw']:.2f} ({r['unflagged_over_2bw']}) | "
                          f"{r['largest_residual_force_bw']:.2f} | {r['all_finite']} | {r['jitter']:.1f} "
                          f"({r['kinematic_jitter']:.1f}) | {r['feet_only_jitter']:.1f} "
                          f"({r['feet_only_kinematic_jitter']:.1f}) | {r['feet_only_reprojection_px']:.1f} "

@@ -296,12 +296,12 @@ def test_contact_released_when_the_kinematic_foot_leaves(body):
     away = q.copy()
     away[0] += 2 * settings.release_distance
     tracker._target_kinematics(away)
-    released = tracker._released_contacts(tracker.target_data.site_xpos[tracker.sites])
+    released = tracker._released_contacts(tracker.target_data.site_xpos[tracker.sites], [True] * 4)
     tracker._target_kinematics(q)
     # Back within release_distance while the target still slides (10 cm in a frame): still let go; then, the
     # target at rest, caught again.
-    assert all(released) and all(tracker._released_contacts(tracker.target_data.site_xpos[tracker.sites]))
-    assert not any(tracker._released_contacts(tracker.target_data.site_xpos[tracker.sites]))
+    assert all(released) and all(tracker._released_contacts(tracker.target_data.site_xpos[tracker.sites], [True] * 4))
+    assert not any(tracker._released_contacts(tracker.target_data.site_xpos[tracker.sites], [True] * 4))
     active = (True, True, True, True)
     for let_go in ([False] * 4, released):
         qdd, _, solved = tracker.pose_accelerations(np.zeros(body.nv), tracker.bias, np.zeros((4, 3)), active,
@@ -314,6 +314,30 @@ def test_contact_released_when_the_kinematic_foot_leaves(body):
             assert np.all(along_floor > 0.5)
         else:
             assert np.all(along_floor <= np.sqrt(2) * settings.slide_speed + 1e-6)
+
+
+def test_the_last_support_stays_while_the_target_stands(body):
+    """A standing target whose feet hover within contact_height (a fit's feet a few cm up) slides off where the
+    character holds them: every contact is released. With nothing else to stand on, the points stay as supports
+    that slide freely: the character neither free-falls onto the floor nor lands with a spike. A target in
+    flight (needing no support) keeps none."""
+    settings = PhysicsSettings()
+    weight = body.mass * 9.81
+    q = body.rest_qpos.copy()
+    q[2] += 0.04  # the feet 4 cm up: within contact_height, not touching the floor
+    tracker = PhysCapTracker(body, settings, FPS)
+    tracker.reset(q, np.zeros(body.nv))
+    zeros, contacts = np.zeros(body.nv), np.ones(4, bool)
+    lowest, largest = q[2], 0.0
+    for t in range(12):
+        target = q.copy()
+        target[0] += 0.02 * max(t - 2, 0)  # from the third frame on, sliding 0.5 m/s along the floor
+        frame = tracker.track(target, zeros, zeros, contacts)
+        lowest, largest = min(lowest, tracker.qpos[2]), max(largest, np.linalg.norm(frame.contact_forces.sum(0)))
+    assert any(tracker._released) and any(tracker._supporting)
+    assert q[2] - lowest < 0.01 and largest < 1.5 * weight
+    tracker.needed_support = 0.0  # a target in flight
+    assert not any(tracker._last_support([True] * 4, [True] * 4, [0.04] * 4))
 
 
 def test_a_held_contact_above_its_target_comes_down_to_it(body):
@@ -372,17 +396,15 @@ def test_floor_refiner_finds_a_tilted_floor_and_turns_gently(body):
 
 
 def test_online_physics_keeps_the_feet_on_a_refined_tilted_floor(body):
+    """The floor refined as frames arrive finds the tilted floor, and the character's soles stand on it. (On a
+    floor held at z = 0 the soles would either leave the tilted floor or hover over their own.)"""
     q, normal = _on_tilted_floor(body, 250, 2.0)  # 10 s: refits at 3, 6 and 9 s
     contacts = np.ones((250, 4), bool)
-    fixed = run_physcap(body, q, FPS, contacts, np.ones(250, bool), PhysicsSettings())
     refined = run_physcap(body, q, FPS, contacts, np.ones(250, bool), PhysicsSettings(), refine_floor=True)
-
-    def sole_heights(motion):  # above the tilted floor, over the last second
-        soles = kin.forward_kinematics(body, motion.qpos[-25:]).points[:, body.point_index(CONTACT_POINTS)]
-        return soles @ normal
-
-    assert np.abs(sole_heights(refined)).max() < 0.005
-    assert np.abs(sole_heights(fixed)).max() > 0.01  # held on z = 0, the feet leave the tilted floor
+    soles = kin.forward_kinematics(body, refined.qpos[-25:]).points[:, body.point_index(CONTACT_POINTS)]
+    assert refined.floor_plane is not None
+    assert np.degrees(np.arccos(refined.floor_plane[:3] @ normal)) < 0.5
+    assert np.abs(soles @ normal).max() < 0.005  # over the last second
 
 
 def test_resting_contacts_do_not_dip_under_the_floor_while_the_feet_roll(body):

@@ -135,6 +135,12 @@ class PhysCapTracker:
         self._previous_target_heights = np.zeros(4)  # m, its contact points' heights
         self._previous_contacts: np.ndarray | None = None  # the last frame's predicted contacts (None after a reset)
         self._released = [False, False, False, False]  # the last frame's released contacts (_released_contacts)
+        self._supporting = [False, False, False, False]  # released points kept as the last support (_last_support)
+        # body weights: the upward force the targets needed (kinematic_misfit), averaged over unexplained_time as
+        # the diagnosis averages the force they lack; and the share of a new frame's value in the average
+        self.needed_support = 1.0
+        self._support_share = 1.0 - math.exp(-1.0 / (fps * settings.unexplained_time))
+        self._weight = body.mass * -float(self.model.opt.gravity[2])  # N
         self._previous_target_xy = [[0.0, 0.0]] * 4  # m, the last frame's target contact points along the floor
         self._target_step = np.zeros(nv)
         self._pose_error, self._desired = np.zeros(nv), np.zeros(nv)  # desired_acceleration's buffers
@@ -193,6 +199,8 @@ class PhysCapTracker:
         self._previous_target_heights[:] = self.target_data.site_xpos[self.sites, 2]
         self._previous_contacts = None
         self._released = [False, False, False, False]
+        self._supporting = [False, False, False, False]
+        self.needed_support = 1.0
         self._previous_target_xy = self.target_data.site_xpos[self.sites, :2].tolist()
 
     def _target_kinematics(self, q_kin: np.ndarray) -> None:
@@ -325,36 +333,52 @@ class PhysCapTracker:
         x, exitflag = qp.solve(0)
         return x if exitflag == 1 else np.linalg.solve(qp.H, -qp.f)
 
-    def _released_contacts(self, target_sites: np.ndarray) -> list[bool]:
+    def _released_contacts(self, target_sites: np.ndarray, predicted: list[bool]) -> list[bool]:
         """Flags of the four contact points whose target (target_sites, (4, 3) m) lies more than release_distance
         along the floor from where the character holds them: the kinematic foot has gone (a wrong contact label or
         the detector swapping the feet), and holding on would drag the whole body after it. A released point stays
         released until its target moves slower than slide_speed: caught again while its target slides on, it was
-        stopped within a step and let go the next frame (docs/decisions/physics-video-jitter.md). Reads the
-        character's contact points from `_step_state`, which must have run at the current state. In Python floats
-        (numpy's cost per call outweighs the arithmetic on four points)."""
+        stopped within a step and let go the next frame (docs/decisions/physics-video-jitter.md). Sets
+        `_supporting` (_last_support). Reads the character's contact points from `_step_state`, which must have run
+        at the current state. In Python floats (numpy's cost per call outweighs the arithmetic on four points)."""
         limit = self.settings.release_distance
         if limit is None:
             return [False, False, False, False]
         slide = self.settings.slide_speed * self.substeps * self.dt  # m per frame interval
         released = []
+        character = self.data.site_xpos[self.sites].tolist()
         for j, ((aim_x, aim_y, _), (x, y, _), (last_x, last_y)) in enumerate(zip(
-                target_sites.tolist(), self.data.site_xpos[self.sites].tolist(), self._previous_target_xy,
-                strict=True)):
+                target_sites.tolist(), character, self._previous_target_xy, strict=True)):
             sliding = math.sqrt((aim_x - last_x) * (aim_x - last_x) + (aim_y - last_y) * (aim_y - last_y)) > slide
             released.append(math.sqrt((aim_x - x) * (aim_x - x) + (aim_y - y) * (aim_y - y)) > limit
                             or (self._released[j] and sliding))
         self._released = released
         self._previous_target_xy = target_sites[:, :2].tolist()
+        self._supporting = self._last_support(released, predicted, [point[2] for point in character])
         return released
 
-    def release_contacts(self, kinematic_points: np.ndarray) -> tuple[list[bool], np.ndarray]:
+    def _last_support(self, released: list[bool], predicted: list[bool], heights: list[float]) -> list[bool]:
+        """Flags of released points (released, predicted, heights: the character's points, m; lists of four)
+        that stay active as supports sliding freely, because the release took away every support that eq. (5)
+        grants (predicted, within contact_height) while the target still needs at least half its weight from the
+        floor (needed_support; a target in flight needs none). Released without a support, a body standing on a
+        toe the target rolls off free-fell until its swing foot touched down, then landed at up to 8 body weights
+        (docs/decisions/physics-online-support.md); holding the point within slide_speed instead dragged it."""
+        height = self.settings.contact_height
+        near = [predicted[j] and heights[j] < height for j in range(4)]
+        if self.needed_support < 0.5 or any(near[j] and not released[j] for j in range(4)):
+            return [False, False, False, False]
+        return [near[j] and released[j] for j in range(4)]
+
+    def release_contacts(self, kinematic_points: np.ndarray,
+                         predicted: np.ndarray) -> tuple[list[bool], np.ndarray]:
         """The frame's released contacts (_released_contacts) judged before `track` (which then takes them),
         against kinematic_points (4, 3) m: for a target whose feet the stream plants (planting.FootPlanter), where
-        the planted target's points lie. Returns them and the character's contact points (4, 3) m at the current
-        state."""
+        the planted target's points lie; predicted: the frame's predicted contacts (4,). Returns them and the
+        character's contact points (4, 3) m at the current state."""
         mujoco.mj_kinematics(self.model, self.data)
-        return self._released_contacts(kinematic_points), self.data.site_xpos[self.sites].copy()
+        return (self._released_contacts(kinematic_points, predicted.tolist()),
+                self.data.site_xpos[self.sites].copy())
 
     # ---- one video frame ----------------------------------------------------------------------------------
     def track(self, q_kin: np.ndarray, qd_kin: np.ndarray, qdd_kin: np.ndarray,
@@ -388,11 +412,12 @@ class PhysCapTracker:
             mujoco.mj_integratePos(self.model, target, self._target_step, (i + 1) / n)
             heights, touching = self._step_state()
             if released is None:  # judged once per frame against the frame's target (per step it split walks)
-                released = self._released_contacts(target_sites)
+                released = self._released_contacts(target_sites, later_contacts)
+            supporting = self._supporting
             predicted = earlier_contacts if (i + 0.5) / n < 0.5 else later_contacts
-            # eq. (5): predicted, within contact_height and not released; or touching the floor
-            flags = tuple([(predicted[j] and heights[j] < contact_height and not released[j]) or (touch and touching[j])
-                           for j in range(4)])
+            # eq. (5): predicted, within contact_height and not released (or the last support); or touching the floor
+            flags = tuple([(predicted[j] and heights[j] < contact_height and (not released[j] or supporting[j]))
+                           or (touch and touching[j]) for j in range(4)])
             qdd_des = self._desired_acceleration(target, feedforward, target_damping)
             forces, grf_ok, _ = self.ground_reaction_forces(qdd_des, flags, False)
             fraction = (i + 1) / n
@@ -464,4 +489,6 @@ class PhysCapTracker:
         self._rigid_body_terms(d, collide=False)
         contact_height = self.settings.contact_height
         flags = tuple([height < contact_height for height in d.site_xpos[self.sites, 2].tolist()])
-        return cast(np.ndarray, self.ground_reaction_forces(qdd_kin, flags, True)[2])
+        wrench = self._mass_root @ qdd_kin + self._bias_root
+        self.needed_support += self._support_share * (float(wrench[2]) / self._weight - self.needed_support)
+        return cast(np.ndarray, self.forces_for_root_wrench(wrench, flags, True)[2])

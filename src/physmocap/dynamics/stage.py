@@ -192,7 +192,7 @@ class PhysicsStream:
         correction tipped a body leaning on its toes over backwards."""
         assert self.planter is not None
         fitted = self.planter.contact_points(q_kin)
-        released, character = self.tracker.release_contacts(self.planter.shifted(fitted))
+        released, character = self.tracker.release_contacts(self.planter.shifted(fitted), contacts)
         correcting = self.balance.tilt > 0.0 or self.balance.straighten > 0.0
         held = [bool(self._held[j] and contacts[j]) and not released[j] and not correcting for j in range(4)]
         return self.planter.plant(q_kin, fitted, character, held), released
