@@ -772,8 +772,9 @@ def markdown(out: dict) -> str:
                 f"| {s['skate_percent']:.1f} | {s['floating_percent']:.1f} | {s['penetration_percent']:.2f} | "
                 f"{s['jitter']:.2f} | {s['e_smooth_mm']:.2f} | {s['grf_mean_percent_bw']:.1f} | "
                 f"{s['grf_mean_percent_bw_walking']:.1f} | {s['grf_max_percent_bw']:.0f} | "
-                f"{s['grf_ballistic_percent_bw']:.1f} | {s['grf_vertical_percent_bw']:.1f} / "
-                f"{s['grf_horizontal_percent_bw']:.1f} / {s['grf_horizontal_9_frames_percent_bw']:.1f} | "
+                f"{s['grf_ballistic_percent_bw']:.1f} | {s.get('grf_vertical_percent_bw', np.nan):.1f} / "
+                f"{s.get('grf_horizontal_percent_bw', np.nan):.1f} / "
+                f"{s.get('grf_horizontal_9_frames_percent_bw', np.nan):.1f} | "
                 f"{s['flagged_percent']:.2f} | {s['seconds_per_second']:.2f} |")
         lines.append("")
     return "\n".join(lines)
