@@ -331,7 +331,8 @@ def part_online(clips, seeds, physics_settings=None) -> dict:
                                  kinematic_jitter=metrics.mean_acceleration(joints_kin, fps),
                                  flagged_percent=100 * float(physics.unexplained.mean()),
                                  root_relative_mm=scores["mpjpe_root_mm"], skate_percent=scores["skate_percent"],
-                                 floating_percent=scores["floating_percent"],
+                                 floating_percent=scores["floating_percent"], global_root_mm=scores["global_root_mm"],
+                                 kinematic_global_root_mm=kinematic_scores["global_root_mm"],
                                  kinematic_root_relative_mm=kinematic_scores["mpjpe_root_mm"],
                                  kinematic_skate_percent=kinematic_scores["skate_percent"],
                                  kinematic_floating_percent=kinematic_scores["floating_percent"]))
@@ -353,7 +354,7 @@ def part_online(clips, seeds, physics_settings=None) -> dict:
             largest_force_bw=float(max(r["largest_force_bw"] for r in sel)),
             **{key: float(np.mean([r[key] for r in sel])) for key in (
                 "root_relative_mm", "skate_percent", "kinematic_root_relative_mm", "kinematic_skate_percent",
-                "floating_percent", "kinematic_floating_percent")})
+                "floating_percent", "kinematic_floating_percent", "global_root_mm", "kinematic_global_root_mm")})
     return dict(rows=[{k: v for k, v in r.items() if "slides" not in k} for r in rows], summary=summary)
 
 
