@@ -354,7 +354,8 @@ class PhysCapTracker:
                             or (self._released[j] and sliding))
         self._released = released
         self._previous_target_xy = target_sites[:, :2].tolist()
-        self._supporting = self._last_support(released, predicted, [point[2] for point in character])
+        self._supporting = (self._last_support(released, predicted, [point[2] for point in character])
+                            if True in released else [False, False, False, False])
         return released
 
     def _last_support(self, released: list[bool], predicted: list[bool], heights: list[float]) -> list[bool]:
