@@ -388,9 +388,7 @@ class PhysCapTracker:
         frame's released contacts from release_contacts (None: judged here against the target's points)."""
         s, n = self.settings, self.substeps
         forces_sum, residual_sum, root_forces_sum = np.zeros((4, 3)), np.zeros(6), np.zeros(6)
-        failures, diverged = 0, False
-        records = []
-        target = np.empty_like(q_kin)
+        failures, diverged, records, target = 0, False, [], np.empty_like(q_kin)
         # The steps advance the character through the frame: step i aims at the pose interpolated (on the
         # manifold) between the last frame's target and this one at the step's end time, so that the last step
         # lands on frame t whatever the number of steps.

@@ -291,8 +291,7 @@ def retarget_result(result_path: str | os.PathLike, character_path: str | os.Pat
     rig = read_rig(character_path, config.units_to_metres)
     source_body = body_from_result(source)
     character = build_character(rig, config, float(source["body_mass"]), float(source["body_height"]))
-    body = character.body
-    fps = float(source["fps"])
+    body, fps = character.body, float(source["fps"])
     valid = np.asarray(source["valid"], bool)
     # No foot is held through a frame without a person (its labels come from interpolated keypoints).
     contacts = np.asarray(source["contacts"], bool) & valid[:, None]
