@@ -30,6 +30,7 @@ MAX_ACCELERATION = 1e4  # m/s^2 or rad/s^2, about 50 times the fastest human lim
 MAX_DESIRED_ACCELERATION = 2e3  # m/s^2 or rad/s^2, the PD targets' bound: about ten times the fastest human limb
 # motions. A fit that flips a wrist back and forth between frames (60 rad/s each way, seen on real video) would
 # otherwise ask the stiff PD for 1e4 and trip the divergence guard.
+STANDING_SUPPORT = 0.5  # body weights: a target needing at least this from the floor stands (1) rather than flies (0)
 
 
 def stability_limit(settings: PhysicsSettings) -> float:
@@ -367,7 +368,7 @@ class PhysCapTracker:
         (docs/decisions/physics-online-support.md); holding the point within slide_speed instead dragged it."""
         height = self.settings.contact_height
         near = [predicted[j] and heights[j] < height for j in range(4)]
-        if self.needed_support < 0.5 or any(near[j] and not released[j] for j in range(4)):
+        if self.needed_support < STANDING_SUPPORT or any(near[j] and not released[j] for j in range(4)):
             return [False, False, False, False]
         return [near[j] and released[j] for j in range(4)]
 
@@ -481,8 +482,8 @@ class PhysCapTracker:
         within contact_height of the floor can give (eq. 6-7 solved for the kinematic motion), whatever the
         predicted contacts: zero in flight that follows gravity and on feet that carry the body, about the
         body's weight where hands or a raised floor carry it. A missed contact label is the tracker's problem, not
-        the contact model's (the stray check catches what it costs). Overwrites the step buffers (recomputed at
-        the next step)."""
+        the contact model's (the stray check catches what it costs). Also averages the upward force the motion
+        needs into needed_support. Overwrites the step buffers (recomputed at the next step)."""
         d = self.target_data
         d.qpos[:], d.qvel[:] = q_kin, qd_kin
         self._rigid_body_terms(d, collide=False)
