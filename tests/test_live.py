@@ -13,13 +13,13 @@ pytestmark = pytest.mark.slow  # live capture in real time
 
 
 def test_streaming_capture_equals_the_causal_fit_of_the_same_detections():
-    settings = Settings(online=True)
+    settings = Settings(online=True).replace("body", calibration_frames=8)  # a warm-up that ends within 45 frames
     poses = []
     report = stream_capture(str(DEMO_VIDEO), settings, max_frames=45, on_pose=lambda i, q, details: poses.append(i))
     assert report.observations.num_frames == 45
     assert sorted(poses) == list(range(45))
     # Warm-up holds back the calibration frames; afterwards every frame is delivered in order.
-    assert poses[report.warmup_frames:] == list(range(report.warmup_frames, 45))
+    assert report.warmup_frames < 45 and poses[report.warmup_frames:] == list(range(report.warmup_frames, 45))
     batch = fit_motion(report.observations, settings)
     assert np.allclose(batch.qpos, report.motion.qpos, atol=1e-9)
     assert report.frames_per_second > 0 and np.isfinite(report.latency_median_ms)
@@ -142,6 +142,9 @@ def test_live_says_where_it_saves_or_that_nothing_is_saved(replayed_detector, ca
     assert main(["live", str(DEMO_VIDEO), "--max-frames", "12", "--as-fast-as-possible", "--physics", "none"]) == 0
     out = capsys.readouterr()
     assert "nothing will be saved" in out.err and "12 frames arrived" in out.out and "0 dropped" in out.out
+    # 12 frames end within the 3 s calibration warm-up: no latency after it to report (it once said "nan ms,
+    # after the 1-frame warm-up")
+    assert "ended within the calibration warm-up (12 frames)" in out.out and "nan" not in out.out
     assert main(["live", str(DEMO_VIDEO), "--max-frames", "12", "--as-fast-as-possible", "--physics", "none",
                  "-o", str(tmp_path / "run")]) == 0
     assert f"saving to {tmp_path / 'run'}/" in capsys.readouterr().err

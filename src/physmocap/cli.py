@@ -549,11 +549,14 @@ def cmd_live(args) -> int:
 
 def _print_live_report(report: LiveReport) -> None:
     """The frames, the latency and the time per frame of each stage of a live capture, on stdout."""
+    latency = (f"true latency from arrival to pose: median {report.latency_median_ms:.0f} ms, 95th percentile "
+               f"{report.latency_p95_ms:.0f} ms (after the {report.warmup_frames}-frame calibration warm-up)"
+               if math.isfinite(report.latency_median_ms) else
+               f"no latency measured: the stream ended within the calibration warm-up ({report.warmup_frames} "
+               f"frames), for which every frame waits")
     print(f"live: {report.frames_arrived} frames arrived at {report.observations.fps:.1f} fps, "
           f"{report.frames_processed} processed ({report.frames_per_second:.1f} per second), "
-          f"{report.frames_dropped} dropped; true latency from arrival to pose: median "
-          f"{report.latency_median_ms:.0f} ms, 95th percentile {report.latency_p95_ms:.0f} ms "
-          f"(after the {report.warmup_frames}-frame calibration warm-up)")
+          f"{report.frames_dropped} dropped; {latency}")
     print(f"per frame: detect {report.detect_ms_per_frame:.1f} ms, fit {report.fit_ms_per_frame:.1f} ms, "
           f"contacts and physics {report.contacts_physics_ms_per_frame:.1f} ms")
 

@@ -56,7 +56,8 @@ class LiveReport:
     """What a live run did. Latency is true latency: from a frame's arrival (read from the camera; for a file
     played at its frame rate its scheduled time, start + index / fps) to its final pose being ready (after physics
     when it runs), over the processed frames after the calibration warm-up (the first `warmup_frames`, which wait
-    for it). Dropped frames (drop policy) are in the result as invalid frames with reason DROPPED_REASON."""
+    for it; a stream that ends within it has no latency to report: NaN). Dropped frames (drop policy) are in the
+    result as invalid frames with reason DROPPED_REASON."""
 
     observations: Observations
     motion: KinematicMotion
@@ -244,7 +245,8 @@ def _live_report(source: str, loop: _FitLoop, detector: _DetectionThread, fps: f
     physics = after.physics_motion(T)
     if physics is not None:  # both on the floor the physics refined, which becomes z = 0
         motion, physics = onto_refined_floor(motion, physics)
-    warmup = min(T, int(np.argmax(np.cumsum(obs.valid) >= fitter.warmup)) + 1) if obs.valid.any() else T
+    calibrated = np.cumsum(obs.valid) >= fitter.warmup  # else the stream ended within the warm-up: all waited
+    warmup = int(np.argmax(calibrated)) + 1 if calibrated.any() else T
     steady = np.array([after.latency[i] for i in range(warmup, T) if i in after.latency]) * 1000
     contacts, stationary = after.contact_flags(T)
     median, p95 = (float(np.median(steady)), float(np.percentile(steady, 95))) if len(steady) else (np.nan, np.nan)
