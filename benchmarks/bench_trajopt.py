@@ -260,7 +260,8 @@ def flights(fps_values: list[float]) -> list[dict]:
     centred-network flags, short runs merged as run_trajopt merges them) on FLIGHT_CLIPS, seed 0: its frames, the
     support its input COM needs (phases.flight_support, body weights), how far its lowest point strays, and the
     share of its frames in which the true motion has a point in contact by the true labels (1: a false flight)."""
-    from physmocap.trajopt.phases import clean_flags, flight_support
+    from physmocap.contacts.flights import flight_support
+    from physmocap.trajopt.phases import clean_flags
     from physmocap.trajopt.reduced import reduced_motion
 
     rows = []

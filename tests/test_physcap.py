@@ -340,6 +340,26 @@ def test_the_last_support_stays_while_the_target_stands(body):
     assert not any(tracker._last_support([True] * 4, [True] * 4, [0.04] * 4))
 
 
+def test_offline_label_flights_that_the_body_does_not_fall_through_are_held(body):
+    """B.4's labels can leave a short whole-body flight while the motion stands (its feet hovering a few cm):
+    offline, a point that stays put holds the body through it, so the character neither free-falls nor lands
+    hard. A real jump keeps its flight."""
+    from physmocap.dynamics.stage import held_label_flights
+
+    weight = body.mass * G
+    q = standing(body, 30)
+    q[:, 2] += 0.03  # the feet 3 cm up: within contact_height, touching nothing
+    contacts = np.ones((30, 4), bool)
+    contacts[12:16] = False
+    assert held_label_flights(body, q, FPS, contacts)[12:16].any(axis=1).all()
+    motion = run_physcap(body, q, FPS, contacts, np.ones(30, bool), PhysicsSettings(), refined_input=True)
+    assert motion.qpos[12:20, 2].min() > motion.qpos[11, 2] - 0.005  # no fall through the labels' flight
+    assert np.linalg.norm(motion.grf.sum(axis=1), axis=-1).max() < 1.5 * weight
+    q, in_air = jump(body)
+    labels = np.repeat(~in_air[:, None], 4, axis=1)
+    assert np.array_equal(held_label_flights(body, q, FPS, labels), labels)
+
+
 def test_a_held_contact_above_its_target_comes_down_to_it(body):
     """The floor only stops a contact point from sinking; a point in use that hovers above its kinematic target
     must also come down to it (within contact_settle_time), or a foot held in the air takes the contact forces

@@ -18,6 +18,7 @@ from conftest import DEMO_VIDEO
 from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
 from physmocap.config import TrajoptSettings
+from physmocap.contacts.flights import flight_support, support_held_flights
 from physmocap.errors import InputError
 from physmocap.trajopt import stage
 from physmocap.trajopt.formulation import (
@@ -35,10 +36,8 @@ from physmocap.trajopt.phases import (
     clean_flags,
     contact_phases,
     flags_from_phases,
-    flight_support,
     segment_count,
     split_drifting,
-    support_held_flights,
 )
 from physmocap.trajopt.problem import (
     STALL_ITERATIONS,

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..body.model import CONTACT_POINTS, BodyModel
 from ..config import PhysicsSettings
+from ..contacts.flights import STANDING_SUPPORT
 from .qp import DenseQP
 
 INF = 1e20  # daqp's "no bound"
@@ -30,7 +31,6 @@ MAX_ACCELERATION = 1e4  # m/s^2 or rad/s^2, about 50 times the fastest human lim
 MAX_DESIRED_ACCELERATION = 2e3  # m/s^2 or rad/s^2, the PD targets' bound: about ten times the fastest human limb
 # motions. A fit that flips a wrist back and forth between frames (60 rad/s each way, seen on real video) would
 # otherwise ask the stiff PD for 1e4 and trip the divergence guard.
-STANDING_SUPPORT = 0.5  # body weights: a target needing at least this from the floor stands (1) rather than flies (0)
 
 
 def stability_limit(settings: PhysicsSettings) -> float:

@@ -13,9 +13,10 @@ import numpy as np
 
 from ..body import kinematics as kin
 from ..body.kinematics import rigid_transform_qpos
-from ..body.model import BodyModel
+from ..body.model import CONTACT_POINTS, BodyModel
 from ..camera import floor_in_camera
 from ..config import PhysicsSettings
+from ..contacts.flights import STANDING_SUPPORT, runs, support_held_flights
 from ..kinematics.stage import KinematicMotion
 from .balance import BalanceCorrector
 from .floor import FloorRefiner, floor_frame
@@ -363,17 +364,21 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
                 valid: np.ndarray | None = None, refined_input: bool = False,
                 resting_labelled: bool = False) -> PhysicsMotion:
     """Track the kinematic motion (T, nq) with the physics character; contacts (T, 4) and stationary (T,)
-    come from the contact stage. Causal: frame t uses frames up to t only. refine_floor: see PhysicsStream.
+    come from the contact stage. Causal: frame t uses frames up to t only (but refined_input's held label flights,
+    judged on the whole clip). refine_floor: see PhysicsStream.
     valid: (T,) frames with a detected person (default all); the character starts at the first, and the frames
     before it keep the kinematic pose without forces (a whole-clip fit extrapolates them without data, and a
     character started there can begin metres off); frames after it without a person are tracked through but carry
     no contacts, contact forces or residual (their flags stay). refined_input: the kinematics come from Rempe's B.4
     refinement (offline, PhysicsSettings.refine_offline), whose feet already rest on the floor: targets are not
-    lifted or flattened (target_lift_time, flatten_feet are for fits whose feet sink). resting_labelled: the contacts
+    lifted or flattened (target_lift_time, flatten_feet are for fits whose feet sink), and flights of its
+    labels that the motion does not fall through are held (held_label_flights). resting_labelled: the contacts
     already hold the points resting on the floor (a capture's contacts in use, which retargeting carries over), so
     none are added (rest_height; B.4's refinement implies it)."""
     start = time.perf_counter()
     T = len(qpos_kin)
+    if refined_input:
+        contacts = held_label_flights(body, qpos_kin, fps, contacts, valid)
     stream = PhysicsStream(body, settings, fps, refine_floor, refined_input, resting_labelled)
     unexplained = np.zeros(T, bool)
     out = PhysicsMotion(qpos_kin.copy(), np.zeros((T, 4, 3)), np.zeros((T, 6)), np.zeros((T, 4), bool),
@@ -391,6 +396,26 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     out.seconds = time.perf_counter() - start
     out.floor_plane = stream.floor_plane
     return out
+
+
+def held_label_flights(body: BodyModel, qpos: np.ndarray, fps: float, contacts: np.ndarray,
+                       valid: np.ndarray | None = None) -> np.ndarray:
+    """(T, 4) contacts in which each whole-body flight of the labels that the motion's (T, nq) centre of mass does
+    not fall through is held up by a point that stays within its foot's length (contacts.flights, the rule trajopt
+    applies to the same B.4 labels), within each run of valid frames (T,) (None: all). B.4 leaves such flights
+    where the kinematic feet hover over the floor: on one video 0.1 s needing 0.7 body weights, through which the
+    character free-fell and landed at 4-5 body weights. A flight that no point can hold is left to the diagnosis."""
+    mask = np.ones(len(qpos), bool) if valid is None else np.asarray(valid, bool)
+    flags = np.asarray(contacts, bool) & mask[:, None]
+    pose = kin.forward_kinematics(body, qpos)
+    com, points = kin.center_of_mass(body, pose), pose.points[:, body.point_index(CONTACT_POINTS)]
+    times, foot = np.arange(len(qpos)) / fps, body.lengths.heel_back + body.lengths.toe_front
+    for first, length in zip(*runs(mask), strict=True):
+        if mask[first]:
+            end = first + length
+            flags[first:end] = support_held_flights(flags[first:end], com[first:end], points[first:end],
+                                                    times[first:end], GRAVITY, STANDING_SUPPORT, foot)[0]
+    return flags
 
 
 def onto_refined_floor(motion: KinematicMotion, physics: PhysicsMotion) -> tuple[KinematicMotion, PhysicsMotion]:

@@ -107,7 +107,7 @@ def false_flights(body, qpos: np.ndarray, fps: float, contacts: np.ndarray, vali
     """(T, 4) contact flags to add where the labels have every point in the air but the kinematic COM does not
     fall freely: the parabola fitted to the COM height over such a run and its take-off and landing frames
     curves down by less than half of gravity (ours: a contact network's false flight makes the optimiser launch
-    the body on a ballistic arc it never flew; the measure of trajopt.phases.flight_support, whose curvature
+    the body on a ballistic arc it never flew; the measure of contacts.flights.flight_support, whose curvature
     over all the frames reads a short run's flight where the velocities at its two ends, smoothed by the fit,
     did not: docs/decisions/refine-short-runs.md). Runs of fewer than 3 frames with their neighbours are left
     alone. The points within `near_floor` of the floor (z = 0) in those frames are marked in contact; farther

@@ -8,6 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..contacts.flights import runs
+
 
 @dataclass(frozen=True)
 class Phase:
@@ -88,17 +90,6 @@ def split_drifting(flags: np.ndarray, points: np.ndarray, limit: float, gap: int
     return flags
 
 
-def runs(flags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Start indices and lengths of the runs of equal values in a (T,) array."""
-    flags = np.asarray(flags)
-    if len(flags) == 0:
-        return np.zeros(0, int), np.zeros(0, int)
-    change = np.flatnonzero(flags[1:] != flags[:-1]) + 1
-    starts = np.concatenate([[0], change])
-    ends = np.concatenate([change, [len(flags)]])
-    return starts, ends - starts
-
-
 def contact_phases(flags: np.ndarray, times: np.ndarray) -> list[Phase]:
     """(T,) bool flags of one contact point at frame times (T,) seconds -> its phases, in time order."""
     starts, lengths = runs(flags)
@@ -135,69 +126,3 @@ def segment_count(duration: float, minimum: int, per_seconds: float, longest: fl
     if np.isfinite(longest) and longest > 0:
         count = max(count, int(np.ceil(duration / longest - 1e-9)))
     return count
-
-
-def flight_support(com_height: np.ndarray, times: np.ndarray, start: int, stop: int, gravity: float) -> float:
-    """The mean vertical force, in body weights, that a COM height path (T,) m at `times` (T,) s needs over the
-    flight of frames [start, stop): 1 + z''/g, z'' the curvature of the parabola fitted to the flight and the two
-    frames around it (its take-off and landing). A free fall needs 0; a body held up, 1. nan for fewer than 3
-    frames."""
-    lo, hi = max(start - 1, 0), min(stop + 1, len(com_height))
-    if hi - lo < 3:
-        return float("nan")
-    t = times[lo:hi] - times[lo]
-    return 1.0 + 2.0 * float(np.polyfit(t, com_height[lo:hi], 2)[0]) / gravity
-
-
-def _bridge(flags: np.ndarray, a: int, b: int) -> tuple[int, int]:
-    """[a, b) widened to the point's own contacts (flags (T,)) before and after when they resume within the
-    flight's length (b - a): a hand-over from one point to another with no frame of both would again leave the
-    body a moment without force (each force fades to zero where its phase meets a flight)."""
-    n = b - a
-    before = np.flatnonzero(flags[max(0, a - n):a])
-    after = np.flatnonzero(flags[b:b + n])
-    return (max(0, a - n) + int(before[-1]) + 1 if len(before) else a), (b + int(after[0]) if len(after) else b)
-
-
-def support_held_flights(flags: np.ndarray, com: np.ndarray, points: np.ndarray, times: np.ndarray,
-                         gravity: float, max_support: float,
-                         drift: np.ndarray | float = np.inf) -> tuple[np.ndarray, list[tuple], list[tuple]]:
-    """(T, P) contact flags in which every whole-body flight (no point in contact; one at the clip's first or
-    last frame too, judged by its own frames) that the input motion does not fall through is given back a
-    support: a flight whose COM (T, 3) needs more than `max_support` body weights (`flight_support`) is the
-    labels' error (the body is held up), and physics would have to launch and land it with forces the motion
-    never shows. The support is the point, of those in contact on the frame before or after the flight, nearest
-    below the COM on average (points (T, P, 3); a support far to one side would turn the body) whose input stays
-    within `drift` m (a number, or one per point (P,)) of its median position along the floor over the flight (a
-    held contact does not travel; 0: no limit);
-    its contact continues through the flight. Returns the flags, (start, stop, point, support) of each
-    relabelled flight, [start, stop) the frames put in contact, and (start, stop, support) of each flight that
-    no point could hold up (every candidate travels): the contact model cannot explain it."""
-    flags = np.asarray(flags, bool).copy()
-    changed, unsupported = [], []
-    starts, lengths = runs(flags.any(axis=1))
-    none = np.zeros(flags.shape[1], bool)
-    for s, n in zip(starts, lengths, strict=True):
-        if flags[s].any():
-            continue
-        # At either end of the clip only the take-off or the landing is in it: the flight's own frames still
-        # show whether the COM falls (nan, left alone, for fewer than 3 frames in all).
-        support = flight_support(com[:, 2], times, int(s), int(s + n), gravity)
-        if not support > max_support:
-            continue
-        candidates = (flags[s - 1] if s > 0 else none) | (flags[s + n] if s + n < len(flags) else none)
-        if not candidates.any():
-            continue
-        reach = np.linalg.norm(points[s:s + n, :, :2] - com[s:s + n, None, :2], axis=-1).mean(axis=0)
-        for point in np.argsort(np.where(candidates, reach, np.inf))[:int(candidates.sum())]:
-            a, b = _bridge(flags[:, point], int(s), int(s + n))
-            p = points[a:b, point, :2]
-            limit = np.broadcast_to(drift, (flags.shape[1],))[point]
-            if limit > 0 and np.linalg.norm(p - np.median(p, axis=0), axis=1).max() > limit:
-                continue
-            flags[a:b, point] = True
-            changed.append((a, b, int(point), support))
-            break
-        else:
-            unsupported.append((int(s), int(s + n), support))
-    return flags, changed, unsupported

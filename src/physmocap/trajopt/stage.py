@@ -32,11 +32,12 @@ import numpy as np
 
 from ..body.model import CONTACT_POINTS, BodyModel
 from ..config import TrajoptSettings
+from ..contacts.flights import STANDING_SUPPORT, support_held_flights
 from ..cores import may_use_two_cores, usable_cores
 from ..motion import frame_ranges
 from .formulation import Window, WindowStart
 from .ik import ik_targets, solve_ik
-from .phases import clean_flags, contact_phases, split_drifting, support_held_flights
+from .phases import clean_flags, contact_phases, split_drifting
 from .reduced import boundary_velocity, reduced_motion
 from .solve import StageReport, WindowResult, solve_window
 
@@ -47,10 +48,6 @@ log = logging.getLogger("physmocap")
 # physics could only be met far from the observations, typically because of wrong contact labels (ours).
 DEPARTURE_COM, DEPARTURE_FEET = 0.10, 0.15  # m
 MIN_FRAMES = 3  # a run of valid frames shorter than this keeps the kinematic motion
-# A whole-body flight of the labels whose input COM needs more than this vertical force on average (body weights;
-# 0 in a free fall, 1 standing) is not a flight (phases.support_held_flights); chosen on validation clips of CMU
-# subjects 1, 2, 5, 7 (docs/decisions/trajopt-false-flights.md); 0 .. 1
-FLIGHT_MAX_SUPPORT = 0.5
 # The final motion passes from the physics' to frames kept kinematic (unexplained, not converged) and back over
 # this, as PhysCap's default physics.unexplained_blend: no jump at a flagged segment (issue 17)
 BLEND_SECONDS = 0.2  # s
@@ -323,14 +320,14 @@ def _kinematic_share(done: np.ndarray, fps: float) -> np.ndarray:
 def _support_held_flights(flags: np.ndarray, reduced, valid: np.ndarray,
                           settings: TrajoptSettings) -> tuple[np.ndarray, np.ndarray]:
     """The flags with each whole-body flight that the input's COM does not fall through given back a support
-    (phases.support_held_flights), within each run of valid frames, and (T,) bool the frames of such flights
+    (contacts.flights.support_held_flights), within each run of valid frames, and (T,) bool the frames of such flights
     that no point can hold up (each candidate strays farther than its foot's length, more than a foot turning
     about its other end: the contact model cannot explain them); each one logged."""
     flags, unheld = flags.copy(), np.zeros(len(flags), bool)
     for first, end in valid_runs(valid):
         flags[first:end], changed, unsupported = support_held_flights(
             flags[first:end], reduced.com[first:end], reduced.feet[first:end], reduced.times[first:end],
-            settings.gravity, FLIGHT_MAX_SUPPORT, np.repeat(reduced.foot_length, 2))
+            settings.gravity, STANDING_SUPPORT, np.repeat(reduced.foot_length, 2))
         for start, stop, point, support in changed:
             log.warning("trajopt: around frames %d-%d the labels give a flight, but the motion's centre of mass needs "
                         "%.0f%% of body weight there: the %s is kept in contact over these frames.", first + start,
