@@ -153,6 +153,18 @@ def viewing_angle(person: np.ndarray, first: QualisysCamera, second: QualisysCam
     return float(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1.0, 1.0)))
 
 
+def floor_against_lab(camera: QualisysCamera, result: dict) -> dict:
+    """The result's floor against the lab's (the Qualisys world's z = 0, in the calibrated camera's frame): the
+    angle between the two normals, how far down each has the camera looking and its height above each floor
+    (the depth scale's error shows there), and whether the run trusted its floor."""
+    up_true, up_ours = camera.R[:, 2], result["camera_R"][:, 2]  # the floor's normal in the camera frame
+    looks_down = (float(np.degrees(np.arcsin(-up[2]))) for up in (up_true, up_ours))  # camera z: forward
+    return dict(floor_tilt_error_deg=float(np.degrees(np.arccos(np.clip(up_true @ up_ours, -1.0, 1.0)))),
+                camera_looks_down_true_deg=next(looks_down), camera_looks_down_deg=next(looks_down),
+                camera_height_true_m=float(-up_true @ camera.t), camera_height_m=float(-up_ours @ result["camera_t"]),
+                floor_trusted=bool(result["floor_trusted"]))
+
+
 def evaluate_view(view: int, cameras: list[QualisysCamera], reference: Reference, result: dict,
                   stage_seconds: dict[str, float]) -> dict:
     """All numbers of one input view; distances in mm, pixels in px, angles in degrees."""
@@ -209,6 +221,7 @@ def evaluate_view(view: int, cameras: list[QualisysCamera], reference: Reference
     for key in ("e2d_side_px", "e2d_side_sd_px", "e2d_side_vs_detections_px", "e2d_side_vs_detections_sd_px"):
         row[key] = float(np.mean([s[key] for s in sides]))
     frames_total = len(result["valid"])
+    row.update(floor_against_lab(camera, result))
     row["ms_per_frame"] = {stage: 1000 * seconds / frames_total for stage, seconds in stage_seconds.items()
                            if stage not in ("detect", "outputs")}
     row["fit_ms_per_frame"] = row["ms_per_frame"]["kinematics"]
@@ -288,6 +301,16 @@ def markdown(report: dict) -> str:
                 f"{row['mpjpe_global_mm']:.1f} | {row['root_error_mm']:.1f} | {row['root_depth_bias_mm']:+.0f} | "
                 f"{row['limb_length_ratio']:.2f} | {row['e2d_input_px']:.1f} ({row['e2d_input_sd_px']:.1f}) | "
                 f"{row['e2d_side_px']:.1f} ({row['e2d_side_sd_px']:.1f}) | {sides} | {row['fit_ms_per_frame']:.1f} |")
+    out += ["", "## The floor against the lab's (the calibration's z = 0)", "",
+            "| method | view | floor tilt error deg | camera looks down deg (true) | camera height m (true) | "
+            "floor trusted |", "|---|---|---|---|---|---|"]
+    for name, method in methods.items():
+        for row in method["views"].values():
+            if "floor_tilt_error_deg" in row:  # rows of runs before this part kept none
+                out.append(f"| {name} | {row['camera']} | {row['floor_tilt_error_deg']:.1f} | "
+                           f"{row['camera_looks_down_deg']:.1f} ({row['camera_looks_down_true_deg']:.1f}) | "
+                           f"{row['camera_height_m']:.2f} ({row['camera_height_true_m']:.2f}) | "
+                           f"{row['floor_trusted']} |")
     ref = report["reference"]
     out += ["", "## The reference itself", "",
             f"{ref['frames']} frames; median reprojection error of a triangulated point "
