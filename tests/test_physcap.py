@@ -415,6 +415,23 @@ def test_floor_refiner_finds_a_tilted_floor_and_turns_gently(body):
     assert np.allclose(refiner.vector_to_kinematic(np.array([0.0, 0.0, 1.0])), refiner.normal)
 
 
+def test_floor_refiner_puts_the_floor_under_the_feet_not_through_them(body):
+    """A fit whose feet rest on the floor in two frames of three and 1.5 cm above it in the third (within the
+    robust fit's quadratic zone, as a fit's noise is): the refit lays the floor under each frame's lowest point
+    (their median), not through the middle of all points, 5 mm up, where the character, whose feet cannot sink,
+    would stand above its input."""
+    from physmocap.dynamics.floor import FloorRefiner
+
+    q, _ = _on_tilted_floor(body, 90, 0.0)  # a level floor, the feet winding over 2 x 2 m
+    q[1::3, 2] += 0.015
+    q[:, 2] += np.random.default_rng(0).normal(0.0, 0.001, len(q))  # a fit's millimetre of noise
+    refiner = FloorRefiner(body, FPS, refit_interval=1.0, tilt_rate=1.0, lift_rate=1.0, first_refit=1.0)
+    for pose in q:
+        refiner.push(pose, np.ones(4, bool))
+    points = kin.forward_kinematics(body, q[::3]).points[:, body.point_index(CONTACT_POINTS)]  # on the floor
+    assert abs(np.median(points @ refiner.fitted_normal + refiner.fitted_offset)) < 0.002  # through them: 5 mm
+
+
 def test_online_physics_keeps_the_feet_on_a_refined_tilted_floor(body):
     """The floor refined as frames arrive finds the tilted floor, and the character's soles stand on it. (On a
     floor held at z = 0 the soles would either leave the tilted floor or hover over their own.)"""

@@ -53,6 +53,7 @@ class FloorRefiner:
         self.normal, self.offset = UP.copy(), 0.0  # the current estimate
         self.fitted_normal, self.fitted_offset = UP.copy(), 0.0  # the latest fit, approached at the rates above
         self._points = np.empty((MAX_POINTS, 3))
+        self._point_frames = np.empty(MAX_POINTS, int)  # the frame each point came from
         self._count = self._frames = 0
         self._previous_contacts = np.zeros(len(CONTACT_POINTS), bool)
         self.rotation, self.shift = np.eye(3), np.zeros(3)  # kinematic world -> physics frame: x' = R x + shift
@@ -70,17 +71,28 @@ class FloorRefiner:
             mujoco.mj_kinematics(self.model, self.data)
             points = self.data.site_xpos[self.sites[resting]]
             if self._count + len(points) > MAX_POINTS:
-                kept = self._points[:self._count:2]
+                kept, kept_frames = self._points[:self._count:2], self._point_frames[:self._count:2]
                 self._count = len(kept)
-                self._points[:self._count] = kept
+                self._points[:self._count], self._point_frames[:self._count] = kept, kept_frames
             self._points[self._count:self._count + len(points)] = points
+            self._point_frames[self._count:self._count + len(points)] = self._frames
             self._count += len(points)
         self._frames += 1
         if (self._frames >= self.first_refit and self._frames % self.refit_frames == 0
                 and self._count >= MIN_POINTS):
-            floor, _ = fit_floor(self._points[:self._count], UP, prior_weight=TILT_PRIOR)
-            self.fitted_normal, self.fitted_offset = floor.normal, floor.offset
+            self._refit()
         self._step()
+
+    def _refit(self) -> None:
+        """The latest fit: the tilt of a robust plane through every contact point kept, its height under the feet,
+        the median over frames of each frame's lowest point lying on it. The character's feet cannot sink, so a
+        floor through the middle of a fit's contact points held the body up by their spread (10-15 mm on real
+        videos, against the image; docs/decisions/physics-online-support.md)."""
+        points, frames = self._points[:self._count], self._point_frames[:self._count]
+        floor, _ = fit_floor(points, UP, prior_weight=TILT_PRIOR)
+        first_of_frame = np.flatnonzero(np.diff(frames, prepend=-1))  # kept in the order they came
+        lowest = np.minimum.reduceat(points @ floor.normal + floor.offset, first_of_frame)
+        self.fitted_normal, self.fitted_offset = floor.normal, floor.offset - float(np.median(lowest))
 
     def _step(self) -> None:
         """Move the estimate towards the latest fit by at most max_turn and max_lift, and update the map."""
