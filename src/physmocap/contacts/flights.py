@@ -12,6 +12,7 @@ import numpy as np
 # subjects 1, 2, 5, 7 (docs/decisions/trajopt-false-flights.md); 0 .. 1
 STANDING_SUPPORT = 0.5
 
+
 def runs(flags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Start indices and lengths of the runs of equal values in a (T,) array."""
     flags = np.asarray(flags)
