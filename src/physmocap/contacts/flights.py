@@ -24,6 +24,12 @@ def runs(flags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return starts, ends - starts
 
 
+def valid_runs(valid: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) of every run of valid frames."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], valid.astype(int), [0]])))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
+
+
 def flight_support(com_height: np.ndarray, times: np.ndarray, start: int, stop: int, gravity: float) -> float:
     """The mean vertical force, in body weights, that a COM height path (T,) m at `times` (T,) s needs over the
     flight of frames [start, stop): 1 + z''/g, z'' the curvature of the parabola fitted to the flight and the two

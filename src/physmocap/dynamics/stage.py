@@ -16,7 +16,7 @@ from ..body.kinematics import rigid_transform_qpos
 from ..body.model import CONTACT_POINTS, BodyModel
 from ..camera import floor_in_camera
 from ..config import PhysicsSettings
-from ..contacts.flights import STANDING_SUPPORT, runs, support_held_flights
+from ..contacts.flights import STANDING_SUPPORT, support_held_flights, valid_runs
 from ..kinematics.stage import KinematicMotion
 from .balance import BalanceCorrector
 from .floor import FloorRefiner, floor_frame
@@ -410,11 +410,9 @@ def held_label_flights(body: BodyModel, qpos: np.ndarray, fps: float, contacts: 
     pose = kin.forward_kinematics(body, qpos)
     com, points = kin.center_of_mass(body, pose), pose.points[:, body.point_index(CONTACT_POINTS)]
     times, foot = np.arange(len(qpos)) / fps, body.lengths.heel_back + body.lengths.toe_front
-    for first, length in zip(*runs(mask), strict=True):
-        if mask[first]:
-            end = first + length
-            flags[first:end] = support_held_flights(flags[first:end], com[first:end], points[first:end],
-                                                    times[first:end], GRAVITY, STANDING_SUPPORT, foot)[0]
+    for first, end in valid_runs(mask):
+        flags[first:end] = support_held_flights(flags[first:end], com[first:end], points[first:end],
+                                                times[first:end], GRAVITY, STANDING_SUPPORT, foot)[0]
     return flags
 
 

@@ -32,7 +32,7 @@ import numpy as np
 
 from ..body.model import CONTACT_POINTS, BodyModel
 from ..config import TrajoptSettings
-from ..contacts.flights import STANDING_SUPPORT, support_held_flights
+from ..contacts.flights import STANDING_SUPPORT, support_held_flights, valid_runs
 from ..cores import may_use_two_cores, usable_cores
 from ..motion import frame_ranges
 from .formulation import Window, WindowStart
@@ -204,12 +204,6 @@ def window_ranges(frames: int, fps: float, settings: TrajoptSettings) -> list[tu
         else:
             out.append((start, min(start + stride + overlap, last), (k + 1) * stride))
     return out
-
-
-def valid_runs(valid: np.ndarray) -> list[tuple[int, int]]:
-    """[start, stop) of every run of valid frames."""
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], valid.astype(int), [0]])))
-    return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
 
 
 def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.ndarray,
