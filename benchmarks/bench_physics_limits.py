@@ -73,7 +73,7 @@ from physmocap.contacts.noise import MEDIAPIPE_NOISE  # noqa: E402
 from physmocap.contacts.predict import predict_contacts  # noqa: E402
 from physmocap.dynamics.physcap import stability_limit  # noqa: E402
 from physmocap.dynamics.stage import run_physcap  # noqa: E402
-from physmocap.evaluation import score_against_truth, to_truth_world  # noqa: E402
+from physmocap.evaluation import score_against_truth, to_truth_world, true_contact_labels  # noqa: E402
 from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
 from physmocap.kinematics.stage import fit_motion  # noqa: E402
 from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
@@ -302,12 +302,16 @@ def part_diagnosis(clips, seeds) -> dict:
     return dict(rows=rows, box=BOX)
 
 
-def contact_slide_cm(body, qpos: np.ndarray, contacts: np.ndarray) -> np.ndarray:
-    """cm: the horizontal displacement of every contact point from frame t-1 to t where it is in contact in both."""
-    points = kin.forward_kinematics(body, qpos).points[:, body.point_index(CONTACT_POINTS)]
+def held_slides_cm(points: np.ndarray, contacts: np.ndarray) -> np.ndarray:
+    """cm: the horizontal displacement of every sole point (T, 4, 3) (z up) from frame t-1 to t where it is in
+    contact (T, 4) in both."""
     step = 100 * np.linalg.norm(np.diff(points[:, :, :2], axis=0), axis=-1)
-    held = contacts[1:] & contacts[:-1]
-    return step[held]
+    return step[contacts[1:] & contacts[:-1]]
+
+
+def contact_slide_cm(body, qpos: np.ndarray, contacts: np.ndarray) -> np.ndarray:
+    """cm: `held_slides_cm` of the motion qpos (T, nq)."""
+    return held_slides_cm(kin.forward_kinematics(body, qpos).points[:, body.point_index(CONTACT_POINTS)], contacts)
 
 
 def part_online(clips, seeds, physics_settings=None) -> dict:
@@ -394,6 +398,14 @@ def part_methods(clips, seeds, methods=METHODS, walking=WALKING, overrides=None)
                 row = score_against_truth(points, motion.body.point_names, com, truth, motion.body.mass, grf,
                                           residual)
                 row.update(grf_horizontal_components(grf, motion.body.mass))
+                feet, true_contacts = motion.body.point_index(CONTACT_POINTS), true_contact_labels(truth)
+                names = [str(n) for n in truth["joint_names"]]
+                # cm per frame, the median over the case (docs/decisions/physics-planted-feet.md)
+                slides = (held_slides_cm(points[:, feet], true_contacts),
+                          held_slides_cm(truth["joints_world"][:, [names.index(n) for n in CONTACT_POINTS]],
+                                         true_contacts))
+                row.update(contact_slide_cm=float(np.median(slides[0])) if slides[0].size else float("nan"),
+                           truth_contact_slide_cm=float(np.median(slides[1])) if slides[1].size else float("nan"))
                 row.update(method=method, clip=name.split("/")[-1], seed=seed,
                            jitter=metrics.mean_acceleration(pose.points, fps),
                            flagged_percent=0.0 if flagged is None else 100 * float(np.mean(flagged)),
@@ -763,14 +775,15 @@ def markdown(out: dict) -> str:
         lines.append("")
     if "methods" in out:
         lines += ["**Offline methods**", "", "| method | root-rel. mm | Procrustes mm | global root mm | "
-                  "skate % | float % | penetr. % | jitter m/s² | e_smooth mm | GRF mean % BW | GRF mean walks % BW "
-                  "| GRF max % BW | ballistic % BW | GRF vertical / horizontal / horizontal 9-frame % BW | flagged % | "
-                  "s per s of video |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "skate % | float % | penetr. % | slide in true contact cm/frame (truth's) | jitter m/s² | e_smooth mm "
+                  "| GRF mean % BW | GRF mean walks % BW | GRF max % BW | ballistic % BW | GRF vertical / horizontal / "
+                  "horizontal 9-frame % BW | flagged % | s per s of video |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for method, s in out["methods"]["summary"].items():
             lines.append(
                 f"| {method} | {s['mpjpe_root_mm']:.1f} | {s['mpjpe_procrustes_mm']:.1f} | {s['global_root_mm']:.1f} "
                 f"| {s['skate_percent']:.1f} | {s['floating_percent']:.1f} | {s['penetration_percent']:.2f} | "
+                f"{s.get('contact_slide_cm', np.nan):.2f} ({s.get('truth_contact_slide_cm', np.nan):.2f}) | "
                 f"{s['jitter']:.2f} | {s['e_smooth_mm']:.2f} | {s['grf_mean_percent_bw']:.1f} | "
                 f"{s['grf_mean_percent_bw_walking']:.1f} | {s['grf_max_percent_bw']:.0f} | "
                 f"{s['grf_ballistic_percent_bw']:.1f} | {s.get('grf_vertical_percent_bw', np.nan):.1f} / "

@@ -1,8 +1,14 @@
-"""Planted feet for the online tracker (issue 17; docs/decisions/physics-online-feet.md): the kinematic target's
-held feet are moved onto where the character planted them, as Rempe's B.4 foot-locks the kinematics offline
-before PhysCap tracks them. A fit's foot keeps wandering during a contact; tracked as it is, the PD drags the
-planted foot after it (the contact constraint then lets it slide at slide_speed). Causal: each frame uses the
-character's state and the contacts it held up to then.
+"""Planted feet (issue 17, point 4).
+
+Online (`FootPlanter`; docs/decisions/physics-online-feet.md): the kinematic target's held feet are moved onto
+where the character planted them, as Rempe's B.4 foot-locks the kinematics offline before PhysCap tracks them. A
+fit's foot keeps wandering during a contact; tracked as it is, the PD drags the planted foot after it (the contact
+constraint then lets it slide at slide_speed). Causal: each frame uses the character's state and the contacts it
+held up to then.
+
+Offline (`plant_held_feet`; docs/decisions/physics-planted-feet.md): after the tracker, knowing the whole clip,
+each held contact point of its output is put on one spot, as Rempe's final inverse kinematics stands the body on
+the optimised contacts.
 """
 
 from __future__ import annotations
@@ -12,11 +18,19 @@ import math
 import mujoco
 import numpy as np
 
-from ..body.model import CONTACT_POINTS
+from ..body import kinematics as kin
+from ..body.ik import solve_points
+from ..body.model import CONTACT_POINTS, BodyModel
+from ..contacts.flights import valid_runs
 
 LEG_JOINTS = ("hip", "knee", "ankle")  # the joints bent to move a foot, per side
+LEG_POINTS = ("left_knee", "left_ankle", "left_heel", "left_toe", "right_knee", "right_ankle", "right_heel",
+              "right_toe")  # the points those joints move: the offline planting's goals
 DAMPING = 0.01  # m: damped least squares' lambda; a leg straight enough to be singular moves its foot along it
 FADED = 1e-4  # m: a shift below this is gone
+EASE_TIME = 0.1  # s: an offline planted point eases onto and off its spot over this (a step's touch-down)
+CONTACT_WEIGHT = 30.0  # a planted point's pull to its spot against a joint's to its simulated place (both in m)
+IK_ITERATIONS = 4  # Gauss-Newton steps of the offline planting: shifts of centimetres converge to well under a mm
 
 
 class FootPlanter:
@@ -111,3 +125,62 @@ class FootPlanter:
         weights = np.zeros(len(error))
         mujoco.mju_cholSolve(weights, normal, np.array(error))
         return jacobian.T @ weights
+
+
+def leashed_spots(points: np.ndarray, reach: float) -> np.ndarray:
+    """(n, 2) m: the spots along the floor on which one contact's points (n, 2) m are planted: the mean of a spot
+    led from the first point and one led back from the last, each staying put until its point strays farther than
+    `reach` and then dragged to that distance. A contact drifting at most `reach` stands on one spot (the middle
+    of its path); one drifting farther slides along its path less the reach (half the reach is taken off at each
+    end)."""
+    def led(path: np.ndarray) -> np.ndarray:
+        spots, spot = np.empty_like(path), path[0].copy()
+        for t, point in enumerate(path):
+            away = point - spot
+            distance = math.hypot(*away)
+            if distance > reach:
+                spot += away * (1.0 - reach / distance)
+            spots[t] = spot
+        return spots
+
+    return 0.5 * (led(points) + led(points[::-1])[::-1])
+
+
+def plant_held_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, fps: float, reach: float,
+                    frozen: np.ndarray) -> np.ndarray:
+    """(T, nq): the offline physics' motion qpos (T, nq) with each contact point held (contacts (T, 4), the
+    physics' own) moved along the floor onto its leashed spot (`leashed_spots`, reach m; its height stays the
+    simulated one, which already rests on the floor or rolls off it), easing on and off over EASE_TIME; the legs
+    bent for it (hip, knee, ankle; knees and ankles pulled to their simulated places, body/ik.py), the frames
+    `frozen` (T,) bool (no person, or handed back to the kinematics) left as they are. The tracker lets a held
+    point slip at slide_speed (eq. 9) and the output crept along the floor (docs/decisions/physics-planted-feet.md);
+    knowing the whole clip, each contact can stand still. The forces stay the simulation's."""
+    held = np.asarray(contacts, bool) & ~np.asarray(frozen, bool)[:, None]
+    feet = body.point_index(CONTACT_POINTS)
+    points = kin.forward_kinematics(body, qpos).points[:, feet]
+    shifts, blend = np.zeros_like(points), held.astype(float)
+    ease = max(1, round(EASE_TIME * fps))
+    for k in range(len(CONTACT_POINTS)):
+        for start, end in valid_runs(held[:, k]):
+            spots = leashed_spots(points[start:end, k, :2], reach)
+            shifts[start:end, k, :2] = spots - points[start:end, k, :2]
+            for d in range(1, ease + 1):  # a point eases by a share of its shift at the contact's edge
+                weight = 1.0 - d / (ease + 1)
+                for t, edge in ((start - d, start), (end - 1 + d, end - 1)):
+                    if 0 <= t < len(qpos) and not held[t, k] and weight > blend[t, k]:
+                        blend[t, k], shifts[t, k] = weight, weight * shifts[edge, k]
+    solved = blend.any(axis=1) & ~np.asarray(frozen, bool)
+    if not solved.any():
+        return np.array(qpos, dtype=float)
+    legs = body.point_index(LEG_POINTS)
+    goal = kin.forward_kinematics(body, qpos[solved]).points[:, legs]
+    columns = [LEG_POINTS.index(name) for name in CONTACT_POINTS]
+    goal[:, columns] += shifts[solved]
+    weights = np.ones(goal.shape[:2])
+    weights[:, columns] += (CONTACT_WEIGHT - 1.0) * blend[solved]
+    bounds = np.append(body.dof_address, body.nv)  # joint j's degrees of freedom: bounds[j] .. bounds[j + 1]
+    dofs = np.concatenate([np.arange(bounds[j], bounds[j + 1]) for j in
+                           (body.joint_index[f"{side}_{name}"] for side in ("left", "right") for name in LEG_JOINTS)])
+    planted = np.array(qpos, dtype=float)
+    planted[solved] = solve_points(body, qpos[solved], legs, goal, weights, feet, IK_ITERATIONS, dofs)
+    return planted

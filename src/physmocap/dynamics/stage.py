@@ -21,7 +21,7 @@ from ..kinematics.stage import KinematicMotion
 from .balance import BalanceCorrector
 from .floor import FloorRefiner, floor_frame
 from .physcap import FrameOutput, PhysCapTracker
-from .planting import FootPlanter
+from .planting import FootPlanter, plant_held_feet
 
 GRAVITY = 9.81  # m/s^2
 MAX_FLATTENING = np.radians(20.0)  # a foot tilted more than this with heel and toe predicted down is a wrong label
@@ -372,9 +372,10 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     no contacts, contact forces or residual (their flags stay). refined_input: the kinematics come from Rempe's B.4
     refinement (offline, PhysicsSettings.refine_offline), whose feet already rest on the floor: targets are not
     lifted or flattened (target_lift_time, flatten_feet are for fits whose feet sink), and flights of its
-    labels that the motion does not fall through are held (held_label_flights). resting_labelled: the contacts
-    already hold the points resting on the floor (a capture's contacts in use, which retargeting carries over), so
-    none are added (rest_height; B.4's refinement implies it)."""
+    labels that the motion does not fall through are held (held_label_flights); knowing the whole clip, the held
+    feet are then planted on their spots (planting.plant_held_feet, settings.plant_reach). resting_labelled: the
+    contacts already hold the points resting on the floor (a capture's contacts in use, which retargeting carries
+    over), so none are added (rest_height; B.4's refinement implies it)."""
     start = time.perf_counter()
     T = len(qpos_kin)
     if refined_input:
@@ -390,9 +391,10 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
             frame.contact_forces, frame.residual, frame.active, frame.qp_failures, frame.unexplained_flag)
         if progress:
             progress(t + 1, T)
-    if valid is not None:  # no person: the character is tracked through, but no contact or force is claimed
-        gone = ~np.asarray(valid, bool)
-        out.grf[gone], out.residual[gone], out.contacts[gone] = 0.0, 0.0, False
+    gone = np.zeros(T, bool) if valid is None else ~np.asarray(valid, bool)
+    out.grf[gone], out.residual[gone], out.contacts[gone] = 0.0, 0.0, False  # tracked through, nothing claimed
+    if refined_input and settings.plant_reach is not None:
+        out.qpos = plant_held_feet(body, out.qpos, out.contacts, fps, settings.plant_reach, gone | unexplained)
     out.seconds = time.perf_counter() - start
     out.floor_plane = stream.floor_plane
     return out

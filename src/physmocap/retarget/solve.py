@@ -27,14 +27,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..body import kinematics as kin
+from ..body.ik import solve_points
 from ..body.model import CONTACT_POINTS, JOINT_NAMES, BodyModel
 
 POSE_WEIGHT = 1.0  # each joint's pull towards the scaled source pose (residual in metres)
 CONTACT_WEIGHT = 30.0  # a contact point's pull to its planted spot; much stronger than the pose, so feet stay put
-FLOOR_WEIGHT = 1000.0  # a point below the floor, pushed up: a wall, so a contact held off its spot never sinks
 IK_ITERATIONS = 12
-STEP_TOLERANCE = 1e-6  # stop once no frame's Gauss-Newton step exceeds this (metres or radians)
-IK_DAMPING = 1e-4  # Levenberg-Marquardt damping relative to the normal matrix's mean diagonal
 SAME_FOOT = (1, 0, 3, 2)  # the other contact point of each contact point's foot (CONTACT_POINTS' order)
 STEP_ADJUSTMENT = 0.2  # leg lengths a footstep may land nearer the source's own footprint (0 ..; 0: never)
 BLEND_FRAMES = 3  # a contact point eases between its planted spot and its free target over this many frames
@@ -180,41 +178,7 @@ def solve_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray,
     feet = body.point_index(CONTACT_POINTS)
     contact_columns = np.array([list(JOINT_NAMES).index(n) for n in CONTACT_POINTS])
     qpos, goal, weights, spots = _ik_goals(body, qpos, contacts, joints, feet, contact_columns)
-    tab = kin.tables(body)
-    hinge_q = tab.qadr[tab.hinge_bodies]
-    limits = np.array([body.bodies[b].limit for b in tab.hinge_bodies])
-    q = qpos.copy()
-    q[:, hinge_q] = np.clip(q[:, hinge_q], limits[:, 0], limits[:, 1])
-    point_ids = np.concatenate([joints, feet])
-    # The wall's active set can make a frame alternate between two poses (one through the floor) instead of
-    # settling: each frame keeps its iterate of least cost, not its last.
-    best, best_cost = q.copy(), np.full(len(q), np.inf)
-    for iteration in range(iterations + 1):
-        pose = kin.forward_kinematics(body, q)
-        p_joints = pose.points[:, joints]
-        heights = pose.points[:, feet, 2]
-        below = heights < 0.0  # the wall's active set, found again each iteration
-        T, nv = len(q), body.nv
-        r = np.concatenate([(weights[..., None] * (p_joints - goal)).reshape(T, -1),  # (T, 20 x 3)
-                            FLOOR_WEIGHT * np.where(below, heights, 0.0)], axis=1)  # (T, 4)
-        cost = (r ** 2).sum(axis=1)
-        lower = cost < best_cost
-        best[lower], best_cost[lower] = q[lower], cost[lower]
-        if iteration == iterations:
-            break
-        J_all = kin.point_jacobian(body, pose, point_ids)  # (T, n, 3, nv)
-        J_pose = weights[..., None, None] * J_all[:, :len(joints)]
-        J_floor = FLOOR_WEIGHT * below[..., None] * J_all[:, len(joints):, 2]  # (T, 4, nv)
-        J = np.concatenate([J_pose.reshape(T, -1, nv), J_floor], axis=1)
-        H = J.transpose(0, 2, 1) @ J
-        g = (J.transpose(0, 2, 1) @ r[..., None])[..., 0]
-        damping = IK_DAMPING * np.trace(H, axis1=1, axis2=2)[:, None, None] / nv + 1e-9
-        step = -np.linalg.solve(H + damping * np.eye(nv), g[..., None])[..., 0]
-        q = kin.integrate(body, q, step)
-        q[:, hinge_q] = np.clip(q[:, hinge_q], limits[:, 0], limits[:, 1])
-        if np.abs(step).max() < STEP_TOLERANCE:
-            return q, spots
-    return best, spots
+    return solve_points(body, qpos, joints, goal, weights, feet, iterations), spots
 
 
 def retarget_qpos(body: BodyModel, source_qpos: np.ndarray, source_lengths, contacts: np.ndarray) -> Retargeted:

@@ -1,0 +1,73 @@
+"""The offline physics' held feet planted on their spots (dynamics/planting.py, `leashed_spots` and
+`plant_held_feet`): a contact that drifts within the reach stands still, one that drifts farther slides only by the
+excess, frames without a planted or easing point and frozen frames are left exactly as they were, and a point eases
+onto and off its spot without a jump."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from physmocap.body import kinematics as kin
+from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
+from physmocap.dynamics.planting import leashed_spots, plant_held_feet
+
+FPS = 30.0
+
+
+def test_spots_stay_within_reach_and_still_when_the_drift_is_small():
+    small = np.stack([np.linspace(0.0, 0.015, 20), np.zeros(20)], axis=1)
+    spots = leashed_spots(small, 0.02)
+    assert np.allclose(spots, [0.0075, 0.0])  # one spot, the middle of the path
+    large = np.stack([np.linspace(0.0, 0.2, 30), np.linspace(0.0, -0.05, 30)], axis=1)
+    spots = leashed_spots(large, 0.02)
+    assert np.linalg.norm(spots - large, axis=1).max() <= 0.02 + 1e-12
+    travelled = np.linalg.norm(np.diff(spots, axis=0), axis=1).sum()
+    path = np.linalg.norm(np.diff(large, axis=0), axis=1).sum()
+    assert travelled <= path - 0.02 + 1e-9  # each end starts half the reach along the path
+
+
+def gliding_stance(frames: int, speed: float) -> tuple:
+    """A standing body whose whole pose glides along x at `speed` m/s (its feet with it), the body model, and
+    every contact point held from frame 10 to frame frames - 10."""
+    body = build_body_model(template_lengths(1.70), 70.0)
+    qpos = np.tile(body.rest_qpos, (frames, 1))
+    qpos[:, 2] -= kin.forward_kinematics(body, body.rest_qpos[None]).points[0, body.point_index(CONTACT_POINTS),
+                                                                           2].min()
+    qpos[:, 0] += speed * np.arange(frames) / FPS
+    contacts = np.zeros((frames, 4), bool)
+    contacts[10:frames - 10] = True
+    return body, qpos, contacts
+
+
+def foot_points(body, qpos: np.ndarray) -> np.ndarray:
+    return kin.forward_kinematics(body, qpos).points[:, body.point_index(CONTACT_POINTS)]
+
+
+def test_a_drift_within_reach_is_planted_and_far_frames_are_untouched():
+    body, qpos, contacts = gliding_stance(50, 0.02)  # 2 cm/s: 2 cm over the 30 held frames
+    planted = plant_held_feet(body, qpos, contacts, FPS, 0.03, np.zeros(50, bool))
+    points = foot_points(body, planted)[10:40]
+    assert np.abs(points - points[0]).max() < 1e-3  # every held point stands still
+    assert np.array_equal(planted[:6], qpos[:6]) and np.array_equal(planted[44:], qpos[44:])  # beyond the ease
+    assert np.isfinite(planted).all()
+
+
+def test_a_long_drift_slides_by_the_excess_and_eases_without_a_jump():
+    body, qpos, contacts = gliding_stance(60, 0.3)  # 30 cm/s: 12 cm over the 40 held frames
+    before = foot_points(body, qpos)
+    planted = plant_held_feet(body, qpos, contacts, FPS, 0.02, np.zeros(60, bool))
+    after = foot_points(body, planted)
+    assert np.abs(after[10:50, :, :2] - before[10:50, :, :2]).max() < 0.02 + 2e-3  # within the reach (+ IK)
+    step = np.linalg.norm(np.diff(after[..., :2], axis=0), axis=-1)
+    glide = 0.3 / FPS * 39  # m, each point's path over the held frames
+    assert (step[10:49].sum(axis=0) < glide - 0.02 + 2e-3).all()  # half the reach taken off at each end
+    assert step.max() < 2 * 0.3 / FPS  # easing on and off: no jump beyond twice a frame's glide
+
+
+def test_frozen_frames_are_left_as_they_were():
+    body, qpos, contacts = gliding_stance(50, 0.3)
+    frozen = np.zeros(50, bool)
+    frozen[20:30] = True
+    planted = plant_held_feet(body, qpos, contacts, FPS, 0.02, frozen)
+    assert np.array_equal(planted[20:30], qpos[20:30])
+    assert not np.array_equal(planted[12:18], qpos[12:18])  # the contacts beside them are planted
