@@ -671,8 +671,12 @@ def test_an_online_foot_stays_planted_while_its_fitted_foot_wanders(body):
     assert np.median(left_sole_slides(motion.qpos)) < 0.25 * np.median(left_sole_slides(q))
     assert left_sole_slides(motion.qpos).max() < 0.01  # below slide_speed's 1.2 cm per frame
     # Without planting, as offline on B.4's feet, the held points follow the fitted foot.
-    unplanted = run_physcap(body, q, FPS, contacts, np.zeros(frames, bool), PhysicsSettings(plant_time=None))
+    unplanted = run_physcap(body, q, FPS, contacts, np.zeros(frames, bool),
+                            PhysicsSettings(plant_time=None, plant_reach=None))
     assert np.median(left_sole_slides(unplanted.qpos)) > 0.4 * np.median(left_sole_slides(q))
+    # The output's own planting (plant_reach, causal online) alone holds the output's feet still.
+    output_only = run_physcap(body, q, FPS, contacts, np.zeros(frames, bool), PhysicsSettings(plant_time=None))
+    assert np.median(left_sole_slides(output_only.qpos)) < 0.1 * np.median(left_sole_slides(unplanted.qpos))
 
 
 def test_the_base_of_support_is_the_soles_of_the_feet_that_touch(body):

@@ -110,8 +110,9 @@ class PhysicsSettings(Section):
     release_distance: float | None = setting(0.05, "m", (0.0, 1.0), "freed past this slide of its target (None: never)")
     plant_time: float | None = setting(0.1, "s", (0.01, 10.0), "fits not refined by B.4 (online): a held target foot "
                                        "follows the fit's with this time constant, within release_distance (None: off)")
-    plant_reach: float | None = setting(0.02, "m", (0.0, 1.0), "offline (B.4 input): each held contact point is "
-                                        "put on one spot, which follows it only past this distance (None: off)")
+    plant_reach: float | None = setting(0.02, "m", (0.0, 1.0), "the output's held contact points stand on one spot "
+                                        "(offline the middle of the contact's path, online where it began), "
+                                        "which follows them only past this distance (None: off)")
     rest_height: float | None = setting(0.02, "m", (0.0, 0.5), "online: a target sole point under this height, "
                                         "slower than slide_speed, is in contact (None: off)")
     touch_margin: float = setting(0.003, "m", (0.0, 0.1), "sole points this close collide with the floor (eq. 5)")

@@ -33,26 +33,14 @@ CONTACT_WEIGHT = 30.0  # a planted point's pull to its spot against a joint's to
 IK_ITERATIONS = 4  # Gauss-Newton steps of the offline planting: shifts of centimetres converge to well under a mm
 
 
-class FootPlanter:
-    """The target's held contact points moved along the floor onto their planted points (plant). A point is
-    planted where the character holds it when the contact begins; the planted point then follows the fit's with
-    the time constant follow_time (s), and never lies farther than reach (m; None: any distance) from it, so that
-    a fit's foot that moves on is followed at slide_speed instead of being let go at once. Once the point is no
-    longer held, its shift fades with the same time constant, so that the target does not jump. The shift bends
-    the target's hip, knee and ankle (one damped least squares step on the contact points, their heights kept):
-    the root and the upper body stay the fit's."""
+class LegMover:
+    """The kinematics of one pose and the damped least squares step of each leg (hip, knee, ankle) that moves its
+    foot's contact points: what both planters share."""
 
-    def __init__(self, model: mujoco.MjModel, fps: float, follow_time: float, reach: float | None):
+    def __init__(self, model: mujoco.MjModel):
         self.model = model
-        self.data = mujoco.MjData(model)  # the kinematics of the frame's unshifted target
+        self.data = mujoco.MjData(model)  # the kinematics of the pose being moved
         self.sites = [model.site(name).id for name in CONTACT_POINTS]
-        self.keep = math.exp(-1.0 / (fps * follow_time))  # share of the shift left after a frame
-        self.reach = math.inf if reach is None else reach
-        # The per-frame bookkeeping of four points runs on Python floats: numpy's cost per call outweighs the
-        # arithmetic (as in physcap.PhysCapTracker).
-        self.shifts = [[0.0, 0.0] for _ in range(4)]  # m, each point's shift along the floor (planted minus fitted)
-        self.holding = [False, False, False, False]  # the points planted in the last frame
-        self._fitted = [[0.0, 0.0] for _ in range(4)]  # m, the last frame's fitted points along the floor
         self._jacobians = np.zeros((6, model.nv))  # a foot's two contact points' Jacobians, stacked
         self._damping = [DAMPING * DAMPING * np.eye(3 * k) for k in range(3)]  # per number of points moved
         self._step = np.zeros(model.nv)
@@ -66,12 +54,59 @@ class FootPlanter:
             points = [j for j, name in enumerate(CONTACT_POINTS) if name.startswith(side)]
             self.legs.append((points, np.array(dofs)))
 
-    def contact_points(self, q_kin: np.ndarray) -> np.ndarray:
-        """(4, 3) m: the contact points of the fitted target q_kin (nq,), whose kinematics `plant` then uses."""
-        self.data.qpos[:] = q_kin
+    def contact_points(self, q: np.ndarray) -> np.ndarray:
+        """(4, 3) m: the contact points of the pose q (nq,), whose kinematics `moved` then uses."""
+        self.data.qpos[:] = q
         mujoco.mj_kinematics(self.model, self.data)
         mujoco.mj_comPos(self.model, self.data)  # the Jacobians' reference point
         return self.data.site_xpos[self.sites].copy()
+
+    def moved(self, q: np.ndarray, shifts: list[list[float]]) -> np.ndarray:
+        """A copy of q (nq,) with each leg bent so that its contact points move by shifts (4 x [x, y], m) along
+        the floor, their heights kept, to first order; contact_points(q) must be the last call."""
+        target = q.copy()
+        moving_legs = [(moving, dofs) for points, dofs in self.legs
+                       if (moving := [j for j in points if shifts[j] != [0.0, 0.0]])]
+        if moving_legs:
+            self._step[:] = 0.0
+            for moving, dofs in moving_legs:
+                self._step[dofs] = self._leg_step(moving, dofs, shifts)
+            mujoco.mj_integratePos(self.model, target, self._step, 1.0)
+        return target
+
+    def _leg_step(self, points: list[int], dofs: np.ndarray, shifts: list[list[float]]) -> np.ndarray:
+        """(len(dofs),) rad: the leg's joint step that moves the contact points `points` (of one foot) by their
+        shifts along the floor and keeps their heights, to first order (damped least squares, DAMPING)."""
+        error: list[float] = []
+        for k, j in enumerate(points):
+            mujoco.mj_jacSite(self.model, self.data, self._jacobians[3 * k:3 * k + 3], None, self.sites[j])
+            error += (*shifts[j], 0.0)
+        jacobian = self._jacobians[:len(error), dofs]
+        normal = jacobian @ jacobian.T + self._damping[len(points)]
+        mujoco.mju_cholFactor(normal, 0.0)  # positive definite: the damping bounds it from below
+        weights = np.zeros(len(error))
+        mujoco.mju_cholSolve(weights, normal, np.array(error))
+        return jacobian.T @ weights
+
+
+class FootPlanter(LegMover):
+    """The target's held contact points moved along the floor onto their planted points (plant). A point is
+    planted where the character holds it when the contact begins; the planted point then follows the fit's with
+    the time constant follow_time (s), and never lies farther than reach (m; None: any distance) from it, so that
+    a fit's foot that moves on is followed at slide_speed instead of being let go at once. Once the point is no
+    longer held, its shift fades with the same time constant, so that the target does not jump. The shift bends
+    the target's hip, knee and ankle (one damped least squares step on the contact points, their heights kept):
+    the root and the upper body stay the fit's."""
+
+    def __init__(self, model: mujoco.MjModel, fps: float, follow_time: float, reach: float | None):
+        super().__init__(model)
+        self.keep = math.exp(-1.0 / (fps * follow_time))  # share of the shift left after a frame
+        self.reach = math.inf if reach is None else reach
+        # The per-frame bookkeeping of four points runs on Python floats: numpy's cost per call outweighs the
+        # arithmetic (as in physcap.PhysCapTracker).
+        self.shifts = [[0.0, 0.0] for _ in range(4)]  # m, each point's shift along the floor (planted minus fitted)
+        self.holding = [False, False, False, False]  # the points planted in the last frame
+        self._fitted = [[0.0, 0.0] for _ in range(4)]  # m, the last frame's fitted points along the floor
 
     def shifted(self, fitted_points: np.ndarray) -> np.ndarray:
         """(4, 3) m: fitted_points (4, 3) m moved by the last frame's shifts, where the target's points would lie."""
@@ -102,29 +137,44 @@ class FootPlanter:
                     shift_x = shift_y = 0.0
             self.shifts[j] = [shift_x, shift_y]
         self.holding, self._fitted = list(held), fitted_xy
-        target = q_kin.copy()
-        moving_legs = [(moving, dofs) for points, dofs in self.legs
-                       if (moving := [j for j in points if self.shifts[j] != [0.0, 0.0]])]
-        if moving_legs:
-            self._step[:] = 0.0
-            for moving, dofs in moving_legs:
-                self._step[dofs] = self._leg_step(moving, dofs)
-            mujoco.mj_integratePos(self.model, target, self._step, 1.0)
-        return target
+        return self.moved(q_kin, self.shifts)
 
-    def _leg_step(self, points: list[int], dofs: np.ndarray) -> np.ndarray:
-        """(len(dofs),) rad: the leg's joint step that moves the contact points `points` (of one foot) by their
-        shifts along the floor and keeps their heights, to first order (damped least squares, DAMPING)."""
-        error: list[float] = []
-        for k, j in enumerate(points):
-            mujoco.mj_jacSite(self.model, self.data, self._jacobians[3 * k:3 * k + 3], None, self.sites[j])
-            error += (*self.shifts[j], 0.0)
-        jacobian = self._jacobians[:len(error), dofs]
-        normal = jacobian @ jacobian.T + self._damping[len(points)]
-        mujoco.mju_cholFactor(normal, 0.0)  # positive definite: the damping bounds it from below
-        weights = np.zeros(len(error))
-        mujoco.mju_cholSolve(weights, normal, np.array(error))
-        return jacobian.T @ weights
+
+class OutputPlanter(LegMover):
+    """The online physics' output with its held contact points standing still (plant), causally: a point is put
+    where it touched down, and that spot follows it only once it strays farther than reach (m) (the forward half
+    of `leashed_spots`); a point no longer held keeps its shift, fading with the time constant EASE_TIME, so that
+    the output does not jump. One damped least squares step of the legs; the simulation's own state is not
+    touched."""
+
+    def __init__(self, model: mujoco.MjModel, fps: float, reach: float):
+        super().__init__(model)
+        self.reach = reach
+        self.keep = math.exp(-1.0 / (fps * EASE_TIME))  # share of a let-go point's shift left after a frame
+        self.spots: list[list[float] | None] = [None, None, None, None]  # m along the floor, while held
+        self.shifts = [[0.0, 0.0] for _ in range(4)]  # m, spot minus simulated point
+
+    def plant(self, pose: np.ndarray, held: np.ndarray, frozen: bool) -> np.ndarray:
+        """A copy of the output pose (nq,) with the points held (flags of four) on their spots; in a frozen frame
+        (handed back to the kinematics) nothing is held and the shifts fade."""
+        points = self.contact_points(pose).tolist()
+        for j, (x, y, _) in enumerate(points):
+            spot = self.spots[j]
+            if held[j] and not frozen:
+                if spot is None:
+                    spot = [x, y]
+                away_x, away_y = x - spot[0], y - spot[1]
+                distance = math.hypot(away_x, away_y)
+                if distance > self.reach:
+                    share = 1.0 - self.reach / distance
+                    spot = [spot[0] + share * away_x, spot[1] + share * away_y]
+                self.spots[j], self.shifts[j] = spot, [spot[0] - x, spot[1] - y]
+            else:
+                shift_x, shift_y = self.keep * self.shifts[j][0], self.keep * self.shifts[j][1]
+                if max(abs(shift_x), abs(shift_y)) < FADED:
+                    shift_x = shift_y = 0.0
+                self.spots[j], self.shifts[j] = None, [shift_x, shift_y]
+        return self.moved(pose, self.shifts)
 
 
 def leashed_spots(points: np.ndarray, reach: float) -> np.ndarray:

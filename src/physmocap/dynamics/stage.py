@@ -21,7 +21,7 @@ from ..kinematics.stage import KinematicMotion
 from .balance import BalanceCorrector
 from .floor import FloorRefiner, floor_frame
 from .physcap import FrameOutput, PhysCapTracker
-from .planting import FootPlanter, plant_held_feet
+from .planting import FootPlanter, OutputPlanter, plant_held_feet
 
 GRAVITY = 9.81  # m/s^2
 MAX_FLATTENING = np.radians(20.0)  # a foot tilted more than this with heel and toe predicted down is a wrong label
@@ -126,6 +126,10 @@ class PhysicsStream:
                         if settings.plant_time is not None and settings.foot_lock != "never"
                         and not refined_input else None)
         self._held = np.zeros(4, bool)  # the contacts the character held at the end of the last frame
+        # Online, the output's held feet stand still, causally (offline, run_physcap plants the whole clip's)
+        self.output_planter = (OutputPlanter(model, fps, settings.plant_reach)
+                               if settings.plant_reach is not None and settings.foot_lock != "never"
+                               and not refined_input else None)
         # Online fits' sole points resting on the floor are contacts though not predicted (as B.4 adds offline);
         # the window holds their positions over REST_SPEED_INTERVAL, oldest first.
         self._resting_window: deque[np.ndarray] | None = (
@@ -177,6 +181,8 @@ class PhysicsStream:
         frame = self.tracker.track(target, velocity, acceleration, contacts, released)
         self._held = frame.active
         pose = self._diagnose(frame, target, velocity)
+        if self.output_planter is not None:
+            pose = self.output_planter.plant(pose, frame.active, bool(frame.unexplained_flag))
         if self.floor is None:
             return pose, frame, corrected
         frame.contact_forces = self.floor.vector_to_kinematic(frame.contact_forces)
