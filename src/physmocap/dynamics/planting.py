@@ -144,8 +144,10 @@ class OutputPlanter(LegMover):
     """The online physics' output with its held contact points standing still (plant), causally: a point is put
     where it touched down, and that spot follows it only once it strays farther than reach (m) (the forward half
     of `leashed_spots`); a point no longer held keeps its shift, fading with the time constant EASE_TIME, so that
-    the output does not jump. One damped least squares step of the legs; the simulation's own state is not
-    touched."""
+    the output does not jump. The whole body moves by the mean shift of the held points (followed with the same
+    time constant), the legs bend for the rest (one damped least squares step): bending the legs alone held the
+    feet under a pelvis that the online fit places less well, and cost twice the accuracy
+    (docs/decisions/physics-planted-feet.md). The simulation's own state is not touched."""
 
     def __init__(self, model: mujoco.MjModel, fps: float, reach: float):
         super().__init__(model)
@@ -153,6 +155,7 @@ class OutputPlanter(LegMover):
         self.keep = math.exp(-1.0 / (fps * EASE_TIME))  # share of a let-go point's shift left after a frame
         self.spots: list[list[float] | None] = [None, None, None, None]  # m along the floor, while held
         self.shifts = [[0.0, 0.0] for _ in range(4)]  # m, spot minus simulated point
+        self.body_shift = [0.0, 0.0]  # m along the floor, the whole output's
 
     def plant(self, pose: np.ndarray, held: np.ndarray, frozen: bool) -> np.ndarray:
         """A copy of the output pose (nq,) with the points held (flags of four) on their spots; in a frozen frame
@@ -174,7 +177,19 @@ class OutputPlanter(LegMover):
                 if max(abs(shift_x), abs(shift_y)) < FADED:
                     shift_x = shift_y = 0.0
                 self.spots[j], self.shifts[j] = None, [shift_x, shift_y]
-        return self.moved(pose, self.shifts)
+        holding = [self.shifts[j] for j in range(4) if held[j] and not frozen]
+        goal_x = sum(shift[0] for shift in holding) / len(holding) if holding else 0.0
+        goal_y = sum(shift[1] for shift in holding) / len(holding) if holding else 0.0
+        body_x, body_y = self.body_shift
+        body_x, body_y = goal_x + self.keep * (body_x - goal_x), goal_y + self.keep * (body_y - goal_y)
+        self.body_shift = [body_x, body_y]
+        # A point held or still easing off bends its leg by what the body's shift leaves; the others go with it.
+        legs = [[x - body_x, y - body_y] if [x, y] != [0.0, 0.0] or (held[j] and not frozen) else [0.0, 0.0]
+                for j, (x, y) in enumerate(self.shifts)]
+        planted = self.moved(pose, legs)
+        planted[0] += body_x
+        planted[1] += body_y
+        return planted
 
 
 def leashed_spots(points: np.ndarray, reach: float) -> np.ndarray:
