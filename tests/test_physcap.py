@@ -674,6 +674,9 @@ def test_an_online_foot_stays_planted_while_its_fitted_foot_wanders(body):
     unplanted = run_physcap(body, q, FPS, contacts, np.zeros(frames, bool),
                             PhysicsSettings(plant_time=None, plant_reach=None))
     assert np.median(left_sole_slides(unplanted.qpos)) > 0.4 * np.median(left_sole_slides(q))
+    zero = run_physcap(body, q, FPS, contacts, np.zeros(frames, bool),
+                       PhysicsSettings(plant_time=None, plant_reach=0.0))
+    assert np.array_equal(zero.qpos, unplanted.qpos)  # a reach of 0 (what a TOML file can say) is off too
     # The output's own planting (plant_reach, causal online) alone holds the output's feet still.
     output_only = run_physcap(body, q, FPS, contacts, np.zeros(frames, bool), PhysicsSettings(plant_time=None))
     assert np.median(left_sole_slides(output_only.qpos)) < 0.1 * np.median(left_sole_slides(unplanted.qpos))

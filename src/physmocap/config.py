@@ -112,7 +112,7 @@ class PhysicsSettings(Section):
                                        "follows the fit's with this time constant, within release_distance (None: off)")
     plant_reach: float | None = setting(0.02, "m", (0.0, 1.0), "the output's held contact points stand on one spot "
                                         "(offline the middle of the contact's path, online where it began), "
-                                        "which follows them only past this distance (None: off)")
+                                        "which follows them only past this distance (0 or None: off)")
     rest_height: float | None = setting(0.02, "m", (0.0, 0.5), "online: a target sole point under this height, "
                                         "slower than slide_speed, is in contact (None: off)")
     touch_margin: float = setting(0.003, "m", (0.0, 0.1), "sole points this close collide with the floor (eq. 5)")

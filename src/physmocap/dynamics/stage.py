@@ -128,7 +128,7 @@ class PhysicsStream:
         self._held = np.zeros(4, bool)  # the contacts the character held at the end of the last frame
         # Online, the output's held feet stand still, causally (offline, run_physcap plants the whole clip's)
         self.output_planter = (OutputPlanter(model, fps, settings.plant_reach)
-                               if settings.plant_reach is not None and settings.foot_lock != "never"
+                               if settings.plant_reach and settings.foot_lock != "never"
                                and not refined_input else None)
         # Online fits' sole points resting on the floor are contacts though not predicted (as B.4 adds offline);
         # the window holds their positions over REST_SPEED_INTERVAL, oldest first.
@@ -399,7 +399,7 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
             progress(t + 1, T)
     gone = np.zeros(T, bool) if valid is None else ~np.asarray(valid, bool)
     out.grf[gone], out.residual[gone], out.contacts[gone] = 0.0, 0.0, False  # tracked through, nothing claimed
-    if refined_input and settings.plant_reach is not None:
+    if refined_input and settings.plant_reach:
         out.qpos = plant_held_feet(body, out.qpos, out.contacts, fps, settings.plant_reach, gone | unexplained)
     out.seconds = time.perf_counter() - start
     out.floor_plane = stream.floor_plane
