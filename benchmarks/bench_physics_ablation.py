@@ -61,7 +61,8 @@ DEPARTURES = (  # label, {field: the paper's value (or the nearest setting where
     ("+ flat feet in the targets", {"flatten_feet": False}),  # a fitted foot keeps its tilt
     ("+ stationary flag checked by root speed", {"stationary_max_speed": None}),  # the network's flag alone
     ("+ share of the rotational velocity", {"rotation_velocity_share": 1.0}),  # eq. (4): all of qd_kin
-    ("+ online floor refinement (defaults)", {"floor_refit_interval": None}),  # the warm-up's floor kept (online)
+    ("+ online floor refinement", {"floor_refit_interval": None}),  # the warm-up's floor kept (online)
+    ("+ held feet planted in the output (defaults)", {"plant_reach": None}),  # the simulated pose as it comes
 )
 PAPER = dataclasses.replace(DEFAULTS, **{f: v for _, fields in DEPARTURES for f, v in fields.items()})
 

@@ -1,7 +1,7 @@
-"""The offline physics' held feet planted on their spots (dynamics/planting.py, `leashed_spots` and
+"""The physics' held feet planted on their spots (dynamics/planting.py). Offline (`leashed_spots`,
 `plant_held_feet`): a contact that drifts within the reach stands still, one that drifts farther slides only by the
 excess, frames without a planted or easing point and frozen frames are left exactly as they were, and a point eases
-onto and off its spot without a jump."""
+onto and off its spot without a jump. Online (`OutputPlanter`): the same causally, the body following its feet."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 
 from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
-from physmocap.dynamics.planting import leashed_spots, plant_held_feet
+from physmocap.dynamics.planting import OutputPlanter, leashed_spots, plant_held_feet
 
 FPS = 30.0
 
@@ -71,3 +71,22 @@ def test_frozen_frames_are_left_as_they_were():
     planted = plant_held_feet(body, qpos, contacts, FPS, 0.02, frozen)
     assert np.array_equal(planted[20:30], qpos[20:30])
     assert not np.array_equal(planted[12:18], qpos[12:18])  # the contacts beside them are planted
+
+
+def test_online_output_planter_holds_causally_and_lets_go_smoothly():
+    """OutputPlanter (online): a standing body that glides 1.75 cm while its feet are held has them stand where
+    they touched down (the whole body following them), and once let go (or frozen) the shift fades instead of
+    jumping."""
+    body, qpos, contacts = gliding_stance(60, 0.015)
+    planter = OutputPlanter(body.mujoco_model(), FPS, 0.02)
+    frozen = np.zeros(60, bool)
+    frozen[45:] = True  # handed back to the kinematics from frame 45: nothing is held there
+    planted = np.array([planter.plant(q, held, bool(f)) for q, held, f in zip(qpos, contacts, frozen, strict=True)])
+    before, after = foot_points(body, qpos), foot_points(body, planted)
+    assert np.array_equal(planted[:10], qpos[:10])  # nothing held yet: the pose as it came
+    assert np.abs(after[10:45, :, :2] - after[10, :, :2]).max() < 1e-3  # held: standing where they touched down
+    pelvis_moved = planted[10:45, :2] - qpos[10:45, :2]
+    assert np.abs(pelvis_moved[-1, 0] + 0.015 * 34 / FPS) < 2e-3  # the body follows its feet back
+    offsets = np.linalg.norm(after[44:, :, :2] - before[44:, :, :2], axis=-1).max(axis=1)
+    assert offsets[0] > 0.01 and offsets[-1] < 0.1 * offsets[0] and (np.diff(offsets) <= 1e-9).all()  # fading
+    assert np.linalg.norm(np.diff(after[..., :2], axis=0), axis=-1).max() < 0.01  # no jump
