@@ -30,6 +30,9 @@ MediaPipe-like noise, the true intrinsics and height, 8 s at 30 fps, seeds 0 and
              the wrappers add their own cost to the small calls: shares, not absolute figures).
   stability  the validation walks' 60 fps B.4 motion resampled, PhysCap with a forced number of equal steps per
              frame around the PD's stability limit (physcap.stability_limit): what limits the step.
+  planting_long  the offline planting of the held feet (planting.plant_held_feet) on ten minutes: 131_01's
+             B.4 motion and PhysCap's contacts at 30 fps looped to 18,000 frames; peak memory of its allocations
+             (tracemalloc) and CPU seconds.
 
     .venv/bin/python benchmarks/bench_physics_limits.py [--parts framerate diagnosis online methods] [--quick]
         [--set validation] [--methods ROW ...] [--physics NAME=VALUE ...]
@@ -616,6 +619,28 @@ PROFILED = {  # module -> class -> methods of part profile (nested calls count i
 }
 
 
+def part_planting_long(minutes: float = 10.0) -> dict:
+    """Peak memory (MB, tracemalloc: numpy's allocations included) and CPU seconds of plant_held_feet over
+    `minutes` of 131_01's 30 fps B.4 motion and PhysCap's held contacts, looped."""
+    import tracemalloc
+
+    from physmocap.dynamics.planting import plant_held_feet
+
+    case = build_case(CLIPS[0], 0, online=False)
+    motion, physics = physcap_offline(case)
+    fps = case["obs"].fps
+    loops = int(np.ceil(minutes * 60 * fps / len(physics.qpos)))
+    qpos, contacts = np.tile(physics.qpos, (loops, 1)), np.tile(physics.contacts, (loops, 1))
+    tracemalloc.start()
+    start = time.process_time()
+    plant_held_feet(motion.body, qpos, contacts, fps, PhysicsSettings().plant_reach, np.zeros(len(qpos), bool))
+    seconds = time.process_time() - start
+    peak = tracemalloc.get_traced_memory()[1] / 2 ** 20
+    tracemalloc.stop()
+    print("planting_long", len(qpos), "frames", f"{peak:.0f} MB", f"{seconds:.1f} CPU s", flush=True)
+    return dict(frames=len(qpos), peak_mb=peak, cpu_seconds=seconds)
+
+
 def part_profile(fps: float = 30.0) -> dict:
     """CPU microseconds per frame and calls per frame of each PROFILED method (those the tree has) while
     run_physcap tracks 131_01's 60 fps B.4 motion resampled to `fps`; and the stage's CPU time per frame without
@@ -747,6 +772,10 @@ def markdown(out: dict) -> str:
                               f"stage, median (best) of {sp['rounds']} runs each; load average "
                               f"{sp['load_average']:.1f})",
                               lambda label, rate, v: f"{v:.0f} ({sp[label + ' best'][rate]:.0f})")
+    if "planting_long" in out:
+        pl = out["planting_long"]
+        lines += [f"**The offline planting on ten minutes** ({pl['frames']} frames of 131_01's motion looped): peak "
+                  f"memory of its allocations {pl['peak_mb']:.0f} MB, {pl['cpu_seconds']:.1f} CPU s", ""]
     if "identical" in out:
         lines += [f"**Every array of run_physcap against {out['identical']['against']}** (bit for bit: np.array_equal)",
                   "", "| run | frames | frames flagged | arrays | arrays differing (largest difference) |",
@@ -856,6 +885,8 @@ def main(argv=None) -> dict:
             out[part] = part_identical(args.against)
         elif part == "profile":
             out[part] = part_profile()
+        elif part == "planting_long":
+            out[part] = part_planting_long()
         out[part]["minutes"] = (time.perf_counter() - start) / 60
     RESULTS.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(out, indent=1))
