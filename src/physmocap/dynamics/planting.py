@@ -221,8 +221,9 @@ def plant_held_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, fps
     point slip at slide_speed (eq. 9) and the output crept along the floor (docs/decisions/physics-planted-feet.md);
     knowing the whole clip, each contact can stand still. The forces stay the simulation's."""
     held = np.asarray(contacts, bool) & ~np.asarray(frozen, bool)[:, None]
-    feet = body.point_index(CONTACT_POINTS)
-    points = kin.forward_kinematics(body, qpos).points[:, feet]
+    feet, legs = body.point_index(CONTACT_POINTS), body.point_index(LEG_POINTS)
+    simulated = kin.forward_kinematics(body, qpos).points
+    points = simulated[:, feet]
     shifts, blend = np.zeros_like(points), held.astype(float)
     ease = max(1, round(EASE_TIME * fps))
     for k in range(len(CONTACT_POINTS)):
@@ -237,8 +238,7 @@ def plant_held_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, fps
     solved = blend.any(axis=1) & ~np.asarray(frozen, bool)
     if not solved.any():
         return np.array(qpos, dtype=float)
-    legs = body.point_index(LEG_POINTS)
-    goal = kin.forward_kinematics(body, qpos[solved]).points[:, legs]
+    goal = simulated[solved][:, legs]
     columns = [LEG_POINTS.index(name) for name in CONTACT_POINTS]
     goal[:, columns] += shifts[solved]
     weights = np.ones(goal.shape[:2])
