@@ -40,6 +40,7 @@ from common import MOCAP, RESULTS, VIDEOS, machine_description  # noqa: E402
 from physmocap.body import kinematics as kin  # noqa: E402
 from physmocap.body.model import CONTACT_POINTS, SkeletonLengths, build_body_model, template_lengths  # noqa: E402
 from physmocap.config import Settings  # noqa: E402
+from physmocap.contacts.flights import valid_runs  # noqa: E402
 from physmocap.export import body_from_result  # noqa: E402
 from physmocap.io.bvh_export import write_bvh  # noqa: E402
 from physmocap.io.glb import write_glb  # noqa: E402
@@ -49,7 +50,6 @@ from physmocap.mocap.synthetic import make_observations, random_camera, resample
 from physmocap.pipeline import run_capture  # noqa: E402
 from physmocap.result import load_result  # noqa: E402
 from physmocap.retarget import retarget_result, solve  # noqa: E402
-from physmocap.retarget.solve import contact_runs  # noqa: E402
 from physmocap.retarget.stage import follows_gap  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -134,7 +134,7 @@ def source_feet(result: dict) -> dict:
     valid, contacts = np.asarray(result["valid"], bool), np.asarray(result["contacts"], bool)
     errors = foot_contact_errors(feet[valid], contacts[valid], float(result["fps"]), breaks=follows_gap(valid))
     drifts = [float(np.linalg.norm(feet[s:e, k, :2] - feet[s, k, :2], axis=1).max())
-              for k in range(len(CONTACT_POINTS)) for s, e in contact_runs(contacts[:, k])]
+              for k in range(len(CONTACT_POINTS)) for s, e in valid_runs(contacts[:, k])]
     return dict(skate_percent=errors["skate_percent"], penetration_percent=errors["penetration_percent"],
                 contact_runs=len(drifts), runs_sliding_over_10cm=sum(d > 0.1 for d in drifts),
                 largest_slide_m=max(drifts, default=0.0), jitter=jitter(result))

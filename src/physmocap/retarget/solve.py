@@ -29,6 +29,7 @@ import numpy as np
 from ..body import kinematics as kin
 from ..body.ik import solve_points
 from ..body.model import CONTACT_POINTS, JOINT_NAMES, BodyModel
+from ..contacts.flights import valid_runs
 
 POSE_WEIGHT = 1.0  # each joint's pull towards the scaled source pose (residual in metres)
 CONTACT_WEIGHT = 30.0  # a contact point's pull to its planted spot; much stronger than the pose, so feet stay put
@@ -60,13 +61,6 @@ def scaled_qpos(source_qpos: np.ndarray, scale: float, lift: float = 0.0) -> np.
     qpos[:, 0:3] *= scale
     qpos[:, 2] += lift
     return qpos
-
-
-def contact_runs(flags: np.ndarray) -> list[tuple[int, int]]:
-    """[(start, end)) of each run of True in a (T,) bool array."""
-    padded = np.concatenate([[False], flags.astype(bool), [False]])
-    edges = np.flatnonzero(np.diff(padded.astype(int)))
-    return list(zip(edges[0::2], edges[1::2], strict=True))
 
 
 def follow_planted_feet(points: np.ndarray, contacts: np.ndarray,
@@ -119,7 +113,7 @@ def _blend_weights(contacts: np.ndarray) -> np.ndarray:
     T = len(contacts)
     weights = contacts.astype(float)
     for k in range(contacts.shape[1]):
-        for start, end in contact_runs(contacts[:, k]):
+        for start, end in valid_runs(contacts[:, k]):
             for d in range(1, BLEND_FRAMES + 1):
                 w = 1.0 - d / (BLEND_FRAMES + 1)
                 if start - d >= 0:
@@ -134,7 +128,7 @@ def _extend_spots(spots: np.ndarray, contacts: np.ndarray) -> np.ndarray:
     out = spots.copy()
     T = len(contacts)
     for k in range(contacts.shape[1]):
-        for start, end in contact_runs(contacts[:, k]):
+        for start, end in valid_runs(contacts[:, k]):
             for d in range(1, BLEND_FRAMES + 1):
                 if start - d >= 0 and not contacts[start - d, k]:
                     out[start - d, k] = np.where(np.isnan(out[start - d, k]), spots[start, k], out[start - d, k])
