@@ -96,10 +96,10 @@ class PhysicsStream:
         self._lift = 0.0
         self._flatness = np.zeros(2)
         # Kinematics refined by Rempe's B.4 (refined_input) already rest their feet on the floor: lifting and
-        # flattening them again only raised the feet (docs/decisions/physics-default.md).
+        # flattening them again only raised the feet (docs/decisions/physics-default.md); nor are they planted.
+        fit_feet = settings.foot_lock != "never" and not refined_input  # a fit's feet on the floor, B.4's not
         self._lift_share = (1.0 - np.exp(-1.0 / (fps * settings.target_lift_time))
-                            if settings.target_lift_time is not None and settings.foot_lock != "never"
-                            and not refined_input else 0.0)
+                            if settings.target_lift_time is not None and fit_feet else 0.0)
         model = self.tracker.model
         feet = [model.body(f"{side}_foot").id for side in ("left", "right")]
         self._feet = [(foot, model.body_parentid[foot], model.jnt_qposadr[model.body_jntadr[foot]]) for foot in feet]
@@ -116,20 +116,17 @@ class PhysicsStream:
         self._blend_rate = 1.0 / max(fps * settings.unexplained_blend, 1.0)
         self._blend_step = np.zeros(body.nv)
         self._deviation_data = mujoco.MjData(model)
-        # The start's drop onto the floor (m; None before the first frame) and the share of it kept per frame
-        # (settings.start_drop_time)
+        # The start's drop onto the floor (m; None before the first frame), its share kept a frame (start_drop_time)
         self._drop: float | None = None
         self._drop_keep = (math.exp(-1.0 / (fps * settings.start_drop_time))
                            if settings.start_drop_time is not None else 0.0)
-        # Online fits' held feet are planted where the character holds them (B.4 already planted offline ones)
+        # Online fits' held feet are planted where the character holds them, and the output's stand still,
+        # causally (offline, B.4 planted the target's and run_physcap plants the whole clip's output)
         self.planter = (FootPlanter(model, fps, settings.plant_time, settings.release_distance)
-                        if settings.plant_time is not None and settings.foot_lock != "never"
-                        and not refined_input else None)
+                        if fit_feet and settings.plant_time is not None else None)
+        self.output_planter = OutputPlanter(model, fps, settings.plant_reach) if fit_feet and settings.plant_reach \
+            else None
         self._held = np.zeros(4, bool)  # the contacts the character held at the end of the last frame
-        # Online, the output's held feet stand still, causally (offline, run_physcap plants the whole clip's)
-        self.output_planter = (OutputPlanter(model, fps, settings.plant_reach)
-                               if settings.plant_reach and settings.foot_lock != "never"
-                               and not refined_input else None)
         # Online fits' sole points resting on the floor are contacts though not predicted (as B.4 adds offline);
         # the window holds their positions over REST_SPEED_INTERVAL, oldest first.
         self._resting_window: deque[np.ndarray] | None = (
