@@ -33,6 +33,20 @@ CONTACT_WEIGHT = 30.0  # a planted point's pull to its spot against a joint's to
 IK_ITERATIONS = 4  # Gauss-Newton steps of the offline planting: shifts of centimetres converge to well under a mm
 
 
+def leg_dofs(model: mujoco.MjModel) -> list[tuple[list[int], np.ndarray]]:
+    """Per side (left, right): the indices of its contact points (into CONTACT_POINTS) and the degrees of freedom
+    of its hip, knee and ankle (LEG_JOINTS) in the MuJoCo model."""
+    legs = []
+    for side in ("left", "right"):
+        dofs: list[int] = []
+        for name in LEG_JOINTS:
+            joint = model.joint(f"{side}_{name}").id
+            count = 3 if model.jnt_type[joint] == mujoco.mjtJoint.mjJNT_BALL else 1
+            dofs += range(model.jnt_dofadr[joint], model.jnt_dofadr[joint] + count)
+        legs.append(([j for j, name in enumerate(CONTACT_POINTS) if name.startswith(side)], np.array(dofs)))
+    return legs
+
+
 class LegMover:
     """The kinematics of one pose and the damped least squares step of each leg (hip, knee, ankle) that moves its
     foot's contact points: what both planters share."""
@@ -44,15 +58,7 @@ class LegMover:
         self._jacobians = np.zeros((6, model.nv))  # a foot's two contact points' Jacobians, stacked
         self._damping = [DAMPING * DAMPING * np.eye(3 * k) for k in range(3)]  # per number of points moved
         self._step = np.zeros(model.nv)
-        self.legs = []  # per side: the contact points' indices (into CONTACT_POINTS) and the leg's DOFs
-        for side in ("left", "right"):
-            dofs: list[int] = []
-            for name in LEG_JOINTS:
-                joint = model.joint(f"{side}_{name}").id
-                count = 3 if model.jnt_type[joint] == mujoco.mjtJoint.mjJNT_BALL else 1
-                dofs += range(model.jnt_dofadr[joint], model.jnt_dofadr[joint] + count)
-            points = [j for j, name in enumerate(CONTACT_POINTS) if name.startswith(side)]
-            self.legs.append((points, np.array(dofs)))
+        self.legs = leg_dofs(model)  # per side: the contact points' indices (into CONTACT_POINTS) and the DOFs
 
     def contact_points(self, q: np.ndarray) -> np.ndarray:
         """(4, 3) m: the contact points of the pose q (nq,), whose kinematics `moved` then uses."""
@@ -220,7 +226,8 @@ def plant_held_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, fps
     `frozen` (T,) bool (no person, or handed back to the kinematics) left as they are. The tracker lets a held
     point slip at slide_speed (eq. 9) and the output crept along the floor (docs/decisions/physics-planted-feet.md);
     knowing the whole clip, each contact can stand still. The forces stay the simulation's."""
-    held = np.asarray(contacts, bool) & ~np.asarray(frozen, bool)[:, None]
+    frozen = np.asarray(frozen, bool)
+    held = np.asarray(contacts, bool) & ~frozen[:, None]
     feet, legs = body.point_index(CONTACT_POINTS), body.point_index(LEG_POINTS)
     simulated = kin.forward_kinematics(body, qpos).points
     points = simulated[:, feet]
@@ -235,7 +242,7 @@ def plant_held_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, fps
                 for t, edge in ((start - d, start), (end - 1 + d, end - 1)):
                     if 0 <= t < len(qpos) and not held[t, k] and weight > blend[t, k]:
                         blend[t, k], shifts[t, k] = weight, weight * shifts[edge, k]
-    solved = blend.any(axis=1) & ~np.asarray(frozen, bool)
+    solved = blend.any(axis=1) & ~frozen
     if not solved.any():
         return np.array(qpos, dtype=float)
     goal = simulated[solved][:, legs]
@@ -243,9 +250,7 @@ def plant_held_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, fps
     goal[:, columns] += shifts[solved]
     weights = np.ones(goal.shape[:2])
     weights[:, columns] += (CONTACT_WEIGHT - 1.0) * blend[solved]
-    bounds = np.append(body.dof_address, body.nv)  # joint j's degrees of freedom: bounds[j] .. bounds[j + 1]
-    dofs = np.concatenate([np.arange(bounds[j], bounds[j + 1]) for j in
-                           (body.joint_index[f"{side}_{name}"] for side in ("left", "right") for name in LEG_JOINTS)])
+    dofs = np.concatenate([leg for _, leg in leg_dofs(body.mujoco_model())])
     planted = np.array(qpos, dtype=float)
     planted[solved] = solve_points(body, qpos[solved], legs, goal, weights, feet, IK_ITERATIONS, dofs)
     return planted
