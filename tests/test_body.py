@@ -107,3 +107,19 @@ def test_feet_collide_with_the_floor_at_the_contact_sites(body):
     touching = {m.geom(d.contact[i].geom[1]).name for i in range(d.ncon)}
     assert touching == {f"{p}_collision" for p in CONTACT_POINTS}
     assert np.allclose(d.contact.dist[:d.ncon], -0.005, atol=1e-9)
+
+
+def test_a_body_rests_off_its_feet_when_a_knee_elbow_or_the_seat_nears_the_floor():
+    from physmocap.body.support import RESTING_HEIGHT, RESTING_POINTS, resting_off_feet, resting_points
+
+    body = build_body_model(template_lengths(1.75), 72.0)
+    names = body.point_names
+    chosen = [names[i] for i in resting_points(names)]
+    assert set(chosen) == set(RESTING_POINTS)
+    assert not {"left_heel", "left_toe", "left_index", "right_wrist"} & set(chosen)  # feet and hands are not
+    heights = kin.forward_kinematics(body, body.rest_qpos[None]).points[:, resting_points(names), 2]
+    assert not resting_off_feet(heights).any()  # standing: the lowest such point is a knee, ~0.5 m up
+    knee = chosen.index("left_knee")
+    heights = np.repeat(heights, 3, axis=0)
+    heights[1, knee], heights[2, knee] = RESTING_HEIGHT - 0.01, -0.2  # on the floor; sunk through it
+    assert resting_off_feet(heights).tolist() == [False, True, True]

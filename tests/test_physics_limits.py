@@ -159,6 +159,52 @@ def test_ordinary_standing_and_a_ballistic_jump_are_not_flagged(body):
     assert not physics.unexplained[air][2:-2].any()  # mid-flight follows gravity
 
 
+def kneeling(body, knee_height):
+    """The rest pose lowered onto the left knee (at knee_height m above the floor, its shin flat behind, the toe on
+    the floor) with the right thigh forward and its foot flat on the floor: a kneel, or with a higher knee a deep
+    lunge. The right hip's and left ankle's angles are found by bisection so that both feet reach the floor."""
+    model = body.mujoco_model()
+    heights = {name: body.point_names.index(name) for name in ("left_knee", "left_toe", "right_heel")}
+
+    def pose(hip_angle, ankle_angle):
+        q = body.rest_qpos.copy()
+        q[model.joint("left_knee").qposadr[0]] = q[model.joint("right_knee").qposadr[0]] = np.pi / 2
+        for joint, rotation in (("right_hip", -hip_angle), ("left_ankle", ankle_angle)):
+            a = model.joint(joint).qposadr[0]
+            q[a:a + 4] = quat_multiply(q[a:a + 4], quat_exp(np.array([0.0, rotation, 0.0])))
+        z = kin.forward_kinematics(body, q[None]).points[0, :, 2]
+        q[2] -= z[heights["left_knee"]] - knee_height
+        return q, z - z[heights["left_knee"]] + knee_height
+
+    def bisect(height_of, low, high):  # the angle in [low, high] where the point (rising with it) meets the floor
+        for _ in range(40):
+            middle = 0.5 * (low + high)
+            low, high = (middle, high) if height_of(middle) < 0.0 else (low, middle)
+        return 0.5 * (low + high)
+
+    hip = bisect(lambda a: pose(a, 1.2)[1][heights["right_heel"]], 1.0, 2.2)
+    ankle = bisect(lambda a: pose(hip, a)[1][heights["left_toe"]], 0.0, 1.6)
+    return pose(hip, ankle)[0]
+
+
+def test_a_body_resting_on_a_knee_is_flagged_and_the_same_lunge_above_the_floor_is_not(body):
+    """Standing, then down onto the left knee for a second: the knee carries weight that no sole point can, which
+    the upward force alone does not show (the feet stand within reach of the floor). The same pose held 10 cm
+    higher is a lunge the feet explain (the descent itself may be flagged in both: it stops abruptly)."""
+    fps, T = 30.0, 90
+    flagged = {}
+    for height in (0.02, 0.12):
+        low = kneeling(body, height)
+        share = np.clip((np.arange(T) - 20) / 15.0, 0.0, 1.0) * np.clip((75 - np.arange(T)) / 15.0, 0.0, 1.0)
+        q = np.array([body.rest_qpos + s * (low - body.rest_qpos) for s in share])
+        q[:, 3:7] = body.rest_qpos[3:7]  # the root keeps its orientation (a blend of quaternions is not one)
+        flagged[height] = run_physcap(body, q, fps, np.ones((T, 4), bool), np.zeros(T, bool), PhysicsSettings(),
+                                      refined_input=True).unexplained
+        assert not flagged[height][:20].any()
+    assert flagged[0.02][36:60].all()
+    assert not flagged[0.12][36:60].any()
+
+
 def test_non_finite_or_huge_forces_are_bounded_and_flagged(body, monkeypatch):
     from physmocap.dynamics import physcap
 

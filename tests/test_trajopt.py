@@ -944,6 +944,18 @@ def test_frames_whose_com_is_below_the_floor_are_kept_kinematic_and_flagged(body
     assert np.array_equal(again.unexplained, result.unexplained)
 
 
+def test_frames_resting_on_a_knee_are_kept_kinematic_and_flagged(body):
+    """Down on the left knee (test_physics_limits.kneeling) for frames 20-29: the knee carries weight that no sole
+    point can; those frames are left kinematic and flagged, the standing ones around them are optimised."""
+    from test_physics_limits import kneeling
+
+    q = sway(body, 50)
+    q[20:30] = kneeling(body, 0.02)
+    q[20:30, :2] = q[19, :2]
+    assert np.array_equal(stage.unexplained_frames(body, q, kin.center_of_mass(body, kin.forward_kinematics(body, q))),
+                          (np.arange(50) >= 20) & (np.arange(50) < 30))
+
+
 @pytest.mark.slow
 def test_a_solution_far_from_the_input_is_not_used(body, caplog):
     """Feet labelled in contact while they slide 60 cm: the converged motion keeps them still, so its centre of

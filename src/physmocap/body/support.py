@@ -1,9 +1,33 @@
-"""Support polygons on the floor: a pure 2D kernel on the few contact points of a frame, shared by the physics'
-balance test (every frame, so plain floats) and the viewer's support polygons."""
+"""Support on the floor: the support polygon, a pure 2D kernel on the few contact points of a frame, shared by the
+physics' balance test (every frame, so plain floats) and the viewer's support polygons; and which frames rest on
+a part of the body the sole contact model has no point for, shared by both physics methods' diagnoses."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+
+# The body points whose nearness to the floor means the body rests on them: knees, the seat, elbows, the trunk and
+# head. Not the feet (the contact model's own), nor the hands, which reach to the floor without carrying weight
+# (a dribble; the long-armed cartoon rig's fingers skim it while walking) and whose support the force check catches.
+RESTING_POINTS: tuple[str, ...] = ("pelvis", "spine", "neck", "head", "left_shoulder", "left_elbow", "right_shoulder",
+                                   "right_elbow", "left_hip", "left_knee", "right_hip", "right_knee")
+# m: such a point this close to the floor (or below it) rests on it: a kneeling knee's joint centre sits about this
+# high (docs/decisions/physics-limits.md, "Other body parts")
+RESTING_HEIGHT = 0.05
+
+
+def resting_points(point_names: Sequence[str]) -> list[int]:
+    """Indices into point_names of the RESTING_POINTS it holds."""
+    return [i for i, name in enumerate(point_names) if name in RESTING_POINTS]
+
+
+def resting_off_feet(heights: np.ndarray) -> np.ndarray:
+    """(...,) bool: heights (..., P) m above the floor of the body's `resting_points` -> whether any rests on the
+    floor (within RESTING_HEIGHT, or below it): a knee, an elbow or the seat carrying weight that no sole point can,
+    or a fit whose body sinks through the floor."""
+    return np.asarray(heights).min(axis=-1) < RESTING_HEIGHT
 
 
 def convex_hull_2d(points: Iterable[Iterable[float]]) -> list[tuple[float, float]]:

@@ -14,6 +14,7 @@ import numpy as np
 from ..body import kinematics as kin
 from ..body.kinematics import rigid_transform_qpos
 from ..body.model import CONTACT_POINTS, BodyModel
+from ..body.support import RESTING_POINTS, resting_off_feet
 from ..camera import floor_in_camera
 from ..config import PhysicsSettings
 from ..contacts.flights import STANDING_SUPPORT, support_held_flights, valid_runs
@@ -93,8 +94,7 @@ class PhysicsStream:
         self._frames = 0
         # The targets' lift out of the floor (their lowest predicted contact point's depth, smoothed), how flat each
         # foot is turned (0 .. 1, smoothed), and the share of a new frame's value taken in (settings.target_lift_time)
-        self._lift = 0.0
-        self._flatness = np.zeros(2)
+        self._lift, self._flatness = 0.0, np.zeros(2)
         # Kinematics refined by Rempe's B.4 (refined_input) already rest their feet on the floor: lifting and
         # flattening them again only raised the feet (docs/decisions/physics-default.md); nor are they planted.
         fit_feet = settings.foot_lock != "never" and not refined_input  # a fit's feet on the floor, B.4's not
@@ -109,13 +109,14 @@ class PhysicsStream:
         self._roots: deque[np.ndarray] = deque(maxlen=self._root_frames)
         self._weight = body.mass * GRAVITY
         # The diagnosis (settings.unexplained_*): the unexplained root force, averaged causally over
-        # unexplained_time, and the kinematic motion's share in the output (0: physics, 1: kinematic)
+        # unexplained_time, the kinematic motion's share in the output (0: physics, 1: kinematic), and the target's
+        # points whose resting on the floor it reads (body.support.RESTING_POINTS)
         self._unexplained = np.zeros(3)
         self._unexplained_share = 1.0 - np.exp(-1.0 / (fps * settings.unexplained_time))
-        self._kinematic_share = 0.0
-        self._blend_rate = 1.0 / max(fps * settings.unexplained_blend, 1.0)
+        self._kinematic_share, self._blend_rate = 0.0, 1.0 / max(fps * settings.unexplained_blend, 1.0)
         self._blend_step = np.zeros(body.nv)
         self._deviation_data = mujoco.MjData(model)
+        self._resting_sites = np.array([model.site(name).id for name in body.point_names if name in RESTING_POINTS])
         # The start's drop onto the floor (m; None before the first frame), its share kept a frame (start_drop_time)
         self._drop: float | None = None
         self._drop_keep = (math.exp(-1.0 / (fps * settings.start_drop_time))
@@ -205,8 +206,9 @@ class PhysicsStream:
         """Bounds the frame's forces (settings.max_force) and judges whether the contact model explains the
         frame: the upward root force the kinematic motion needs and no contact on the floor can give
         (FrameOutput.unexplained[2]: something else holds the body up) averaged over unexplained_time above
-        unexplained_force, a diverged step or failed QP, a force over the bound, or the character farther than
-        stray_distance from its target. Sets frame.unexplained_flag and
+        unexplained_force, the target resting on a knee, an elbow or the seat (body.support.resting_off_feet), a
+        diverged step or failed QP, a force over the bound, or the character farther than stray_distance from its
+        target. Sets frame.unexplained_flag and
         returns the pose to hand out (nq,): the character's, blended towards the frame's kinematic target over
         unexplained_blend while frames are flagged; a character fully handed over restarts from the target."""
         s = self.settings
@@ -227,6 +229,7 @@ class PhysicsStream:
         flagged = (out_of_bounds or frame.diverged or frame.qp_failures > 0
                    or (s.unexplained_force is not None
                        and self._unexplained[2] > s.unexplained_force * self._weight)
+                   or bool(resting_off_feet(self.tracker.target_data.site_xpos[self._resting_sites, 2]))
                    or self._deviation() > s.stray_distance)
         frame.unexplained_flag = flagged
         if not flagged and frame.motion_forces is not None:

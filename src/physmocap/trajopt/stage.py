@@ -30,7 +30,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..body import kinematics as kin
 from ..body.model import CONTACT_POINTS, BodyModel
+from ..body.support import resting_off_feet, resting_points
 from ..config import TrajoptSettings
 from ..contacts.flights import STANDING_SUPPORT, support_held_flights, valid_runs
 from ..cores import may_use_two_cores, usable_cores
@@ -161,7 +163,8 @@ class TrajoptMotion:
         if self.unexplained is not None and self.unexplained.any():
             below = ", ".join(frame_ranges(np.flatnonzero(self.unexplained)))
             line += (f"; of these, the contact model cannot explain frames {below} (the input's centre of mass "
-                     "below the floor, or held up with no foot on it)")
+                     "below the floor, the body resting on a knee, an elbow or the seat, or held up with no foot on "
+                     "it)")
         return line
 
     def to_arrays(self) -> dict[str, np.ndarray]:
@@ -229,11 +232,11 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     T = len(qpos_kin)
     observed = np.ones(T, bool) if valid is None else np.asarray(valid, bool)
     reduced = reduced_motion(body, qpos_kin, fps)
-    unexplained = observed & unexplained_frames(reduced.com)
+    unexplained = observed & unexplained_frames(body, qpos_kin, reduced.com)
     if unexplained.any():
-        log.warning("trajopt: on frames %s the input's centre of mass lies below the floor, which contacts on the "
-                    "floor cannot explain: the kinematic motion is kept there.",
-                    ", ".join(frame_ranges(np.flatnonzero(unexplained))))
+        log.warning("trajopt: on frames %s the input's centre of mass lies below the floor or the body rests on a "
+                    "knee, an elbow or the seat, which the feet on the floor cannot explain: the kinematic motion is "
+                    "kept there.", ", ".join(frame_ranges(np.flatnonzero(unexplained))))
     valid = observed & ~unexplained
     min_frames = max(1, math.ceil(settings.min_phase_seconds * fps - 1e-9))
     flags = np.stack([clean_flags(contacts[:, i], min_frames) for i in range(4)], axis=1) & valid[:, None]
@@ -265,12 +268,15 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     return out
 
 
-def unexplained_frames(com: np.ndarray) -> np.ndarray:
-    """(T,) bool: frames whose input centre of mass (T, 3) m lies below the floor (z = 0). The body stands on the
-    floor in the contact model, so its COM is above it; a COM below it is a detection or floor error (a person
-    leaving the view, a floor at another height). Optimised, such frames asked for forces of several body weights
-    (intel_highcam_walk_stand at 10 fps: docs/decisions/trajopt-frame-rate.md)."""
-    return np.asarray(com)[:, 2] < 0.0
+def unexplained_frames(body: BodyModel, qpos: np.ndarray, com: np.ndarray) -> np.ndarray:
+    """(T,) bool: frames of the input motion qpos (T, nq) whose centre of mass com (T, 3) m lies below the floor
+    (z = 0), or whose body rests on the floor off its feet (`support.resting_off_feet`: a knee, an elbow, the seat).
+    The body stands on its soles in the contact model, so its COM is above the floor; a COM below it is a detection
+    or floor error (a person leaving the view, a floor at another height). Optimised, such frames asked for forces
+    of several body weights (intel_highcam_walk_stand at 10 fps: docs/decisions/trajopt-frame-rate.md), and a body
+    sliding on a knee departed 13-14 cm from its input (docs/decisions/physics-limits.md, "Other body parts")."""
+    points = kin.forward_kinematics(body, qpos).points[:, resting_points(body.point_names)]
+    return (np.asarray(com)[:, 2] < 0.0) | resting_off_feet(points[..., 2])
 
 
 def _full_body(out: TrajoptMotion, body: BodyModel, qpos_kin: np.ndarray, reduced, fps: float,
