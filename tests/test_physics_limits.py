@@ -205,6 +205,23 @@ def test_a_body_resting_on_a_knee_is_flagged_and_the_same_lunge_above_the_floor_
     assert not flagged[0.12][36:60].any()
 
 
+def test_offline_the_hand_back_is_centred_on_the_flagged_stretch(body):
+    """Frames 10-12 flagged at 10 fps with a 0.2 s blend: handed over fully there, half-way one frame either side,
+    untouched two frames away (the causal stream only starts at frame 10)."""
+    from physmocap.dynamics.stage import centred_hand_back
+
+    targets = np.repeat(body.rest_qpos[None], 30, axis=0)
+    tracked = targets.copy()
+    tracked[:, 0] += 0.1
+    flagged = np.zeros(30, bool)
+    flagged[10:13] = True
+    out = centred_hand_back(body.mujoco_model(), tracked, targets, flagged, 10.0, 0.2)
+    np.testing.assert_allclose(out[7:16, 0], [0.1, 0.1, 0.05, 0, 0, 0, 0.05, 0.1, 0.1], atol=1e-12)
+    np.testing.assert_array_equal(out[:, 1:], targets[:, 1:])
+    np.testing.assert_array_equal(centred_hand_back(body.mujoco_model(), tracked, targets, np.zeros(30, bool), 10.0,
+                                                    0.2), tracked)
+
+
 def test_non_finite_or_huge_forces_are_bounded_and_flagged(body, monkeypatch):
     from physmocap.dynamics import physcap
 

@@ -48,7 +48,8 @@ class PhysicsMotion:
     seconds: float
     floor_plane: np.ndarray | None = None
     unexplained: np.ndarray | None = None  # (T,) bool: frames the contact model could not explain, handed back
-    # as the kinematic motion (blended in and out over settings.unexplained_blend); None: not diagnosed
+    # as the kinematic motion (blended in and out over settings.unexplained_blend: offline centred on each flagged
+    # stretch's edges, causally from its first frame on); None: not diagnosed
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         """Every field as named arrays for an .npz file (no floor_plane: nan); `from_arrays` rebuilds it."""
@@ -87,11 +88,11 @@ class PhysicsStream:
         # times faster in seconds at 60 fps than at 10 (docs/decisions/physics-balance.md)
         self.balance = BalanceCorrector(body, 1.0 - math.exp(-1.0 / (fps * settings.correction_time)))
         self._previous: np.ndarray | None = None  # last kinematic pose
-        self._velocity = np.zeros(body.nv)  # smoothed kinematic velocity of the last frame
+        self.target = body.rest_qpos.copy()  # the last frame's target (nq,): its kinematic pose after 4.3.1
+        self._velocity, self._frames = np.zeros(body.nv), 0  # the last frame's smoothed kinematic velocity; count
         # share of the newest backward difference in the smoothed velocity (1: no smoothing)
         smoothing = settings.velocity_smoothing
         self._new_share = 1.0 - np.exp(-1.0 / (fps * smoothing)) if smoothing else 1.0
-        self._frames = 0
         # The targets' lift out of the floor (their lowest predicted contact point's depth, smoothed), how flat each
         # foot is turned (0 .. 1, smoothed), and the share of a new frame's value taken in (settings.target_lift_time)
         self._lift, self._flatness = 0.0, np.zeros(2)
@@ -176,6 +177,7 @@ class PhysicsStream:
             stationary = self.root_speed() < self.settings.stationary_max_speed
         if self.settings.balance_correction:
             target, corrected = self.balance.correct(q_kin, stationary, contacts)
+        self.target = target
         frame = self.tracker.track(target, velocity, acceleration, contacts, released)
         self._held = frame.active
         pose = self._diagnose(frame, target, velocity)
@@ -391,18 +393,47 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     out = PhysicsMotion(qpos_kin.copy(), np.zeros((T, 4, 3)), np.zeros((T, 6)), np.zeros((T, 4), bool),
                         np.zeros(T, bool), np.zeros(T, int), 0.0, unexplained=unexplained)
     first = 0 if valid is None or not np.any(valid) else int(np.argmax(valid))
+    tracked, targets = qpos_kin.copy(), qpos_kin.copy()  # the character's own poses and the frames' targets
     for t in range(first, T):
         out.qpos[t], frame, out.corrected[t] = stream.push(qpos_kin[t], contacts[t], bool(stationary[t]))
+        tracked[t], targets[t] = stream.tracker.qpos, stream.target
         out.grf[t], out.residual[t], out.contacts[t], out.qp_failures[t], unexplained[t] = (
             frame.contact_forces, frame.residual, frame.active, frame.qp_failures, frame.unexplained_flag)
         if progress:
             progress(t + 1, T)
+    if refined_input and stream.floor is None:
+        out.qpos = centred_hand_back(stream.tracker.model, tracked, targets, unexplained, fps,
+                                     settings.unexplained_blend)
     gone = np.zeros(T, bool) if valid is None else ~np.asarray(valid, bool)
     out.grf[gone], out.residual[gone], out.contacts[gone] = 0.0, 0.0, False  # tracked through, nothing claimed
     if refined_input and settings.plant_reach:
         out.qpos = plant_held_feet(body, out.qpos, out.contacts, fps, settings.plant_reach, gone | unexplained)
     out.seconds = time.perf_counter() - start
     out.floor_plane = stream.floor_plane
+    return out
+
+
+def centred_hand_back(model: mujoco.MjModel, tracked: np.ndarray, targets: np.ndarray, flagged: np.ndarray,
+                      fps: float, blend: float) -> np.ndarray:
+    """(T, nq) poses: the character's own (tracked, (T, nq)) handed over to the frames' targets (T, nq) on the
+    flagged frames (T,) and blended towards them over `blend` seconds on either side of each flagged stretch.
+    Offline only: the whole clip known, the hand-over is done when the unexplained motion begins, where the causal
+    stream only starts it (most of the root error inside the diagnosis' box came from the frames before the flag
+    rose: docs/decisions/physics-limits.md). Frames farther than `blend` from every flagged frame keep the
+    character's pose; blend 0: only the flagged frames are handed over."""
+    out = tracked.copy()
+    index = np.flatnonzero(flagged)
+    if not len(index):
+        return out
+    frames = np.arange(len(out))
+    after = np.minimum(np.searchsorted(index, frames), len(index) - 1)  # the nearest flagged frame on each side
+    before = np.maximum(after - 1, 0)
+    seconds = np.minimum(np.abs(index[after] - frames), np.abs(frames - index[before])) / fps
+    share = np.clip(1.0 - seconds / blend, 0.0, 1.0) if blend > 0.0 else (seconds == 0.0).astype(float)
+    step = np.zeros(model.nv)
+    for t in np.flatnonzero(share > 0.0):
+        mujoco.mj_differentiatePos(model, step, 1.0, out[t], targets[t])
+        mujoco.mj_integratePos(model, out[t], step, share[t])
     return out
 
 
