@@ -89,7 +89,7 @@ class PhysicsStream:
         self.balance = BalanceCorrector(body, 1.0 - math.exp(-1.0 / (fps * settings.correction_time)))
         self._previous: np.ndarray | None = None  # last kinematic pose
         self.target = body.rest_qpos.copy()  # the last frame's target (nq,): its kinematic pose after 4.3.1
-        self._velocity, self._frames = np.zeros(body.nv), 0  # the last frame's smoothed kinematic velocity; frames pushed
+        self._velocity, self._frames = np.zeros(body.nv), 0  # the last smoothed kinematic velocity; frames pushed
         # share of the newest backward difference in the smoothed velocity (1: no smoothing)
         smoothing = settings.velocity_smoothing
         self._new_share = 1.0 - np.exp(-1.0 / (fps * smoothing)) if smoothing else 1.0
