@@ -952,7 +952,8 @@ def test_frames_resting_on_a_knee_are_kept_kinematic_and_flagged(body):
     q = sway(body, 50)
     q[20:30] = kneeling(body, 0.02)
     q[20:30, :2] = q[19, :2]
-    assert np.array_equal(stage.unexplained_frames(body, q, kin.center_of_mass(body, kin.forward_kinematics(body, q))),
+    pose = kin.forward_kinematics(body, q)
+    assert np.array_equal(stage.unexplained_frames(body, pose.points, kin.center_of_mass(body, pose)),
                           (np.arange(50) >= 20) & (np.arange(50) < 30))
 
 

@@ -14,7 +14,7 @@ import numpy as np
 from ..body import kinematics as kin
 from ..body.kinematics import rigid_transform_qpos
 from ..body.model import CONTACT_POINTS, BodyModel
-from ..body.support import RESTING_POINTS, resting_off_feet
+from ..body.support import resting_off_feet, resting_points
 from ..camera import floor_in_camera
 from ..config import PhysicsSettings
 from ..contacts.flights import STANDING_SUPPORT, support_held_flights, valid_runs
@@ -117,7 +117,7 @@ class PhysicsStream:
         self._kinematic_share, self._blend_rate = 0.0, 1.0 / max(fps * settings.unexplained_blend, 1.0)
         self._blend_step = np.zeros(body.nv)
         self._deviation_data = mujoco.MjData(model)
-        self._resting_sites = np.array([model.site(name).id for name in body.point_names if name in RESTING_POINTS])
+        self._resting_sites = np.array([model.site(body.point_names[i]).id for i in resting_points(body.point_names)])
         # The start's drop onto the floor (m; None before the first frame), its share kept a frame (start_drop_time)
         self._drop: float | None = None
         self._drop_keep = (math.exp(-1.0 / (fps * settings.start_drop_time))
@@ -393,17 +393,18 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     out = PhysicsMotion(qpos_kin.copy(), np.zeros((T, 4, 3)), np.zeros((T, 6)), np.zeros((T, 4), bool),
                         np.zeros(T, bool), np.zeros(T, int), 0.0, unexplained=unexplained)
     first = 0 if valid is None or not np.any(valid) else int(np.argmax(valid))
-    tracked, targets = qpos_kin.copy(), qpos_kin.copy()  # the character's own poses and the frames' targets
+    # Offline (the whole clip known): the character's own poses and the frames' targets, for centred_hand_back
+    recorded = (qpos_kin.copy(), qpos_kin.copy()) if refined_input and stream.floor is None else None
     for t in range(first, T):
         out.qpos[t], frame, out.corrected[t] = stream.push(qpos_kin[t], contacts[t], bool(stationary[t]))
-        tracked[t], targets[t] = stream.tracker.qpos, stream.target
+        if recorded is not None:
+            recorded[0][t], recorded[1][t] = stream.tracker.qpos, stream.target
         out.grf[t], out.residual[t], out.contacts[t], out.qp_failures[t], unexplained[t] = (
             frame.contact_forces, frame.residual, frame.active, frame.qp_failures, frame.unexplained_flag)
         if progress:
             progress(t + 1, T)
-    if refined_input and stream.floor is None:
-        out.qpos = centred_hand_back(stream.tracker.model, tracked, targets, unexplained, fps,
-                                     settings.unexplained_blend)
+    if recorded is not None:
+        out.qpos = centred_hand_back(stream.tracker.model, *recorded, unexplained, fps, settings.unexplained_blend)
     gone = np.zeros(T, bool) if valid is None else ~np.asarray(valid, bool)
     out.grf[gone], out.residual[gone], out.contacts[gone] = 0.0, 0.0, False  # tracked through, nothing claimed
     if refined_input and settings.plant_reach:

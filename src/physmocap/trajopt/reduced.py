@@ -143,9 +143,10 @@ def foot_lengths(body: BodyModel) -> np.ndarray:
     return np.array(out)
 
 
-def reduced_motion(body: BodyModel, qpos: np.ndarray, fps: float) -> ReducedMotion:
-    """The reduced model's inputs (B.5) from a full-body motion qpos (T, nq) in the floor's world frame."""
-    pose = kin.forward_kinematics(body, qpos)
+def reduced_motion(body: BodyModel, qpos: np.ndarray, fps: float, pose: kin.Pose | None = None) -> ReducedMotion:
+    """The reduced model's inputs (B.5) from a full-body motion qpos (T, nq) in the floor's world frame; pose: its
+    forward kinematics where the caller has them (None: computed here)."""
+    pose = kin.forward_kinematics(body, qpos) if pose is None else pose
     com = kin.center_of_mass(body, pose)
     rotation = pose.rotations[:, 0]
     inertia_world = world_inertia(body, pose, com)

@@ -231,8 +231,10 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     settings.check()
     T = len(qpos_kin)
     observed = np.ones(T, bool) if valid is None else np.asarray(valid, bool)
-    reduced = reduced_motion(body, qpos_kin, fps)
-    unexplained = observed & unexplained_frames(body, qpos_kin, reduced.com)
+    pose = kin.forward_kinematics(body, qpos_kin)
+    reduced = reduced_motion(body, qpos_kin, fps, pose)
+    unexplained = observed & unexplained_frames(body, pose.points, reduced.com)
+    del pose  # the rotations of every body and frame: not kept through the solve
     if unexplained.any():
         log.warning("trajopt: on frames %s the input's centre of mass lies below the floor or the body rests on a "
                     "knee, an elbow or the seat, which the feet on the floor cannot explain: the kinematic motion is "
@@ -268,15 +270,16 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     return out
 
 
-def unexplained_frames(body: BodyModel, qpos: np.ndarray, com: np.ndarray) -> np.ndarray:
-    """(T,) bool: frames of the input motion qpos (T, nq) whose centre of mass com (T, 3) m lies below the floor
-    (z = 0), or whose body rests on the floor off its feet (`support.resting_off_feet`: a knee, an elbow, the seat).
+def unexplained_frames(body: BodyModel, points: np.ndarray, com: np.ndarray) -> np.ndarray:
+    """(T,) bool: frames of the input motion, its body points (T, P, 3) m (body.point_names order) and centre of mass
+    com (T, 3) m, whose COM lies below the floor (z = 0), or whose body rests on the floor off its feet
+    (`support.resting_off_feet`: a knee, an elbow, the seat).
     The body stands on its soles in the contact model, so its COM is above the floor; a COM below it is a detection
     or floor error (a person leaving the view, a floor at another height). Optimised, such frames asked for forces
     of several body weights (intel_highcam_walk_stand at 10 fps: docs/decisions/trajopt-frame-rate.md), and a body
     sliding on a knee departed 13-14 cm from its input (docs/decisions/physics-limits.md, "Other body parts")."""
-    points = kin.forward_kinematics(body, qpos).points[:, resting_points(body.point_names)]
-    return (np.asarray(com)[:, 2] < 0.0) | resting_off_feet(points[..., 2])
+    heights = np.asarray(points)[:, resting_points(body.point_names), 2]
+    return (np.asarray(com)[:, 2] < 0.0) | resting_off_feet(heights)
 
 
 def _full_body(out: TrajoptMotion, body: BodyModel, qpos_kin: np.ndarray, reduced, fps: float,
