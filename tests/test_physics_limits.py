@@ -149,6 +149,19 @@ def test_a_body_carried_off_the_floor_is_flagged_and_handed_back_as_the_kinemati
     assert physics.unexplained.dtype == bool
 
 
+def test_with_the_whole_clip_every_flagged_frame_is_the_kinematic_motion(body):
+    q, _ = raised(body)
+    contacts, still = np.ones((len(q), 4), bool), np.zeros(len(q), bool)
+    causal = run_physcap(body, q, 30.0, contacts, still, PhysicsSettings())
+    whole = run_physcap(body, q, 30.0, contacts, still, PhysicsSettings(), whole_clip=True)
+    np.testing.assert_array_equal(whole.unexplained, causal.unexplained)  # the same simulation and flags
+    flagged = whole.unexplained
+    assert flagged.any()
+    whole_miss = np.linalg.norm(whole.qpos[flagged, :3] - q[flagged, :3], axis=1)
+    causal_miss = np.linalg.norm(causal.qpos[flagged, :3] - q[flagged, :3], axis=1)
+    assert whole_miss.max() < 1e-9 < causal_miss.max()  # the causal stream only starts handing back there
+
+
 def test_ordinary_standing_and_a_ballistic_jump_are_not_flagged(body):
     fps, frames = 30.0, 60
     # A jump whose take-off and landing are pushed by the feet: the root rises and falls along a smooth

@@ -73,10 +73,11 @@ class PhysicsStream:
     kinematic velocities causally, lifts targets whose feet sink out of the floor, corrects balance, and tracks.
     With refine_floor (an online fit whose floor was estimated, not given) the floor is refined as frames arrive
     and the character runs on the refined floor; poses and forces come back in the kinematic world
-    (`onto_refined_floor` moves both onto the final floor). refined_input, resting_labelled: see `run_physcap`."""
+    (`onto_refined_floor` moves both onto the final floor). refined_input, resting_labelled, whole_clip: see
+    `run_physcap`."""
 
     def __init__(self, body: BodyModel, settings: PhysicsSettings, fps: float, refine_floor: bool = False,
-                 refined_input: bool = False, resting_labelled: bool = False):
+                 refined_input: bool = False, resting_labelled: bool = False, whole_clip: bool = False):
         self.body, self.settings, self.fps = body, settings, fps
         self.floor = (FloorRefiner(body, fps, settings.floor_refit_interval, np.radians(settings.floor_tilt_rate),
                                    settings.floor_lift_rate, settings.floor_refine_after)
@@ -123,11 +124,11 @@ class PhysicsStream:
         self._drop_keep = (math.exp(-1.0 / (fps * settings.start_drop_time))
                            if settings.start_drop_time is not None else 0.0)
         # Online fits' held feet are planted where the character holds them, and the output's stand still,
-        # causally (offline, B.4 planted the target's and run_physcap plants the whole clip's output)
+        # causally (with the whole clip, B.4 planted the target's and run_physcap plants the output's)
         self.planter = (FootPlanter(model, fps, settings.plant_time, settings.release_distance)
                         if fit_feet and settings.plant_time is not None else None)
-        self.output_planter = OutputPlanter(model, fps, settings.plant_reach) if fit_feet and settings.plant_reach \
-            else None
+        self.output_planter = (OutputPlanter(model, fps, settings.plant_reach)
+                               if fit_feet and settings.plant_reach and not whole_clip else None)
         self._held = np.zeros(4, bool)  # the contacts the character held at the end of the last frame
         # Online fits' sole points resting on the floor are contacts though not predicted (as B.4 adds offline);
         # the window holds their positions over REST_SPEED_INTERVAL, oldest first.
@@ -370,7 +371,7 @@ def kinematic_derivatives(body: BodyModel, qpos: np.ndarray, fps: float) -> tupl
 def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.ndarray, stationary: np.ndarray,
                 settings: PhysicsSettings, progress=None, refine_floor: bool = False,
                 valid: np.ndarray | None = None, refined_input: bool = False,
-                resting_labelled: bool = False) -> PhysicsMotion:
+                resting_labelled: bool = False, whole_clip: bool = False) -> PhysicsMotion:
     """Track the kinematic motion (T, nq) with the physics character; contacts (T, 4) and stationary (T,)
     come from the contact stage. Causal: frame t uses frames up to t only (but refined_input's held label flights,
     judged on the whole clip). refine_floor: see PhysicsStream.
@@ -383,18 +384,21 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     labels that the motion does not fall through are held (held_label_flights); knowing the whole clip, the held
     feet are then planted on their spots (planting.plant_held_feet, settings.plant_reach). resting_labelled: the
     contacts already hold the points resting on the floor (a capture's contacts in use, which retargeting carries
-    over), so none are added (rest_height; B.4's refinement implies it)."""
+    over), so none are added (rest_height; B.4's refinement implies it). whole_clip: the caller holds the whole clip
+    (as B.4 input and a retargeted capture do), so the hand-back to the kinematic motion is centred on each flagged
+    stretch (centred_hand_back) and the held feet are planted over the whole clip, not by the causal OutputPlanter."""
     start = time.perf_counter()
     T = len(qpos_kin)
     if refined_input:
         contacts = held_label_flights(body, qpos_kin, fps, contacts, valid)
-    stream = PhysicsStream(body, settings, fps, refine_floor, refined_input, resting_labelled)
+    whole_clip = whole_clip or refined_input
+    stream = PhysicsStream(body, settings, fps, refine_floor, refined_input, resting_labelled, whole_clip)
     unexplained = np.zeros(T, bool)
     out = PhysicsMotion(qpos_kin.copy(), np.zeros((T, 4, 3)), np.zeros((T, 6)), np.zeros((T, 4), bool),
                         np.zeros(T, bool), np.zeros(T, int), 0.0, unexplained=unexplained)
     first = 0 if valid is None or not np.any(valid) else int(np.argmax(valid))
-    # Offline (the whole clip known): the character's own poses and the frames' targets, for centred_hand_back
-    recorded = (qpos_kin.copy(), qpos_kin.copy()) if refined_input and stream.floor is None else None
+    # The character's own poses and the frames' targets, for centred_hand_back
+    recorded = (qpos_kin.copy(), qpos_kin.copy()) if whole_clip and stream.floor is None else None
     for t in range(first, T):
         out.qpos[t], frame, out.corrected[t] = stream.push(qpos_kin[t], contacts[t], bool(stationary[t]))
         if recorded is not None:
@@ -407,7 +411,7 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
         out.qpos = centred_hand_back(stream.tracker.model, *recorded, unexplained, fps, settings.unexplained_blend)
     gone = np.zeros(T, bool) if valid is None else ~np.asarray(valid, bool)
     out.grf[gone], out.residual[gone], out.contacts[gone] = 0.0, 0.0, False  # tracked through, nothing claimed
-    if refined_input and settings.plant_reach:
+    if whole_clip and settings.plant_reach:
         out.qpos = plant_held_feet(body, out.qpos, out.contacts, fps, settings.plant_reach, gone | unexplained)
     out.seconds = time.perf_counter() - start
     out.floor_plane = stream.floor_plane

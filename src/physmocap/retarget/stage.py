@@ -198,7 +198,7 @@ def _run_physics(body: BodyModel, retargeted_qpos: np.ndarray, fps: float, conta
 
         # The source's contacts in use already hold its resting points (B.4's, or its own physics' rest test)
         motion = run_physcap(body, retargeted_qpos[span], fps, contacts[span], stationary[span], settings.physics,
-                             valid=valid[span], resting_labelled=True)
+                             valid=valid[span], resting_labelled=True, whole_clip=True)
     else:
         from ..trajopt.stage import run_trajopt
 
