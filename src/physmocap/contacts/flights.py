@@ -1,7 +1,7 @@
 """Whole-body flights of the contact labels against the motion: a flight whose centre of mass does not fall is the
 labels' error, and a point that stays put holds the body up through it (ours; docs/decisions/trajopt-false-
 flights.md). Pure numpy on flags and positions, shared by both offline physics methods (trajopt.stage,
-dynamics.stage)."""
+dynamics.stage), with the runs of contact flags and the easing at their edges that planting and retargeting share."""
 
 from __future__ import annotations
 
@@ -28,6 +28,23 @@ def valid_runs(valid: np.ndarray) -> list[tuple[int, int]]:
     """[start, stop) of every run of valid frames."""
     edges = np.flatnonzero(np.diff(np.concatenate([[0], valid.astype(int), [0]])))
     return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
+
+
+def edge_easing(held: np.ndarray, frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """How a point eases onto and off its held contacts: for flags held (T, K) bool, the weights (T, K) in 0..1 (1
+    while held, 1 - d / (frames + 1) at d <= frames frames beside a contact, 0 elsewhere) and the frame (T, K) int
+    whose held value each frame takes that share of (itself while held; beside a contact, its nearer edge, the
+    earlier one on a tie, so that weight and value come from one contact; -1 elsewhere)."""
+    held = np.asarray(held, bool)
+    weights, edges = held.astype(float), np.where(held, np.arange(len(held))[:, None], -1)
+    for k in range(held.shape[1]):
+        for start, end in valid_runs(held[:, k]):
+            for d in range(1, frames + 1):
+                weight = 1.0 - d / (frames + 1)
+                for t, edge in ((start - d, start), (end - 1 + d, end - 1)):
+                    if 0 <= t < len(held) and not held[t, k] and weight > weights[t, k]:
+                        weights[t, k], edges[t, k] = weight, edge
+    return weights, edges
 
 
 def flight_support(com_height: np.ndarray, times: np.ndarray, start: int, stop: int, gravity: float) -> float:

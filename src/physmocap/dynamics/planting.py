@@ -21,7 +21,7 @@ import numpy as np
 from ..body import kinematics as kin
 from ..body.ik import solve_points
 from ..body.model import CONTACT_POINTS, BodyModel
-from ..contacts.flights import valid_runs
+from ..contacts.flights import edge_easing, valid_runs
 
 LEG_JOINTS = ("hip", "knee", "ankle")  # the joints bent to move a foot, per side
 LEG_POINTS = ("left_knee", "left_ankle", "left_heel", "left_toe", "right_knee", "right_ankle", "right_heel",
@@ -231,17 +231,14 @@ def plant_held_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, fps
     feet, legs = body.point_index(CONTACT_POINTS), body.point_index(LEG_POINTS)
     simulated = kin.forward_kinematics(body, qpos).points
     points = simulated[:, feet]
-    shifts, blend = np.zeros_like(points), held.astype(float)
-    ease = max(1, round(EASE_TIME * fps))
+    shifts = np.zeros_like(points)
     for k in range(len(CONTACT_POINTS)):
         for start, end in valid_runs(held[:, k]):
             spots = leashed_spots(points[start:end, k, :2], reach)
             shifts[start:end, k, :2] = spots - points[start:end, k, :2]
-            for d in range(1, ease + 1):  # a point eases by a share of its shift at the contact's edge
-                weight = 1.0 - d / (ease + 1)
-                for t, edge in ((start - d, start), (end - 1 + d, end - 1)):
-                    if 0 <= t < len(qpos) and not held[t, k] and weight > blend[t, k]:
-                        blend[t, k], shifts[t, k] = weight, weight * shifts[edge, k]
+    # Beside a contact a point eases by a share of the shift at its edge.
+    blend, edges = edge_easing(held, max(1, round(EASE_TIME * fps)))
+    shifts = blend[..., None] * shifts[np.maximum(edges, 0), np.arange(len(CONTACT_POINTS))]
     solved = blend.any(axis=1) & ~frozen
     if not solved.any():
         return np.array(qpos, dtype=float)

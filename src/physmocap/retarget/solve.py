@@ -29,7 +29,7 @@ import numpy as np
 from ..body import kinematics as kin
 from ..body.ik import solve_points
 from ..body.model import CONTACT_POINTS, JOINT_NAMES, BodyModel
-from ..contacts.flights import valid_runs
+from ..contacts.flights import edge_easing
 
 POSE_WEIGHT = 1.0  # each joint's pull towards the scaled source pose (residual in metres)
 CONTACT_WEIGHT = 30.0  # a contact point's pull to its planted spot; much stronger than the pose, so feet stay put
@@ -107,37 +107,6 @@ def _smooth_offsets(offsets: np.ndarray) -> np.ndarray:
     return np.stack([np.convolve(padded[:, i], kernel, "valid") for i in range(offsets.shape[1])], axis=1)
 
 
-def _blend_weights(contacts: np.ndarray) -> np.ndarray:
-    """(T, 4) 0..1: 1 inside a contact, rising/falling linearly over BLEND_FRAMES frames outside it, so that a foot
-    eases onto and off its planted spot instead of jumping."""
-    T = len(contacts)
-    weights = contacts.astype(float)
-    for k in range(contacts.shape[1]):
-        for start, end in valid_runs(contacts[:, k]):
-            for d in range(1, BLEND_FRAMES + 1):
-                w = 1.0 - d / (BLEND_FRAMES + 1)
-                if start - d >= 0:
-                    weights[start - d, k] = max(weights[start - d, k], w)
-                if end - 1 + d < T:
-                    weights[end - 1 + d, k] = max(weights[end - 1 + d, k], w)
-    return weights
-
-
-def _extend_spots(spots: np.ndarray, contacts: np.ndarray) -> np.ndarray:
-    """The planted spots carried into the blend frames beside each contact."""
-    out = spots.copy()
-    T = len(contacts)
-    for k in range(contacts.shape[1]):
-        for start, end in valid_runs(contacts[:, k]):
-            for d in range(1, BLEND_FRAMES + 1):
-                if start - d >= 0 and not contacts[start - d, k]:
-                    out[start - d, k] = np.where(np.isnan(out[start - d, k]), spots[start, k], out[start - d, k])
-                if end - 1 + d < T and not contacts[end - 1 + d, k]:
-                    out[end - 1 + d, k] = np.where(np.isnan(out[end - 1 + d, k]), spots[end - 1, k],
-                                                   out[end - 1 + d, k])
-    return out
-
-
 def _ik_goals(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, joints: np.ndarray, feet: np.ndarray,
               contact_columns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """solve_feet's starting motion (T, nq) (lifted out of the floor, moved by `follow_planted_feet`), the joints'
@@ -151,8 +120,9 @@ def _ik_goals(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, joints: n
     offsets = _smooth_offsets(offsets)
     qpos[:, 0:2] += offsets
     targets[..., :2] += offsets[:, None]
-    blend = _blend_weights(contacts)
-    eased = _extend_spots(spots, contacts)
+    # A contact point eases onto and off the spot of its nearer contact.
+    blend, edges = edge_easing(contacts, BLEND_FRAMES)
+    eased = np.where((edges >= 0)[..., None], spots[np.maximum(edges, 0), np.arange(contacts.shape[1])], np.nan)
     goal = targets.copy()
     goal_feet = np.where(np.isnan(eased), targets[:, contact_columns],
                          blend[..., None] * np.nan_to_num(eased) + (1 - blend[..., None]) * targets[:, contact_columns])
