@@ -9,20 +9,21 @@ import numpy as np
 
 from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
-from physmocap.contacts.flights import edge_easing
+from physmocap.contacts.flights import ease_frames, edge_easing
 from physmocap.dynamics.planting import OutputPlanter, leashed_spots, plant_held_feet
 
 FPS = 30.0
 
 
 def test_a_point_eases_towards_the_nearer_contact_with_that_contact_s_weight():
+    assert [ease_frames(fps) for fps in (8, 10, 24, 30, 60, 120)] == [1, 1, 2, 3, 6, 12]  # 0.1 s at any rate
     held = np.zeros((14, 1), bool)
     held[2:5, 0] = held[10:12, 0] = True  # frames 5-9 lie between the two contacts; 0-1 and 12-13 beside one
-    weights, edges = edge_easing(held, 3)
+    weights, edges = edge_easing(held, 30.0)  # 3 frames
     np.testing.assert_allclose(weights[:, 0], [0.5, 0.75, 1, 1, 1, 0.75, 0.5, 0.25, 0.5, 0.75, 1, 1, 0.75, 0.5])
     # Held frames take their own value; frame 7, as near to both edges (3 frames), takes the earlier contact's.
     assert edges[:, 0].tolist() == [2, 2, 2, 3, 4, 4, 4, 4, 10, 10, 10, 11, 11, 11]
-    weights, edges = edge_easing(held, 1)
+    weights, edges = edge_easing(held, 10.0)  # 1 frame
     assert weights[7, 0] == 0.0 and edges[7, 0] == -1 and edges[5, 0] == 4 and weights[5, 0] == 0.5
 
 

@@ -67,7 +67,7 @@ def stepping_result(frames: int = 60, fps: float = 30.0) -> dict[str, np.ndarray
         swing = 0.6 + 0.2 * np.sin(2 * np.pi * time)
         qpos[:, shoulder:shoulder + 4] = np.stack([np.cos(swing), -sign * np.sin(swing), 0 * swing, 0 * swing], 1)
         contacts[lift > 0.05, 2 * (side == "right"):2 * (side == "right") + 2] = False
-    qpos, _ = solve_feet(body, qpos, contacts)
+    qpos, _ = solve_feet(body, qpos, contacts, fps)
     points = kin.forward_kinematics(body, qpos).points[:, body.point_index(RESULT_POINTS)]
     result.update(qpos=qpos, qpos_kinematic=qpos, joints_world=points, joints_world_kinematic=points,
                   contacts=contacts, contacts_predicted=contacts)
@@ -265,7 +265,7 @@ def test_feet_stay_planted_while_the_source_slides_and_the_pose_stays_the_source
     qpos = np.tile(body.rest_qpos, (frames, 1))
     qpos[:, 0] += 0.03 * np.arange(frames)
     contacts = np.ones((frames, 4), bool)
-    solved, spots = solve_feet(body, qpos, contacts)
+    solved, spots = solve_feet(body, qpos, contacts, 30.0)
     points = kin.forward_kinematics(body, solved).points
     feet = points[:, body.point_index(CONTACT_POINTS)]
     assert np.abs(np.diff(feet, axis=0)).max() < 1e-3
@@ -301,7 +301,7 @@ def test_a_foot_held_off_its_reach_stays_out_of_the_floor():
     hip = kin.tables(body).qadr[body.body_index["right_thigh"]]
     angle = -np.radians(1.5) * np.arange(frames)
     qpos[:, hip:hip + 4] = quat_exp(np.stack([0 * angle, angle, 0 * angle], axis=1))  # about the y axis
-    solved, spots = solve_feet(body, qpos, np.ones((frames, 4), bool))
+    solved, spots = solve_feet(body, qpos, np.ones((frames, 4), bool), 30.0)
     source_feet = kin.forward_kinematics(body, qpos).points[:, body.point_index(CONTACT_POINTS)]
     assert np.nanmax(np.linalg.norm(source_feet - spots, axis=-1)) > 0.1  # the pose pulls the foot off its spot
     feet = kin.forward_kinematics(body, solved).points[:, body.point_index(CONTACT_POINTS)]

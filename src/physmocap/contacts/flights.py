@@ -11,6 +11,7 @@ import numpy as np
 # weights; 0 in a free fall, 1 standing) is held up, not flying; chosen for trajopt on validation clips of CMU
 # subjects 1, 2, 5, 7 (docs/decisions/trajopt-false-flights.md); 0 .. 1
 STANDING_SUPPORT = 0.5
+EASE_TIME = 0.1  # s: a held point eases onto and off its spot over this (a step's touch-down); planting, retargeting
 
 
 def runs(flags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -30,12 +31,19 @@ def valid_runs(valid: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
 
 
-def edge_easing(held: np.ndarray, frames: int) -> tuple[np.ndarray, np.ndarray]:
-    """How a point eases onto and off its held contacts: for flags held (T, K) bool, the weights (T, K) in 0..1 (1
-    while held, 1 - d / (frames + 1) at d <= frames frames beside a contact, 0 elsewhere) and the frame (T, K) int
-    whose held value each frame takes that share of (itself while held; beside a contact, its nearer edge, the
-    earlier one on a tie, so that weight and value come from one contact; -1 elsewhere)."""
+def ease_frames(fps: float) -> int:
+    """EASE_TIME in whole frames at `fps` (frames/s), at least one."""
+    return max(1, round(EASE_TIME * fps))
+
+
+def edge_easing(held: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """How a point eases onto and off its held contacts over EASE_TIME: for flags held (T, K) bool at `fps`
+    (frames/s), the weights (T, K) in 0..1 (1 while held, 1 - d / (n + 1) at d <= n = `ease_frames(fps)` frames
+    beside a contact, 0 elsewhere) and the frame (T, K) int whose held value each frame takes that share of (itself
+    while held; beside a contact, its nearer edge, the earlier one on a tie, so that weight and value come from one
+    contact; -1 elsewhere)."""
     held = np.asarray(held, bool)
+    frames = ease_frames(fps)
     weights, edges = held.astype(float), np.where(held, np.arange(len(held))[:, None], -1)
     for k in range(held.shape[1]):
         for start, end in valid_runs(held[:, k]):

@@ -21,14 +21,13 @@ import numpy as np
 from ..body import kinematics as kin
 from ..body.ik import solve_points
 from ..body.model import CONTACT_POINTS, BodyModel
-from ..contacts.flights import edge_easing, valid_runs
+from ..contacts.flights import EASE_TIME, edge_easing, valid_runs
 
 LEG_JOINTS = ("hip", "knee", "ankle")  # the joints bent to move a foot, per side
 LEG_POINTS = ("left_knee", "left_ankle", "left_heel", "left_toe", "right_knee", "right_ankle", "right_heel",
               "right_toe")  # the points those joints move: the offline planting's goals
 DAMPING = 0.01  # m: damped least squares' lambda; a leg straight enough to be singular moves its foot along it
 FADED = 1e-4  # m: a shift below this is gone
-EASE_TIME = 0.1  # s: an offline planted point eases onto and off its spot over this (a step's touch-down)
 CONTACT_WEIGHT = 30.0  # a planted point's pull to its spot against a joint's to its simulated place (both in m)
 IK_ITERATIONS = 4  # Gauss-Newton steps of the offline planting: shifts of centimetres converge to well under a mm
 
@@ -237,7 +236,7 @@ def plant_held_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, fps
             spots = leashed_spots(points[start:end, k, :2], reach)
             shifts[start:end, k, :2] = spots - points[start:end, k, :2]
     # Beside a contact a point eases by a share of the shift at its edge.
-    blend, edges = edge_easing(held, max(1, round(EASE_TIME * fps)))
+    blend, edges = edge_easing(held, fps)
     shifts = blend[..., None] * shifts[np.maximum(edges, 0), np.arange(len(CONTACT_POINTS))]
     solved = blend.any(axis=1) & ~frozen
     if not solved.any():

@@ -29,14 +29,13 @@ import numpy as np
 from ..body import kinematics as kin
 from ..body.ik import solve_points
 from ..body.model import CONTACT_POINTS, JOINT_NAMES, BodyModel
-from ..contacts.flights import edge_easing
+from ..contacts.flights import ease_frames, edge_easing
 
 POSE_WEIGHT = 1.0  # each joint's pull towards the scaled source pose (residual in metres)
 CONTACT_WEIGHT = 30.0  # a contact point's pull to its planted spot; much stronger than the pose, so feet stay put
 IK_ITERATIONS = 12
 SAME_FOOT = (1, 0, 3, 2)  # the other contact point of each contact point's foot (CONTACT_POINTS' order)
 STEP_ADJUSTMENT = 0.2  # leg lengths a footstep may land nearer the source's own footprint (0 ..; 0: never)
-BLEND_FRAMES = 3  # a contact point eases between its planted spot and its free target over this many frames
 
 
 @dataclass
@@ -93,11 +92,12 @@ def follow_planted_feet(points: np.ndarray, contacts: np.ndarray,
     return offsets, spots
 
 
-def _smooth_offsets(offsets: np.ndarray) -> np.ndarray:
-    """The offsets (T, 2) averaged over 2 BLEND_FRAMES + 1 frames, so that the body eases, rather than jumps, when
-    the held contacts change (the held feet stay on their spots through the IK). The ends are extended by point
-    reflection, which keeps a steady drift exact up to the first and last frame."""
-    width = min(BLEND_FRAMES, len(offsets) - 1)
+def _smooth_offsets(offsets: np.ndarray, fps: float) -> np.ndarray:
+    """The offsets (T, 2) averaged over 2 n + 1 frames, n = `ease_frames(fps)` (the contacts' easing, EASE_TIME),
+    so that the body eases, rather than jumps, when the held contacts change (the held feet stay on their spots
+    through the IK). The ends are extended by point reflection, which keeps a steady drift exact up to the first and
+    last frame."""
+    width = min(ease_frames(fps), len(offsets) - 1)
     if width < 1:
         return offsets.copy()
     head = 2 * offsets[0] - offsets[width:0:-1]
@@ -107,8 +107,8 @@ def _smooth_offsets(offsets: np.ndarray) -> np.ndarray:
     return np.stack([np.convolve(padded[:, i], kernel, "valid") for i in range(offsets.shape[1])], axis=1)
 
 
-def _ik_goals(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, joints: np.ndarray, feet: np.ndarray,
-              contact_columns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _ik_goals(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, fps: float, joints: np.ndarray,
+              feet: np.ndarray, contact_columns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """solve_feet's starting motion (T, nq) (lifted out of the floor, moved by `follow_planted_feet`), the joints'
     goals (T, J, 3) with the contact points eased onto their spots, their weights (T, J), and the spots (T, 4, 3)."""
     qpos = np.array(qpos, dtype=float)
@@ -117,11 +117,11 @@ def _ik_goals(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, joints: n
     targets = kin.forward_kinematics(body, qpos).points[:, joints]
     offsets, spots = follow_planted_feet(targets[:, contact_columns], contacts,
                                          STEP_ADJUSTMENT * leg_length(body.lengths))
-    offsets = _smooth_offsets(offsets)
+    offsets = _smooth_offsets(offsets, fps)
     qpos[:, 0:2] += offsets
     targets[..., :2] += offsets[:, None]
     # A contact point eases onto and off the spot of its nearer contact.
-    blend, edges = edge_easing(contacts, BLEND_FRAMES)
+    blend, edges = edge_easing(contacts, fps)
     eased = np.where((edges >= 0)[..., None], spots[np.maximum(edges, 0), np.arange(contacts.shape[1])], np.nan)
     goal = targets.copy()
     goal_feet = np.where(np.isnan(eased), targets[:, contact_columns],
@@ -132,7 +132,7 @@ def _ik_goals(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, joints: n
     return qpos, goal, weights, spots
 
 
-def solve_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray,
+def solve_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, fps: float,
                iterations: int = IK_ITERATIONS) -> tuple[np.ndarray, np.ndarray]:
     """IK of every frame: joints (JOINT_NAMES) towards their positions in `qpos` (T, nq) (a frame whose lowest
     contact point is below the floor lifted out of it first, then every frame moved by `follow_planted_feet`),
@@ -141,14 +141,15 @@ def solve_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray,
     joints = body.point_index(JOINT_NAMES)
     feet = body.point_index(CONTACT_POINTS)
     contact_columns = np.array([list(JOINT_NAMES).index(n) for n in CONTACT_POINTS])
-    qpos, goal, weights, spots = _ik_goals(body, qpos, contacts, joints, feet, contact_columns)
+    qpos, goal, weights, spots = _ik_goals(body, qpos, contacts, fps, joints, feet, contact_columns)
     return solve_points(body, qpos, joints, goal, weights, feet, iterations), spots
 
 
-def retarget_qpos(body: BodyModel, source_qpos: np.ndarray, source_lengths, contacts: np.ndarray) -> Retargeted:
+def retarget_qpos(body: BodyModel, source_qpos: np.ndarray, source_lengths, contacts: np.ndarray,
+                  fps: float) -> Retargeted:
     """The source motion (T, nq) of a skeleton with `source_lengths` (SkeletonLengths) on `body`: uniform scale
     by the leg lengths, the soles brought to the character's, then `solve_feet`."""
     scale = leg_length(body.lengths) / leg_length(source_lengths)
     scaled = scaled_qpos(source_qpos, scale, body.lengths.ankle_height - scale * source_lengths.ankle_height)
-    qpos, spots = solve_feet(body, scaled, np.asarray(contacts, bool))
+    qpos, spots = solve_feet(body, scaled, np.asarray(contacts, bool), fps)
     return Retargeted(qpos, scaled, scale, spots)

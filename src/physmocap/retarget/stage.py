@@ -213,7 +213,7 @@ def _run_physics(body: BodyModel, retargeted_qpos: np.ndarray, fps: float, conta
         notes.append(f"physics fell back on {int(outcome.fallback.sum())} frames (kinematic motion kept there)")
     # The tracker's feet can drift a few centimetres off their spots (balance correction, soft contacts); the
     # same IK plants them again on the simulated motion (docs/decisions/retarget-feet-after-physics.md).
-    outcome.qpos, _ = solve_feet(body, simulated, contacts)
+    outcome.qpos, _ = solve_feet(body, simulated, contacts, fps)
     outcome.contacts, outcome.simulated, outcome.grf = used_contacts, simulated, grf
     return outcome
 
@@ -298,7 +298,7 @@ def retarget_result(result_path: str | os.PathLike, character_path: str | os.Pat
     T = len(source["qpos"])
 
     started = time.perf_counter()
-    retargeted = retarget_qpos(body, source["qpos"], source_body.lengths, contacts)
+    retargeted = retarget_qpos(body, source["qpos"], source_body.lengths, contacts, fps)
     retarget_seconds = time.perf_counter() - started
     notes = list(character.notes)
     started = time.perf_counter()
