@@ -49,7 +49,7 @@ def looped(obs, frames: int):
     period = np.concatenate([np.arange(T), np.arange(T - 2, 0, -1)]) if T > 2 else np.arange(T)
     index = np.resize(period, frames)
     return Observations(obs.keypoints_2d[index], obs.landmarks_3d[index], obs.fps, obs.image_size, obs.camera_K,
-                        obs.valid[index], obs.invalid_reason[index], f"{obs.source} looped to {frames} frames")
+                        obs.valid[index], obs.invalid_reason[index], source=f"{obs.source} looped to {frames} frames")
 
 
 def resident_mb() -> float:

@@ -404,7 +404,7 @@ def cmd_capture(args) -> int:
     if invalid:
         details = "; ".join(f"{reason}: frames {_first_ranges(r)}" for reason, r in summary.invalid_frames.items())
         print(f"warning: {invalid} frames could not be reconstructed and are flagged invalid ({details})")
-    _note_foot_swaps(summary)
+    _note_detections(summary)
     if summary.skeleton_scale_replaced:
         print("note: implausible detector lengths replaced by template proportions: "
               + ", ".join(summary.skeleton_scale_replaced))
@@ -575,7 +575,7 @@ def _write_live_outputs(output: Path, source: str, report: LiveReport, settings:
                             report.stationary, report.physics, settings, seconds, [])
     if report.physics is not None and np.any(report.physics.qp_failures):
         print(f"warning: the physics QP fell back on {int(np.sum(report.physics.qp_failures > 0))} frames")
-    _note_foot_swaps(summary)
+    _note_detections(summary)
     _warn_strayed(summary, settings)
     _note_physics_floor_height(summary)
     print(f"results in {output}/: live.jsonl, " + ", ".join(Path(p).name for p in summary.files.values()))
@@ -605,10 +605,16 @@ def _first_ranges(ranges: list[str], shown: int = 6) -> str:
     return ", ".join(ranges[:shown]) + (" ..." if len(ranges) > shown else "")
 
 
-def _note_foot_swaps(summary) -> None:
+def _note_detections(summary) -> None:
     if summary.foot_swap_frame_count:
         print(f"note: the detector swapped the left and right feet on {summary.foot_swap_frame_count} frames, fitted "
               f"the other way round (frames {_first_ranges(summary.foot_swap_frames)})")
+    if summary.repeated_frame_count:
+        how = ("fitted as detected" if summary.online
+               else "their detections are interpolated between the new pictures around them")
+        print(f"note: {summary.repeated_frame_count} frames show the picture before them again (a video converted to "
+              f"a higher frame rate?): {how} (frames {_first_ranges(summary.repeated_frames)}; result.npz "
+              "repeated_picture)")
 
 
 def _warn_strayed(summary, settings) -> None:

@@ -40,6 +40,8 @@ class Observations:
     valid: (T,) False where no person was found or the track seems to have jumped to someone else; left out
         (empty): every frame is valid.
     invalid_reason: (T,) short text per frame, "" where valid; left out (empty): "invalid" where not valid.
+    repeated: (T,) True where the frame shows the picture of the frame before it again (detect/repeats.py): its
+        detection is no new observation; left out (empty): no frame is.
     source: where the observations came from (a path or a detector name).
     """
 
@@ -50,6 +52,7 @@ class Observations:
     camera_K: np.ndarray | None = None
     valid: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     invalid_reason: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=object))
+    repeated: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     source: str = ""
     seconds_per_frame: float = field(default=0.0, compare=False)
 
@@ -63,6 +66,9 @@ class Observations:
         self.invalid_reason = np.asarray(self.invalid_reason, dtype=object)
         if len(self.invalid_reason) == 0:
             self.invalid_reason = np.where(self.valid, "", "invalid").astype(object)
+        self.repeated = np.asarray(self.repeated, dtype=bool)
+        if len(self.repeated) == 0:
+            self.repeated = np.zeros(T, dtype=bool)
         self.image_size = (int(self.image_size[0]), int(self.image_size[1]))
         self.fps = float(self.fps)
 
@@ -78,6 +84,7 @@ class Observations:
             image_size=np.asarray(self.image_size, dtype=np.int64),
             valid=self.valid,
             invalid_reason=self.invalid_reason.astype(str),
+            repeated=self.repeated,
             source=np.str_(self.source),
             seconds_per_frame=np.float64(self.seconds_per_frame),
         )
@@ -121,6 +128,9 @@ class Observations:
         seen = k2[:, :, 2].max(axis=1) > 0
         valid = seen if valid is None else np.asarray(valid, dtype=bool) & seen  # a frame with nothing seen has no pose
         reason = contents.get("invalid_reason")
+        repeated = contents.get("repeated")
+        if repeated is not None and repeated.shape != (len(k2),):
+            raise InputError(f"{path}: repeated has shape {repeated.shape}, expected ({len(k2)},).")
         return cls(
             keypoints_2d=k2,
             landmarks_3d=k3,
@@ -129,6 +139,7 @@ class Observations:
             camera_K=None if K is None else np.asarray(K, dtype=np.float64),
             valid=np.asarray(valid, dtype=bool),
             invalid_reason=np.zeros(0, dtype=object) if reason is None else reason.astype(object),
+            repeated=np.zeros(0, dtype=bool) if repeated is None else np.asarray(repeated, dtype=bool),
             source=str(contents.get("source", path)),
             seconds_per_frame=float(contents.get("seconds_per_frame", 0.0)),
         )

@@ -30,6 +30,7 @@ import numpy as np
 
 from .config import Settings
 from .contacts.footlock import lock_feet
+from .detect.repeats import interpolate_repeated
 from .errors import InputError
 from .io.atomic import write_text
 from .kinematics.calibration import height_line
@@ -80,6 +81,8 @@ class RunSummary:
     physics_fallback_frames: list[str]
     foot_swap_frames: list[str]  # frames whose left and right feet the detector swapped, fitted the other way round
     foot_swap_frame_count: int  # how many (offline: found over the whole clip; online: per frame from the past)
+    repeated_frames: list[str] = field(default_factory=list)  # frames showing the picture before them again
+    repeated_frame_count: int = 0  # how many; offline their detections are interpolated (detect/repeats.py)
     physics_report: dict = field(default_factory=dict)  # B.4 refinement; trajopt: summary line, window reports
     median_reprojection_error_final_px: float = float("nan")  # of the final (physics) motion
     physics_strayed_frames: list[str] = field(default_factory=list)  # final joints farther than
@@ -148,6 +151,8 @@ def _observe_and_fit(runner: Runner, video: Path | None,
         obs = runner.run(DETECT, video_key, video) if cached is None else cached
         check_truncation(video, obs, runner.settings)
         runner.seconds["detect"] = obs.seconds_per_frame * obs.num_frames
+    if not runner.settings.online:  # online, a repeat's next new picture is still to come
+        obs = interpolate_repeated(obs)
     for warning in check_observations(obs, runner.settings, source):
         log.warning(warning)
     return obs, runner.run(KINEMATICS, (observations_digest(obs),), obs)
@@ -345,6 +350,7 @@ def _summary(out_dir: Path, source: str, obs: Observations, motion: KinematicMot
         skeleton_scale_replaced=list(motion.calibration.replaced), physics=settings.physics.method,
         physics_fallback_frames=frame_ranges(np.flatnonzero(result["physics_fallback"])),
         foot_swap_frames=frame_ranges(np.flatnonzero(swaps)), foot_swap_frame_count=int(swaps.sum()),
+        repeated_frames=frame_ranges(np.flatnonzero(obs.repeated)), repeated_frame_count=int(obs.repeated.sum()),
         physics_report=physics_report, files=files,
         median_reprojection_error_final_px=_nanmedian(result["reprojection_error_final"]),
         physics_strayed_frames=frame_ranges(np.flatnonzero(strayed)),

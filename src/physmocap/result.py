@@ -82,6 +82,9 @@ def build_result(obs: Observations, motion: KinematicMotion, stage_seconds: dict
         floor_confidence=np.array(json.dumps(motion.floor.confidence())),
         body_height_source=np.array(motion.calibration.height_source),  # "given" (default 1.70 m too) or "estimated"
         keypoints_2d=obs.keypoints_2d,
+        # frames showing the picture of the frame before again (detect/repeats.py); offline, their detections are
+        # interpolated between the new pictures around them
+        repeated_picture=np.asarray(obs.repeated, bool),
         valid=motion.valid,
         invalid_reason=np.asarray(obs.invalid_reason, dtype=str),
         reprojection_error=motion.reprojection_error,

@@ -28,6 +28,7 @@ from ..errors import InputError
 from ..io.video import iter_frames, resize_to_width
 from ..landmarks import LANDMARK_INDEX, NUM_LANDMARKS
 from ..motion import Observations
+from .repeats import person_box, picture_unchanged
 
 logger = logging.getLogger(__name__)
 
@@ -345,7 +346,7 @@ def _observations(path: str | os.PathLike, info, detections: Detections, start_b
     """The detections of the video at `path` (its io.video info) as Observations, `seconds` of detection in all;
     InputError where no frame shows the person (inside start_box if given), a warning where decoding stopped
     before the frames the file announces."""
-    keypoints, world, invalid_reason = detections.arrays()
+    keypoints, world, invalid_reason, repeated = detections.arrays()
     if not (invalid_reason == "").any():
         where = "" if start_box is None else f" inside person_box {start_box}"
         raise InputError(f"{path}: no person was found{where} in any frame.")
@@ -357,18 +358,21 @@ def _observations(path: str | os.PathLike, info, detections: Detections, start_b
         )
     return Observations(keypoints_2d=keypoints, landmarks_3d=world, fps=info.fps,
                         image_size=(info.width, info.height), valid=invalid_reason == "",
-                        invalid_reason=invalid_reason, source=str(path),
+                        invalid_reason=invalid_reason, repeated=repeated, source=str(path),
                         seconds_per_frame=seconds / max(detections.end, 1))
 
 
 class Detections:
     """One follower's detections of consecutive frames from frame `first` on: keypoints and world landmarks
-    (float32, as the observations file stores them) and why each frame is invalid ("" where it is valid)."""
+    (float32, as the observations file stores them), why each frame is invalid ("" where it is valid), and whether
+    a valid frame repeats the last new picture of the person (repeats.picture_unchanged)."""
 
     def __init__(self, first: int) -> None:
         self.first = first
         self.keypoints, self.world = _FrameArrays(), _FrameArrays()
         self.reasons: list[str] = []
+        self.repeated: list[bool] = []
+        self._last_picture: np.ndarray | None = None  # the last new picture of a valid frame
 
     @property
     def end(self) -> int:
@@ -384,17 +388,24 @@ class Detections:
             return
         for index, frame in frames:
             kp, wl, reason = follower.detect(index, frame)
-            del frame  # decode -> detect -> drop: no decoded image outlives its detection
+            repeated = (not reason and self._last_picture is not None
+                        and picture_unchanged(self._last_picture, frame, person_box(kp, follower.image_size)))
+            if not repeated:  # one decoded picture is kept, the last new one; the others are dropped
+                self._last_picture = None if reason else frame
+            del frame
             self.keypoints.append(kp)
             self.world.append(wl)
             self.reasons.append(reason)
+            self.repeated.append(repeated)
             on_frame(index)
             if (stop_before is not None and index + 1 >= stop_before) or (stop is not None and stop.is_set()):
                 return
 
-    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Keypoints (T, 33, 3), world landmarks (T, 33, 3), float32, and the invalid reasons (T,) as objects."""
-        return self.keypoints.array(), self.world.array(), np.array(self.reasons, dtype=object)
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Keypoints (T, 33, 3), world landmarks (T, 33, 3), float32, the invalid reasons (T,) as objects, and the
+        repeated pictures (T,) bool."""
+        return (self.keypoints.array(), self.world.array(), np.array(self.reasons, dtype=object),
+                np.array(self.repeated, dtype=bool))
 
     def spliced(self, later: Detections, junction: int) -> Detections:
         """This object's frames before `junction`, then `later`'s from `junction` on."""
@@ -405,6 +416,7 @@ class Detections:
                 whole.keypoints.append(keypoints[frame - source.first])
                 whole.world.append(world[frame - source.first])
                 whole.reasons.append(source.reasons[frame - source.first])
+                whole.repeated.append(source.repeated[frame - source.first])
         return whole
 
 
