@@ -6,15 +6,20 @@ synthetic  CMU clips with a 3D truth (bench_synthetic's camera and detector nois
            contacts, B.4, PhysCap, trajopt) on every frame observed, on the repeats as they are (each the copy of its
            picture's observation), and on the repeats interpolated (`interpolate_repeated`); error against the
            truth, jitter, skate, frames flagged, trajopt's converged frames.
+levels     what picture_change measures between consecutive frames: on every shared video (new pictures, and the
+           repeats some of them hold), and on each doubled (below), where the odd frames are known repeats; the
+           threshold UNCHANGED_LEVEL is read against these.
 videos     every shared video, and the same video with each picture written twice at twice its rate (libx264,
            veryfast, CRF 20, as a converter would), captured by `physmocap capture` with PhysCap (the default) and
            trajopt by the code in --src; repeats found, frames flagged, trajopt's converged frames, jitter, and the
            doubled run's joints (root-relative) against the native run's at the native frames.
 
     .venv/bin/python benchmarks/bench_repeats.py synthetic [--set validation|test] [--repeat 2]
+    .venv/bin/python benchmarks/bench_repeats.py levels [--work DIR]
     .venv/bin/python benchmarks/bench_repeats.py videos [--src OTHER/src] [--work DIR] [--label NAME]
 
-Writes benchmarks/results/repeats_synthetic_SET_xREPEAT.json and repeats_videos_LABEL.json (and .md).
+Writes benchmarks/results/repeats_synthetic_SET_xREPEAT.json, repeats_levels.json and repeats_videos_LABEL.json
+(and .md).
 """
 
 from __future__ import annotations
@@ -45,9 +50,11 @@ from physmocap.body import kinematics as kin  # noqa: E402
 from physmocap.config import Settings  # noqa: E402
 from physmocap.contacts.noise import MEDIAPIPE_NOISE  # noqa: E402
 from physmocap.contacts.predict import predict_contacts  # noqa: E402
-from physmocap.detect.repeats import interpolate_repeated  # noqa: E402
+from physmocap.detect.mediapipe_pose import detect_video  # noqa: E402
+from physmocap.detect.repeats import UNCHANGED_LEVEL, interpolate_repeated, person_box, picture_change  # noqa: E402
 from physmocap.dynamics.stage import run_physcap  # noqa: E402
 from physmocap.evaluation import score_against_truth, to_truth_world  # noqa: E402
+from physmocap.io.video import iter_frames  # noqa: E402
 from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
 from physmocap.kinematics.stage import fit_motion  # noqa: E402
 from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
@@ -170,6 +177,43 @@ def part_videos(src: Path, work: Path) -> list[dict]:
     return rows
 
 
+def changes(video: Path) -> np.ndarray:
+    """picture_change of each frame (T,) from the frame before it, in the box of its detected person (nan where
+    either frame has no person)."""
+    obs = detect_video(video)
+    out, previous = np.full(obs.num_frames, np.nan), None
+    for index, frame in iter_frames(video):
+        if previous is not None and obs.valid[index] and obs.valid[index - 1]:
+            out[index] = picture_change(previous, frame, person_box(obs.keypoints_2d[index], obs.image_size))
+        previous = frame
+    return out
+
+
+def part_levels(work: Path) -> list[dict]:
+    rows = []
+    for name in VIDEOS_RUN:
+        native = changes(VIDEOS / name)
+        twice = changes(doubled(VIDEOS / name, work / f"{Path(name).stem}_doubled.mp4"))
+        for kind, values in (("new pictures (native)", native), ("new pictures (doubled, even frames)", twice[0::2]),
+                             ("repeats (doubled, odd frames)", twice[1::2])):
+            values = values[np.isfinite(values)]
+            row = dict(video=name, frames=kind, count=int(len(values)),
+                       below_level=int(np.sum(values < UNCHANGED_LEVEL)),
+                       **{f"p{q}": float(np.percentile(values, q)) for q in (0, 1, 5, 50, 95, 99, 100)})
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    return rows
+
+
+def markdown_levels(rows: list[dict]) -> str:
+    lines = [f"| video | frames | count | below {UNCHANGED_LEVEL} | min | 1st % | 5th % | median | 95th % | 99th % | max |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['video']} | {r['frames']} | {r['count']} | {r['below_level']} | " + " | ".join(
+            f"{r[f'p{q}']:.3f}" for q in (0, 1, 5, 50, 95, 99, 100)) + " |")
+    return "\n".join(lines)
+
+
 def markdown_synthetic(rows: list[dict]) -> str:
     lines = ["| clip | method | variant | root-rel. mm | global root mm | skate % | jitter m/s² | flagged % | "
              "trajopt converged % |", "|---|---|---|---|---|---|---|---|---|"]
@@ -197,7 +241,7 @@ def markdown_videos(rows: list[dict]) -> str:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("part", choices=("synthetic", "videos"))
+    parser.add_argument("part", choices=("synthetic", "levels", "videos"))
     parser.add_argument("--set", choices=("validation", "test"), default="validation")
     parser.add_argument("--repeat", type=int, default=2, help="synthetic: times each picture is shown")
     parser.add_argument("--src", type=Path, default=REPO / "src", help="videos: the code that captures")
@@ -209,6 +253,10 @@ def main(argv=None) -> int:
         clips = VALIDATION_CLIPS[:2] if args.set == "validation" else CLIPS
         rows = part_synthetic(clips, args.repeat)
         stem, text = f"repeats_synthetic_{args.set}_x{args.repeat}", markdown_synthetic(rows)
+    elif args.part == "levels":
+        args.work.mkdir(parents=True, exist_ok=True)
+        rows = part_levels(args.work)
+        stem, text = "repeats_levels", markdown_levels(rows)
     else:
         args.work.mkdir(parents=True, exist_ok=True)
         rows = part_videos(args.src.resolve(), args.work)

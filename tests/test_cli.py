@@ -106,8 +106,7 @@ def test_observations_with_their_video_are_fitted_and_drawn_over_it(demo_run, tm
     np.testing.assert_allclose(load_result(tmp_path / "r" / "result.npz")["keypoints_2d"], moved.keypoints_2d,
                                atol=1e-4)
 
-    short = dataclasses.replace(observations, **{name: getattr(observations, name)[:-5] for name in
-                                                 ("keypoints_2d", "landmarks_3d", "valid", "invalid_reason")})
+    short = observations.select(slice(None, -5))
     short.save(tmp_path / "short.npz")
     assert_clean_failure(physmocap_in_process("capture", DEMO_VIDEO, "--observations", tmp_path / "short.npz",
                                               "-o", tmp_path / "s"), "short.npz", "frames")
@@ -280,8 +279,7 @@ def test_trajectory_optimisation_physics(demo_run, tmp_path):
     whole = Observations.load(out / "cache" / "observations.npz")
     frames = 48  # the first two seconds: the command line's part, not the solver's (test_trajopt.py)
     obs = tmp_path / "first_frames.npz"
-    dataclasses.replace(whole, keypoints_2d=whole.keypoints_2d[:frames], landmarks_3d=whole.landmarks_3d[:frames],
-                        valid=whole.valid[:frames], invalid_reason=whole.invalid_reason[:frames]).save(obs)
+    whole.select(slice(frames)).save(obs)
     proc = physmocap("capture", "--observations", obs, "-o", tmp_path / "t", "--physics", "trajopt")
     assert proc.returncode == 0, proc.stderr
     result = load_result(tmp_path / "t" / "result.npz")

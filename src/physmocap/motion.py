@@ -6,7 +6,7 @@ T is the number of frames, K = 33 MediaPipe landmarks, J the number of named poi
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -76,6 +76,12 @@ class Observations:
     def num_frames(self) -> int:
         return len(self.keypoints_2d)
 
+    def select(self, frames) -> Observations:
+        """These observations on `frames` only (a slice or an index array): every per-frame array taken alike."""
+        return replace(self, keypoints_2d=self.keypoints_2d[frames], landmarks_3d=self.landmarks_3d[frames],
+                       valid=self.valid[frames], invalid_reason=self.invalid_reason[frames],
+                       repeated=self.repeated[frames])
+
     def save(self, path: str | os.PathLike) -> None:
         arrays = dict(
             keypoints_2d=self.keypoints_2d.astype(np.float32),
@@ -130,7 +136,8 @@ class Observations:
         reason = contents.get("invalid_reason")
         repeated = contents.get("repeated")
         if repeated is not None and repeated.shape != (len(k2),):
-            raise InputError(f"{path}: repeated has shape {repeated.shape}, expected ({len(k2)},).")
+            raise InputError(f"{path}: repeated has shape {repeated.shape}, expected one flag for each of the "
+                             f"{len(k2)} frames.")
         return cls(
             keypoints_2d=k2,
             landmarks_3d=k3,

@@ -35,15 +35,20 @@ def person_box(keypoints: np.ndarray, image_size: tuple[int, int]) -> tuple[int,
     return int(x0), int(y0), int(x1), int(y1)
 
 
-def picture_unchanged(previous: np.ndarray, frame: np.ndarray, box: tuple[int, int, int, int]) -> bool:
-    """True when `frame` (H, W, 3) uint8 differs from `previous` (same shape) inside `box` (x0, y0, x1, y1) by
-    less than UNCHANGED_LEVEL on average: the same picture, decoded again."""
+def picture_change(previous: np.ndarray, frame: np.ndarray, box: tuple[int, int, int, int]) -> float:
+    """Mean absolute difference, in 8-bit levels per channel, of `frame` (H, W, 3) uint8 from `previous` (same
+    shape) inside `box` (x0, y0, x1, y1); infinite where the box is empty or the shapes differ."""
     x0, y0, x1, y1 = box
     if x1 <= x0 or y1 <= y0 or previous.shape != frame.shape:
-        return False
+        return float("inf")
     # every other row: half the cost, and still tens of thousands of pixels for a person of a hundred rows
     change = cv2.mean(cv2.absdiff(frame[y0:y1:2, x0:x1], previous[y0:y1:2, x0:x1]))
-    return float(np.mean(change[:frame.shape[2] if frame.ndim == 3 else 1])) < UNCHANGED_LEVEL
+    return float(np.mean(change[:frame.shape[2] if frame.ndim == 3 else 1]))
+
+
+def picture_unchanged(previous: np.ndarray, frame: np.ndarray, box: tuple[int, int, int, int]) -> bool:
+    """True when `frame` shows the picture `previous` again inside `box`: a change under UNCHANGED_LEVEL."""
+    return picture_change(previous, frame, box) < UNCHANGED_LEVEL
 
 
 def interpolate_repeated(obs: Observations) -> Observations:
