@@ -26,7 +26,7 @@ Writes benchmarks/results/trajopt.json and trajopt.md. Other modes (issues 23, 2
     --window 60 178 297      one window of that looped dance (seconds, first and last frame) from a free start
     --flights                the labels' whole-body flights on validation clips (subjects 1, 2, 5, 7) at 24 and
                              30 fps: the support their COM needs; writes results/trajopt_flights.json
-    --framerate test|validation  the same motion at 10, 24, 30 and 60 fps (issue 17): trajopt's joints against
+    --framerate test|validation  the same motion at 10, 24, 30, 60 and 120 fps (issue 17): trajopt's joints against
                              its 60 fps run; writes results/trajopt_framerate_SET.json
     --videos RUN ...         trajopt on capture run folders' refined motion: solved against implied forces;
                              writes results/trajopt_videos.json
@@ -464,7 +464,7 @@ def compare_parallel(lengths: list[float], repeats: int) -> list[dict]:
 
 def framerate(validation: bool) -> list[dict]:
     """Issue 17's frame-rate target for trajopt: bench_physics_limits' framerate cases (a clip's 60 fps offline fit
-    refined by B.4, that motion resampled to 10, 24 and 30 fps: the same motion), trajopt at each rate with its
+    refined by B.4, that motion resampled to 10, 24, 30 and 120 fps: the same motion), trajopt at each rate with its
     defaults; converged share, largest contact force, and the joints against the 60 fps run at common times from
     0.5 s on (mean, 95th percentile, root-relative, and both over frames converged at both rates)."""
     import bench_physics_limits as limits
@@ -669,7 +669,7 @@ def main(argv=None) -> dict:
                         help="only windows one after another against two at a time on the looped dance, "
                              "interleaved --repeats times")
     parser.add_argument("--framerate", choices=("test", "validation"),
-                        help="only the same motion at 10, 24, 30 and 60 fps (bench_physics_limits' framerate cases "
+                        help="only the same motion at 10, 24, 30, 60 and 120 fps (bench_physics_limits' framerate cases "
                              "of that set): joints against the 60 fps run")
     parser.add_argument("--parallel-windows", choices=("on", "off"),
                         help="trajopt.parallel_windows for the accuracy rows and --long (default: the setting's)")
