@@ -16,7 +16,7 @@ videos     every shared video, and the same video with each picture written twic
 
     .venv/bin/python benchmarks/bench_repeats.py synthetic [--set validation|test] [--repeat 2]
     .venv/bin/python benchmarks/bench_repeats.py levels [--work DIR]
-    .venv/bin/python benchmarks/bench_repeats.py videos [--src OTHER/src] [--work DIR] [--label NAME]
+    .venv/bin/python benchmarks/bench_repeats.py videos [--src OTHER/src] [--work DIR] [--label before|after]
 
 Writes benchmarks/results/repeats_synthetic_SET_xREPEAT.json, repeats_levels.json and repeats_videos_LABEL.json
 (and .md).
@@ -141,6 +141,13 @@ def capture(video: Path, out: Path, physics: str, src: Path) -> dict:
     return dict(exit=0, seconds=time.perf_counter() - started, result=result)
 
 
+def jitter(points: np.ndarray, valid: np.ndarray, fps: float) -> float:
+    """Mean joint acceleration, m/s², over the frames whose neighbours are valid too (a gap's jump is not jitter)."""
+    inner = valid[:-2] & valid[1:-1] & valid[2:]
+    second = points[2:][inner] - 2 * points[1:-1][inner] + points[:-2][inner]
+    return float(np.linalg.norm(second, axis=-1).mean() * fps ** 2)
+
+
 def root_relative(points: np.ndarray) -> np.ndarray:
     return points - points[:, :1]
 
@@ -167,7 +174,7 @@ def part_videos(src: Path, work: Path) -> list[dict]:
                     row[kind] = dict(
                         flagged_percent=100 * float(np.mean(r["physics_unexplained"][valid])),
                         fallback_percent=100 * float(np.mean(r["physics_fallback"][valid])),
-                        jitter=float(metrics.mean_acceleration(r["joints_world"][valid], float(r["fps"]))),
+                        jitter=jitter(r["joints_world"], valid, float(r["fps"])),
                         seconds=runs[kind]["seconds"])
                 row.update(repeats_found_percent=100 * float(np.mean(found[1::2][: len(second)][second])),
                            new_pictures_marked=int(found[0::2].sum()),
