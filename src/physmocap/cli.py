@@ -689,7 +689,8 @@ def cmd_detect(args) -> int:
     obs = detect_video(args.video, person_box=args.person_box, max_width=args.max_width,
                        progress=_progress_factory()("detect", 0))
     obs.save(args.output)
-    print(f"{int(obs.valid.sum())}/{obs.num_frames} frames with a person; observations in {args.output}")
+    repeats = f", {int(obs.repeated.sum())} of them repeat the picture before" if obs.repeated.any() else ""
+    print(f"{int(obs.valid.sum())}/{obs.num_frames} frames with a person{repeats}; observations in {args.output}")
     return 0
 
 
