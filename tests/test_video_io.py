@@ -84,6 +84,35 @@ def test_iter_frames_reads_all_and_can_scale_down() -> None:
     assert reader.frames_read == 96 and reader.missing_frames == 0
 
 
+@pytest.mark.parametrize("name, codec, pixel_format, options", [
+    ("vp9.webm", "libvpx-vp9", "yuv420p", {"deadline": "realtime", "cpu-used": "8"}),
+    ("mjpeg.avi", "mjpeg", "yuvj420p", {}),
+    ("hevc.mp4", "libx265", "yuv420p", {"preset": "ultrafast", "x265-params": "log-level=none"}),
+    ("h264_444.mp4", "libx264", "yuv444p", {"preset": "ultrafast"}),
+    ("h264_10bit.mkv", "libx264", "yuv420p10le", {"preset": "ultrafast"}),
+    ("grey.mkv", "ffv1", "gray", {}),
+    ("prores.mov", "prores_ks", "yuv422p10le", {}),
+])
+def test_other_codecs_and_pixel_formats_read_as_upright_bgr(tmp_path: Path, name: str, codec: str,
+                                                              pixel_format: str, options: dict) -> None:
+    """Phones, editors and cameras write more than 8-bit 4:2:0 H.264; every frame reads as (H, W, 3) uint8 BGR."""
+    frames = gradient_frames(6, 96, 64)
+    path = tmp_path / name
+    with av.open(str(path), "w") as out:
+        stream = out.add_stream(codec, rate=24)
+        stream.width, stream.height, stream.pix_fmt, stream.options = 96, 64, pixel_format, options
+        for bgr in frames:
+            picture = av.VideoFrame.from_ndarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), format="rgb24")
+            out.mux(stream.encode(picture.reformat(format=pixel_format)))
+        out.mux(stream.encode())
+    info = probe_video(path)
+    assert (info.width, info.height, round(info.fps)) == (96, 64, 24)
+    read = [frame for _, frame in iter_frames(path)]
+    assert len(read) == 6 and all(f.shape == (64, 96, 3) and f.dtype == np.uint8 for f in read)
+    if pixel_format != "gray":  # colour survives the codec
+        assert np.abs(read[3].astype(int) - frames[3]).mean() < 12
+
+
 def test_truncated_file_yields_the_decodable_frames_then_stops(tmp_path: Path) -> None:
     data = DEMO.read_bytes()
     truncated = tmp_path / "truncated.mp4"
