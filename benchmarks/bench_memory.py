@@ -19,6 +19,7 @@ there (a re-run of some sizes replaces just those).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import resource
@@ -43,13 +44,10 @@ STAGES = ("fit", "refine")
 
 def looped(obs, frames: int):
     """The observations played forwards, backwards, forwards ... to `frames` frames."""
-    from physmocap.motion import Observations
-
     T = obs.num_frames
     period = np.concatenate([np.arange(T), np.arange(T - 2, 0, -1)]) if T > 2 else np.arange(T)
     index = np.resize(period, frames)
-    return Observations(obs.keypoints_2d[index], obs.landmarks_3d[index], obs.fps, obs.image_size, obs.camera_K,
-                        obs.valid[index], obs.invalid_reason[index], source=f"{obs.source} looped to {frames} frames")
+    return dataclasses.replace(obs.select(index), source=f"{obs.source} looped to {frames} frames")
 
 
 def resident_mb() -> float:

@@ -42,7 +42,7 @@ import av
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from bench_physics_limits import VALIDATION_CLIPS  # noqa: E402
+from bench_physics_limits import VALIDATION_CLIPS, explained_jitter  # noqa: E402
 from bench_synthetic import CLIPS, SECONDS, first_seconds, model_height  # noqa: E402
 from common import MOCAP, REPO, RESULTS, VIDEOS, machine_description  # noqa: E402
 from physmocap import metrics  # noqa: E402
@@ -141,13 +141,6 @@ def capture(video: Path, out: Path, physics: str, src: Path) -> dict:
     return dict(exit=0, seconds=time.perf_counter() - started, result=result)
 
 
-def jitter(points: np.ndarray, valid: np.ndarray, fps: float) -> float:
-    """Mean joint acceleration, m/s², over the frames whose neighbours are valid too (a gap's jump is not jitter)."""
-    inner = valid[:-2] & valid[1:-1] & valid[2:]
-    second = points[2:][inner] - 2 * points[1:-1][inner] + points[:-2][inner]
-    return float(np.linalg.norm(second, axis=-1).mean() * fps ** 2)
-
-
 def root_relative(points: np.ndarray) -> np.ndarray:
     return points - points[:, :1]
 
@@ -174,7 +167,7 @@ def part_videos(src: Path, work: Path) -> list[dict]:
                     row[kind] = dict(
                         flagged_percent=100 * float(np.mean(r["physics_unexplained"][valid])),
                         fallback_percent=100 * float(np.mean(r["physics_fallback"][valid])),
-                        jitter=jitter(r["joints_world"], valid, float(r["fps"])),
+                        jitter=explained_jitter(r["joints_world"], float(r["fps"]), valid),
                         seconds=runs[kind]["seconds"])
                 row.update(repeats_found_percent=100 * float(np.mean(found[1::2][: len(second)][second])),
                            new_pictures_marked=int(found[0::2].sum()),

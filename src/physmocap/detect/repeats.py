@@ -14,6 +14,7 @@ import dataclasses
 import cv2
 import numpy as np
 
+from ..contacts.flights import valid_runs
 from ..motion import Observations
 
 UNCHANGED_LEVEL = 0.5
@@ -43,7 +44,7 @@ def picture_change(previous: np.ndarray, frame: np.ndarray, box: tuple[int, int,
         return float("inf")
     # every other row: half the cost, and still tens of thousands of pixels for a person of a hundred rows
     change = cv2.mean(cv2.absdiff(frame[y0:y1:2, x0:x1], previous[y0:y1:2, x0:x1]))
-    return float(np.mean(change[:frame.shape[2] if frame.ndim == 3 else 1]))
+    return float(np.mean(change[:3]))
 
 
 def picture_unchanged(previous: np.ndarray, frame: np.ndarray, box: tuple[int, int, int, int]) -> bool:
@@ -60,8 +61,7 @@ def interpolate_repeated(obs: Observations) -> Observations:
     if not repeated.any():
         return obs
     keypoints, landmarks = obs.keypoints_2d.copy(), obs.landmarks_3d.copy()
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], repeated.astype(int), [0]])))
-    for start, stop in zip(edges[::2], edges[1::2], strict=True):
+    for start, stop in valid_runs(repeated):
         before, after = start - 1, stop
         if before < 0 or not obs.valid[before]:
             continue  # no picture before the run to stand for it: its detections are kept
