@@ -129,6 +129,21 @@ def frame_sample_times(frames: np.ndarray, interval: float) -> np.ndarray:
     return np.concatenate([inner.ravel(), frames[-1:]])
 
 
+def newton_sample_times(frames: np.ndarray, interval: float) -> np.ndarray:
+    """Newton's equation's sample times (s): `frame_sample_times` where frames come at most every `interval`
+    seconds, and where they come faster (above 60 fps at the default) the clock's multiples of `interval`
+    (`clock_times`; every other frame at 120 fps). The equation constrains the COM's and the forces' polynomials,
+    whose resolution is fixed in seconds: held at every frame at 120 fps (six samples to a 0.05 s COM piece, on
+    which the residual is a cubic) the rows became nearly dependent and the net force was tied to the COM's
+    piecewise-linear acceleration, and IPOPT failed to converge on half of the clips
+    (docs/decisions/trajopt-frame-rate.md). Between its samples the residual is what the 60 fps run has between
+    its frames."""
+    frames = np.asarray(frames, float)
+    if interval > 0 and len(frames) > 1 and np.max(np.diff(frames)) < interval * (1 - 1e-6):
+        return clock_times(frames[0], frames[-1], interval)
+    return frame_sample_times(frames, interval)
+
+
 def free_times(window: Window, times: np.ndarray) -> np.ndarray:
     """`times` without the window's first instant when the window continues another, and without its last when it
     must arrive in another's start: the state there is fixed, and a kinematic constraint on fixed values (sampled
@@ -623,13 +638,13 @@ def dynamics_residuals(problem: WindowProblem, times: np.ndarray, out: Constrain
 def dynamics(problem: WindowProblem) -> ConstraintSet:
     """m r'' = sum f + m g and I_w w' + w x I_w w = sum (p - r) x f at the dynamics samples (every
     `dynamics_interval`), and Newton's equation also at every frame and between frames at most
-    `linear_dynamics_interval` apart (frame_sample_times), so that the forces read at the frames are the ones that
-    move the COM."""
+    `linear_dynamics_interval` apart, so that the forces read at the frames are the ones that move the COM; where
+    frames come faster, every `linear_dynamics_interval` (newton_sample_times)."""
     s, w, red = problem.settings, problem.window, problem.window.reduced
     times = sample_times(w.t0, w.t1, s.dynamics_interval, red.times)
     out = ConstraintSet("dynamics")
     linear, angular = dynamics_residuals(problem, times, out)
-    linear_times = frame_sample_times(red.times, s.linear_dynamics_interval)
+    linear_times = newton_sample_times(red.times, s.linear_dynamics_interval)
     if not np.array_equal(linear_times, times):
         linear, _ = dynamics_residuals(problem, linear_times, out)
     out.add(linear)
@@ -729,9 +744,10 @@ def _pyramid(out: ConstraintSet, f, mu: float) -> None:
 
 def force_limits(problem: WindowProblem) -> ConstraintSet:
     """Pushing, at most f_max, inside the friction pyramid: at every force node (the normal force's limits are
-    variable bounds there) and wherever Newton's equation is held in contact (frame_sample_times: the frames and
-    between them). Held at the frames only, the cubics between them pulled on the floor and pushed tens of body
-    weights where Newton's equation still read them (12 fps: docs/decisions/trajopt-force-chatter.md)."""
+    variable bounds there) and, in contact, at the frames and between them where Newton's equation is held
+    (frame_sample_times; above 60 fps every frame, a superset of Newton's samples). Held at the frames only, the
+    cubics between them pulled on the floor and pushed tens of body weights where Newton's equation still read them
+    (12 fps: docs/decisions/trajopt-force-chatter.md)."""
     s, red = problem.settings, problem.window.reduced
     fmax = s.max_force / (red.mass * s.gravity)
     out = ConstraintSet("force_limits", linear=not any(f.trajectory.symbolic_times for f in problem.forces))
