@@ -40,15 +40,19 @@ class IkTargets:
 
 
 def ik_targets(body: BodyModel, qpos_in: np.ndarray, reduced: ReducedMotion, com: np.ndarray, euler: np.ndarray,
-               feet: np.ndarray, settings: TrajoptSettings) -> IkTargets:
+               feet: np.ndarray, settings: TrajoptSettings, fitted_euler: np.ndarray | None = None) -> IkTargets:
     """Targets for frames (T) from the input motion qpos_in (T, nq), its reduced form, and the optimised COM
-    (T, 3), orientation (T, 3) and contact points (T, 4, 3)."""
+    (T, 3), orientation (T, 3) and contact points (T, 4, 3). The upper body turns by the optimised orientation's
+    change from fitted_euler (T, 3), the fit stage's orientation (None: the input's): the root's own frame-to-frame
+    noise, which the fit smooths away and the joints do not share, must not turn the whole upper body (120 fps:
+    docs/decisions/trajopt-frame-rate.md)."""
     names = [b for _, b in MARKERS]
     points = kin.forward_kinematics(body, qpos_in).points
     markers_in = points[:, body.point_index(names)]
     turn = np.repeat(np.eye(3)[None], len(com), axis=0)
     if settings.rotate_upper_body:
-        turn = euler_to_matrix(euler) @ reduced.rotation.transpose(0, 2, 1)  # R(theta*) R(theta_in)^T
+        reference = reduced.rotation if fitted_euler is None else euler_to_matrix(fitted_euler)
+        turn = euler_to_matrix(euler) @ reference.transpose(0, 2, 1)  # R(theta*) R(theta_fit)^T
     offsets = markers_in - reduced.com[:, None]
     markers = com[:, None] + np.einsum("tij,tmj->tmi", turn, offsets)
     weights = np.ones((len(com), len(names)))

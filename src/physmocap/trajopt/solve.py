@@ -41,7 +41,9 @@ class StageReport:
 
 @dataclass
 class WindowResult:
-    """The optimised reduced motion at the window's frames. com, euler: (n, 3); feet: (n, 4, 3) m;
+    """The optimised reduced motion at the window's frames. com, euler: (n, 3); fitted_euler: (n, 3) the
+    orientation of the fit stage (the input smoothed as the dynamics stage smooths it, without the dynamics);
+    feet: (n, 4, 3) m;
     forces: (n, 4, 3) N in the world; com_acceleration: (n, 3) m/s^2; contacts: (n, 4) the phases finally
     used; converged: stage 2 converged; chosen: the stage whose solution this is; stages: every IPOPT run;
     variables/constraints: program size; build_seconds: time to assemble the programs."""
@@ -51,6 +53,7 @@ class WindowResult:
     com: np.ndarray
     com_acceleration: np.ndarray
     euler: np.ndarray
+    fitted_euler: np.ndarray
     feet: np.ndarray
     forces: np.ndarray
     contacts: np.ndarray
@@ -172,10 +175,12 @@ def solve_window(window: Window, settings: TrajoptSettings, budget: int | None =
     fit = program.solve(program.initial(), fixed=problem.force_set_names, relaxed=fit_relaxed,
                         max_iterations=max(1, budget // 2), stop_stalled=stop_stalled)
     stages.append(_report("fit", fit))
+    fitted_euler = problem.values(problem.com.orientation, window.reduced.times, fit.x).T
     if fit.status == STALLED_STATUS:
         # The fit's constraints are the dynamics stage's on the same variables (the forces enter only the relaxed
         # sets): where they stall, so would the dynamics stage. Not run; the window is not solved.
-        return _result(window, problem, program, fit.x, window.phases, "fit", False, stages, build, settings)
+        return _result(window, problem, program, fit.x, window.phases, "fit", False, stages, build, settings,
+                       fitted_euler)
     x0 = _force_guess(problem, program, fit.x)
     dyn = program.solve(x0, max_iterations=max(1, budget - fit.iterations), stop_stalled=stop_stalled)
     stages.append(_report("dynamics", dyn))
@@ -195,12 +200,13 @@ def solve_window(window: Window, settings: TrajoptSettings, budget: int | None =
             if dur.converged and dur.objective < dyn.objective:
                 chosen, chosen_problem, x = "durations", dproblem, dur.x
                 phases = _schedule_from(dproblem.window.phases, durations, dur.values["durations"])
-    return _result(window, chosen_problem, program, x, phases, chosen, dyn.converged, stages, build, settings)
+    return _result(window, chosen_problem, program, x, phases, chosen, dyn.converged, stages, build, settings,
+                   fitted_euler)
 
 
 def _result(window: Window, problem: WindowProblem, program: Program, x: np.ndarray, phases: list[list[Phase]],
             chosen: str, converged: bool, stages: list[StageReport], build: float,
-            settings: TrajoptSettings) -> WindowResult:
+            settings: TrajoptSettings, fitted_euler: np.ndarray) -> WindowResult:
     """The window's motion at its frames from the solution x of `problem` (the stage `chosen`)."""
     frames_fn, state_fn = _outputs(problem)
     com, acc, euler, feet, forces = frames_fn(x)
@@ -209,7 +215,8 @@ def _result(window: Window, problem: WindowProblem, program: Program, x: np.ndar
     contacts = np.stack([flags_from_phases(p, window.reduced.times) for p in phases], axis=1)
     return WindowResult(
         converged=converged, chosen=chosen, com=com.T, com_acceleration=acc.T, euler=euler.T,
-        feet=feet.reshape(4, 3, n).transpose(2, 0, 1), forces=weight * forces.reshape(4, 3, n).transpose(2, 0, 1),
-        contacts=contacts, phases=phases, stages=stages, variables=program.num_variables,
-        constraints=program.num_constraints, build_seconds=build, _state_at=lambda t: state_fn(x, t))
+        fitted_euler=fitted_euler, feet=feet.reshape(4, 3, n).transpose(2, 0, 1),
+        forces=weight * forces.reshape(4, 3, n).transpose(2, 0, 1), contacts=contacts, phases=phases,
+        stages=stages, variables=program.num_variables, constraints=program.num_constraints, build_seconds=build,
+        _state_at=lambda t: state_fn(x, t))
 

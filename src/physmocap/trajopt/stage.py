@@ -252,6 +252,8 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
         converged=np.zeros(T, bool), corrected=np.zeros(T, bool), qp_failures=np.ones(T, int),
         com=np.full((T, 3), np.nan), com_acceleration=np.full((T, 3), np.nan), euler=np.full((T, 3), np.nan),
         feet=np.full((T, 4, 3), np.nan), unexplained=unexplained)
+    # The fit stage's orientation (no dynamics) on converged frames: what the upper body turns against (C.4).
+    fitted_euler = reduced.euler.copy()
     solver = _Solver(settings)
     try:
         for first, end in valid_runs(valid):
@@ -259,11 +261,11 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
                 log.warning("trajopt: frames %d-%d are too few to optimise; the kinematic motion is kept there.",
                             first, end - 1)
                 continue
-            _solve_run(out, reduced, flags, first, end, fps, settings, progress, solver)
+            _solve_run(out, reduced, flags, first, end, fps, settings, progress, solver, fitted_euler)
     finally:
         solver.close()
     ik_start = time.perf_counter()
-    _full_body(out, body, qpos_kin, reduced, fps, settings)
+    _full_body(out, body, qpos_kin, reduced, fitted_euler, fps, settings)
     out.qp_failures = (~out.converged).astype(int)
     out.ik_seconds = time.perf_counter() - ik_start
     out.seconds = time.perf_counter() - start_time
@@ -282,15 +284,16 @@ def unexplained_frames(body: BodyModel, points: np.ndarray, com: np.ndarray) -> 
     return (np.asarray(com)[:, 2] < 0.0) | resting_off_feet(heights)
 
 
-def _full_body(out: TrajoptMotion, body: BodyModel, qpos_kin: np.ndarray, reduced, fps: float,
-               settings: TrajoptSettings) -> None:
+def _full_body(out: TrajoptMotion, body: BodyModel, qpos_kin: np.ndarray, reduced, fitted_euler: np.ndarray,
+               fps: float, settings: TrajoptSettings) -> None:
     """out.qpos on the converged frames: the full body (IK, Rempe 3.1) following the optimised COM, orientation
-    and feet, handed over to qpos_kin (T, nq) within BLEND_SECONDS of the frames that keep it."""
+    (its change from fitted_euler (T, 3), the fit stage's) and feet, handed over to qpos_kin (T, nq) within
+    BLEND_SECONDS of the frames that keep it."""
     done = out.converged
     if not done.any():
         return
     targets = ik_targets(body, qpos_kin[done], reduced.frames(done), out.com[done], out.euler[done],
-                         out.feet[done], settings)
+                         out.feet[done], settings, fitted_euler[done])
     # Every frame's targets for itself: the frames kept kinematic are fitted to them (then restored exactly, the
     # smoothing term links neighbours only across converged frames' edges), the blend moves towards them.
     own = ik_targets(body, qpos_kin, reduced, reduced.com, reduced.euler, reduced.feet, settings)
@@ -450,9 +453,11 @@ class _Solver:
         self.pool = None
 
 
-def _record(out: TrajoptMotion, task: _Task, outcome: _Outcome, reduced, settings: TrajoptSettings) -> bool:
-    """A solved window's report and, if converged and near its input, its kept frames into `out`; warnings for
-    what went wrong. Returns whether the window's states may start or end its neighbours."""
+def _record(out: TrajoptMotion, task: _Task, outcome: _Outcome, reduced, settings: TrajoptSettings,
+            fitted_euler: np.ndarray) -> bool:
+    """A solved window's report and, if converged and near its input, its kept frames into `out` (and its fit
+    stage's orientation into fitted_euler); warnings for what went wrong. Returns whether the window's states may
+    start or end its neighbours."""
     start, stop, keep, result = task.start, task.stop, task.keep, outcome.result
     linked = task.window.start is not None or task.window.end is not None
     if outcome.restarted and result.converged and linked:
@@ -476,6 +481,7 @@ def _record(out: TrajoptMotion, task: _Task, outcome: _Outcome, reduced, setting
         return False
     out.converged[kept] = True
     out.com[kept], out.euler[kept], out.feet[kept] = result.com[:n], result.euler[:n], result.feet[:n]
+    fitted_euler[kept] = result.fitted_euler[:n]
     out.com_acceleration[kept] = result.com_acceleration[:n]
     out.grf[kept] = result.forces[:n]
     out.contacts[kept] = result.contacts[:n]
@@ -483,7 +489,7 @@ def _record(out: TrajoptMotion, task: _Task, outcome: _Outcome, reduced, setting
 
 
 def _solve_run(out: TrajoptMotion, reduced, flags: np.ndarray, first: int, end: int, fps: float,
-               settings: TrajoptSettings, progress, solver: _Solver) -> None:
+               settings: TrajoptSettings, progress, solver: _Solver, fitted_euler: np.ndarray) -> None:
     """The windows of frames [first, end), results into `out`: one after another, each starting where the previous
     one arrived; or, with settings.parallel_windows and three windows or more, two passes: the even windows from
     free starts, then each odd one from its predecessor's state to its successor's start
@@ -506,7 +512,7 @@ def _solve_run(out: TrajoptMotion, reduced, flags: np.ndarray, first: int, end: 
 
     def record(task: _Task, outcome: _Outcome) -> bool:
         nonlocal done
-        usable = _record(out, task, outcome, reduced, settings)
+        usable = _record(out, task, outcome, reduced, settings, fitted_euler)
         done += task.keep - task.start
         if progress:
             progress(first + done, T)
