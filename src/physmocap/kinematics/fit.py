@@ -48,8 +48,9 @@ MARKERS: tuple[tuple[str, str], ...] = (
 )
 MARKER_LANDMARKS = np.array([LANDMARK_INDEX[a] for a, _ in MARKERS])
 
-# Initial Levenberg-Marquardt damping (relative to the normal matrix's diagonal). The whole-clip problem starts
-# far from its optimum and overshoots with less (measured: 9 instead of 24 evaluations to the same cost; from the
+# Initial Levenberg-Marquardt damping (offline: relative to the diagonal of the frames' own terms; online: to the
+# normal matrix's). The whole-clip problem starts far from its optimum and overshoots with less (measured when
+# relative to the whole diagonal: 9 instead of 24 evaluations to the same cost; from the
 # batched causal start, 1.0 still had 3 of 11 steps rejected on taiji, 3.0 none: offline CPU ms/frame 5.28 -> 4.64
 # taiji, 5.68 -> 5.03 sports2d, reprojection 5.46 -> 5.39 / 5.29 -> 5.20 px, synthetic root-relative 32.3 -> 32.4
 # mm); one warm-started frame starts close and converges fastest with little.
@@ -297,9 +298,11 @@ class KinematicFitter:
         return [(values, jacobians, np.array([-1.0, 1.0]), pair)]
 
     # ---- offline: the whole clip -------------------------------------------------------------------------
-    def _offline_system(self, qpos, targets, band=None, progress=None):
+    def _offline_system(self, qpos, targets, band=None, progress=None, scale=None):
         """Cost, gradient g (T, nv) and upper block bands H (3, T, nv, nv) of the Gauss-Newton system: H[d, t]
         is the block of frames (t, t + d). Written into `band` when given (it is overwritten), else allocated.
+        `scale` (T, nv), when given, receives the diagonal of the frames' own terms (without the temporal ones):
+        the Levenberg-Marquardt damping's scale (fit_offline).
 
         Assembled ASSEMBLY_FRAMES frames at a time: only one chunk's Jacobians are alive at once, so the memory
         beyond the band does not grow with the clip. progress(frames done) after each chunk."""
@@ -310,14 +313,15 @@ class KinematicFitter:
         cost = 0.0
         for first in range(0, T, ASSEMBLY_FRAMES):
             last = min(first + ASSEMBLY_FRAMES, T)
-            cost += self._add_chunk(qpos, targets, first, last, g, H)
+            cost += self._add_chunk(qpos, targets, first, last, g, H, scale)
             if progress:
                 progress(last)
         return cost, g, H
 
-    def _add_chunk(self, qpos, targets, first, last, g, H) -> float:
+    def _add_chunk(self, qpos, targets, first, last, g, H, scale=None) -> float:
         """Add to g and H the terms of frames first .. last - 1 and the temporal residuals that start there (they
-        reach up to two frames further, evaluated again by the next chunk); returns their cost."""
+        reach up to two frames further, evaluated again by the next chunk), the frames' own terms' diagonal into
+        `scale` when given; returns their cost."""
         end = min(last + TEMPORAL_REACH, len(qpos))
         window = slice(first, end)
         points, jac = self.evaluate(qpos[window])
@@ -325,6 +329,8 @@ class KinematicFitter:
         r, J = self.frame_terms(qpos[first:last], points[:own], jac[:own], targets.frames(slice(first, last)))
         Jt = J.transpose(0, 2, 1)
         H[0, first:last] += Jt @ J
+        if scale is not None:
+            scale[first:last] = np.einsum("tki,tki->ti", J, J)
         g[first:last] += (Jt @ r[..., None])[..., 0]
         cost = float(np.sum(r * r))
         del r, J, Jt  # freed before the temporal terms make theirs: the chunk's peak
@@ -363,20 +369,21 @@ class KinematicFitter:
         return cost
 
     @staticmethod
-    def _solve_banded(g, H, damping):
-        """Solve (H + damping * diag(H) + 1e-9 I) dx = -g; H holds the upper block bands (3, T, nv, nv) and is
-        overwritten by the factor.
+    def _solve_banded(g, H, damping, scale):
+        """Solve (H + damping * diag(scale, every frame) + 1e-9 I) dx = -g; H holds the upper block bands (3, T,
+        nv, nv) and is overwritten by the factor; scale (nv,) per degree of freedom.
 
         Pairs of frames make the system block-tridiagonal, solved by block Cholesky in O(T). Each pair's factor
         and its coupling to the next pair take the place of the pair's own blocks of H (three each), so the
         solve needs no memory that grows with the clip beyond H."""
-        y = KinematicFitter._banded_forward(g, H, damping)
+        y = KinematicFitter._banded_forward(g, H, damping * scale)
         return KinematicFitter._banded_backward(H, y, g.shape[0], g.shape[1])
 
     @staticmethod
-    def _banded_forward(g: np.ndarray, H: np.ndarray, damping: float) -> np.ndarray:
-        """_solve_banded's factorisation, pair by pair, with the forward substitution: y (T nv,) with L y = -g;
-        H then holds each pair's factor and its coupling W to the pair before."""
+    def _banded_forward(g: np.ndarray, H: np.ndarray, damping: np.ndarray) -> np.ndarray:
+        """_solve_banded's factorisation, pair by pair, with the forward substitution: y (T nv,) with L y = -g,
+        damping (nv,) added to every frame's diagonal; H then holds each pair's factor and its coupling W to the
+        pair before."""
         T, nv = g.shape
         pairs = (T + 1) // 2
         diagonal = np.arange(2 * nv)
@@ -393,7 +400,7 @@ class KinematicFitter:
                 D[:nv, nv:] = H[1, a]
                 D[nv:, :nv] = H[1, a].T
                 D[nv:, nv:] = H[0, a + 1]
-            D[diagonal[:n], diagonal[:n]] += damping * D[diagonal[:n], diagonal[:n]] + 1e-9
+            D[diagonal[:n], diagonal[:n]] += np.tile(damping, m) + 1e-9
             rhs = b[a * nv:(a + m) * nv]
             if s_:
                 # The coupling of the pair before (frames a - 2, a - 1) to this one: frames two apart and the
@@ -462,6 +469,11 @@ class KinematicFitter:
         T, nv = len(qpos_init), self.body.nv
         iterations = self.settings.offline_iterations
         band = np.empty((3, T, nv, nv))
+        # Marquardt's damping per degree of freedom, scaled by the frames' own terms (their diagonal's mean over
+        # the clip) alone: the temporal terms' diagonal grows with the frame rate (the acceleration's as fps^4)
+        # while the smooth motions they barely resist do not, so scaled by it the damping held back the fit at 60
+        # and 120 fps; per frame, frames without observations went undamped (docs/decisions/fit-frame-rate.md).
+        scale = np.empty((T, nv))
         passed = 0
 
         def system_at(q, passes_left):
@@ -474,7 +486,7 @@ class KinematicFitter:
                 if frames < T and progress is not None:  # only handed on with a progress display
                     progress(passed + frames, planned)
 
-            cost, g, _ = self._offline_system(q, targets, band, report if progress else None)
+            cost, g, _ = self._offline_system(q, targets, band, report if progress else None, scale)
             passed += T
             return cost, g
 
@@ -488,7 +500,7 @@ class KinematicFitter:
                     cost, g = system_at(q, iterations - done + 2)
                 factored = True
                 try:
-                    step = self._solve_banded(g, band, damping)
+                    step = self._solve_banded(g, band, damping, scale.mean(axis=0))
                 except (LinAlgError, np.linalg.LinAlgError):
                     damping *= 10
                     continue
