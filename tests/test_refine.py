@@ -136,19 +136,19 @@ def test_upper_body_turns_by_the_physics_change_of_orientation_not_the_roots_noi
         rng.normal(scale=np.radians(2.0), size=(20, 3))).as_matrix())
     settings = TrajoptSettings()
     names = [b for _, b in MARKERS]
-    head = names.index("nose")
+    nose = names.index("nose")
     fitted = ik_targets(body, q, noisy, red.com, red.euler, red.feet, settings, fitted_euler=red.euler)
-    assert np.abs(fitted.markers[:, head] - kin.forward_kinematics(body, q).points[:, body.point_index(["nose"])[0]]
+    assert np.abs(fitted.markers[:, nose] - kin.forward_kinematics(body, q).points[:, body.point_index(["nose"])[0]]
                   ).max() < 1e-9
     leaning = red.euler + np.array([0.0, np.radians(5.0), 0.0])  # the physics leans the body 5 degrees forward
     turned = ik_targets(body, q, noisy, red.com, leaning, red.feet, settings, fitted_euler=red.euler)
-    offset = fitted.markers[:, head] - red.com
-    moved = turned.markers[:, head] - red.com
+    offset = fitted.markers[:, nose] - red.com
+    moved = turned.markers[:, nose] - red.com
     angle = np.degrees(np.arccos(np.sum(offset * moved, axis=1) / np.linalg.norm(offset, axis=1)
                                  / np.linalg.norm(moved, axis=1)))
     assert np.allclose(angle, 5.0, atol=0.5)
     raw = ik_targets(body, q, noisy, red.com, red.euler, red.feet, settings)  # against the noisy root
-    assert np.abs(raw.markers[:, head] - fitted.markers[:, head]).max() > 0.01
+    assert np.abs(raw.markers[:, nose] - fitted.markers[:, nose]).max() > 0.01
 
 
 def test_contact_floor_is_robust_and_keeps_its_tilt_when_points_lie_on_a_line():

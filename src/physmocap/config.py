@@ -170,7 +170,7 @@ class TrajoptSettings(Section):
     dynamics_interval: float = setting(0.1, "s", (0.0, 1.0), "between Newton-Euler constraints; 0: every frame")
     internal_momentum: bool = setting(True, help="Euler's equation counts the limbs' momentum about the COM (ours)")
     linear_dynamics_interval: float = setting(1.0 / 60.0, "s", (0.0, 1.0),
-                                            "most between Newton samples, at most this dense (ours); 0: frames")
+                                            "Newton samples: frames, this apart; faster frames: this (ours); 0: frames")
     kinematic_interval: float = setting(0.08, "s", (0.0, 1.0), "between foot- and leg-length constraints")
     floor_interval: float = setting(0.1, "s", (0.0, 1.0), "between above-floor constraints of feet in flight")
     contact_change_reach: float = setting(2.0, "knot intervals", (0.0, 10.0), "COM knots this near a change: only C1")
