@@ -16,6 +16,9 @@ MediaPipe-like noise, the true intrinsics and height, 8 s at 30 fps, seeds 0 and
              (PhysicsMotion.unexplained), and the frames flagged elsewhere.
   online     PhysCap on the online fit: slide of the contact points in use, per frame (median and 95th
              percentile, cm), and jitter (mean joint acceleration, m/s^2) against its kinematic input.
+  online_framerate  the online path at 10, 24, 30, 60 and 120 fps: each clip observed at each rate (seed 0, its
+             own noise per frame, as a camera at that rate gives), the online fit and PhysCap on it (estimated
+             floor): error against the truth, jitter, skate and contact slide, kinematic and physics, per rate.
   methods    kinematic offline, B.4-refined, PhysCap on refined, trajopt: the synthetic table's metrics, the
              frames flagged and the physics stage's time.
   speed      frames per CPU second of the physics stage at 25, 30 and 60 fps, this tree against another
@@ -371,6 +374,51 @@ def part_online(clips, seeds, physics_settings=None) -> dict:
                 "root_relative_mm", "skate_percent", "kinematic_root_relative_mm", "kinematic_skate_percent",
                 "floating_percent", "kinematic_floating_percent", "global_root_mm", "kinematic_global_root_mm")})
     return dict(rows=[{k: v for k, v in r.items() if "slides" not in k} for r in rows], summary=summary)
+
+
+def build_online_case(name: str, seed: int, fps: float) -> dict:
+    """Observations, truth, the online fit (estimated floor) and causal contacts of one clip at `fps`; no offline
+    fits. Cached on disk."""
+    path = CACHE / f"{name.split('/')[0]}_{name.split('/')[-1][:-4]}_{seed}_{fps:g}_online_only.pkl"
+    if path.exists():
+        return pickle.loads(path.read_bytes())
+    clip = first_seconds(resample(load_mocap(MOCAP / name), fps), SECONDS)
+    rng = np.random.default_rng(seed)
+    K, R, t = random_camera(clip, rng)
+    obs, truth = make_observations(clip, K, R, t, rng, MEDIAPIPE_NOISE)
+    settings = Settings().replace("body", height=model_height(truth["landmarks_world"]))
+    causal, causal_stationary, _ = predict_contacts(obs, "causal")
+    case = dict(obs=obs, truth=truth, settings=settings, causal=causal, causal_stationary=causal_stationary,
+                online=fit_motion(obs, settings.replace(None, online=True)))
+    CACHE.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(pickle.dumps(case))
+    return case
+
+
+def part_online_framerate(clips) -> dict:
+    """The online fit and PhysCap on it at every rate of RATES, each clip observed at that rate; per rate the
+    means over the clips."""
+    rows = []
+    for name in clips:
+        for fps in RATES:
+            case = build_online_case(name, 0, fps)
+            motion, physics = physcap_online(case)
+            row = dict(clip=name.split("/")[-1], fps=fps, flagged_percent=100 * float(physics.unexplained.mean()),
+                       largest_force_bw=largest_force_bw(physics, motion.body.mass))
+            for label, qpos in (("kinematic", motion.qpos), ("physics", physics.qpos)):
+                scores = truth_scores(motion, qpos, case["truth"])
+                joints = kin.forward_kinematics(motion.body, qpos).points
+                slide = contact_slide_cm(motion.body, qpos, physics.contacts)
+                row.update({f"{label}_root_relative_mm": scores["mpjpe_root_mm"],
+                            f"{label}_global_root_mm": scores["global_root_mm"],
+                            f"{label}_skate_percent": scores["skate_percent"],
+                            f"{label}_jitter": metrics.mean_acceleration(joints, fps),
+                            f"{label}_slide_median_cm": float(np.median(slide)) if slide.size else float("nan")})
+            rows.append(row)
+            print("online_framerate", row, flush=True)
+    summary = {f"{fps:g}": {key: float((np.max if key == "largest_force_bw" else np.mean)(
+        [r[key] for r in rows if r["fps"] == fps])) for key in rows[0] if key not in ("clip", "fps")} for fps in RATES}
+    return dict(rows=rows, summary=summary)
 
 
 METHODS = ("kinematic offline", "kinematic refined (B.4)", "physcap on refined", "trajopt")
@@ -738,6 +786,18 @@ def markdown(out: dict) -> str:
                          f"{r.get('physics_vs_own_input_mm', np.nan):.1f} | {r.get('jitter', np.nan):.2f} "
                          f"({r.get('input_jitter', np.nan):.2f}) | {r['ms_per_frame']:.2f} |")
         lines.append("")
+    if "online_framerate" in out:
+        lines += ["**The online path at 10 to 120 fps** (each clip observed at each rate; online fit, then PhysCap "
+                  "on it, estimated floor; means over the clips: kinematic input / physics)", "",
+                  "| fps | root-relative mm | global root mm | jitter m/s² | skate % | contact slide median cm/frame | "
+                  "flagged % | largest force BW |", "|---|---|---|---|---|---|---|---|"]
+        for fps, s in out["online_framerate"]["summary"].items():
+            pair = [f"{s['kinematic_' + key]:.1f} / {s['physics_' + key]:.1f}" for key in (
+                "root_relative_mm", "global_root_mm", "jitter", "skate_percent")]
+            lines.append(f"| {fps} | {' | '.join(pair)} | {s['kinematic_slide_median_cm']:.2f} / "
+                         f"{s['physics_slide_median_cm']:.2f} | {s['flagged_percent']:.1f} | "
+                         f"{s['largest_force_bw']:.2f} |")
+        lines.append("")
     if "diagnosis" in out:
         rows = out["diagnosis"]["rows"]
         lines += ["**Diagnosis: a box under the walk** (0.3 m from 3.0 to 5.5 s; truly unexplainable: lifted >= 0.1 m, "
@@ -887,6 +947,8 @@ def main(argv=None) -> dict:
         elif part == "online":
             out[part] = part_online(clips, seeds, dataclasses.replace(PhysicsSettings(),
                                                                       **settings_overrides(args.physics)))
+        elif part == "online_framerate":
+            out[part] = part_online_framerate(clips)
         elif part == "methods":
             out[part] = part_methods(clips, seeds, args.methods, walks, settings_overrides(args.physics))
         elif part == "speed":

@@ -100,7 +100,9 @@ class FitResult:
 class KinematicFitter:
     """Evaluates the energy of eq. (3) and minimises it. Holds preallocated MuJoCo data; one per thread."""
 
-    def __init__(self, body: BodyModel, camera: Camera, settings: FitSettings, fps: float):
+    def __init__(self, body: BodyModel, camera: Camera, settings: FitSettings, fps: float, causal: bool = False):
+        """causal: the fitter of an online stream (`fit_frames` with a fixed past); above 30 fps its temporal
+        terms follow the causal filter's law in seconds instead of the whole-clip fit's (see below)."""
         self.body, self.camera, self.settings = body, camera, settings
         self.model = body.mujoco_model()
         self.data = mujoco.MjData(self.model)
@@ -124,9 +126,16 @@ class KinematicFitter:
         self.hinge_limits = np.array([body.bodies[b].limit for b in tab.hinge_bodies])
         # Joint angles of the angle-velocity term: ball joints' rotation vectors, then hinge angles.
         self.angle_columns = np.concatenate([(self.ball_vadr[:, None] + np.arange(3)).ravel(), self.hinge_vadr])
-        # Temporal terms are stated at 30 fps: rescale finite differences to keep their meaning per second.
-        self.accel_scale = (fps / 30.0) ** 2
-        self.velocity_scale = fps / 30.0
+        # Temporal terms are stated at 30 fps: rescale finite differences to keep their meaning per second. A causal
+        # fit with its past fixed is a filter, whose rise time and overshoot in seconds stay those of 30 fps above
+        # it when the acceleration weight grows as fps^2, the velocity weights as fps, and each frame's own terms
+        # also pull towards the last pose, weighted (fps / 30 - 1) times as much (`data_damping`): the damping
+        # that 30 fps frames get from their coarse steps (docs/decisions/fit-frame-rate.md, "online").
+        rate = fps / 30.0
+        if causal and rate > 1.0:
+            self.accel_scale, self.velocity_scale, self.data_damping = rate, float(np.sqrt(rate)), rate - 1.0
+        else:
+            self.accel_scale, self.velocity_scale, self.data_damping = rate ** 2, rate, 0.0
         self._jac = np.zeros((len(self.site_ids), 3, body.nv))
 
     # ---- kinematics through MuJoCo's C functions --------------------------------------------------------
@@ -519,16 +528,22 @@ class KinematicFitter:
         return FitResult(q, done, cost)
 
     # ---- online: frames each with its own fixed past ---------------------------------------------------
-    def _frames_system(self, qpos, targets, history):
+    def _frames_system(self, qpos, targets, history, anchor=None):
         """K independent frames, each with its past fixed: costs (K,), gradients g (K, nv), Gauss-Newton
         matrices H (K, nv, nv) and the temporal signals' values (K, n) at qpos. history: per temporal signal
-        the values of the frames before (K, h, n), oldest first, or None."""
+        the values of the frames before (K, h, n), oldest first, or None; anchor: the frames' own residuals at
+        the last pose (K, m), pulled towards with weight `data_damping`, or None."""
         points, jac = self.evaluate(qpos)
         r, J = self.frame_terms(qpos, points, jac, targets)
         Jt = J.transpose(0, 2, 1)
         H = Jt @ J
         g = (Jt @ r[..., None])[..., 0]
         cost = np.einsum("km,km->k", r, r)
+        if anchor is not None:
+            moved = r - anchor
+            H *= 1.0 + self.data_damping
+            g += self.data_damping * (Jt @ moved[..., None])[..., 0]
+            cost += self.data_damping * np.einsum("km,km->k", moved, moved)
         signals = self.temporal_signals(points, jac, qpos)
         for (values, jacobians, coeffs), past in zip(signals, history or [None] * len(signals), strict=True):
             if past is None or past.shape[1] < len(coeffs) - 1:
@@ -542,16 +557,21 @@ class KinematicFitter:
         return cost, g, H, [values for values, _, _ in signals]
 
     def fit_frames(self, qpos_init: np.ndarray, targets: FitTargets, history, iterations: int,
-                   tolerance: float = LM_TOLERANCE, damping_increase: float = 4.0) -> FitResult:
+                   tolerance: float = LM_TOLERANCE, damping_increase: float = 4.0,
+                   last: np.ndarray | None = None) -> FitResult:
         """Fit K independent frames side by side (qpos_init (K, nq), targets of K frames), each with its own
         past (history: per temporal signal (K, h, n) values of the frames already fitted, or None): one
         Levenberg-Marquardt per frame, batched, each frame with its own damping and stopping as
         `fit_offline` does, its damping multiplied by `damping_increase` after a rejected step. The
         online fit is K = 1; the offline fit's initial pass runs many causal streams at once. Returns the poses,
-        the most steps any frame took, the summed cost and the temporal signals' values at the result."""
+        the most steps any frame took, the summed cost and the temporal signals' values at the result. last:
+        the last fitted poses (K, nq), which a causal fitter above 30 fps pulls towards (`data_damping`)."""
         q = np.array(qpos_init, dtype=float)
         K, nv = len(q), self.body.nv
-        cost, g, H, signals = self._frames_system(q, targets, history)
+        anchor = None
+        if last is not None and self.data_damping > 0:
+            anchor = self.frame_terms(last, *self.evaluate(last), targets)[0]
+        cost, g, H, signals = self._frames_system(q, targets, history, anchor)
         damping = np.full(K, ONLINE_DAMPING)
         steps = np.zeros(K, dtype=int)
         active = np.ones(K, dtype=bool)
@@ -570,7 +590,9 @@ class KinematicFitter:
                 continue
             q_new = self.integrate(q[rows], step)
             past = history if every or history is None else [None if h is None else h[rows] for h in history]
-            c_new, g_new, H_new, s_new = self._frames_system(q_new, targets if every else targets.frames(rows), past)
+            c_new, g_new, H_new, s_new = self._frames_system(
+                q_new, targets if every else targets.frames(rows), past,
+                anchor if every or anchor is None else anchor[rows])
             better = c_new < cost[rows]
             won, lost = rows[better], rows[~better]
             decrease = (cost[won] - c_new[better]) / np.maximum(cost[won], 1e-12)

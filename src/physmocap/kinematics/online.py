@@ -81,7 +81,8 @@ def causal_step(fitter: KinematicFitter, targets: FitTargets, past: CausalPast, 
         result = fitter.fit_frames(q0, targets, None, FIRST_FRAME_ITERATIONS, damping_increase=damping_increase)
     else:
         start = predicted_pose(fitter, past) if prediction is None else prediction
-        result = fitter.fit_frames(start, targets, past.signals, iterations, damping_increase=damping_increase)
+        result = fitter.fit_frames(start, targets, past.signals, iterations, damping_increase=damping_increase,
+                                   last=past.poses[-1])
     if result.signals is None:
         raise RuntimeError("fit_frames returned no temporal signals")
     signals = [v[:, None] for v in result.signals]
@@ -209,34 +210,32 @@ class OnlineFitter:
                                    depth[first:first + 1], self.camera, self.calibration, s.fit)
             pelvis = initial_qpos(self.body, self.camera, targets, 0)[0, :3]
             self.camera = self.camera.with_extrinsics(*world_from_floor(self.floor, self.camera.to_camera(pelvis)))
-        self.fitter = KinematicFitter(self.body, self.camera, s.fit, self.fps)
+        self.fitter = KinematicFitter(self.body, self.camera, s.fit, self.fps, causal=True)
         fitted = self._fit_held(k2, k3, valid, depth, first)
         if s.fit.refine_lengths:  # as offline, from the held frames' fit; they are fitted again with the result
             targets = make_targets(k2, k3, valid, smooth_depth(depth), self.camera, self.calibration, s.fit)
-            poses = np.array([q for q, _ in fitted])
+            poses = np.array(fitted)
             self.calibration = refine_lengths(self.body, self.camera, np.concatenate(
                 [np.repeat(poses[:1], first, axis=0), poses]), targets, self.calibration, self.calibration.height)
             self.body = build_body_model(self.calibration.lengths, s.body.mass)
-            self.fitter = KinematicFitter(self.body, self.camera, s.fit, self.fps)
+            self.fitter = KinematicFitter(self.body, self.camera, s.fit, self.fps, causal=True)
             fitted = self._fit_held(k2, k3, valid, depth, first)
-        qpos = np.array([q for q, _ in fitted])
-        # A warm-up frame's feet are the detector's the other way round when exactly one of the two checks (the
-        # clip's, then the causal one on its result) swapped them.
-        self.foot_swap_frames += [first_index + t for t, (_, again) in enumerate(fitted, start=first)
-                                  if swaps[t] != again]
+        qpos = np.array(fitted)
+        self.foot_swap_frames += [first_index + t for t in np.flatnonzero(swaps[first:]) + first]
         self._foot_swaps.swapped = bool(swaps[np.flatnonzero(valid)[-1]])  # the detector's reading at the end
         qpos = np.concatenate([np.repeat(qpos[:1], first, axis=0), qpos])  # hold the first pose before it
         if s.camera.floor is None:
             self.floor = estimate_floor(self.body, qpos, self.camera, self.fps, valid,
                                         seen_sole_points(k2, self.image_size, s.fit.min_confidence))
             qpos, self.camera = move_world_to_floor(qpos, self.camera, self.floor, first)
-            self.fitter = KinematicFitter(self.body, self.camera, s.fit, self.fps)
+            self.fitter = KinematicFitter(self.body, self.camera, s.fit, self.fps, causal=True)
             self._past = CausalPast.of(self.fitter, [q[None] for q in qpos[-2:]])
         return list(enumerate(qpos, start=first_index))
 
     def _fit_held(self, k2: np.ndarray, k3: np.ndarray, valid: np.ndarray, depth: np.ndarray,
-                  first: int) -> list[tuple[np.ndarray, bool]]:
-        """The held warm-up frames from `first` on, fitted causally from a cold start: per frame (qpos, swapped).
+                  first: int) -> list[np.ndarray]:
+        """The held warm-up frames from `first` on, fitted causally from a cold start, their feet as the Viterbi
+        over all of them read them: per frame qpos (nq,).
         A run of frames after a gap without a person starts cold again, as offline (`fit_streams`): the past of a
         lone detection before the gap would otherwise carry its depth into the person who then walks in."""
         self._foot_swaps.swapped = False
@@ -246,11 +245,13 @@ class OnlineFitter:
                 self._past = CausalPast([], [])
                 self._depths.clear()
                 self._depths.append(float(depth[t]))
-            fitted.append(self._fit(k2[t], k3[t], valid[t]))
+            fitted.append(self._fit(k2[t], k3[t], valid[t], check_swaps=False)[0])
         return fitted
 
-    def _fit(self, keypoints_2d: np.ndarray, landmarks_3d: np.ndarray, valid: bool) -> tuple[np.ndarray, bool]:
-        """One frame fitted from the past: its pose (nq,) and whether its feet were read swapped."""
+    def _fit(self, keypoints_2d: np.ndarray, landmarks_3d: np.ndarray, valid: bool,
+             check_swaps: bool = True) -> tuple[np.ndarray, bool]:
+        """One frame fitted from the past: its pose (nq,) and whether its feet were read swapped by CausalFootSwaps
+        (with check_swaps; the held warm-up frames' feet are read by the Viterbi over all of them)."""
         s, calibration, fitter = self.settings, self.calibration, self.fitter
         if calibration is None or fitter is None:
             raise RuntimeError("OnlineFitter._fit ran before the warm-up calibrated the body.")  # a bug
@@ -260,7 +261,7 @@ class OnlineFitter:
             self._depths.append(float(depth))
         depth = np.array([np.median(self._depths)])
         q = predicted_pose(fitter, self._past) if self._past.poses else None
-        if s.fit.undo_foot_swaps and valid and q is not None and len(self._past.poses) == 2:
+        if check_swaps and s.fit.undo_foot_swaps and valid and q is not None and len(self._past.poses) == 2:
             # Both readings of the feet, scored at the pose the past predicts; the better one is fitted.
             both = make_targets(np.concatenate([k2, swap_feet(k2)]), np.concatenate([k3, swap_feet(k3)]),
                                 np.array([True, True]), np.repeat(depth, 2), self.camera, calibration, s.fit)
