@@ -123,3 +123,15 @@ def test_a_body_rests_off_its_feet_when_a_knee_elbow_or_the_seat_nears_the_floor
     heights = np.repeat(heights, 3, axis=0)
     heights[1, knee], heights[2, knee] = RESTING_HEIGHT - 0.01, -0.2  # on the floor; sunk through it
     assert resting_off_feet(heights).tolist() == [False, True, True]
+
+
+def test_centre_of_mass_point_weights_give_the_model_centre_of_mass(body):
+    """The weighted sum of the model's named points is its centre of mass within a centimetre on random poses (the
+    hands' and feet's own centres lie off the lines the weights assume)."""
+    rng = np.random.default_rng(2)
+    q = random_poses(body, 20, rng)
+    pose = kin.forward_kinematics(body, q)
+    weights = kin.center_of_mass_point_weights(body)
+    assert abs(sum(weights.values()) - 1.0) < 1e-12
+    from_points = kin.center_of_mass_from_points(body, pose.points, body.point_names)
+    assert np.linalg.norm(from_points - kin.center_of_mass(body, pose), axis=1).max() < 0.01

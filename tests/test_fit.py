@@ -92,16 +92,63 @@ def test_soft_limit_excess_is_rounded_only_within_its_band():
 def test_temporal_signal_jacobians_match_finite_differences(body, camera):
     rng = np.random.default_rng(1)
     q = random_poses(body, 2, rng)
-    fitter = KinematicFitter(body, camera, FitSettings(), 25.0)
-    signals = fitter.temporal_signals(*fitter.evaluate(q))
+    fitter = KinematicFitter(body, camera, FitSettings(weight_velocity=0.1, weight_com_acceleration=1.0), 25.0)
+    targets = _targets(body, q, camera, rng)
+    targets.contacts = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]])
+
+    def all_signals(q):
+        points, jac = fitter.evaluate(q)
+        return fitter.temporal_signals(points, jac) + [s[:3] for s in fitter.com_signals(
+            points, jac, targets.with_free_fall(np.array([0.0, 0.0, 1.0]), 25.0))]
+
+    signals = all_signals(q)
+    assert len(signals) == 4
     eps = 1e-6
     for k in range(body.nv):
         step = np.zeros((2, body.nv))
         step[:, k] = eps
-        plus = fitter.temporal_signals(*fitter.evaluate(fitter.integrate(q, step)))
-        minus = fitter.temporal_signals(*fitter.evaluate(fitter.integrate(q, -step)))
+        plus = all_signals(fitter.integrate(q, step))
+        minus = all_signals(fitter.integrate(q, -step))
         for (_, J, _), (vp, _, _), (vm, _, _) in zip(signals, plus, minus, strict=True):
             assert np.allclose((vp - vm) / (2 * eps), J[..., k], atol=1e-7)
+
+
+def test_centre_of_mass_term_smooths_the_centre_of_mass_not_the_pose(body, camera):
+    """The whole-clip fit of a noisy walk with the centre of mass's acceleration penalised (no contacts given: drawn
+    towards no acceleration): the force its centre of mass implies (m (z'' + g), second differences) is far
+    steadier, the pose as good."""
+    rng = np.random.default_rng(3)
+    truth = walking_motion(body, 90)
+    obs = observe(body, truth, camera)
+    obs.keypoints_2d[..., :2] += rng.normal(scale=2.0, size=obs.keypoints_2d[..., :2].shape)
+    obs.landmarks_3d += rng.normal(scale=0.02, size=obs.landmarks_3d.shape)
+    true = kin.forward_kinematics(body, truth).points
+    up = camera.R[:, 2]
+    settings = Settings().replace("body", height=body.height, mass=body.mass).replace(
+        "camera", floor=tuple(np.append(up, -up @ camera.t)))
+    spread, error = {}, {}
+    for weight in (0.0, 100.0):
+        motion = fit_motion(obs, settings.replace("fit", weight_com_acceleration=weight))
+        pose = kin.forward_kinematics(motion.body, motion.qpos)
+        vertical = kin.center_of_mass(motion.body, pose) @ up
+        spread[weight] = np.std(np.diff(vertical, 2)[5:-5]) * 30.0 ** 2 / metrics.GRAVITY  # body weights
+        error[weight] = np.linalg.norm((pose.points - pose.points[:, :1]) - (true - true[:, :1]), axis=-1).mean()
+    assert spread[100.0] < 0.5 * spread[0.0]
+    assert error[100.0] < 1.05 * error[0.0]
+
+
+def test_free_fall_path_accelerates_at_gravity_in_flight_only(body, camera):
+    """The centre of mass's term draws it towards gravity's acceleration on observed frames without a foot in
+    contact (a jump's arc is not flattened), towards none on frames in contact or unobserved."""
+    rng = np.random.default_rng(5)
+    targets = _targets(body, random_poses(body, 8, rng), camera, rng)
+    targets.contacts = np.zeros((8, 4))
+    targets.contacts[:3, 0] = targets.contacts[6:, 2] = 1.0
+    targets.weight_2d[4] = targets.weight_3d[4] = 0.0  # frame 4 unseen
+    up = np.array([0.0, 0.0, 1.0])
+    second = np.diff(targets.with_free_fall(up, 30.0).free_fall, 2, axis=0) * 30.0**2  # at frames 1 .. 6
+    assert np.allclose(second[:, 2], [0.0, 0.0, -metrics.GRAVITY, 0.0, -metrics.GRAVITY, 0.0])
+    assert np.allclose(second[:, :2], 0.0)
 
 
 @pytest.mark.parametrize("frames", [1, 2, 5, 8])

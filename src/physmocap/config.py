@@ -70,6 +70,7 @@ class FitSettings(Section):
     weight_floor: float = setting(0.0, "", (0.0, 1000.0), "Rempe's E_floor (B7): heel/toe height in contact (10)")
     weight_velocity: float = setting(0.0, "", (0.0, 1000.0), "Rempe's E_vel (B2): joint velocity (paper 0.1)")
     weight_angle_velocity: float = setting(0.0, "", (0.0, 1000.0), "Rempe's E_ang (B3): joint angle change (0.1)")
+    weight_com_acceleration: float = setting(0.0, "", (0.0, 1000.0), "acceleration of the centre of mass (ours)")
 
 
 @dataclass(frozen=True)
@@ -153,6 +154,7 @@ class TrajoptSettings(Section):
     kinematic_floor: float = setting(10.0, "", (0.0, 1000.0), "alpha_floor of the B.4 fit")
     kinematic_velocity: float = setting(0.1, "", (0.0, 1000.0), "alpha_vel of the B.4 fit")
     kinematic_angle_velocity: float = setting(0.1, "", (0.0, 1000.0), "alpha_ang of the B.4 fit")
+    kinematic_com_acceleration: float = setting(100.0, "", (0.0, 1000.0), "the B.4 fit's weight_com_acceleration")
     floor_outlier_distance: float = setting(0.05, "m", (0.01, 1.0), "contacts farther from the floor: dropped (ours)")
     floor_pitch_prior: float = setting(0.05, "", (0.0, 10.0), "per contact at 1 m, against the B.4 floor tilting "
                                        "to the camera, as depth errors tilt it (ours)")

@@ -200,23 +200,32 @@ SEGMENT_POINTS: dict[str, tuple[str, str]] = {
 }
 
 
-def center_of_mass_from_points(model: BodyModel, points: np.ndarray, names) -> np.ndarray:
-    """(T, 3) whole-body centre of mass of a skeleton known only by its joint positions (e.g. motion capture):
-    every body of `model` carries its (de Leva) mass at the fraction along its segment (SEGMENT_POINTS) where the
-    model's own centre of mass projects in the rest pose. points: (T, P, 3) named `names` (the model's joint and
-    contact point names, any order). On the model's own poses this is its centre of mass to about a millimetre
-    (the feet's and hands' centres off their lines are ignored)."""
-    names = [str(n) for n in names]
+def center_of_mass_point_weights(model: BodyModel) -> dict[str, float]:
+    """Weights (summing to 1) of the model's named points whose weighted sum is its whole-body centre of mass, to
+    about a millimetre: every body carries its (de Leva) mass at the fraction along its segment (SEGMENT_POINTS)
+    where its own centre of mass projects in the rest pose (the feet's and hands' centres off their lines are
+    ignored)."""
     rest = forward_kinematics(model, model.rest_qpos[None])
     rest_com = rest.origins[0] + np.einsum("bij,bj->bi", rest.rotations[0], np.stack([b.com for b in model.bodies]))
-    total = np.zeros(points.shape[:1] + (3,))
+    weights: dict[str, float] = {}
     for b, body in enumerate(model.bodies):
         a, c = SEGMENT_POINTS[body.name]
         pa, pc = rest.points[0, model.point_index([a, c])]
         fraction = float((rest_com[b] - pa) @ (pc - pa) / ((pc - pa) @ (pc - pa)))
-        start, end = points[:, names.index(a)], points[:, names.index(c)]
-        total += body.mass * (start + fraction * (end - start))
-    return total / model.mass
+        weights[a] = weights.get(a, 0.0) + body.mass * (1 - fraction) / model.mass
+        weights[c] = weights.get(c, 0.0) + body.mass * fraction / model.mass
+    return weights
+
+
+def center_of_mass_from_points(model: BodyModel, points: np.ndarray, names) -> np.ndarray:
+    """(T, 3) whole-body centre of mass of a skeleton known only by its joint positions (e.g. motion capture), by
+    `center_of_mass_point_weights`. points: (T, P, 3) named `names` (the model's joint and contact point names,
+    any order)."""
+    names = [str(n) for n in names]
+    total = np.zeros(points.shape[:1] + (3,))
+    for name, weight in center_of_mass_point_weights(model).items():
+        total += weight * points[:, names.index(name)]
+    return total
 
 
 def rigid_transform_qpos(qpos: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:

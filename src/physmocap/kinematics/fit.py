@@ -20,6 +20,7 @@ Variables are steps in MuJoCo's velocity space applied on the manifold.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -34,6 +35,7 @@ from ..body.rotations import matrix_to_quat, quat_conjugate, quat_left_matrix, q
 from ..camera import Camera
 from ..config import FitSettings
 from ..landmarks import LANDMARK_INDEX
+from ..metrics import GRAVITY
 
 # Detector landmarks fitted, and the model point each one observes.
 MARKERS: tuple[tuple[str, str], ...] = (
@@ -74,6 +76,9 @@ class FitTargets:
         l toe, r heel, r toe), for the contact velocity and floor terms; None: no contact terms.
     floor: optional (4,) plane n . x + d = 0 in the fit's world frame, n the unit normal pointing up, for the
         floor term; None: no floor term.
+    free_fall: optional (T, 3) metres, a path whose second differences are gravity's on the frames where the person
+        is observed and no foot is in contact, zero elsewhere: the centre of mass's acceleration term pulls towards
+        it (`with_free_fall`); None: towards no acceleration.
     """
 
     keypoints: np.ndarray
@@ -83,10 +88,25 @@ class FitTargets:
     depth: np.ndarray
     contacts: np.ndarray | None = None
     floor: np.ndarray | None = None
+    free_fall: np.ndarray | None = None
 
     def frames(self, sl: slice | np.ndarray) -> FitTargets:
         return FitTargets(self.keypoints[sl], self.weight_2d[sl], self.targets_3d[sl], self.weight_3d[sl],
-                          self.depth[sl], None if self.contacts is None else self.contacts[sl], self.floor)
+                          self.depth[sl], None if self.contacts is None else self.contacts[sl], self.floor,
+                          None if self.free_fall is None else self.free_fall[sl])
+
+    def with_free_fall(self, up: np.ndarray, fps: float) -> FitTargets:
+        """These targets with `free_fall` from their contact weights (flight: 1 - the largest) on observed frames;
+        up: (3,) the world's unit up vector. Unchanged without contacts."""
+        if self.contacts is None:
+            return self
+        observed = self.weight_2d.any(axis=1) | self.weight_3d.any(axis=1)
+        flight = np.where(observed, 1.0 - self.contacts.max(axis=1, initial=0.0), 0.0)
+        step = -GRAVITY / fps**2 * flight[:, None] * up  # (T, 3) each frame's second difference
+        path = np.zeros((len(flight), 3))
+        for t in range(1, len(flight) - 1):
+            path[t + 1] = 2 * path[t] - path[t - 1] + step[t]
+        return dataclasses.replace(self, free_fall=path)
 
 
 @dataclass
@@ -110,6 +130,9 @@ class KinematicFitter:
         self.marker_points = body.point_index([b for _, b in MARKERS])
         self.joint_points = body.point_index(JOINT_NAMES)
         self.pelvis_point = body.point_index(["pelvis"])[0]
+        com_weights = kin.center_of_mass_point_weights(body)
+        self.com_points = body.point_index(list(com_weights))
+        self.com_weights = np.array(list(com_weights.values()))
         self.contact_points = body.point_index(CONTACT_POINTS)
         tab = kin.tables(body)
         self.ball_vadr = tab.vadr[tab.ball_bodies]
@@ -306,6 +329,19 @@ class KinematicFitter:
         jacobians = w * jac[:, self.contact_points].reshape(T, -1, nv)
         return [(values, jacobians, np.array([-1.0, 1.0]), pair)]
 
+    def com_signals(self, points, jac, targets: FitTargets):
+        """The centre of mass's acceleration (ours) as a weighted temporal signal, its points' weighted sum
+        (kinematics.center_of_mass_point_weights) less `targets.free_fall` when given: values (T, 3), Jacobians
+        (T, 3, nv), coefficients [1, -2, 1], no pair weights. The fit's millimetre noise, twice differentiated, is
+        the force its motion implies (docs/decisions/b4-centre-of-mass.md). Offline only; empty at weight 0."""
+        if self.settings.weight_com_acceleration <= 0:
+            return []
+        w = np.sqrt(self.settings.weight_com_acceleration) * self.accel_scale * self.com_weights
+        values = np.einsum("p,tpi->ti", w, points[:, self.com_points])
+        if targets.free_fall is not None:
+            values -= w.sum() * targets.free_fall
+        return [(values, np.einsum("p,tpin->tin", w, jac[:, self.com_points]), np.array([1.0, -2.0, 1.0]), None)]
+
     # ---- offline: the whole clip -------------------------------------------------------------------------
     def _offline_system(self, qpos, targets, band=None, progress=None, scale=None):
         """Cost, gradient g (T, nv) and upper block bands H (3, T, nv, nv) of the Gauss-Newton system: H[d, t]
@@ -348,7 +384,8 @@ class KinematicFitter:
         # A signal of weight 0 (the IK's smoothness and depth) adds zeros to g and H: left out.
         signals = [(v, j, c, None) for v, j, c in self.temporal_signals(points, jac, qpos[window])
                    if v.any() or j.any()]
-        for values, jacobians, coeffs, pair_weights in signals + self.contact_signals(points, jac, window_targets):
+        for values, jacobians, coeffs, pair_weights in (signals + self.contact_signals(points, jac, window_targets)
+                                                        + self.com_signals(points, jac, window_targets)):
             K = len(coeffs)
             if K - 1 > TEMPORAL_REACH:
                 raise ValueError(f"a temporal term spans {K} frames, more than TEMPORAL_REACH allows")

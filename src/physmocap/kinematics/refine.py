@@ -40,6 +40,7 @@ log = logging.getLogger("physmocap")
 MIN_FLOOR_POINTS = 8  # fewer contact points than this leave the floor as it was
 SINK_PERCENTILE, SINK_DEPTH = 5.0, 0.03  # a refitted floor with 5% of all foot points 3 cm below it is rejected
 HUBER_SCALE = 0.02  # m: contact points farther from the plane than this pull linearly (Huber)
+UP = np.array([0.0, 0.0, 1.0])
 
 
 def tilt_axes(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -178,6 +179,7 @@ def contact_fit_settings(fit: FitSettings, settings: TrajoptSettings, floor: boo
     return dataclasses.replace(fit, weight_contact_velocity=settings.kinematic_contact_velocity,
                                weight_velocity=settings.kinematic_velocity,
                                weight_angle_velocity=settings.kinematic_angle_velocity,
+                               weight_com_acceleration=settings.kinematic_com_acceleration,
                                weight_floor=settings.kinematic_floor if floor else 0.0)
 
 
@@ -250,9 +252,9 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
     depth = smooth_depth(raw_depth(obs.keypoints_2d, obs.landmarks_3d, obs.valid, camera.focal, motion.calibration,
                                    fit.min_confidence))
 
-    def targets_in(cam, flags, floor):
+    def targets_in(cam, flags, floor):  # the world is the floor's (z up) in both fits
         t = make_targets(obs.keypoints_2d, obs.landmarks_3d, obs.valid, depth, cam, motion.calibration, fit)
-        return dataclasses.replace(t, contacts=flags.astype(float), floor=floor)
+        return dataclasses.replace(t, contacts=flags.astype(float), floor=floor).with_free_fall(UP, fps)
 
     def bar(fitter, name):
         return progress(name, fitter.planned_passes(obs.num_frames), "frame passes") if progress else None
