@@ -117,20 +117,12 @@ def test_centre_of_mass_term_smooths_the_centre_of_mass_not_the_pose(body, camer
     """The whole-clip fit of a noisy walk with the centre of mass's acceleration penalised (no contacts given: drawn
     towards no acceleration): the force its centre of mass implies (m (z'' + g), second differences) is far
     steadier, the pose as good."""
-    rng = np.random.default_rng(3)
-    truth = walking_motion(body, 90)
-    obs = observe(body, truth, camera)
-    obs.keypoints_2d[..., :2] += rng.normal(scale=2.0, size=obs.keypoints_2d[..., :2].shape)
-    obs.landmarks_3d += rng.normal(scale=0.02, size=obs.landmarks_3d.shape)
-    true = kin.forward_kinematics(body, truth).points
-    up = camera.R[:, 2]
-    settings = Settings().replace("body", height=body.height, mass=body.mass).replace(
-        "camera", floor=tuple(np.append(up, -up @ camera.t)))
     spread, error = {}, {}
     for weight in (0.0, 100.0):
-        motion = fit_motion(obs, settings.replace("fit", weight_com_acceleration=weight))
-        pose = kin.forward_kinematics(motion.body, motion.qpos)
-        vertical = kin.center_of_mass(motion.body, pose) @ up
+        motion, truth = fit_noisy_walk(body, camera, 30.0, 3, np.random.default_rng(3),
+                                       Settings().replace("fit", weight_com_acceleration=weight))
+        pose, true = kin.forward_kinematics(motion.body, motion.qpos), kin.forward_kinematics(body, truth).points
+        vertical = kin.center_of_mass(motion.body, pose) @ camera.R[:, 2]
         spread[weight] = np.std(np.diff(vertical, 2)[5:-5]) * 30.0 ** 2 / metrics.GRAVITY  # body weights
         error[weight] = np.linalg.norm((pose.points - pose.points[:, :1]) - (true - true[:, :1]), axis=-1).mean()
     assert spread[100.0] < 0.5 * spread[0.0]
@@ -266,6 +258,18 @@ def test_offline_fit_bridges_a_gap_without_extrapolating(body, camera):
     assert np.linalg.norm(pelvis - true, axis=1)[15:22].max() < 0.1
 
 
+def fit_noisy_walk(body, camera, fps, seconds, rng, settings=None):
+    """The test walk observed at `fps` with 2 px and 2 cm of noise, fitted with the floor and the body known (and
+    `settings`, default Settings()): returns the fitted motion and the true poses."""
+    truth = walking_motion(body, int(seconds * fps), fps)
+    obs = observe(body, truth, camera, fps)
+    obs.keypoints_2d[..., :2] += rng.normal(scale=2.0, size=obs.keypoints_2d[..., :2].shape)
+    obs.landmarks_3d += rng.normal(scale=0.02, size=obs.landmarks_3d.shape)
+    up = camera.R[:, 2]
+    settings = (settings or Settings()).replace("body", height=body.height, mass=body.mass)
+    return fit_motion(obs, settings.replace("camera", floor=tuple(np.append(up, -up @ camera.t)))), truth
+
+
 @pytest.mark.slow
 def test_offline_fit_converges_as_well_at_120_fps_as_at_30(body, camera):
     """The same walk observed with the same noise at 30 and 120 fps: the fit's pose is as good at both rates.
@@ -274,13 +278,7 @@ def test_offline_fit_converges_as_well_at_120_fps_as_at_30(body, camera):
     rng = np.random.default_rng(0)
     errors = {}
     for fps in (30.0, 120.0):
-        truth = walking_motion(body, int(2 * fps), fps)
-        obs = observe(body, truth, camera, fps)
-        obs.keypoints_2d[..., :2] += rng.normal(scale=2.0, size=obs.keypoints_2d[..., :2].shape)
-        obs.landmarks_3d += rng.normal(scale=0.02, size=obs.landmarks_3d.shape)
-        up = camera.R[:, 2]
-        settings = Settings().replace("body", height=body.height, mass=body.mass)
-        motion = fit_motion(obs, settings.replace("camera", floor=tuple(np.append(up, -up @ camera.t))))
+        motion, truth = fit_noisy_walk(body, camera, fps, 2, rng)
         fitted = kin.forward_kinematics(motion.body, motion.qpos).points
         true = kin.forward_kinematics(body, truth).points
         errors[fps] = np.linalg.norm((fitted - fitted[:, :1]) - (true - true[:, :1]), axis=-1).mean()
@@ -296,13 +294,7 @@ def test_online_fit_follows_the_motion_at_120_fps_as_at_30(body, camera):
     rng = np.random.default_rng(0)
     errors, jitter = {}, {}
     for fps in (30.0, 120.0):
-        truth = walking_motion(body, int(4 * fps), fps)
-        obs = observe(body, truth, camera, fps)
-        obs.keypoints_2d[..., :2] += rng.normal(scale=2.0, size=obs.keypoints_2d[..., :2].shape)
-        obs.landmarks_3d += rng.normal(scale=0.02, size=obs.landmarks_3d.shape)
-        up = camera.R[:, 2]
-        settings = Settings(online=True).replace("body", height=body.height, mass=body.mass)
-        motion = fit_motion(obs, settings.replace("camera", floor=tuple(np.append(up, -up @ camera.t))))
+        motion, truth = fit_noisy_walk(body, camera, fps, 4, rng, Settings(online=True))
         fitted = kin.forward_kinematics(motion.body, motion.qpos).points
         true = kin.forward_kinematics(body, truth).points
         errors[fps] = np.linalg.norm((fitted - fitted[:, :1]) - (true - true[:, :1]), axis=-1).mean()
