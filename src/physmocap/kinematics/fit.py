@@ -102,11 +102,9 @@ class FitTargets:
             return self
         observed = self.weight_2d.any(axis=1) | self.weight_3d.any(axis=1)
         flight = np.where(observed, 1.0 - self.contacts.max(axis=1, initial=0.0), 0.0)
-        step = -GRAVITY / fps**2 * flight[:, None] * up  # (T, 3) each frame's second difference
-        path = np.zeros((len(flight), 3))
-        for t in range(1, len(flight) - 1):
-            path[t + 1] = 2 * path[t] - path[t - 1] + step[t]
-        return dataclasses.replace(self, free_fall=path)
+        second = np.zeros((len(flight), 3))  # second[t]: the path's second difference about frame t - 1
+        second[2:] = -GRAVITY / fps**2 * flight[1:-1, None] * up
+        return dataclasses.replace(self, free_fall=np.cumsum(np.cumsum(second, axis=0), axis=0))
 
 
 @dataclass
