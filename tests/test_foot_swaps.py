@@ -111,18 +111,3 @@ def test_online_fit_reads_swapped_feet_the_right_way_round(body, walk):
     for frames in (slice(20, 32), slice(100, 110)):
         assert undone[frames].max() < 0.03 and kept[frames].max() > 0.1
 
-
-def test_warm_up_frames_are_read_by_the_whole_stretch_not_by_the_causal_check(body, walk, monkeypatch):
-    """The held warm-up frames' feet are read by the Viterbi over all of them; the causal check, which trusts the
-    pose that the past predicts, starts after the warm-up. On it, a first pose fitted with crossed legs had made
-    the check read every frame swapped and keep the legs crossed (synthetic 002_04 at 120 fps, feet 12-21 cm
-    off on every frame)."""
-    from physmocap.config import Settings
-    from physmocap.kinematics.stage import fit_motion
-
-    monkeypatch.setattr(CausalFootSwaps, "update", lambda self, as_detected, swapped: True)  # a check gone wrong
-    swapped = mirrored(walk, slice(20, 32), FOOT_LANDMARKS)
-    motion = fit_motion(swapped, Settings(online=True).replace("body", height=body.height, mass=body.mass))
-    warm_up = round(3.0 * walk.fps)
-    assert np.flatnonzero(motion.foot_swaps[:warm_up]).tolist() == list(range(20, 32))
-    assert motion.foot_swaps[warm_up:].all()

@@ -214,14 +214,17 @@ class OnlineFitter:
         fitted = self._fit_held(k2, k3, valid, depth, first)
         if s.fit.refine_lengths:  # as offline, from the held frames' fit; they are fitted again with the result
             targets = make_targets(k2, k3, valid, smooth_depth(depth), self.camera, self.calibration, s.fit)
-            poses = np.array(fitted)
+            poses = np.array([q for q, _ in fitted])
             self.calibration = refine_lengths(self.body, self.camera, np.concatenate(
                 [np.repeat(poses[:1], first, axis=0), poses]), targets, self.calibration, self.calibration.height)
             self.body = build_body_model(self.calibration.lengths, s.body.mass)
             self.fitter = KinematicFitter(self.body, self.camera, s.fit, self.fps, causal=True)
             fitted = self._fit_held(k2, k3, valid, depth, first)
-        qpos = np.array(fitted)
-        self.foot_swap_frames += [first_index + t for t in np.flatnonzero(swaps[first:]) + first]
+        qpos = np.array([q for q, _ in fitted])
+        # A warm-up frame's feet are the detector's the other way round when exactly one of the two checks (the
+        # clip's, then the causal one on its result) swapped them.
+        self.foot_swap_frames += [first_index + t for t, (_, again) in enumerate(fitted, start=first)
+                                  if swaps[t] != again]
         self._foot_swaps.swapped = bool(swaps[np.flatnonzero(valid)[-1]])  # the detector's reading at the end
         qpos = np.concatenate([np.repeat(qpos[:1], first, axis=0), qpos])  # hold the first pose before it
         if s.camera.floor is None:
@@ -233,9 +236,8 @@ class OnlineFitter:
         return list(enumerate(qpos, start=first_index))
 
     def _fit_held(self, k2: np.ndarray, k3: np.ndarray, valid: np.ndarray, depth: np.ndarray,
-                  first: int) -> list[np.ndarray]:
-        """The held warm-up frames from `first` on, fitted causally from a cold start, their feet as the Viterbi
-        over all of them read them: per frame qpos (nq,).
+                  first: int) -> list[tuple[np.ndarray, bool]]:
+        """The held warm-up frames from `first` on, fitted causally from a cold start: per frame (qpos, swapped).
         A run of frames after a gap without a person starts cold again, as offline (`fit_streams`): the past of a
         lone detection before the gap would otherwise carry its depth into the person who then walks in."""
         self._foot_swaps.swapped = False
@@ -245,13 +247,11 @@ class OnlineFitter:
                 self._past = CausalPast([], [])
                 self._depths.clear()
                 self._depths.append(float(depth[t]))
-            fitted.append(self._fit(k2[t], k3[t], valid[t], check_swaps=False)[0])
+            fitted.append(self._fit(k2[t], k3[t], valid[t]))
         return fitted
 
-    def _fit(self, keypoints_2d: np.ndarray, landmarks_3d: np.ndarray, valid: bool,
-             check_swaps: bool = True) -> tuple[np.ndarray, bool]:
-        """One frame fitted from the past: its pose (nq,) and whether its feet were read swapped by CausalFootSwaps
-        (with check_swaps; the held warm-up frames' feet are read by the Viterbi over all of them)."""
+    def _fit(self, keypoints_2d: np.ndarray, landmarks_3d: np.ndarray, valid: bool) -> tuple[np.ndarray, bool]:
+        """One frame fitted from the past: its pose (nq,) and whether its feet were read swapped."""
         s, calibration, fitter = self.settings, self.calibration, self.fitter
         if calibration is None or fitter is None:
             raise RuntimeError("OnlineFitter._fit ran before the warm-up calibrated the body.")  # a bug
@@ -261,7 +261,7 @@ class OnlineFitter:
             self._depths.append(float(depth))
         depth = np.array([np.median(self._depths)])
         q = predicted_pose(fitter, self._past) if self._past.poses else None
-        if check_swaps and s.fit.undo_foot_swaps and valid and q is not None and len(self._past.poses) == 2:
+        if s.fit.undo_foot_swaps and valid and q is not None and len(self._past.poses) == 2:
             # Both readings of the feet, scored at the pose the past predicts; the better one is fitted.
             both = make_targets(np.concatenate([k2, swap_feet(k2)]), np.concatenate([k3, swap_feet(k3)]),
                                 np.array([True, True]), np.repeat(depth, 2), self.camera, calibration, s.fit)
