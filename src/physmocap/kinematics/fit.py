@@ -10,7 +10,9 @@ Energy terms (each a small named piece with its residual and analytic Jacobian, 
 - optional terms of Rempe et al. 2020 (B.3), off unless their weights are set: contact velocity (B6, heels and
   toes still between two frames labelled in contact), contact position on the floor (B7), velocity of the
   pelvis-relative joints (B2) and change of the joint angles (B3). Contact labels and the floor plane come with
-  the targets (FitTargets.contacts, FitTargets.floor).
+  the targets (FitTargets.contacts, FitTargets.floor);
+- optional, ours, offline only: acceleration of the centre of mass, against free fall where no foot is in contact
+  (FitTargets.free_fall), so that the forces the motion implies are not its noise twice differentiated.
 
 Two solvers share these terms: offline over the whole clip (block-banded normal equations, block Cholesky by
 pairs of frames), and per frame with the previous two frames fixed (`fit_frames`, constant cost per frame),
@@ -151,7 +153,8 @@ class KinematicFitter:
         # fit with its past fixed is a filter, whose rise time and overshoot in seconds stay those of 30 fps above
         # it when the acceleration weight grows as fps^2, the velocity weights as fps, and each frame's own terms
         # also pull towards the last pose, weighted (fps / 30 - 1) times as much (`data_damping`): the damping
-        # that 30 fps frames get from their coarse steps (docs/decisions/fit-frame-rate.md, "online").
+        # that 30 fps frames get from their coarse steps (docs/decisions/fit-frame-rate.md, "The online fit above 30
+        # fps").
         rate = fps / 30.0
         if causal and rate > 1.0:
             self.accel_scale, self.velocity_scale, self.data_damping = rate, float(np.sqrt(rate)), rate - 1.0
