@@ -71,7 +71,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_synthetic import CLIPS, FPS, SECONDS, WALKING, first_seconds, model_height  # noqa: E402
-from bench_trajopt import implied_vertical_force  # noqa: E402
+from bench_trajopt import implied_vertical_force, observe  # noqa: E402
 from common import MOCAP, RESULTS, truth_scores  # noqa: E402
 from physmocap import metrics  # noqa: E402
 from physmocap.body import kinematics as kin  # noqa: E402
@@ -383,11 +383,7 @@ def build_online_case(name: str, seed: int, fps: float) -> dict:
     path = CACHE / f"{name.split('/')[0]}_{name.split('/')[-1][:-4]}_{seed}_{fps:g}_online_only.pkl"
     if path.exists():
         return pickle.loads(path.read_bytes())
-    clip = first_seconds(resample(load_mocap(MOCAP / name), fps), SECONDS)
-    rng = np.random.default_rng(seed)
-    K, R, t = random_camera(clip, rng)
-    obs, truth = make_observations(clip, K, R, t, rng, MEDIAPIPE_NOISE)
-    settings = Settings().replace("body", height=model_height(truth["landmarks_world"]))
+    obs, truth, settings = observe(name, seed, SECONDS, fps)
     causal, causal_stationary, _ = predict_contacts(obs, "causal")
     case = dict(obs=obs, truth=truth, settings=settings, causal=causal, causal_stationary=causal_stationary,
                 online=fit_motion(obs, settings.replace(None, online=True)))
@@ -432,6 +428,8 @@ def part_methods(clips, seeds, methods=METHODS, walking=WALKING, overrides=None)
         for seed in seeds:
             case = build_case(name, seed, online=False)
             truth, fps = case["truth"], case["obs"].fps
+            true_force = true_vertical_force(case["offline"].body, truth)
+            feet_down = true_contact_labels(truth).any(axis=1) & case["obs"].valid
             for method in methods:
                 grf, residual, flagged, seconds = None, None, None, 0.0
                 if method == "kinematic offline":
@@ -460,7 +458,7 @@ def part_methods(clips, seeds, methods=METHODS, walking=WALKING, overrides=None)
                 row.update(grf_horizontal_components(grf, motion.body.mass))
                 feet, true_contacts = motion.body.point_index(CONTACT_POINTS), true_contact_labels(truth)
                 names = [str(n) for n in truth["joint_names"]]
-                row.update(vertical_force_errors(motion.body, com, grf, truth, true_contacts.any(axis=1) & case["obs"].valid))
+                row.update(vertical_force_errors(motion.body, com, grf, fps, true_force, feet_down))
                 # cm per frame, the median over the case (docs/decisions/physics-planted-feet.md)
                 slides = (held_slides_cm(points[:, feet], true_contacts),
                           held_slides_cm(truth["joints_world"][:, [names.index(n) for n in CONTACT_POINTS]],
@@ -487,19 +485,22 @@ def part_methods(clips, seeds, methods=METHODS, walking=WALKING, overrides=None)
     return dict(rows=rows, summary=summary)
 
 
-def vertical_force_errors(body, com: np.ndarray, grf, truth: dict, frames: np.ndarray) -> dict:
+def true_vertical_force(body, truth: dict) -> np.ndarray:
+    """(T,) body weights: the vertical force the true motion implies (bench_trajopt.implied_vertical_force: a force
+    plate's reading after the usual 0.3 s low-pass), its centre of mass from its joints with `body`'s masses."""
+    names = [str(n) for n in truth["joint_names"]]
+    com = kin.center_of_mass_from_points(body, truth["joints_world"], names)
+    return implied_vertical_force(com, body.mass, float(truth["fps"])) / (body.mass * GRAVITY)
+
+
+def vertical_force_errors(body, com: np.ndarray, grf, fps: float, true_force: np.ndarray, frames: np.ndarray) -> dict:
     """Body weights, root mean square over `frames` (T,) bool (the truth's feet-on-the-floor frames): the
     method's net vertical contact force (its motion's own m (z'' + g), second differences, without forces)
-    against the vertical force the true motion implies (bench_trajopt.implied_vertical_force: a force plate's
-    reading after the usual 0.3 s low-pass), and a constant one body weight against the same (issue 17: on real
-    footage neither method was closer to the force plates than that constant). com: (T, 3) the method's centre of
-    mass in the truth's world."""
-    weight = body.mass * GRAVITY
-    fps = float(truth["fps"])
-    names = [str(n) for n in truth["joint_names"]]
-    true_force = implied_vertical_force(kin.center_of_mass_from_points(body, truth["joints_world"], names),
-                                        body.mass, fps) / weight
-    force = (metrics.implied_grf(com, body.mass, fps)[:, 2] if grf is None else grf[..., 2].sum(axis=1)) / weight
+    against `true_force` (T,) (`true_vertical_force`), and a constant one body weight against the same (issue 17:
+    on real footage neither method was closer to the force plates than that constant). com: (T, 3) the method's
+    centre of mass in the truth's world."""
+    force = (metrics.implied_grf(com, body.mass, fps)[:, 2] if grf is None else grf[..., 2].sum(axis=1))
+    force = force / (body.mass * GRAVITY)
     rms = lambda x: float(np.sqrt(np.mean(x[frames] ** 2))) if frames.any() else float("nan")  # noqa: E731
     return dict(vertical_force_error_bw=rms(force - true_force), constant_force_error_bw=rms(1.0 - true_force))
 

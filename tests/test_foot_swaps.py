@@ -110,4 +110,3 @@ def test_online_fit_reads_swapped_feet_the_right_way_round(body, walk):
     kept = np.linalg.norm(ankles(swapped, undo=False) - clean, axis=-1)
     for frames in (slice(20, 32), slice(100, 110)):
         assert undone[frames].max() < 0.03 and kept[frames].max() > 0.1
-
