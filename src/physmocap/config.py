@@ -6,7 +6,6 @@ the papers' values where they give one; the measurements behind the others are i
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -239,15 +238,6 @@ class Settings(Section):
         """Whether the physics starts from B.4's refinement of the clip: trajopt always, PhysCap offline by default."""
         method = self.physics.method
         return method == "trajopt" or (method == "physcap" and self.physics.refine_offline and not self.online)
-
-    def replace(self, section: str | None = None, **values) -> Settings:
-        """A copy with fields changed; `section` names the sub-settings, None the top level."""
-        if section is None:
-            return dataclasses.replace(self, **values)
-        return dataclasses.replace(self, **{section: dataclasses.replace(getattr(self, section), **values)})
-
-    def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
 
 
 def load_settings(path: str | Path | None = None) -> Settings:

@@ -45,6 +45,16 @@ class Section:
                 _check_value(self.key(f.name), value, f.metadata)
         return self
 
+    def replace(self, section: str | None = None, **values):
+        """A copy with fields changed; `section` names the sub-settings, None the top level."""
+        if section is None:
+            return dataclasses.replace(self, **values)  # type: ignore[type-var]
+        inner = dataclasses.replace(getattr(self, section), **values)
+        return dataclasses.replace(self, **{section: inner})  # type: ignore[type-var]
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)  # type: ignore[call-overload]
+
 
 def declaration(root: type, key: str) -> dataclasses.Field:
     """The field of the setting `key` ("section.field", or a top-level field's name) in the dataclass `root`."""
