@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 from pathlib import Path
 
 import numpy as np
@@ -449,7 +451,13 @@ def test_training_runs_a_few_steps(tmp_path):
     first = {mode: dict(np.load(tmp_path / f"{mode}.npz")) for mode in ("causal", "centred")}
     members = CausalNetSpec().members  # the causal ensemble's members, stacked on a leading axis
     assert first["causal"]["fc.bias"].shape == (members, 5) and len(metadata["causal"]["members"]) == members
-    assert first["centred"]["linear0.bias"].ndim == 1  # one centred network
+    assert first["centred"]["linear0.bias"].shape == (CentredNetSpec().members, 32)  # on their own draws
+    single = dataclasses.replace(settings, centred=dataclasses.replace(settings.centred, members=1))
+    train_contacts(SHARED_DATA, tmp_path / "single", seed=3, settings=single, max_clips=1, log=lambda _: None,
+                   modes=("centred",))
+    alone_member = dict(np.load(tmp_path / "single" / "centred.npz"))  # member 0: the shared draw, as one network
+    assert all(np.array_equal(first["centred"][k][0], v) for k, v in alone_member.items())
+    assert not np.array_equal(first["centred"]["linear0.bias"][1], first["centred"]["linear0.bias"][2])
     train_contacts(SHARED_DATA, tmp_path, seed=3, settings=settings, max_clips=1, log=lambda _: None)
     for mode, params in first.items():
         again = load_weights(mode, tmp_path)

@@ -35,13 +35,16 @@ class CausalNetSpec:
     """Causal temporal-convolution network. channels: output channels of each convolution (their number must
     shrink the window to one frame: (length - 1) / (kernel - 1) layers); kernel: frames per convolution;
     dropout: before the fully connected layer, training only; members: networks trained with different seeds
-    whose probabilities are averaged, 1 (one network) to about 5, each costing one more forward pass."""
+    whose probabilities are averaged, 1 (one network) to about 5, each costing one more forward pass;
+    member_data_draws: member m >= 1 trains on its own draw of synthetic sequences (data seed + 100 m), not on
+    member 0's (for the causal network that widened its spread on real frames: contact-training.md)."""
 
     window: WindowSpec = CAUSAL_WINDOW
     channels: tuple[int, ...] = (128, 128, 128)
     kernel: int = 3
     dropout: float = 0.2
     members: int = 3
+    member_data_draws: bool = False
 
     def __post_init__(self) -> None:
         if (self.window.length - 1) != len(self.channels) * (self.kernel - 1):
@@ -54,13 +57,15 @@ class CausalNetSpec:
 @dataclass(frozen=True)
 class CentredNetSpec:
     """Centred MLP (Rempe A.2: hidden sizes 1024, 512, 128, 32; dropout before the 128 layer, 0.1 where Rempe has
-    0.3: better on validation subjects, see contacts/train.py). members: as for CausalNetSpec."""
+    0.3: better on validation subjects, see contacts/train.py). members, member_data_draws: as for CausalNetSpec
+    (three members on their own draws gained on both validation seeds: contact-training.md)."""
 
     window: WindowSpec = CENTRED_WINDOW
     hidden: tuple[int, ...] = (1024, 512, 128, 32)
     dropout: float = 0.1
     dropout_before_layer: int = 2
-    members: int = 1
+    members: int = 3
+    member_data_draws: bool = True
 
 
 _ONE_NETWORK_DIMENSIONS = {"conv0.weight": 3, "linear0.weight": 2}  # a single network's first weight

@@ -453,12 +453,16 @@ def _train_one(mode: Mode, index: int, data: _TrainingData, seed: int, settings:
     members, records = [], []
     for member in range(spec.members):
         shift = MEMBER_SEED_STRIDE * member
+        table = data.table
+        if member and spec.member_data_draws:
+            table = FrameTable.from_sequences(iter_sequences(data.train_clips, seed + shift, settings.synthetic))
         torch.manual_seed(seed + index + shift)  # the initial weights
         model = TorchCausalNet(settings.causal) if mode == "causal" else TorchCentredNet(settings.centred)
         log(f"training the {mode} network, member {member + 1} of {spec.members} "
-            f"({sum(p.numel() for p in model.parameters())} parameters)")
-        records.append(train_network(model, data.table, spec.window, settings.optimisation,
+            f"({sum(p.numel() for p in model.parameters())} parameters, {len(table)} frames)")
+        records.append(train_network(model, table, spec.window, settings.optimisation,
                                      seed + 10 * (index + 1) + shift, log))
+        del table  # an own draw's frames go before the next one is made
         members.append({key: value.astype(np.float16) for key, value in model.export().items()})
     params = stack_members(members)
     with atomic_path(out_dir / f"{mode}.npz") as partial, open(partial, "wb") as file:
