@@ -9,9 +9,10 @@ Recipe (Rempe A.2 where it applies): binary cross-entropy on the five outputs of
 L2 weight decay 1e-4, Gaussian noise (SD 0.005) on the normalised positions, batch normalisation and dropout; the
 learning rate starts at 2e-3 and decays on a cosine to zero (Rempe: 1e-4 with early stopping on a validation
 set; the larger rate reaches a low loss within the few epochs that a 2-core machine affords, and the fixed
-schedule needs no validation subject taken from the few training subjects). The causal network is an ensemble of
-three seeds whose probabilities are averaged (`CausalNetSpec.members`): single causal networks of different seeds
-differed by up to 0.04 on the hand-labelled real frames, the ensembles by 0.006.
+schedule needs no validation subject taken from the few training subjects). Each network is an ensemble of three
+seeds whose probabilities are averaged (`CausalNetSpec.members`, `CentredNetSpec.members`): single causal networks
+of different seeds differed by up to 0.04 on the hand-labelled real frames, the ensembles by 0.006; the centred
+network's members each train on their own draw of synthetic sequences (`member_data_draws`).
 
 The measurements behind the recipe (what was tried, the figures, what was kept) are in
 docs/decisions/contact-training.md.
@@ -363,8 +364,8 @@ def train_contacts(
         2.1 MB; float32 would double that, and changes 0.02-0.04 % of the held-out flags) and training.json (seed,
         settings, split, data sizes, losses, seconds, held-out synthetic scores). Created if missing.
     seed: every random choice (synthetic data, initialisation, batches, noise) follows from it.
-    settings: see ContactTrainingSettings; the defaults made the shipped weights (1,207 CPU seconds, 27 minutes on
-        one core of the 2-core machine at load 2.6-4.5, peak 0.9 GB).
+    settings: see ContactTrainingSettings; the defaults made the shipped weights (842 CPU seconds, 15 minutes on
+        one core of the 2-core Intel Xeon at load 1-2, peak 1.1 GB).
     max_clips: use only the first N training and N test clips (sorted by file name), for quick tests.
     modes: the networks to train (default both); each gets the same weights as when both are trained, so the two
         can be trained in separate processes (training.json then holds the given ones).
