@@ -202,9 +202,9 @@ def _add_train_contacts_command(sub: argparse._SubParsersAction) -> None:
                            formatter_class=argparse.ArgumentDefaultsHelpFormatter,
                            description="Deterministic training of the causal and centred contact networks on "
                                        "synthetic observations of CMU motion capture (needs torch; the shipped "
-                                       "weights take about 20 minutes of one core's time: "
-                                       "docs/decisions/contact-training-data.md). "
-                                       "The same data and seed give the same weights; "
+                                       "weights took 15 minutes on a 2-core machine: "
+                                       "docs/decisions/contact-training.md). "
+                                       "The same data and seed give the same weights on the same processor; "
                                        "training.json beside them records the recipe and the held-out scores.")
     train.add_argument("--data", type=Path, required=True,
                        help="the data folder holding mocap/ (the project's is ../shared/data)")
