@@ -98,6 +98,8 @@ class BalanceCorrector:
             # Moving, on one foot (as often a slow step as a balance) or in the air: what was accumulated relaxes
             # about the last support. Dropped in one frame, it stepped the target by up to 19 cm at the head
             # (docs/decisions/physics-balance.md).
+            if self.tilt == 0.0 and self.straighten == 0.0:
+                return q_kin, False  # nothing to relax: no kinematics to compute
             return self._relaxed(q_kin, self._state(q_kin)[2], self._support)
         com, sites, spine = self._state(q_kin)
         support = sites[sole_support(contacts), :2]
