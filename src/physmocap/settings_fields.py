@@ -12,7 +12,7 @@ import types
 import typing
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 from .errors import InputError, SettingsError
 
@@ -45,7 +45,7 @@ class Section:
                 _check_value(self.key(f.name), value, f.metadata)
         return self
 
-    def replace(self, section: str | None = None, **values):
+    def replace(self, section: str | None = None, **values) -> Self:
         """A copy with fields changed; `section` names the sub-settings, None the top level."""
         if section is None:
             return dataclasses.replace(self, **values)  # type: ignore[type-var]
