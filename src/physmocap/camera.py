@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
+WORLD_UP = np.array([0.0, 0.0, 1.0])  # the world's up: the floor's normal once the floor is known (treat as read-only)
 # Provisional world: camera at the origin, level, looking along +y (x_cam = x, y_cam = -z, z_cam = y).
 PROVISIONAL_R = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 

@@ -13,8 +13,8 @@ from ..body.kinematics import rigid_transform_qpos
 from ..body.model import CONTACT_POINTS, BodyModel
 from ..body.rotations import axis_angle_matrix, quat_exp, quat_log
 from ..body.support import convex_hull_2d
+from ..camera import WORLD_UP
 
-UP = np.array([0.0, 0.0, 1.0])
 SMALL_LEAN = np.radians(2.0)  # below this the tilt is done and the legs are straightened instead
 RELAXED = 1e-3  # rad of tilt, share of the bend: a relaxing correction below this is dropped (invisible)
 FOOT_BREADTH = 0.055  # of the standing height (Drillis & Contini 1966): the sole's width about its heel-toe line
@@ -56,9 +56,9 @@ def _norm(vector: np.ndarray) -> float:
 
 
 def _angle_to_up(vector: np.ndarray) -> float:
-    """rad: the angle between `vector` (3,) and UP; the cosine clipped to [-1, 1] in floats (np.clip's cost per
+    """rad: the angle between `vector` (3,) and WORLD_UP; the cosine clipped to [-1, 1] in floats (np.clip's cost per
     call is about that of the rest of the correction's arithmetic)."""
-    return float(np.arccos(min(max(vector @ UP / _norm(vector), -1.0), 1.0)))
+    return float(np.arccos(min(max(vector @ WORLD_UP / _norm(vector), -1.0), 1.0)))
 
 
 class BalanceCorrector:
@@ -141,7 +141,7 @@ class BalanceCorrector:
         """q_kin (nq,) tilted upright by the accumulated angle (at most its lean, `spine` the neck - pelvis vector)
         about the middle of the `support` points (k, 2), then straightened."""
         q = q_kin
-        axis = np.array([spine[1], -spine[0], 0.0])  # spine x UP
+        axis = np.array([spine[1], -spine[0], 0.0])  # spine x WORLD_UP
         length = _norm(axis)
         if length > 1e-9 and self.tilt > 0.0:
             axis /= length

@@ -14,9 +14,8 @@ import mujoco
 import numpy as np
 
 from ..body.model import CONTACT_POINTS, BodyModel
-from ..camera import fit_floor
+from ..camera import WORLD_UP, fit_floor
 
-UP = np.array([0.0, 0.0, 1.0])
 MIN_POINTS = 40  # contact points before a refit: ten frames of both feet flat on the floor
 TILT_PRIOR = 0.01  # fit_floor's pull towards the warm-up's floor, weaker than the warm-up's own 0.05 (which kept
 # 0.4 of a 3 degree tilt over 2 m of walking): on the synthetic set PNP 88.1% -> 89.8%, MPE 36.6 -> 37.9 mm
@@ -50,8 +49,8 @@ class FloorRefiner:
         self.refit_frames = max(1, round(refit_interval * fps))
         self.first_refit = round(first_refit * fps)
         self.max_turn, self.max_lift = tilt_rate / fps, lift_rate / fps
-        self.normal, self.offset = UP.copy(), 0.0  # the current estimate
-        self.fitted_normal, self.fitted_offset = UP.copy(), 0.0  # the latest fit, approached at the rates above
+        self.normal, self.offset = WORLD_UP.copy(), 0.0  # the current estimate
+        self.fitted_normal, self.fitted_offset = WORLD_UP.copy(), 0.0  # the latest fit, approached at the rates above
         self._points = np.empty((MAX_POINTS, 3))
         self._point_frames = np.empty(MAX_POINTS, int)  # the frame each point came from
         self._count = self._frames = 0
@@ -89,7 +88,7 @@ class FloorRefiner:
         floor through the middle of a fit's contact points held the body up by their spread (10-15 mm on real
         videos, against the image; docs/decisions/physics-online-support.md)."""
         points, frames = self._points[:self._count], self._point_frames[:self._count]
-        floor, _ = fit_floor(points, UP, prior_weight=TILT_PRIOR)
+        floor, _ = fit_floor(points, WORLD_UP, prior_weight=TILT_PRIOR)
         first_of_frame = np.flatnonzero(np.diff(frames, prepend=-1))  # kept in the order they came
         lowest = np.minimum.reduceat(points @ floor.normal + floor.offset, first_of_frame)
         self.fitted_normal, self.fitted_offset = floor.normal, floor.offset - float(np.median(lowest))

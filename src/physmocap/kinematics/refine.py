@@ -23,7 +23,7 @@ import numpy as np
 
 from ..body import kinematics as kin
 from ..body.model import CONTACT_POINTS
-from ..camera import Camera, Floor, tangent_basis
+from ..camera import WORLD_UP, Camera, Floor, tangent_basis
 from ..config import FitSettings, TrajoptSettings
 from ..detect.foot_swaps import find_foot_swaps, undo_foot_swaps
 from ..motion import Observations
@@ -40,7 +40,6 @@ log = logging.getLogger("physmocap")
 MIN_FLOOR_POINTS = 8  # fewer contact points than this leave the floor as it was
 SINK_PERCENTILE, SINK_DEPTH = 5.0, 0.03  # a refitted floor with 5% of all foot points 3 cm below it is rejected
 HUBER_SCALE = 0.02  # m: contact points farther from the plane than this pull linearly (Huber)
-UP = np.array([0.0, 0.0, 1.0])
 
 
 def tilt_axes(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -254,7 +253,7 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
 
     def targets_in(cam, flags, floor):  # the world is the floor's (z up) in both fits
         t = make_targets(obs.keypoints_2d, obs.landmarks_3d, obs.valid, depth, cam, motion.calibration, fit)
-        return dataclasses.replace(t, contacts=flags.astype(float), floor=floor).with_free_fall(UP, fps)
+        return dataclasses.replace(t, contacts=flags.astype(float), floor=floor).with_free_fall(WORLD_UP, fps)
 
     def bar(fitter, name):
         return progress(name, fitter.planned_passes(obs.num_frames), "frame passes") if progress else None
