@@ -19,12 +19,12 @@ from ..camera import floor_in_camera
 from ..config import PhysicsSettings
 from ..contacts.flights import STANDING_SUPPORT, support_held_flights, valid_runs
 from ..kinematics.stage import KinematicMotion
+from ..metrics import GRAVITY
 from .balance import BalanceCorrector
 from .floor import FloorRefiner, floor_frame
 from .physcap import FrameOutput, PhysCapTracker
 from .planting import FootPlanter, OutputPlanter, plant_held_feet
 
-GRAVITY = 9.81  # m/s^2
 MAX_FLATTENING = np.radians(20.0)  # a foot tilted more than this with heel and toe predicted down is a wrong label
 # or a wrong fit, not a flat foot to correct
 REST_SPEED_INTERVAL = 0.1  # s over which a resting sole point's speed is measured (B.4's contact_slip_interval)
