@@ -429,7 +429,8 @@ def part_methods(clips, seeds, methods=METHODS, walking=WALKING, overrides=None)
             case = build_case(name, seed, online=False)
             truth, fps = case["truth"], case["obs"].fps
             true_force = true_vertical_force(case["offline"].body, truth)
-            feet_down = true_contact_labels(truth).any(axis=1) & case["obs"].valid
+            true_contacts = true_contact_labels(truth)
+            feet_down = true_contacts.any(axis=1) & case["obs"].valid
             for method in methods:
                 grf, residual, flagged, seconds = None, None, None, 0.0
                 if method == "kinematic offline":
@@ -456,7 +457,7 @@ def part_methods(clips, seeds, methods=METHODS, walking=WALKING, overrides=None)
                 row = score_against_truth(points, motion.body.point_names, com, truth, motion.body.mass, grf,
                                           residual)
                 row.update(grf_horizontal_components(grf, motion.body.mass))
-                feet, true_contacts = motion.body.point_index(CONTACT_POINTS), true_contact_labels(truth)
+                feet = motion.body.point_index(CONTACT_POINTS)
                 names = [str(n) for n in truth["joint_names"]]
                 row.update(vertical_force_errors(motion.body, com, grf, fps, true_force, feet_down))
                 # cm per frame, the median over the case (docs/decisions/physics-planted-feet.md)
