@@ -412,13 +412,31 @@ def test_offline_label_flights_that_the_body_does_not_fall_through_are_held(body
     q[:, 2] += 0.03  # the feet 3 cm up: within contact_height, touching nothing
     contacts = np.ones((30, 4), bool)
     contacts[12:16] = False
-    assert held_label_flights(body, q, FPS, contacts)[12:16].any(axis=1).all()
+    assert held_label_flights(body, q, FPS, contacts)[0][12:16].any(axis=1).all()
     motion = run_physcap(body, q, FPS, contacts, np.ones(30, bool), PhysicsSettings(), refined_input=True)
     assert motion.qpos[12:20, 2].min() > motion.qpos[11, 2] - 0.005  # no fall through the labels' flight
     assert np.linalg.norm(motion.grf.sum(axis=1), axis=-1).max() < 1.5 * weight
     q, in_air = jump(body)
     labels = np.repeat(~in_air[:, None], 4, axis=1)
-    assert np.array_equal(held_label_flights(body, q, FPS, labels), labels)
+    held, unheld = held_label_flights(body, q, FPS, labels)
+    assert np.array_equal(held, labels) and not unheld.any()
+
+
+def test_offline_label_flights_that_no_foot_can_hold_are_handed_back(body):
+    """A label flight that the body does not fall through while every foot travels (here the whole body glides
+    0.4 m along the floor) has no support the contact model can give: offline, its frames are flagged and keep
+    the kinematic motion, instead of a character free-falling through them."""
+    from physmocap.dynamics.stage import held_label_flights
+
+    q = standing(body, 30)
+    q[:, 0] += 0.1 * np.arange(30)  # 3 m/s along the floor
+    contacts = np.ones((30, 4), bool)
+    contacts[12:18] = False
+    held, unheld = held_label_flights(body, q, FPS, contacts)
+    assert np.array_equal(held, contacts) and unheld[12:18].all() and unheld.sum() == 6
+    motion = run_physcap(body, q, FPS, contacts, np.zeros(30, bool), PhysicsSettings(), refined_input=True)
+    assert motion.unexplained[12:18].all()
+    assert np.abs(motion.qpos[12:18, :3] - q[12:18, :3]).max() < 1e-9
 
 
 def test_a_held_contact_above_its_target_comes_down_to_it(body):
@@ -577,6 +595,23 @@ def test_the_character_starts_at_the_first_frame_with_a_person(body):
     assert np.abs(result.qpos[5:, 2] - q[5:, 2]).max() < 0.01  # no launch
     launched = run_physcap(body, q, FPS, np.ones((40, 4), bool), np.ones(40, bool), PhysicsSettings())
     assert np.abs(launched.qpos[5:, 2] - q[5:, 2]).max() > 0.05  # what starting on the extrapolated frames does
+
+
+def test_a_lone_valid_frame_does_not_start_the_character(body):
+    """A person glimpsed for one frame before entering: the step from that frame to the next, extrapolated by the
+    fit, is no observed velocity. The character starts at the first two valid frames in a row, as intel's walk
+    into the picture (10 fps) needs: started on the lone frame, it took 3 m/s it never had."""
+    q = standing(body, 40)
+    q[:5, 0] -= 0.1 * np.arange(5, 0, -1)  # the extrapolated approach, 3 m/s
+    valid = np.arange(40) >= 5
+    valid[3] = True
+    args = (body, q, FPS, np.ones((40, 4), bool), np.ones(40, bool), PhysicsSettings())
+    result = run_physcap(*args, valid=valid)
+    np.testing.assert_array_equal(result.qpos[:5], q[:5])
+    assert np.abs(result.qpos[5:, :3] - q[5:, :3]).max() < 0.01
+    glimpsed = valid.copy()
+    glimpsed[4] = True  # the lone frame's step observed: the character does start there, moving
+    assert np.abs(run_physcap(*args, valid=glimpsed).qpos[5:, 0] - q[5:, 0]).max() > 0.02
 
 
 def test_frames_without_a_person_carry_no_contacts_or_forces(body):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import time
 from collections import deque
@@ -24,6 +25,8 @@ from .balance import BalanceCorrector
 from .floor import FloorRefiner, floor_frame
 from .physcap import FrameOutput, PhysCapTracker
 from .planting import FootPlanter, OutputPlanter, plant_held_feet
+
+log = logging.getLogger("physmocap")
 
 MAX_FLATTENING = np.radians(20.0)  # a foot tilted more than this with heel and toe predicted down is a wrong label
 # or a wrong fit, not a flat foot to correct
@@ -142,10 +145,12 @@ class PhysicsStream:
         """The refined floor n . x + d = 0 in the kinematic world, or None when not refining."""
         return None if self.floor is None else self.floor.plane
 
-    def push(self, q_kin: np.ndarray, contacts: np.ndarray,
-             stationary: bool) -> tuple[np.ndarray, FrameOutput, bool]:
+    def push(self, q_kin: np.ndarray, contacts: np.ndarray, stationary: bool,
+             unheld: bool = False) -> tuple[np.ndarray, FrameOutput, bool]:
         """One frame's kinematic pose (nq,), contacts (4,) and stationary flag -> tracked pose, forces, and
-        whether the balance correction changed the target."""
+        whether the balance correction changed the target. unheld: the caller knows the contact model cannot
+        explain the frame (offline, a label flight the body does not fall through and no foot holds up:
+        held_label_flights), so the diagnosis flags it."""
         if self.floor is not None:
             self.floor.push(q_kin, contacts)
             q_kin = self.floor.to_physics(q_kin)
@@ -181,7 +186,7 @@ class PhysicsStream:
         self.target = target
         frame = self.tracker.track(target, velocity, acceleration, contacts, released)
         self._held = frame.active
-        pose = self._diagnose(frame, target, velocity)
+        pose = self._diagnose(frame, target, velocity, unheld)
         if self.output_planter is not None:
             pose = self.output_planter.plant(pose, frame.active, bool(frame.unexplained_flag))
         if self.floor is None:
@@ -205,13 +210,13 @@ class PhysicsStream:
         held = [bool(self._held[j] and contacts[j]) and not released[j] and not correcting for j in range(4)]
         return self.planter.plant(q_kin, fitted, character, held), released
 
-    def _diagnose(self, frame: FrameOutput, target: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+    def _diagnose(self, frame: FrameOutput, target: np.ndarray, velocity: np.ndarray, unheld: bool) -> np.ndarray:
         """Bounds the frame's forces (settings.max_force) and judges whether the contact model explains the
         frame: the upward root force the kinematic motion needs and no contact on the floor can give
         (FrameOutput.unexplained[2]: something else holds the body up) averaged over unexplained_time above
         unexplained_force, the target resting on a knee, an elbow or the seat (body.support.resting_off_feet), a
         diverged step or failed QP, a force over the bound, or the character farther than stray_distance from its
-        target. Sets frame.unexplained_flag and
+        target, or a frame the caller knows unexplained (unheld). Sets frame.unexplained_flag and
         returns the pose to hand out (nq,): the character's, blended towards the frame's kinematic target over
         unexplained_blend while frames are flagged; a character fully handed over restarts from the target."""
         s = self.settings
@@ -229,7 +234,7 @@ class PhysicsStream:
         finite = all(map(math.isfinite, frame.unexplained.tolist()))
         unexplained = frame.unexplained[:3] if finite else np.zeros(3)
         self._unexplained += self._unexplained_share * (unexplained - self._unexplained)
-        flagged = (out_of_bounds or frame.diverged or frame.qp_failures > 0
+        flagged = (unheld or out_of_bounds or frame.diverged or frame.qp_failures > 0
                    or (s.unexplained_force is not None
                        and self._unexplained[2] > s.unexplained_force * self._weight)
                    or bool(resting_off_feet(self.tracker.target_data.site_xpos[self._resting_sites, 2]))
@@ -389,18 +394,20 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     stretch (centred_hand_back) and the held feet are planted over the whole clip, not by the causal OutputPlanter."""
     start = time.perf_counter()
     T = len(qpos_kin)
+    unheld = np.zeros(T, bool)
     if refined_input:
-        contacts = held_label_flights(body, qpos_kin, fps, contacts, valid)
+        contacts, unheld = held_label_flights(body, qpos_kin, fps, contacts, valid)
     whole_clip = whole_clip or refined_input
     stream = PhysicsStream(body, settings, fps, refine_floor, refined_input, resting_labelled, whole_clip)
     unexplained = np.zeros(T, bool)
     out = PhysicsMotion(qpos_kin.copy(), np.zeros((T, 4, 3)), np.zeros((T, 6)), np.zeros((T, 4), bool),
                         np.zeros(T, bool), np.zeros(T, int), 0.0, unexplained=unexplained)
-    first = 0 if valid is None or not np.any(valid) else int(np.argmax(valid))
+    first = _first_observed_step(valid)
     # The character's own poses and the frames' targets, for centred_hand_back
     recorded = (qpos_kin.copy(), qpos_kin.copy()) if whole_clip and stream.floor is None else None
     for t in range(first, T):
-        out.qpos[t], frame, out.corrected[t] = stream.push(qpos_kin[t], contacts[t], bool(stationary[t]))
+        out.qpos[t], frame, out.corrected[t] = stream.push(qpos_kin[t], contacts[t], bool(stationary[t]),
+                                                              bool(unheld[t]))
         if recorded is not None:
             recorded[0][t], recorded[1][t] = stream.tracker.qpos, stream.target
         out.grf[t], out.residual[t], out.contacts[t], out.qp_failures[t], unexplained[t] = (
@@ -416,6 +423,17 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     out.seconds = time.perf_counter() - start
     out.floor_plane = stream.floor_plane
     return out
+
+
+def _first_observed_step(valid: np.ndarray | None) -> int:
+    """The frame the character starts at: the first of two valid frames (T,) in a row, whose step gives the
+    character an observed velocity (a lone valid frame's step to the next reaches a pose the fit extrapolated
+    without a person); else the first valid frame; 0 with all frames valid (None) or none."""
+    if valid is None or not np.any(valid):
+        return 0
+    valid = np.asarray(valid, bool)
+    pairs = np.flatnonzero(valid[:-1] & valid[1:])
+    return int(pairs[0]) if len(pairs) else int(np.argmax(valid))
 
 
 def centred_hand_back(model: mujoco.MjModel, tracked: np.ndarray, targets: np.ndarray, flagged: np.ndarray,
@@ -443,21 +461,29 @@ def centred_hand_back(model: mujoco.MjModel, tracked: np.ndarray, targets: np.nd
 
 
 def held_label_flights(body: BodyModel, qpos: np.ndarray, fps: float, contacts: np.ndarray,
-                       valid: np.ndarray | None = None) -> np.ndarray:
+                       valid: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(T, 4) contacts in which each whole-body flight of the labels that the motion's (T, nq) centre of mass does
     not fall through is held up by a point that stays within its foot's length (contacts.flights, the rule trajopt
-    applies to the same B.4 labels), within each run of valid frames (T,) (None: all). B.4 leaves such flights
+    applies to the same B.4 labels), within each run of valid frames (T,) (None: all), and (T,) bool the frames of
+    such flights that no point can hold (every candidate travels): the contact model cannot explain them, and the
+    character would free-fall through them, so the caller hands them back as trajopt does. B.4 leaves such flights
     where the kinematic feet hover over the floor: on one video 0.1 s needing 0.7 body weights, through which the
-    character free-fell and landed at 4-5 body weights. A flight that no point can hold is left to the diagnosis."""
+    character free-fell and landed at 4-5 body weights. Each one is logged."""
     mask = np.ones(len(qpos), bool) if valid is None else np.asarray(valid, bool)
     flags = np.asarray(contacts, bool) & mask[:, None]
     pose = kin.forward_kinematics(body, qpos)
     com, points = kin.center_of_mass(body, pose), pose.points[:, body.point_index(CONTACT_POINTS)]
     times, foot = np.arange(len(qpos)) / fps, body.lengths.heel_back + body.lengths.toe_front
+    unheld = np.zeros(len(qpos), bool)
     for first, end in valid_runs(mask):
-        flags[first:end] = support_held_flights(flags[first:end], com[first:end], points[first:end],
-                                                times[first:end], GRAVITY, STANDING_SUPPORT, foot)[0]
-    return flags
+        flags[first:end], _, unsupported = support_held_flights(flags[first:end], com[first:end], points[first:end],
+                                                                times[first:end], GRAVITY, STANDING_SUPPORT, foot)
+        for start, stop, support in unsupported:
+            unheld[first + start:first + stop] = True
+            log.warning("physics: on frames %d-%d the labels give a flight, the motion's centre of mass needs %.0f%% "
+                        "of body weight there, and every foot that could hold it up moves: the kinematic motion is "
+                        "kept there.", first + start, first + stop - 1, 100 * support)
+    return flags, unheld
 
 
 def onto_refined_floor(motion: KinematicMotion, physics: PhysicsMotion) -> tuple[KinematicMotion, PhysicsMotion]:
