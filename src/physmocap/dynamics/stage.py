@@ -380,7 +380,8 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     """Track the kinematic motion (T, nq) with the physics character; contacts (T, 4) and stationary (T,)
     come from the contact stage. Causal: frame t uses frames up to t only (but refined_input's held label flights,
     judged on the whole clip). refine_floor: see PhysicsStream.
-    valid: (T,) frames with a detected person (default all); the character starts at the first, and the frames
+    valid: (T,) frames with a detected person (default all); the character starts at the first (whole_clip: at
+    the first observed step, _first_frame), and the frames
     before it keep the kinematic pose without forces (a whole-clip fit extrapolates them without data, and a
     character started there can begin metres off); frames after it without a person are tracked through but carry
     no contacts, contact forces or residual (their flags stay). refined_input: the kinematics come from Rempe's B.4
@@ -402,7 +403,7 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     unexplained = np.zeros(T, bool)
     out = PhysicsMotion(qpos_kin.copy(), np.zeros((T, 4, 3)), np.zeros((T, 6)), np.zeros((T, 4), bool),
                         np.zeros(T, bool), np.zeros(T, int), 0.0, unexplained=unexplained)
-    first = _first_observed_step(valid)
+    first = _first_frame(valid, observed_step=whole_clip)
     # The character's own poses and the frames' targets, for centred_hand_back
     recorded = (qpos_kin.copy(), qpos_kin.copy()) if whole_clip and stream.floor is None else None
     for t in range(first, T):
@@ -425,14 +426,15 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     return out
 
 
-def _first_observed_step(valid: np.ndarray | None) -> int:
-    """The frame the character starts at: the first of two valid frames (T,) in a row, whose step gives the
-    character an observed velocity (a lone valid frame's step to the next reaches a pose the fit extrapolated
-    without a person); else the first valid frame; 0 with all frames valid (None) or none."""
+def _first_frame(valid: np.ndarray | None, observed_step: bool) -> int:
+    """The frame the character starts at: the first valid frame (T,); with observed_step (the whole clip known),
+    the first of two valid frames in a row, whose step gives the character an observed velocity (a lone valid
+    frame's step to the next reaches a pose the fit extrapolated without a person). 0 with all frames valid
+    (None) or none."""
     if valid is None or not np.any(valid):
         return 0
     valid = np.asarray(valid, bool)
-    pairs = np.flatnonzero(valid[:-1] & valid[1:])
+    pairs = np.flatnonzero(valid[:-1] & valid[1:]) if observed_step else np.zeros(0, int)
     return int(pairs[0]) if len(pairs) else int(np.argmax(valid))
 
 
