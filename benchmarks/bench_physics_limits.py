@@ -430,7 +430,8 @@ def part_methods(clips, seeds, methods=METHODS, walking=WALKING, overrides=None)
             truth, fps = case["truth"], case["obs"].fps
             true_force = true_vertical_force(case["offline"].body, truth)
             true_contacts = true_contact_labels(truth)
-            feet_down = true_contacts.any(axis=1) & case["obs"].valid
+            # Issue 17's phases where only the feet touch the ground: not where the true body rests off its feet
+            feet_down = true_contacts.any(axis=1) & case["obs"].valid & ~true_resting_off_feet(truth)
             for method in methods:
                 grf, residual, flagged, seconds = None, None, None, 0.0
                 if method == "kinematic offline":
@@ -495,7 +496,7 @@ def true_vertical_force(body, truth: dict) -> np.ndarray:
 
 
 def vertical_force_errors(body, com: np.ndarray, grf, fps: float, true_force: np.ndarray, frames: np.ndarray) -> dict:
-    """Body weights, root mean square over `frames` (T,) bool (the truth's feet-on-the-floor frames): the
+    """Body weights, root mean square over `frames` (T,) bool (the truth's frames on its feet alone): the
     method's net vertical contact force (its motion's own m (z'' + g), second differences, without forces)
     against `true_force` (T,) (`true_vertical_force`), and a constant one body weight against the same (issue 17:
     on real footage neither method was closer to the force plates than that constant). com: (T, 3) the method's

@@ -212,8 +212,8 @@ def markdown(data: dict) -> str:
     lines = ["# Retargeting (issue 19)", "", f"Machine: {data['machine']}", "",
              f"Sources ({data.get('source_set', 'test')} set): capture with physics {data['source_physics']}. "
              "GRF % BW: mean magnitude of the net force (Rempe's measure); vertical: its vertical component; "
-             "explained: the vertical component over the frames the character's physics explains (flagged frames, "
-             "handed back as kinematic motion, left out; their count in brackets); "
+             "explained: the magnitude / the vertical component over the frames the character's physics explains "
+             "(flagged frames, handed back as kinematic motion, left out; their count in brackets); "
              "residual: the root's vertical residual force; needed: the mean net external force the character's "
              "centre of mass needs, its path averaged over 9 frames (no GRF within 95-105% is possible where it is "
              "outside).", "",
@@ -222,10 +222,10 @@ def markdown(data: dict) -> str:
              "| path departure mean / max (m) | jitter m/s² | IK ms/frame | physics ms/frame |",
              "|" + "---|" * 18]
     for r in data["rows"]:
-        explained = r.get("grf_vertical_explained_mean_percent_bw")
+        explained = [r.get(k) for k in ("grf_explained_mean_percent_bw", "grf_vertical_explained_mean_percent_bw")]
         grf = "- | - | - | - | -" if r["grf_mean_percent_bw"] is None else (
             f"{r['grf_mean_percent_bw']:.1f} | {r['grf_vertical_mean_percent_bw']:.1f} | "
-            f"{'-' if explained is None else f'{explained:.1f}'} ({r.get('unexplained_frames', 0)}) | "
+            f"{' / '.join('-' if e is None else f'{e:.1f}' for e in explained)} ({r.get('unexplained_frames', 0)}) | "
             f"{r['residual_vertical_mean_percent_bw']:.1f} | {r['needed_force_percent_bw']:.1f}")
         kept = "-" if r["contact_frames_kept"] is None else f"{100 * r['contact_frames_kept']:.1f}"
         lines.append(f"| {r['source']} | {r['rig']} | {r['physics']} | {r['skate_percent']:.2f} | "

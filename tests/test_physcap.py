@@ -405,38 +405,60 @@ def test_offline_label_flights_that_the_body_does_not_fall_through_are_held(body
     """B.4's labels can leave a short whole-body flight while the motion stands (its feet hovering a few cm):
     offline, a point that stays put holds the body through it, so the character neither free-falls nor lands
     hard. A real jump keeps its flight."""
-    from physmocap.dynamics.stage import held_label_flights
+    from physmocap.dynamics.stage import offline_unexplainable
 
     weight = body.mass * G
     q = standing(body, 30)
     q[:, 2] += 0.03  # the feet 3 cm up: within contact_height, touching nothing
     contacts = np.ones((30, 4), bool)
     contacts[12:16] = False
-    assert held_label_flights(body, q, FPS, contacts)[0][12:16].any(axis=1).all()
+    assert offline_unexplainable(body, q, FPS, contacts)[0][12:16].any(axis=1).all()
     motion = run_physcap(body, q, FPS, contacts, np.ones(30, bool), PhysicsSettings(), refined_input=True)
     assert motion.qpos[12:20, 2].min() > motion.qpos[11, 2] - 0.005  # no fall through the labels' flight
     assert np.linalg.norm(motion.grf.sum(axis=1), axis=-1).max() < 1.5 * weight
     q, in_air = jump(body)
     labels = np.repeat(~in_air[:, None], 4, axis=1)
-    held, unheld = held_label_flights(body, q, FPS, labels)
+    held, unheld = offline_unexplainable(body, q, FPS, labels)
     assert np.array_equal(held, labels) and not unheld.any()
 
 
 def test_offline_label_flights_that_no_foot_can_hold_are_handed_back(body):
-    """A label flight that the body does not fall through while every foot travels (here the whole body glides
-    0.4 m along the floor) has no support the contact model can give: offline, its frames are flagged and keep
-    the kinematic motion, instead of a character free-falling through them."""
-    from physmocap.dynamics.stage import held_label_flights
+    """A label flight that the body does not fall through while every foot travels (here the whole body glides at
+    3 m/s along the floor) has no support the contact model can give: offline, its frames are flagged and keep
+    the kinematic motion with no force claimed, instead of a character free-falling through them."""
+    from physmocap.dynamics.stage import offline_unexplainable
 
     q = standing(body, 30)
     q[:, 0] += 0.1 * np.arange(30)  # 3 m/s along the floor
     contacts = np.ones((30, 4), bool)
     contacts[12:18] = False
-    held, unheld = held_label_flights(body, q, FPS, contacts)
+    held, unheld = offline_unexplainable(body, q, FPS, contacts)
     assert np.array_equal(held, contacts) and unheld[12:18].all() and unheld.sum() == 6
     motion = run_physcap(body, q, FPS, contacts, np.zeros(30, bool), PhysicsSettings(), refined_input=True)
-    assert motion.unexplained[12:18].all()
+    assert motion.unexplained[12:18].all() and not motion.grf[12:18].any() and not motion.residual[12:18].any()
     assert np.abs(motion.qpos[12:18, :3] - q[12:18, :3]).max() < 1e-9
+
+
+def test_offline_frames_whose_centre_of_mass_is_below_the_floor_claim_no_force(body):
+    """A person leaving the picture, fitted half a metre into the floor (intel's last frames): no contact force
+    can explain that, so offline such frames keep the kinematic motion, flagged, without forces (as trajopt);
+    tracked, the floor pushed the character out at the force bound."""
+    from physmocap.dynamics.stage import offline_unexplainable
+
+    q = standing(body, 40)
+    q[30:35, 2] -= 0.5 + 0.2 * np.arange(5)
+    contacts = np.ones((40, 4), bool)
+    valid = np.ones(40, bool)
+    held, sunk = offline_unexplainable(body, q, FPS, contacts, valid)
+    assert np.array_equal(np.flatnonzero(sunk), np.arange(30, 35)) and not held[30:35].any()
+    motion = run_physcap(body, q, FPS, contacts, np.zeros(40, bool), PhysicsSettings(), valid=valid,
+                         refined_input=True)
+    assert valid.all()  # the caller's frames with a person, unchanged
+    assert motion.unexplained[30:35].all() and not motion.unexplained[:30].any()  # and where it jumps back up
+    assert not motion.grf[30:35].any() and not motion.residual[30:35].any()
+    np.testing.assert_allclose(motion.qpos[30:35], q[30:35], atol=1e-9)
+    weight = body.mass * G
+    assert np.linalg.norm(motion.grf.sum(axis=1), axis=-1).max() < 2 * weight
 
 
 def test_a_held_contact_above_its_target_comes_down_to_it(body):

@@ -599,6 +599,8 @@ def test_vertical_force_over_the_explained_frames_leaves_the_flagged_ones_out(tm
                          np.ones((n, 4), bool), 30.0, grf, follows_gap(every), flagged)
     assert m["grf_vertical_mean_percent_bw"] == pytest.approx(100.0 * 8 / 12, abs=0.1)
     assert m["grf_vertical_explained_mean_percent_bw"] == pytest.approx(100.0, abs=0.1)
+    assert m["grf_explained_mean_percent_bw"] == pytest.approx(100.0, abs=0.1)
+    assert m["grf_mean_percent_bw"] == pytest.approx(100.0 * 8 / 12, abs=0.1)
     unflagged = retarget_metrics(character, points, qpos, rig_positions(character, rig_motion(character, qpos)),
                                  np.ones((n, 4), bool), 30.0, grf, follows_gap(every))
     assert unflagged["grf_vertical_explained_mean_percent_bw"] == unflagged["grf_vertical_mean_percent_bw"]

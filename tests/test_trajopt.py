@@ -17,6 +17,7 @@ from scipy.spatial.transform import Rotation
 from conftest import DEMO_VIDEO
 from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
+from physmocap.body.support import unexplained_frames
 from physmocap.config import TrajoptSettings
 from physmocap.contacts.flights import flight_support, support_held_flights
 from physmocap.errors import InputError
@@ -1003,7 +1004,7 @@ def test_frames_resting_on_a_knee_are_kept_kinematic_and_flagged(body):
     q[20:30] = kneeling(body, 0.02)
     q[20:30, :2] = q[19, :2]
     pose = kin.forward_kinematics(body, q)
-    assert np.array_equal(stage.unexplained_frames(body, pose.points, kin.center_of_mass(body, pose)),
+    assert np.array_equal(unexplained_frames(body.point_names, pose.points, kin.center_of_mass(body, pose)),
                           (np.arange(50) >= 20) & (np.arange(50) < 30))
 
 

@@ -452,7 +452,8 @@ def _retarget(result: Path, character: Path, character_map: Path | None, out: Pa
     m, c = report.metrics, report.character
     print(f"character {Path(character).name}: {c['joints']} joints, {c['height_m']:.2f} m, {c['mass_kg']:.1f} kg; "
           f"scale {m['scale']:.3f}, physics: {m['physics']}")
-    grf = "" if m["grf_mean_percent_bw"] is None else f", mean GRF {m['grf_mean_percent_bw']:.0f}% of its weight"
+    explained = m["grf_explained_mean_percent_bw"]
+    grf = "" if explained is None else f", mean GRF {explained:.0f}% of its weight on the frames its physics explains"
     kept = "-" if m["contact_frames_kept"] is None else f"{100 * m['contact_frames_kept']:.1f}%"
     print(f"on the character: foot skate {m['skate_percent']:.2f}%, penetration {m['penetration_percent']:.2f}%, "
           f"contacts kept {kept}, bone directions cosine {m['bone_cosine_rig']:.3f}{grf}")

@@ -1,6 +1,7 @@
 """Support on the floor: the support polygon, a pure 2D kernel on the few contact points of a frame, shared by the
 physics' balance test (every frame, so plain floats) and the viewer's support polygons; and which frames rest on
-a part of the body the sole contact model has no point for, shared by both physics methods' diagnoses."""
+a part of the body the sole contact model has no point for, or sink below the floor, shared by both physics
+methods' diagnoses."""
 
 from __future__ import annotations
 
@@ -28,6 +29,18 @@ def resting_off_feet(heights: np.ndarray) -> np.ndarray:
     floor (within RESTING_HEIGHT, or below it): a knee, an elbow or the seat carrying weight that no sole point can,
     or a fit whose body sinks through the floor."""
     return np.asarray(heights).min(axis=-1) < RESTING_HEIGHT
+
+
+def unexplained_frames(point_names: Sequence[str], points: np.ndarray, com: np.ndarray) -> np.ndarray:
+    """(T,) bool: frames of an input motion, its body points (T, P, 3) m (point_names order) and centre of mass
+    com (T, 3) m, whose COM lies below the floor (z = 0), or whose body rests on the floor off its feet
+    (`resting_off_feet`: a knee, an elbow, the seat). The body stands on its soles in the contact model, so its COM
+    is above the floor; a COM below it is a detection or floor error (a person leaving the view, a floor at another
+    height). Both physics methods keep the kinematic motion there: optimised, such frames asked for forces of
+    several body weights (intel_highcam_walk_stand at 10 fps: docs/decisions/trajopt-frame-rate.md), and a body
+    sliding on a knee departed 13-14 cm from its input (docs/decisions/physics-limits.md, "Other body parts")."""
+    heights = np.asarray(points)[:, resting_points(point_names), 2]
+    return (np.asarray(com)[:, 2] < 0.0) | resting_off_feet(heights)
 
 
 def convex_hull_2d(points: Iterable[Iterable[float]]) -> list[tuple[float, float]]:

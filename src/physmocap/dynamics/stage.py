@@ -15,12 +15,13 @@ import numpy as np
 from ..body import kinematics as kin
 from ..body.kinematics import rigid_transform_qpos
 from ..body.model import CONTACT_POINTS, BodyModel
-from ..body.support import resting_off_feet, resting_points
+from ..body.support import resting_off_feet, resting_points, unexplained_frames
 from ..camera import floor_in_camera
 from ..config import PhysicsSettings
 from ..contacts.flights import STANDING_SUPPORT, support_held_flights, valid_runs
 from ..kinematics.stage import KinematicMotion
 from ..metrics import GRAVITY
+from ..motion import frame_ranges
 from .balance import BalanceCorrector
 from .floor import FloorRefiner, floor_frame
 from .physcap import FrameOutput, PhysCapTracker
@@ -145,12 +146,10 @@ class PhysicsStream:
         """The refined floor n . x + d = 0 in the kinematic world, or None when not refining."""
         return None if self.floor is None else self.floor.plane
 
-    def push(self, q_kin: np.ndarray, contacts: np.ndarray, stationary: bool,
-             unheld: bool = False) -> tuple[np.ndarray, FrameOutput, bool]:
+    def push(self, q_kin: np.ndarray, contacts: np.ndarray,
+             stationary: bool) -> tuple[np.ndarray, FrameOutput, bool]:
         """One frame's kinematic pose (nq,), contacts (4,) and stationary flag -> tracked pose, forces, and
-        whether the balance correction changed the target. unheld: the caller knows the contact model cannot
-        explain the frame (offline, a label flight the body does not fall through and no foot holds up:
-        held_label_flights), so the diagnosis flags it."""
+        whether the balance correction changed the target."""
         if self.floor is not None:
             self.floor.push(q_kin, contacts)
             q_kin = self.floor.to_physics(q_kin)
@@ -186,7 +185,7 @@ class PhysicsStream:
         self.target = target
         frame = self.tracker.track(target, velocity, acceleration, contacts, released)
         self._held = frame.active
-        pose = self._diagnose(frame, target, velocity, unheld)
+        pose = self._diagnose(frame, target, velocity)
         if self.output_planter is not None:
             pose = self.output_planter.plant(pose, frame.active, bool(frame.unexplained_flag))
         if self.floor is None:
@@ -210,13 +209,13 @@ class PhysicsStream:
         held = [bool(self._held[j] and contacts[j]) and not released[j] and not correcting for j in range(4)]
         return self.planter.plant(q_kin, fitted, character, held), released
 
-    def _diagnose(self, frame: FrameOutput, target: np.ndarray, velocity: np.ndarray, unheld: bool) -> np.ndarray:
+    def _diagnose(self, frame: FrameOutput, target: np.ndarray, velocity: np.ndarray) -> np.ndarray:
         """Bounds the frame's forces (settings.max_force) and judges whether the contact model explains the
         frame: the upward root force the kinematic motion needs and no contact on the floor can give
         (FrameOutput.unexplained[2]: something else holds the body up) averaged over unexplained_time above
         unexplained_force, the target resting on a knee, an elbow or the seat (body.support.resting_off_feet), a
         diverged step or failed QP, a force over the bound, or the character farther than stray_distance from its
-        target, or a frame the caller knows unexplained (unheld). Sets frame.unexplained_flag and
+        target. Sets frame.unexplained_flag and
         returns the pose to hand out (nq,): the character's, blended towards the frame's kinematic target over
         unexplained_blend while frames are flagged; a character fully handed over restarts from the target."""
         s = self.settings
@@ -234,7 +233,7 @@ class PhysicsStream:
         finite = all(map(math.isfinite, frame.unexplained.tolist()))
         unexplained = frame.unexplained[:3] if finite else np.zeros(3)
         self._unexplained += self._unexplained_share * (unexplained - self._unexplained)
-        flagged = (unheld or out_of_bounds or frame.diverged or frame.qp_failures > 0
+        flagged = (out_of_bounds or frame.diverged or frame.qp_failures > 0
                    or (s.unexplained_force is not None
                        and self._unexplained[2] > s.unexplained_force * self._weight)
                    or bool(resting_off_feet(self.tracker.target_data.site_xpos[self._resting_sites, 2]))
@@ -378,52 +377,78 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
                 valid: np.ndarray | None = None, refined_input: bool = False,
                 resting_labelled: bool = False, whole_clip: bool = False) -> PhysicsMotion:
     """Track the kinematic motion (T, nq) with the physics character; contacts (T, 4) and stationary (T,)
-    come from the contact stage. Causal: frame t uses frames up to t only (but refined_input's held label flights,
-    judged on the whole clip). refine_floor: see PhysicsStream.
-    valid: (T,) frames with a detected person (default all); the character starts at the first (whole_clip: at
-    the first observed step, _first_frame), and the frames
-    before it keep the kinematic pose without forces (a whole-clip fit extrapolates them without data, and a
-    character started there can begin metres off); frames after it without a person are tracked through but carry
-    no contacts, contact forces or residual (their flags stay). refined_input: the kinematics come from Rempe's B.4
-    refinement (offline, PhysicsSettings.refine_offline), whose feet already rest on the floor: targets are not
-    lifted or flattened (target_lift_time, flatten_feet are for fits whose feet sink), and flights of its
-    labels that the motion does not fall through are held (held_label_flights); knowing the whole clip, the held
-    feet are then planted on their spots (planting.plant_held_feet, settings.plant_reach). resting_labelled: the
-    contacts already hold the points resting on the floor (a capture's contacts in use, which retargeting carries
-    over), so none are added (rest_height; B.4's refinement implies it). whole_clip: the caller holds the whole clip
-    (as B.4 input and a retargeted capture do), so the hand-back to the kinematic motion is centred on each flagged
-    stretch (centred_hand_back) and the held feet are planted over the whole clip, not by the causal OutputPlanter."""
+    come from the contact stage. Causal: frame t uses frames up to t only, unless whole_clip.
+    refine_floor: see PhysicsStream.
+    valid: (T,) frames with a detected person (default all); the character starts at the first (whole_clip: at the
+    first observed step, _first_frame), and the frames before it keep the kinematic pose without forces (a
+    whole-clip fit extrapolates them without data, and a character started there can begin metres off); frames
+    after it without a person are tracked through but carry no contacts, contact forces or residual (their flags
+    stay).
+    refined_input: the kinematics come from Rempe's B.4 refinement (offline, PhysicsSettings.refine_offline), whose
+    feet already rest on the floor: targets are not lifted or flattened (target_lift_time, flatten_feet are for
+    fits whose feet sink); implies whole_clip.
+    resting_labelled: the contacts already hold the points resting on the floor (a capture's contacts in use, which
+    retargeting carries over), so none are added (rest_height; B.4's refinement implies it).
+    whole_clip: the caller holds the whole clip (as B.4 input and a retargeted capture do), so flights of its
+    labels that the motion does not fall through are held, and the frames the contact model cannot explain are
+    known before tracking (offline_unexplainable: kept kinematic, no force claimed, the character restarted after
+    them); the hand-back to the kinematic motion is centred on each flagged stretch (centred_hand_back), and the
+    held feet are planted on their spots over the whole clip (planting.plant_held_feet, settings.plant_reach), not
+    by the causal OutputPlanter."""
     start = time.perf_counter()
     T = len(qpos_kin)
-    unheld = np.zeros(T, bool)
-    if refined_input:
-        contacts, unheld = held_label_flights(body, qpos_kin, fps, contacts, valid)
     whole_clip = whole_clip or refined_input
-    stream = PhysicsStream(body, settings, fps, refine_floor, refined_input, resting_labelled, whole_clip)
+    unexplainable = np.zeros(T, bool)
+    if whole_clip:
+        contacts, unexplainable = offline_unexplainable(body, qpos_kin, fps, contacts, valid)
     unexplained = np.zeros(T, bool)
     out = PhysicsMotion(qpos_kin.copy(), np.zeros((T, 4, 3)), np.zeros((T, 6)), np.zeros((T, 4), bool),
                         np.zeros(T, bool), np.zeros(T, int), 0.0, unexplained=unexplained)
-    first = _first_frame(valid, observed_step=whole_clip)
     # The character's own poses and the frames' targets, for centred_hand_back
-    recorded = (qpos_kin.copy(), qpos_kin.copy()) if whole_clip and stream.floor is None else None
-    for t in range(first, T):
-        out.qpos[t], frame, out.corrected[t] = stream.push(qpos_kin[t], contacts[t], bool(stationary[t]),
-                                                              bool(unheld[t]))
-        if recorded is not None:
-            recorded[0][t], recorded[1][t] = stream.tracker.qpos, stream.target
-        out.grf[t], out.residual[t], out.contacts[t], out.qp_failures[t], unexplained[t] = (
-            frame.contact_forces, frame.residual, frame.active, frame.qp_failures, frame.unexplained_flag)
-        if progress:
-            progress(t + 1, T)
-    if recorded is not None:
+    recorded = (qpos_kin.copy(), qpos_kin.copy()) if whole_clip and not refine_floor else None
+    stream = _track(lambda: PhysicsStream(body, settings, fps, refine_floor, refined_input, resting_labelled,
+                                          whole_clip), qpos_kin, contacts, stationary, valid, unexplainable,
+                    whole_clip, out, recorded, progress)
+    if recorded is not None and stream is not None:
         out.qpos = centred_hand_back(stream.tracker.model, *recorded, unexplained, fps, settings.unexplained_blend)
     gone = np.zeros(T, bool) if valid is None else ~np.asarray(valid, bool)
     out.grf[gone], out.residual[gone], out.contacts[gone] = 0.0, 0.0, False  # tracked through, nothing claimed
     if whole_clip and settings.plant_reach:
         out.qpos = plant_held_feet(body, out.qpos, out.contacts, fps, settings.plant_reach, gone | unexplained)
     out.seconds = time.perf_counter() - start
-    out.floor_plane = stream.floor_plane
+    out.floor_plane = None if stream is None else stream.floor_plane
     return out
+
+
+def _track(new_stream, qpos_kin: np.ndarray, contacts: np.ndarray, stationary: np.ndarray, valid: np.ndarray | None,
+           unexplainable: np.ndarray, observed_step: bool, out: PhysicsMotion, recorded, progress):
+    """Runs the character (a PhysicsStream from new_stream()) over the frames into out and recorded (as
+    run_physcap's), from _first_frame on. Frames known unexplainable (T,) keep the kinematic pose with no force
+    claimed, flagged; after them the character starts afresh, as at the clip's start, at the first frame whose
+    step to the next is observed (both valid, both explainable: the frames waiting for it are kept and flagged
+    too). Returns the last stream (None: no frame tracked)."""
+    T = len(qpos_kin)
+    eligible = (np.ones(T, bool) if valid is None else np.asarray(valid, bool)) & ~unexplainable
+    first = _first_frame(valid, observed_step)
+    flagged = out.unexplained
+    assert flagged is not None, "run_physcap's motion carries its flags"
+    stream = last = None
+    for t in range(first, T):
+        if unexplainable[t]:
+            stream, flagged[t] = None, True
+        elif stream is None and not (t == first or eligible[t] and t + 1 < T and eligible[t + 1]):
+            flagged[t] = True  # waiting for an observed step after an unexplainable stretch
+        else:
+            if stream is None:
+                stream = last = new_stream()
+            out.qpos[t], frame, out.corrected[t] = stream.push(qpos_kin[t], contacts[t], bool(stationary[t]))
+            if recorded is not None:
+                recorded[0][t], recorded[1][t] = stream.tracker.qpos, stream.target
+            out.grf[t], out.residual[t], out.contacts[t], out.qp_failures[t], flagged[t] = (
+                frame.contact_forces, frame.residual, frame.active, frame.qp_failures, frame.unexplained_flag)
+        if progress:
+            progress(t + 1, T)
+    return last
 
 
 def _first_frame(valid: np.ndarray | None, observed_step: bool) -> int:
@@ -462,30 +487,36 @@ def centred_hand_back(model: mujoco.MjModel, tracked: np.ndarray, targets: np.nd
     return out
 
 
-def held_label_flights(body: BodyModel, qpos: np.ndarray, fps: float, contacts: np.ndarray,
-                       valid: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(T, 4) contacts in which each whole-body flight of the labels that the motion's (T, nq) centre of mass does
-    not fall through is held up by a point that stays within its foot's length (contacts.flights, the rule trajopt
-    applies to the same B.4 labels), within each run of valid frames (T,) (None: all), and (T,) bool the frames of
-    such flights that no point can hold (every candidate travels): the contact model cannot explain them, and the
-    character would free-fall through them, so the caller hands them back as trajopt does. B.4 leaves such flights
-    where the kinematic feet hover over the floor: on one video 0.1 s needing 0.7 body weights, through which the
-    character free-fell and landed at 4-5 body weights. Each one is logged."""
-    mask = np.ones(len(qpos), bool) if valid is None else np.asarray(valid, bool)
-    flags = np.asarray(contacts, bool) & mask[:, None]
+def offline_unexplainable(body: BodyModel, qpos: np.ndarray, fps: float, contacts: np.ndarray,
+                          valid: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """What the whole B.4-refined input (T, nq) shows before any tracking, within its valid frames (T,) (None:
+    all): (T, 4) contacts in which each whole-body flight of the labels that the motion's centre of mass does not
+    fall through is held up by a point that stays within its foot's length (contacts.flights, the rule trajopt
+    applies to the same labels), and (T,) bool the frames the contact model cannot explain, which both physics
+    methods keep kinematic: a COM below the floor or a body resting off its feet (support.unexplained_frames), and
+    such flights that no point can hold (every candidate travels). B.4 leaves such flights where the kinematic feet
+    hover over the floor: on one video 0.1 s needing 0.7 body weights, through which the character free-fell and
+    landed at 4-5 body weights. Each stretch is logged."""
+    mask = np.ones(len(qpos), bool) if valid is None else np.array(valid, bool)  # a copy: narrowed below
     pose = kin.forward_kinematics(body, qpos)
     com, points = kin.center_of_mass(body, pose), pose.points[:, body.point_index(CONTACT_POINTS)]
+    unexplainable = mask & unexplained_frames(body.point_names, pose.points, com)
+    if unexplainable.any():
+        log.warning("physics: on frames %s the input's centre of mass lies below the floor or the body rests on a "
+                    "knee, an elbow or the seat, which the feet on the floor cannot explain: the kinematic motion is "
+                    "kept there.", ", ".join(frame_ranges(np.flatnonzero(unexplainable))))
+    mask &= ~unexplainable
+    flags = np.asarray(contacts, bool) & mask[:, None]
     times, foot = np.arange(len(qpos)) / fps, body.lengths.heel_back + body.lengths.toe_front
-    unheld = np.zeros(len(qpos), bool)
     for first, end in valid_runs(mask):
         flags[first:end], _, unsupported = support_held_flights(flags[first:end], com[first:end], points[first:end],
                                                                 times[first:end], GRAVITY, STANDING_SUPPORT, foot)
         for start, stop, support in unsupported:
-            unheld[first + start:first + stop] = True
+            unexplainable[first + start:first + stop] = True
             log.warning("physics: on frames %d-%d the labels give a flight, the motion's centre of mass needs %.0f%% "
                         "of body weight there, and every foot that could hold it up moves: the kinematic motion is "
                         "kept there.", first + start, first + stop - 1, 100 * support)
-    return flags, unheld
+    return flags, unexplainable
 
 
 def onto_refined_floor(motion: KinematicMotion, physics: PhysicsMotion) -> tuple[KinematicMotion, PhysicsMotion]:

@@ -31,6 +31,7 @@ from ..io.atomic import write_text
 from ..metrics import (
     FLOATING_THRESHOLD,
     GRAVITY,
+    GrfMeasure,
     contact_skating,
     foot_contact_errors,
     grf_statistics,
@@ -111,10 +112,10 @@ def retarget_metrics(character: Character, source_points: np.ndarray, qpos: np.n
         mean magnitude of the net ground reaction force in the character's body weights (Rempe's measure; None
         without physics), grf_vertical_mean_percent_bw: the mean of its vertical component, which over a clip
         equals the weight less what the root's residual force carries, plus the change of vertical momentum
-        (docs/decisions/retarget-grf.md); grf_vertical_explained_mean_percent_bw: the same over the frames the
-        physics explains (unexplained (n,) bool: the frames it flagged and handed back, where no contact force is
-        claimed to carry the body; None: all explained); com: mean centre of mass height as a share of the
-        standing height.
+        (docs/decisions/retarget-grf.md); grf_explained_mean_percent_bw, grf_vertical_explained_mean_percent_bw:
+        the magnitude and the vertical component over the frames the physics explains (unexplained (n,) bool: the
+        frames it flagged and handed back, whose forces, where any are written, carry the character, not the motion
+        handed back; None: all explained); com: mean centre of mass height as a share of the standing height.
     The rows are the frames with a person; breaks (n,) bool marks those that follow a gap: nothing slides into them."""
     body = character.body
     pose = kin.forward_kinematics(body, qpos)
@@ -150,18 +151,20 @@ def retarget_metrics(character: Character, source_points: np.ndarray, qpos: np.n
         grf_mean_percent_bw=None if grf is None else grf_statistics(grf, body.mass)["mean_percent_bw"],
         grf_vertical_mean_percent_bw=None if grf is None else grf_statistics(grf, body.mass,
                                                                              measure="vertical")["mean_percent_bw"],
-        grf_vertical_explained_mean_percent_bw=_explained_vertical(grf, body.mass, unexplained),
+        grf_explained_mean_percent_bw=_explained_mean(grf, body.mass, unexplained, "magnitude"),
+        grf_vertical_explained_mean_percent_bw=_explained_mean(grf, body.mass, unexplained, "vertical"),
         com_height_share=float(com[:, 2].mean() / body.height),
     )
 
 
-def _explained_vertical(grf: np.ndarray | None, mass: float, unexplained: np.ndarray | None) -> float | None:
-    """Mean vertical net GRF (% of the weight, mass kg) over the frames of grf (n, 4, 3) N not flagged in
-    unexplained (n,); None without physics or without such frames."""
+def _explained_mean(grf: np.ndarray | None, mass: float, unexplained: np.ndarray | None,
+                    measure: GrfMeasure) -> float | None:
+    """Mean net GRF (% of the weight, mass kg; metrics.grf_statistics' measure) over the frames of grf (n, 4, 3) N
+    not flagged in unexplained (n,); None without physics or without such frames."""
     if grf is None:
         return None
     explained = np.ones(len(grf), bool) if unexplained is None else ~np.asarray(unexplained, bool)
-    return grf_statistics(grf[explained], mass, measure="vertical")["mean_percent_bw"] if explained.any() else None
+    return grf_statistics(grf[explained], mass, measure=measure)["mean_percent_bw"] if explained.any() else None
 
 
 @dataclass

@@ -32,7 +32,7 @@ import numpy as np
 
 from ..body import kinematics as kin
 from ..body.model import CONTACT_POINTS, BodyModel
-from ..body.support import resting_off_feet, resting_points
+from ..body.support import unexplained_frames
 from ..config import TrajoptSettings
 from ..contacts.flights import STANDING_SUPPORT, support_held_flights, valid_runs
 from ..cores import may_use_two_cores, usable_cores
@@ -233,7 +233,7 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     observed = np.ones(T, bool) if valid is None else np.asarray(valid, bool)
     pose = kin.forward_kinematics(body, qpos_kin)
     reduced = reduced_motion(body, qpos_kin, fps, pose)
-    unexplained = observed & unexplained_frames(body, pose.points, reduced.com)
+    unexplained = observed & unexplained_frames(body.point_names, pose.points, reduced.com)
     del pose  # the rotations of every body and frame: not kept through the solve
     if unexplained.any():
         log.warning("trajopt: on frames %s the input's centre of mass lies below the floor or the body rests on a "
@@ -270,18 +270,6 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     out.ik_seconds = time.perf_counter() - ik_start
     out.seconds = time.perf_counter() - start_time
     return out
-
-
-def unexplained_frames(body: BodyModel, points: np.ndarray, com: np.ndarray) -> np.ndarray:
-    """(T,) bool: frames of the input motion, its body points (T, P, 3) m (body.point_names order) and centre of mass
-    com (T, 3) m, whose COM lies below the floor (z = 0), or whose body rests on the floor off its feet
-    (`support.resting_off_feet`: a knee, an elbow, the seat).
-    The body stands on its soles in the contact model, so its COM is above the floor; a COM below it is a detection
-    or floor error (a person leaving the view, a floor at another height). Optimised, such frames asked for forces
-    of several body weights (intel_highcam_walk_stand at 10 fps: docs/decisions/trajopt-frame-rate.md), and a body
-    sliding on a knee departed 13-14 cm from its input (docs/decisions/physics-limits.md, "Other body parts")."""
-    heights = np.asarray(points)[:, resting_points(body.point_names), 2]
-    return (np.asarray(com)[:, 2] < 0.0) | resting_off_feet(heights)
 
 
 def _full_body(out: TrajoptMotion, body: BodyModel, qpos_kin: np.ndarray, reduced, fitted_euler: np.ndarray,
