@@ -5,7 +5,13 @@ dynamics.stage), with the runs of contact flags and the easing at their edges th
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
+
+from ..body.model import CONTACT_POINTS
+
+log = logging.getLogger("physmocap")
 
 # A whole-body flight of the labels (or a target) whose COM needs more than this vertical force on average (body
 # weights; 0 in a free fall, 1 standing) is held up, not flying; chosen for trajopt on validation clips of CMU
@@ -119,3 +125,27 @@ def support_held_flights(flags: np.ndarray, com: np.ndarray, points: np.ndarray,
         else:
             unsupported.append((int(s), int(s + n), support))
     return flags, changed, unsupported
+
+
+def held_flights_in_runs(flags: np.ndarray, valid: np.ndarray, com: np.ndarray, points: np.ndarray,
+                         times: np.ndarray, gravity: float, drift: np.ndarray | float,
+                         method: str) -> tuple[np.ndarray, np.ndarray]:
+    """support_held_flights (max_support STANDING_SUPPORT) within each run of valid frames (T,) of flags (T, 4),
+    com (T, 3), points (T, 4, 3) (CONTACT_POINTS) at times (T,) s; each point put in contact, and each flight that
+    no point can hold up, logged as `method`'s ("physics", "trajopt"). Returns the flags and (T,) bool the frames
+    of the flights no point can hold: the contact model cannot explain them, and both methods keep the kinematic
+    motion there."""
+    flags, unheld = np.asarray(flags, bool).copy(), np.zeros(len(flags), bool)
+    for first, end in valid_runs(valid):
+        flags[first:end], changed, unsupported = support_held_flights(
+            flags[first:end], com[first:end], points[first:end], times[first:end], gravity, STANDING_SUPPORT, drift)
+        for start, stop, point, support in changed:
+            log.warning("%s: around frames %d-%d the labels give a flight, but the motion's centre of mass needs "
+                        "%.0f%% of body weight there: the %s is kept in contact over these frames.", method,
+                        first + start, first + stop - 1, 100 * support, CONTACT_POINTS[point].replace("_", " "))
+        for start, stop, support in unsupported:
+            unheld[first + start:first + stop] = True
+            log.warning("%s: on frames %d-%d the labels give a flight, the motion's centre of mass needs %.0f%% "
+                        "of body weight there, and every foot that could hold it up moves: the kinematic motion is "
+                        "kept there.", method, first + start, first + stop - 1, 100 * support)
+    return flags, unheld

@@ -18,7 +18,7 @@ from ..body.model import CONTACT_POINTS, BodyModel
 from ..body.support import resting_off_feet, resting_points, unexplained_frames
 from ..camera import floor_in_camera
 from ..config import PhysicsSettings
-from ..contacts.flights import STANDING_SUPPORT, support_held_flights, valid_runs
+from ..contacts.flights import held_flights_in_runs
 from ..kinematics.stage import KinematicMotion
 from ..metrics import GRAVITY
 from ..motion import frame_ranges
@@ -506,16 +506,10 @@ def offline_unexplainable(body: BodyModel, qpos: np.ndarray, fps: float, contact
                     "knee, an elbow or the seat, which the feet on the floor cannot explain: the kinematic motion is "
                     "kept there.", ", ".join(frame_ranges(np.flatnonzero(unexplainable))))
     mask &= ~unexplainable
-    flags = np.asarray(contacts, bool) & mask[:, None]
-    times, foot = np.arange(len(qpos)) / fps, body.lengths.heel_back + body.lengths.toe_front
-    for first, end in valid_runs(mask):
-        flags[first:end], _, unsupported = support_held_flights(flags[first:end], com[first:end], points[first:end],
-                                                                times[first:end], GRAVITY, STANDING_SUPPORT, foot)
-        for start, stop, support in unsupported:
-            unexplainable[first + start:first + stop] = True
-            log.warning("physics: on frames %d-%d the labels give a flight, the motion's centre of mass needs %.0f%% "
-                        "of body weight there, and every foot that could hold it up moves: the kinematic motion is "
-                        "kept there.", first + start, first + stop - 1, 100 * support)
+    flags, unheld = held_flights_in_runs(np.asarray(contacts, bool) & mask[:, None], mask, com, points,
+                                         np.arange(len(qpos)) / fps, GRAVITY,
+                                         body.lengths.heel_back + body.lengths.toe_front, "physics")
+    unexplainable |= unheld
     return flags, unexplainable
 
 

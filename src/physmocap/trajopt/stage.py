@@ -31,10 +31,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..body import kinematics as kin
-from ..body.model import CONTACT_POINTS, BodyModel
+from ..body.model import BodyModel
 from ..body.support import unexplained_frames
 from ..config import TrajoptSettings
-from ..contacts.flights import STANDING_SUPPORT, support_held_flights, valid_runs
+from ..contacts.flights import held_flights_in_runs, valid_runs
 from ..cores import may_use_two_cores, usable_cores
 from ..motion import frame_ranges
 from .formulation import Window, WindowStart
@@ -242,7 +242,8 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     valid = observed & ~unexplained
     min_frames = max(1, math.ceil(settings.min_phase_seconds * fps - 1e-9))
     flags = np.stack([clean_flags(contacts[:, i], min_frames) for i in range(4)], axis=1) & valid[:, None]
-    flags, unheld = _support_held_flights(flags, reduced, valid, settings)
+    flags, unheld = held_flights_in_runs(flags, valid, reduced.com, reduced.feet, reduced.times, settings.gravity,
+                                         np.repeat(reduced.foot_length, 2), "trajopt")
     unexplained |= unheld
     valid &= ~unheld
     flags &= valid[:, None]
@@ -309,29 +310,6 @@ def _kinematic_share(done: np.ndarray, fps: float) -> np.ndarray:
     following = np.minimum.accumulate(np.where(done, 2 * len(done), frames)[::-1])[::-1]
     distance = np.minimum(frames - last, following - frames)
     return np.clip(1.0 - distance / (BLEND_SECONDS * fps + 1.0), 0.0, 1.0)
-
-
-def _support_held_flights(flags: np.ndarray, reduced, valid: np.ndarray,
-                          settings: TrajoptSettings) -> tuple[np.ndarray, np.ndarray]:
-    """The flags with each whole-body flight that the input's COM does not fall through given back a support
-    (contacts.flights.support_held_flights), within each run of valid frames, and (T,) bool the frames of such flights
-    that no point can hold up (each candidate strays farther than its foot's length, more than a foot turning
-    about its other end: the contact model cannot explain them); each one logged."""
-    flags, unheld = flags.copy(), np.zeros(len(flags), bool)
-    for first, end in valid_runs(valid):
-        flags[first:end], changed, unsupported = support_held_flights(
-            flags[first:end], reduced.com[first:end], reduced.feet[first:end], reduced.times[first:end],
-            settings.gravity, STANDING_SUPPORT, np.repeat(reduced.foot_length, 2))
-        for start, stop, point, support in changed:
-            log.warning("trajopt: around frames %d-%d the labels give a flight, but the motion's centre of mass needs "
-                        "%.0f%% of body weight there: the %s is kept in contact over these frames.", first + start,
-                        first + stop - 1, 100 * support, CONTACT_POINTS[point].replace("_", " "))
-        for start, stop, support in unsupported:
-            unheld[first + start:first + stop] = True
-            log.warning("trajopt: on frames %d-%d the labels give a flight, the motion's centre of mass needs %.0f%% "
-                        "of body weight there, and every foot that could hold it up moves: the kinematic motion is "
-                        "kept there.", first + start, first + stop - 1, 100 * support)
-    return flags, unheld
 
 
 def _measure_departure(report: WindowReport, result, red, n: int, limit: float | None) -> None:
