@@ -461,6 +461,18 @@ def test_offline_frames_whose_centre_of_mass_is_below_the_floor_claim_no_force(b
     assert np.linalg.norm(motion.grf.sum(axis=1), axis=-1).max() < 2 * weight
 
 
+def test_a_causal_run_does_not_track_a_centre_of_mass_below_the_floor(body):
+    """Online and live, the same frames are found as they arrive: each keeps its target, flagged, with no force,
+    and the character starts afresh at the next frame instead of being pushed out of the floor."""
+    q = standing(body, 40)
+    q[30:35, 2] -= 1.0 + 0.2 * np.arange(5)  # the whole body under the floor
+    motion = run_physcap(body, q, FPS, np.ones((40, 4), bool), np.zeros(40, bool), PhysicsSettings())
+    assert motion.unexplained[30:35].all()
+    assert not motion.grf[30:35].any() and not motion.residual[30:35].any()
+    np.testing.assert_allclose(motion.qpos[30:35], q[30:35], atol=1e-9)
+    assert np.linalg.norm(motion.grf.sum(axis=1), axis=-1).max() < 2 * body.mass * G
+
+
 def test_a_held_contact_above_its_target_comes_down_to_it(body):
     """The floor only stops a contact point from sinking; a point in use that hovers above its kinematic target
     must also come down to it (within contact_settle_time), or a foot held in the air takes the contact forces

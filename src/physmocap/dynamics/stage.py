@@ -89,57 +89,64 @@ class PhysicsStream:
         # Held contacts are settled onto B.4's feet; targets this stream lifts itself (online fits) are not: there
         # it doubled the held contacts' p95 slide on the estimated floor (docs/decisions/physics-default.md).
         self.tracker = PhysCapTracker(body, settings, fps, settle_contacts=refined_input)
-        # 4.3.1's share of the lean corrected per frame, from a time constant: per frame, the correction grew six
-        # times faster in seconds at 60 fps than at 10 (docs/decisions/physics-balance.md)
-        self.balance = BalanceCorrector(body, 1.0 - math.exp(-1.0 / (fps * settings.correction_time)))
-        self._previous: np.ndarray | None = None  # last kinematic pose
         self.target = body.rest_qpos.copy()  # the last frame's target (nq,): its kinematic pose after 4.3.1
-        self._velocity, self._frames = np.zeros(body.nv), 0  # the last smoothed kinematic velocity; frames pushed
         # share of the newest backward difference in the smoothed velocity (1: no smoothing)
         smoothing = settings.velocity_smoothing
         self._new_share = 1.0 - np.exp(-1.0 / (fps * smoothing)) if smoothing else 1.0
-        # The targets' lift out of the floor (their lowest predicted contact point's depth, smoothed), how flat each
-        # foot is turned (0 .. 1, smoothed), and the share of a new frame's value taken in (settings.target_lift_time)
-        self._lift, self._flatness = 0.0, np.zeros(2)
         # Kinematics refined by Rempe's B.4 (refined_input) already rest their feet on the floor: lifting and
         # flattening them again only raised the feet (docs/decisions/physics-default.md); nor are they planted.
-        fit_feet = settings.foot_lock != "never" and not refined_input  # a fit's feet on the floor, B.4's not
+        self._fit_feet = settings.foot_lock != "never" and not refined_input  # a fit's feet on the floor, B.4's not
+        self._whole_clip = whole_clip
         self._lift_share = (1.0 - np.exp(-1.0 / (fps * settings.target_lift_time))
-                            if settings.target_lift_time is not None and fit_feet else 0.0)
+                            if settings.target_lift_time is not None and self._fit_feet else 0.0)
         model = self.tracker.model
         feet = [model.body(f"{side}_foot").id for side in ("left", "right")]
         self._feet = [(foot, model.body_parentid[foot], model.jnt_qposadr[model.body_jntadr[foot]]) for foot in feet]
         self._turn, self._quat = np.zeros(4), np.zeros(4)
-        # kinematic root positions of the last stationary_speed_interval, oldest first (the stationary gate)
         self._root_frames = max(1, round(settings.stationary_speed_interval * fps)) + 1  # the interval's ends
-        self._roots: deque[np.ndarray] = deque(maxlen=self._root_frames)
         self._weight = body.mass * GRAVITY
-        # The diagnosis (settings.unexplained_*): the unexplained root force, averaged causally over
-        # unexplained_time, the kinematic motion's share in the output (0: physics, 1: kinematic), and the target's
-        # points whose resting on the floor it reads (body.support.RESTING_POINTS)
-        self._unexplained = np.zeros(3)
         self._unexplained_share = 1.0 - np.exp(-1.0 / (fps * settings.unexplained_time))
-        self._kinematic_share, self._blend_rate = 0.0, 1.0 / max(fps * settings.unexplained_blend, 1.0)
+        self._blend_rate = 1.0 / max(fps * settings.unexplained_blend, 1.0)
         self._blend_step = np.zeros(body.nv)
         self._deviation_data = mujoco.MjData(model)
         self._resting_sites = np.array([model.site(body.point_names[i]).id for i in resting_points(body.point_names)])
-        # The start's drop onto the floor (m; None before the first frame), its share kept a frame (start_drop_time)
-        self._drop: float | None = None
         self._drop_keep = (math.exp(-1.0 / (fps * settings.start_drop_time))
                            if settings.start_drop_time is not None else 0.0)
+        self._rests = (settings.rest_height is not None and settings.foot_lock == "auto" and not refined_input
+                       and not resting_labelled)
+        self._begin()
+
+    def _begin(self) -> None:
+        """The state of one track, set afresh at the start and after a frame the contact model cannot explain
+        (`push`): the character then starts again from the next frame's target, as at the clip's start."""
+        body, settings, fps, model = self.body, self.settings, self.fps, self.tracker.model
+        # 4.3.1's share of the lean corrected per frame, from a time constant: per frame, the correction grew six
+        # times faster in seconds at 60 fps than at 10 (docs/decisions/physics-balance.md)
+        self.balance = BalanceCorrector(body, 1.0 - math.exp(-1.0 / (fps * settings.correction_time)))
+        self._previous: np.ndarray | None = None  # last kinematic pose
+        self._velocity, self._frames = np.zeros(body.nv), 0  # the last smoothed kinematic velocity; frames pushed
+        # The targets' lift out of the floor (their lowest predicted contact point's depth, smoothed), how flat each
+        # foot is turned (0 .. 1, smoothed), and the share of a new frame's value taken in (settings.target_lift_time)
+        self._lift, self._flatness = 0.0, np.zeros(2)
+        # kinematic root positions of the last stationary_speed_interval, oldest first (the stationary gate)
+        self._roots: deque[np.ndarray] = deque(maxlen=self._root_frames)
+        # The diagnosis (settings.unexplained_*): the unexplained root force, averaged causally over
+        # unexplained_time, and the kinematic motion's share in the output (0: physics, 1: kinematic)
+        self._unexplained = np.zeros(3)
+        self._kinematic_share = 0.0
+        # The start's drop onto the floor (m; None before the first frame), its share kept a frame (start_drop_time)
+        self._drop: float | None = None
         # Online fits' held feet are planted where the character holds them, and the output's stand still,
         # causally (with the whole clip, B.4 planted the target's and run_physcap plants the output's)
         self.planter = (FootPlanter(model, fps, settings.plant_time, settings.release_distance)
-                        if fit_feet and settings.plant_time is not None else None)
+                        if self._fit_feet and settings.plant_time is not None else None)
         self.output_planter = (OutputPlanter(model, fps, settings.plant_reach)
-                               if fit_feet and settings.plant_reach and not whole_clip else None)
+                               if self._fit_feet and settings.plant_reach and not self._whole_clip else None)
         self._held = np.zeros(4, bool)  # the contacts the character held at the end of the last frame
         # Online fits' sole points resting on the floor are contacts though not predicted (as B.4 adds offline);
         # the window holds their positions over REST_SPEED_INTERVAL, oldest first.
         self._resting_window: deque[np.ndarray] | None = (
-            deque(maxlen=max(1, round(REST_SPEED_INTERVAL * fps)) + 1)
-            if settings.rest_height is not None and settings.foot_lock == "auto" and not refined_input
-            and not resting_labelled else None)
+            deque(maxlen=max(1, round(REST_SPEED_INTERVAL * fps)) + 1) if self._rests else None)
 
     @property
     def floor_plane(self) -> np.ndarray | None:
@@ -149,10 +156,13 @@ class PhysicsStream:
     def push(self, q_kin: np.ndarray, contacts: np.ndarray,
              stationary: bool) -> tuple[np.ndarray, FrameOutput, bool]:
         """One frame's kinematic pose (nq,), contacts (4,) and stationary flag -> tracked pose, forces, and
-        whether the balance correction changed the target."""
+        whether the balance correction changed the target (a pose whose centre of mass is below the floor: not
+        tracked, `_not_tracked`)."""
         if self.floor is not None:
             self.floor.push(q_kin, contacts)
             q_kin = self.floor.to_physics(q_kin)
+        if self._centre_of_mass_height(q_kin) < 0.0:
+            return self._not_tracked(q_kin)
         if self._resting_window is not None:
             contacts = contacts | self._resting(q_kin)
         if self._lift_share:
@@ -193,6 +203,26 @@ class PhysicsStream:
         frame.contact_forces = self.floor.vector_to_kinematic(frame.contact_forces)
         frame.residual[:3] = self.floor.vector_to_kinematic(frame.residual[:3])
         return self.floor.to_kinematic(pose), frame, corrected
+
+    def _centre_of_mass_height(self, q: np.ndarray) -> float:
+        """m: the height of pose q's (nq,) centre of mass above the floor (z = 0 of the physics' world)."""
+        data = self._deviation_data
+        data.qpos[:] = q
+        mujoco.mj_kinematics(self.tracker.model, data)
+        mujoco.mj_comPos(self.tracker.model, data)
+        return float(data.subtree_com[0, 2])
+
+    def _not_tracked(self, q_kin: np.ndarray) -> tuple[np.ndarray, FrameOutput, bool]:
+        """A frame whose target's centre of mass lies below the floor (a detection or floor error: a person leaving
+        the view) is one no contact force explains (body.support.unexplained_frames, which the offline path finds
+        before tracking): it keeps the target, flagged, with no force claimed, and the character starts afresh at
+        the next frame, as at the clip's start (_begin)."""
+        self._begin()
+        self.target = q_kin
+        frame = FrameOutput(contact_forces=np.zeros((4, 3)), residual=np.zeros(6), active=np.zeros(4, bool),
+                            qp_failures=0, unexplained_flag=True)
+        pose = q_kin.copy()
+        return (pose if self.floor is None else self.floor.to_kinematic(pose)), frame, False
 
     def _plant_feet(self, q_kin: np.ndarray, contacts: np.ndarray) -> tuple[np.ndarray, list[bool]]:
         """q_kin (nq,) with the contact points the character held in the last frame, still predicted (contacts
