@@ -114,11 +114,12 @@ class PhysicsStream:
                            if settings.start_drop_time is not None else 0.0)
         self._rests = (settings.rest_height is not None and settings.foot_lock == "auto" and not refined_input
                        and not resting_labelled)
-        self._begin()
+        self.restart()
 
-    def _begin(self) -> None:
-        """The state of one track, set afresh at the start and after a frame the contact model cannot explain
-        (`push`): the character then starts again from the next frame's target, as at the clip's start."""
+    def restart(self) -> None:
+        """Sets the state of one track afresh (the refined floor stays): at the start, and after frames the contact
+        model cannot explain (`_not_tracked`, run_physcap's frames known unexplainable), so that the character
+        starts again from the next frame's target, as at the clip's start."""
         body, settings, fps, model = self.body, self.settings, self.fps, self.tracker.model
         # 4.3.1's share of the lean corrected per frame, from a time constant: per frame, the correction grew six
         # times faster in seconds at 60 fps than at 10 (docs/decisions/physics-balance.md)
@@ -216,8 +217,8 @@ class PhysicsStream:
         """A frame whose target's centre of mass lies below the floor (a detection or floor error: a person leaving
         the view) is one no contact force explains (body.support.unexplained_frames, which the offline path finds
         before tracking): it keeps the target, flagged, with no force claimed, and the character starts afresh at
-        the next frame, as at the clip's start (_begin)."""
-        self._begin()
+        the next frame, as at the clip's start (restart)."""
+        self.restart()
         self.target = q_kin
         frame = FrameOutput(contact_forces=np.zeros((4, 3)), residual=np.zeros(6), active=np.zeros(4, bool),
                             qp_failures=0, unexplained_flag=True)
@@ -436,41 +437,41 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
                         np.zeros(T, bool), np.zeros(T, int), 0.0, unexplained=unexplained)
     # The character's own poses and the frames' targets, for centred_hand_back
     recorded = (qpos_kin.copy(), qpos_kin.copy()) if whole_clip and not refine_floor else None
-    stream = _track(lambda: PhysicsStream(body, settings, fps, refine_floor, refined_input, resting_labelled,
-                                          whole_clip), qpos_kin, contacts, stationary, valid, unexplainable,
-                    whole_clip, out, recorded, progress)
-    if recorded is not None and stream is not None:
+    stream = PhysicsStream(body, settings, fps, refine_floor, refined_input, resting_labelled, whole_clip)
+    _track(stream, qpos_kin, contacts, stationary, valid, unexplainable, whole_clip, out, recorded, progress)
+    if recorded is not None:
         out.qpos = centred_hand_back(stream.tracker.model, *recorded, unexplained, fps, settings.unexplained_blend)
     gone = np.zeros(T, bool) if valid is None else ~np.asarray(valid, bool)
     out.grf[gone], out.residual[gone], out.contacts[gone] = 0.0, 0.0, False  # tracked through, nothing claimed
     if whole_clip and settings.plant_reach:
         out.qpos = plant_held_feet(body, out.qpos, out.contacts, fps, settings.plant_reach, gone | unexplained)
     out.seconds = time.perf_counter() - start
-    out.floor_plane = None if stream is None else stream.floor_plane
+    out.floor_plane = stream.floor_plane
     return out
 
 
-def _track(new_stream, qpos_kin: np.ndarray, contacts: np.ndarray, stationary: np.ndarray, valid: np.ndarray | None,
-           unexplainable: np.ndarray, observed_step: bool, out: PhysicsMotion, recorded, progress):
-    """Runs the character (a PhysicsStream from new_stream()) over the frames into out and recorded (as
-    run_physcap's), from _first_frame on. Frames known unexplainable (T,) keep the kinematic pose with no force
-    claimed, flagged; after them the character starts afresh, as at the clip's start, at the first frame whose
-    step to the next is observed (both valid, both explainable: the frames waiting for it are kept and flagged
-    too). Returns the last stream (None: no frame tracked)."""
+def _track(stream: PhysicsStream, qpos_kin: np.ndarray, contacts: np.ndarray, stationary: np.ndarray,
+           valid: np.ndarray | None, unexplainable: np.ndarray, observed_step: bool, out: PhysicsMotion,
+           recorded, progress) -> None:
+    """Runs the character (stream) over the frames into out and recorded (as run_physcap's), from _first_frame on.
+    Frames known unexplainable (T,) keep the kinematic pose with no force claimed, flagged; after them the
+    character starts afresh (PhysicsStream.restart), as at the clip's start, at the first frame whose step to the
+    next is observed (both valid, both explainable: the frames waiting for it are kept and flagged too)."""
     T = len(qpos_kin)
     eligible = (np.ones(T, bool) if valid is None else np.asarray(valid, bool)) & ~unexplainable
     first = _first_frame(valid, observed_step)
     flagged = out.unexplained
     assert flagged is not None, "run_physcap's motion carries its flags"
-    stream = last = None
+    waiting = False  # after an unexplainable stretch, for an observed step
     for t in range(first, T):
         if unexplainable[t]:
-            stream, flagged[t] = None, True
-        elif stream is None and not (t == first or eligible[t] and t + 1 < T and eligible[t + 1]):
-            flagged[t] = True  # waiting for an observed step after an unexplainable stretch
+            waiting, flagged[t] = True, True
+        elif waiting and not (eligible[t] and t + 1 < T and eligible[t + 1]):
+            flagged[t] = True
         else:
-            if stream is None:
-                stream = last = new_stream()
+            if waiting:
+                stream.restart()
+                waiting = False
             out.qpos[t], frame, out.corrected[t] = stream.push(qpos_kin[t], contacts[t], bool(stationary[t]))
             if recorded is not None:
                 recorded[0][t], recorded[1][t] = stream.tracker.qpos, stream.target
@@ -478,7 +479,6 @@ def _track(new_stream, qpos_kin: np.ndarray, contacts: np.ndarray, stationary: n
                 frame.contact_forces, frame.residual, frame.active, frame.qp_failures, frame.unexplained_flag)
         if progress:
             progress(t + 1, T)
-    return last
 
 
 def _first_frame(valid: np.ndarray | None, observed_step: bool) -> int:
