@@ -33,6 +33,7 @@ BENCHMARKS = {  # name: (script, arguments)
     "multiview_none": ("bench_multiview.py", ["--physics", "none"]),
     "multiview_physcap": ("bench_multiview.py", ["--physics", "physcap"]),
     "contacts": ("bench_contacts.py", []),
+    "contacts_slow_videos": ("bench_contacts_slow_videos.py", []),  # held-out subjects at 8 and 10 fps, about 1 min
     # One seed per clip (8 cases) and the clip-length timings as medians of 3 (about 10 minutes); the full set
     # (both seeds) is `bench_trajopt.py` run alone.
     "trajopt": ("bench_trajopt.py", ["--seeds", "0", "--repeats", "3"]),
@@ -360,7 +361,7 @@ HAND_SECTIONS = ("contacts_more_data", "physics_footage", "physics", "physics2",
                  "physics5", "trajopt6", "refine2", "contacts6", "trajopt_quiet15", "physics6", "contacts7", "trajopt_stall16", "merged16", "physics7", "trajopt_framerate17", "trajopt8", "retarget17", "contacts8", "merged17",
                  "trajopt9", "physics8", "trajopt10", "outputs2", "merged18",
                  "robustness19", "physics9", "contacts9", "robustness20", "trajopt10_real_videos", "physics_support21",
-                 "physics_planted22", "physics_resting23", "retarget_whole_clip24", "retarget_ease26", "repeats26", "frame_rates27", "online_rates28", "b4_com28", "balance29", "contacts29", "physics30")
+                 "physics_planted22", "physics_resting23", "retarget_whole_clip24", "retarget_ease26", "repeats26", "frame_rates27", "online_rates28", "b4_com28", "balance29", "contacts29", "physics30", "contacts30")
 
 
 def compose(seconds: dict[str, float]) -> str:

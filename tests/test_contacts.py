@@ -10,7 +10,7 @@ import pytest
 
 import physmocap  # noqa: F401 - single-threaded BLAS
 from physmocap.contacts.baselines import always_contact, velocity_2d, velocity_3d
-from physmocap.contacts.dataset import MIRRORED_CONTACT_COLUMNS, split_by_subject
+from physmocap.contacts.dataset import MIRRORED_CONTACT_COLUMNS, SyntheticSettings, split_by_subject
 from physmocap.contacts.features import (
     CAUSAL_WINDOW,
     CENTRED_WINDOW,
@@ -41,7 +41,13 @@ from physmocap.contacts.networks import (
     ensemble_members,
     stack_members,
 )
-from physmocap.contacts.predict import load_weights, network_probabilities, predict_contacts
+from physmocap.contacts.predict import (
+    LOWEST_TRAINED_FPS,
+    interpolated_frames,
+    load_weights,
+    network_probabilities,
+    predict_contacts,
+)
 from physmocap.landmarks import LANDMARK_INDEX, MIRRORED
 from physmocap.motion import Observations
 
@@ -322,15 +328,35 @@ def test_mirrored_votes_make_predictions_mirror_symmetric(mode):
     assert not np.allclose(plain_mirrored[:, swap], plain, atol=1e-5)
 
 
-def test_causal_predictions_ignore_the_future():
+@pytest.mark.parametrize("fps", [30.0, 10.0])  # 10 fps: read at 20 fps, interpolated
+def test_causal_predictions_ignore_the_future(fps):
     rng = np.random.default_rng(6)
     keypoints = person_keypoints(30, rng)
     params = load_weights("causal")
-    before, _ = network_probabilities(keypoints, np.ones(30, bool), 30.0, params, "causal")
+    before, _ = network_probabilities(keypoints, np.ones(30, bool), fps, params, "causal")
     changed = keypoints.copy()
     changed[20:, :, :2] += rng.normal(0, 30, changed[20:, :, :2].shape)
-    after, _ = network_probabilities(changed, np.ones(30, bool), 30.0, params, "causal")
+    after, _ = network_probabilities(changed, np.ones(30, bool), fps, params, "causal")
     assert np.array_equal(before[:20], after[:20]) and not np.array_equal(before[20:], after[20:])
+
+
+def test_a_video_slower_than_the_training_rates_is_read_at_a_multiple_of_its_rate():
+    """Below the training videos' lowest rate the networks see frames put linearly between the video's and
+    predict each video frame on its own interpolated neighbourhood: at 10 fps, exactly the 20 fps prediction of
+    the interpolated video at the video's frames. An in-between frame is valid only where both of its frames are."""
+    assert LOWEST_TRAINED_FPS == SyntheticSettings().fps_range[0]
+    rng = np.random.default_rng(8)
+    keypoints = person_keypoints(20, rng)
+    valid = np.ones(20, bool)
+    valid[7] = False
+    dense, dense_valid = interpolated_frames(keypoints, valid, 2)
+    assert dense.shape == (39, 33, 3) and np.allclose(dense[::2], keypoints)
+    assert np.allclose(dense[1], (keypoints[0] + keypoints[1]) / 2)
+    assert np.array_equal(dense_valid[::2], valid) and not dense_valid[[13, 15]].any() and dense_valid[17]
+    params = load_weights("centred")
+    slow, slow_flags = network_probabilities(keypoints, valid, 10.0, params, "centred")
+    read, read_flags = network_probabilities(dense, dense_valid, 20.0, params, "centred")
+    assert np.array_equal(slow, read[::2]) and np.array_equal(slow_flags, read_flags[::2])
 
 
 # ---------------------------------------------------------------------------------------------------------------
