@@ -26,15 +26,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 import bench_contacts  # noqa: E402
 from common import MOCAP, RESULTS, git_revision, machine_description  # noqa: E402
-from physmocap.contacts import predict  # noqa: E402
-from physmocap.contacts.dataset import (  # noqa: E402
-    SyntheticSettings,
-    held_out_settings,
-    load_clips,
-    make_sequences,
-    mocap_files,
-    split_by_subject,
-)
+from physmocap.contacts import dataset, predict  # noqa: E402
 
 RATES = (8.0, 10.0)
 
@@ -44,17 +36,17 @@ def main() -> None:
     parser.add_argument("--subjects", choices=("test", "validation"), default="test")
     parser.add_argument("--clips", type=int, default=40, help="validation: clips drawn from the training subjects")
     args = parser.parse_args()
-    train_files, test_files = split_by_subject(mocap_files(MOCAP))
+    train_files, test_files = dataset.split_by_subject(dataset.mocap_files(MOCAP))
     if args.subjects == "test":
         files, seed = test_files, 1
     else:
         pick = np.random.default_rng(0).choice(len(train_files), min(args.clips, len(train_files)), replace=False)
         files, seed = [train_files[i] for i in sorted(pick)], 7
-    clips = load_clips(files)
+    clips = dataset.load_clips(files)
     rows = []
     for fps in RATES:
-        settings = dataclasses.replace(held_out_settings(SyntheticSettings()), fps_range=(fps, fps))
-        sequences = make_sequences(clips, seed, settings, variants=2)
+        settings = dataclasses.replace(dataset.held_out_settings(dataset.SyntheticSettings()), fps_range=(fps, fps))
+        sequences = dataset.make_sequences(clips, seed, settings, variants=2)
         for reading, lowest in (("as filmed", 0.0), ("interpolated", predict.LOWEST_TRAINED_FPS)):
             shipped, predict.LOWEST_TRAINED_FPS = predict.LOWEST_TRAINED_FPS, lowest
             try:
