@@ -26,6 +26,8 @@ def test_streaming_capture_equals_the_causal_fit_of_the_same_detections():
 
 
 def test_streaming_physics_equals_the_physics_stage_on_the_same_inputs():
+    from physmocap.contacts.footlock import lock_feet
+    from physmocap.contacts.predict import predict_contacts
     from physmocap.dynamics.stage import run_physcap
 
     settings = Settings(online=True).replace("physics", method="physcap")
@@ -35,6 +37,9 @@ def test_streaming_physics_equals_the_physics_stage_on_the_same_inputs():
                         report.stationary, settings.physics)
     assert np.allclose(batch.qpos, report.physics.qpos, atol=1e-9)
     assert np.allclose(batch.grf, report.physics.grf, atol=1e-6)
+    # Each frame's contacts from the frames it has, as the causal network gives them on the whole clip
+    flags, _, _ = predict_contacts(report.observations, "causal")
+    assert np.array_equal(lock_feet(flags, report.motion.body, report.motion.qpos, settings.physics), report.contacts)
 
 
 FRAME_RATE = 23.976  # the demo clip's

@@ -454,7 +454,7 @@ class _AfterFit:
         """Frame `index`'s fitted pose q (nq,) -> its final pose and the details `on_pose` receives."""
         started = time.perf_counter()
         self.qpos[index] = q
-        first = max(0, index - CAUSAL_WINDOW.length + 1)
+        first = max(0, index - CAUSAL_WINDOW.length)  # the window and the frame before it (its first velocity)
         valid = np.array([r == "" for r in reasons[first:index + 1]])
         if valid[-1]:
             window = np.array(keypoints[first:index + 1])

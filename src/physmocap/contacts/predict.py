@@ -75,7 +75,7 @@ def network_probabilities(
         raise InputError(f"contact network mode is {mode!r}, expected one of {MODES}.")
     valid = np.asarray(valid, dtype=bool)
     factor = math.ceil(LOWEST_TRAINED_FPS / fps) if 0.0 < fps < LOWEST_TRAINED_FPS else 1
-    if factor > 1 and len(valid) > 1:
+    if factor > 1 and len(valid):
         dense, dense_valid = interpolated_frames(np.asarray(keypoints_2d, dtype=float), valid, factor)
         probabilities, flags = network_probabilities(dense, dense_valid, fps * factor, params, mode, mirror)
         return probabilities[::factor], flags[::factor]
