@@ -5,9 +5,14 @@ methods' diagnoses."""
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterable, Sequence
 
 import numpy as np
+
+from ..motion import frame_ranges
+
+log = logging.getLogger("physmocap")
 
 # The body points whose nearness to the floor means the body rests on them: knees, the seat, elbows, the trunk and
 # head. Not the feet (the contact model's own), nor the hands, which reach to the floor without carrying weight
@@ -41,6 +46,18 @@ def unexplained_frames(point_names: Sequence[str], points: np.ndarray, com: np.n
     sliding on a knee departed 13-14 cm from its input (docs/decisions/physics-limits.md, "Other body parts")."""
     heights = np.asarray(points)[:, resting_points(point_names), 2]
     return (np.asarray(com)[:, 2] < 0.0) | resting_off_feet(heights)
+
+
+def observed_unexplained_frames(point_names: Sequence[str], points: np.ndarray, com: np.ndarray,
+                                observed: np.ndarray, method: str) -> np.ndarray:
+    """(T,) bool: `unexplained_frames` among the observed frames (T,) bool, each stretch logged as `method`'s
+    ("physics", "trajopt"), which keeps the kinematic motion there."""
+    unexplained = np.asarray(observed, bool) & unexplained_frames(point_names, points, com)
+    if unexplained.any():
+        log.warning("%s: on frames %s the input's centre of mass lies below the floor or the body rests on a knee, an "
+                    "elbow or the seat, which the feet on the floor cannot explain: the kinematic motion is kept "
+                    "there.", method, ", ".join(frame_ranges(np.flatnonzero(unexplained))))
+    return unexplained
 
 
 def convex_hull_2d(points: Iterable[Iterable[float]]) -> list[tuple[float, float]]:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import logging
 import math
 import time
 from collections import deque
@@ -15,19 +14,16 @@ import numpy as np
 from ..body import kinematics as kin
 from ..body.kinematics import rigid_transform_qpos
 from ..body.model import CONTACT_POINTS, BodyModel
-from ..body.support import resting_off_feet, resting_points, unexplained_frames
+from ..body.support import observed_unexplained_frames, resting_off_feet, resting_points
 from ..camera import floor_in_camera
 from ..config import PhysicsSettings
 from ..contacts.flights import held_flights_in_runs
 from ..kinematics.stage import KinematicMotion
 from ..metrics import GRAVITY
-from ..motion import frame_ranges
 from .balance import BalanceCorrector
 from .floor import FloorRefiner, floor_frame
 from .physcap import FrameOutput, PhysCapTracker
 from .planting import FootPlanter, OutputPlanter, plant_held_feet
-
-log = logging.getLogger("physmocap")
 
 MAX_FLATTENING = np.radians(20.0)  # a foot tilted more than this with heel and toe predicted down is a wrong label
 # or a wrong fit, not a flat foot to correct
@@ -489,8 +485,11 @@ def _first_frame(valid: np.ndarray | None, observed_step: bool) -> int:
     if valid is None or not np.any(valid):
         return 0
     valid = np.asarray(valid, bool)
-    pairs = np.flatnonzero(valid[:-1] & valid[1:]) if observed_step else np.zeros(0, int)
-    return int(pairs[0]) if len(pairs) else int(np.argmax(valid))
+    if observed_step:
+        pairs = np.flatnonzero(valid[:-1] & valid[1:])
+        if len(pairs):
+            return int(pairs[0])
+    return int(np.argmax(valid))
 
 
 def centred_hand_back(model: mujoco.MjModel, tracked: np.ndarray, targets: np.ndarray, flagged: np.ndarray,
@@ -530,11 +529,7 @@ def offline_unexplainable(body: BodyModel, qpos: np.ndarray, fps: float, contact
     mask = np.ones(len(qpos), bool) if valid is None else np.array(valid, bool)  # a copy: narrowed below
     pose = kin.forward_kinematics(body, qpos)
     com, points = kin.center_of_mass(body, pose), pose.points[:, body.point_index(CONTACT_POINTS)]
-    unexplainable = mask & unexplained_frames(body.point_names, pose.points, com)
-    if unexplainable.any():
-        log.warning("physics: on frames %s the input's centre of mass lies below the floor or the body rests on a "
-                    "knee, an elbow or the seat, which the feet on the floor cannot explain: the kinematic motion is "
-                    "kept there.", ", ".join(frame_ranges(np.flatnonzero(unexplainable))))
+    unexplainable = observed_unexplained_frames(body.point_names, pose.points, com, mask, "physics")
     mask &= ~unexplainable
     flags, unheld = held_flights_in_runs(np.asarray(contacts, bool) & mask[:, None], mask, com, points,
                                          np.arange(len(qpos)) / fps, GRAVITY,

@@ -32,7 +32,7 @@ import numpy as np
 
 from ..body import kinematics as kin
 from ..body.model import BodyModel
-from ..body.support import unexplained_frames
+from ..body.support import observed_unexplained_frames
 from ..config import TrajoptSettings
 from ..contacts.flights import held_flights_in_runs, valid_runs
 from ..cores import may_use_two_cores, usable_cores
@@ -233,12 +233,8 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     observed = np.ones(T, bool) if valid is None else np.asarray(valid, bool)
     pose = kin.forward_kinematics(body, qpos_kin)
     reduced = reduced_motion(body, qpos_kin, fps, pose)
-    unexplained = observed & unexplained_frames(body.point_names, pose.points, reduced.com)
+    unexplained = observed_unexplained_frames(body.point_names, pose.points, reduced.com, observed, "trajopt")
     del pose  # the rotations of every body and frame: not kept through the solve
-    if unexplained.any():
-        log.warning("trajopt: on frames %s the input's centre of mass lies below the floor or the body rests on a "
-                    "knee, an elbow or the seat, which the feet on the floor cannot explain: the kinematic motion is "
-                    "kept there.", ", ".join(frame_ranges(np.flatnonzero(unexplained))))
     valid = observed & ~unexplained
     min_frames = max(1, math.ceil(settings.min_phase_seconds * fps - 1e-9))
     flags = np.stack([clean_flags(contacts[:, i], min_frames) for i in range(4)], axis=1) & valid[:, None]
