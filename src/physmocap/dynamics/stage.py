@@ -214,7 +214,8 @@ class PhysicsStream:
         the view) is one no contact force explains (body.support.unexplained_frames, which the offline path finds
         before tracking): it keeps the target, flagged, with no force claimed, and the character starts afresh at
         the next frame, as at the clip's start (restart)."""
-        self.restart()
+        if self._frames:  # a track is under way (restart, about 1 ms, is not repeated on every such frame)
+            self.restart()
         self.target = q_kin
         frame = FrameOutput(contact_forces=np.zeros((4, 3)), residual=np.zeros(6), active=np.zeros(4, bool),
                             qp_failures=0, unexplained_flag=True)
