@@ -135,9 +135,10 @@ def test_dropped_frames_are_flagged_finite_and_tracked_by_the_physics(replayed_d
     assert not obs.valid[dropped].any() and not obs.keypoints_2d[dropped].any()
     assert np.all(np.isfinite(report.motion.qpos)) and np.all(np.isfinite(report.physics.grf))
     assert np.all(np.isfinite(report.motion.reprojection_error[obs.valid]))
-    # The physics stepped through the dropped frames as through any: it is the physics stage of the same motion.
+    # The physics stepped through the dropped frames as through frames without a person: it is the physics stage
+    # of the same motion.
     batch = run_physcap(report.motion.body, report.motion.qpos, obs.fps, report.contacts, report.stationary,
-                        settings.physics)
+                        settings.physics, valid=obs.valid)
     assert np.allclose(batch.qpos, report.physics.qpos, atol=1e-9)
 
 

@@ -650,6 +650,27 @@ def test_a_lone_valid_frame_does_not_start_the_character(body):
     assert np.abs(run_physcap(*args, valid=valid).qpos[5:, 0] - q[5:, 0]).max() > 0.02  # causal
 
 
+def test_a_causal_run_starts_afresh_where_the_person_is_seen_again_far_away(body):
+    """Causally, the frames without a person hold the fit's extrapolation, and the person seen again can be a metre
+    away (intel online: 1 m between frames 15 and 17). Tracked through, the character was pulled after the jump with
+    the force bound's 10 body weights; started afresh there (PhysicsStream.resume: farther than stray_distance), as
+    at the clip's start, it stands on its feet. Seen again where the character is, it is tracked on."""
+    q = standing(body, 40)
+    q[20:, 0] += 1.0  # the person seen again a metre from the fit's extrapolation
+    valid = np.ones(40, bool)
+    valid[17:20] = False
+    args = (body, q, FPS, np.ones((40, 4), bool), np.ones(40, bool), PhysicsSettings())
+    result = run_physcap(*args, valid=valid)
+    weight = body.mass * G
+    assert np.linalg.norm(result.grf.sum(axis=1), axis=-1).max() < 1.5 * weight
+    assert np.abs(result.qpos[20:, :3] - q[20:, :3]).max() < 0.01
+    assert not result.unexplained[20:].any()
+    near = q.copy()
+    near[20:, 0] -= 0.9  # 10 cm from the extrapolation: tracked on, as without the gap
+    args = (body, near, FPS, np.ones((40, 4), bool), np.ones(40, bool), PhysicsSettings())
+    np.testing.assert_array_equal(run_physcap(*args, valid=valid).qpos, run_physcap(*args).qpos)
+
+
 def test_frames_without_a_person_carry_no_contacts_or_forces(body):
     """A person lost for a few frames mid-clip (the fit extrapolates them, the labels still say planted): the
     character is tracked through as before, but those frames claim no contact and no force; the flags stay."""

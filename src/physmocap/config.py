@@ -80,7 +80,8 @@ class PhysicsSettings(Section):
     method: str = setting("physcap", choices=("physcap", "trajopt", "none"), help="PhysCap's tracker per frame, "
                           "Rempe's trajectory optimisation of the whole clip (offline only), or none")
     refine_offline: bool = setting(True, help="offline, PhysCap tracks the B.4 refinement, not the plain fit")
-    stray_distance: float = setting(0.15, "m", (0.01, 10.0), "frames straying farther from the kinematics are reported")
+    stray_distance: float = setting(0.15, "m", (0.01, 10.0), "frames straying farther from the kinematics are "
+                                    "reported; online, a person seen again farther off restarts the character")
     kp_joint: float = setting(1200.0, "1/s^2", (0.0, 1e4), "joint stiffness; the paper's 300 lagged the motion")
     kd_joint: float = setting(70.0, "1/s", (0.0, 1e4), "joint damping (paper 20; both critically damped)")
     kp_root_rotation: float = setting(1200.0, "1/s^2", (0.0, 1e4), "stiffness of the root's orientation (paper 340)")

@@ -473,6 +473,8 @@ class _AfterFit:
         if self.physics_on:
             if self.stream is None:
                 self.stream = PhysicsStream(body, self.settings.physics, self.fps, self.settings.camera.floor is None)
+            elif valid[-1] and len(valid) > 1 and not valid[-2]:
+                self.stream.resume(q)  # the person seen again after frames without one, as run_physcap does
             final, frame, corrected = self.stream.push(q, contacts, stationary)
             self.physics_frames[index] = (final, frame, corrected)
             details.update(grf=frame.contact_forces, residual=frame.residual)

@@ -145,6 +145,26 @@ class PhysicsStream:
         self._resting_window: deque[np.ndarray] | None = (
             deque(maxlen=max(1, round(REST_SPEED_INTERVAL * fps)) + 1) if self._rests else None)
 
+    def resume(self, q_kin: np.ndarray) -> bool:
+        """The person seen again, in pose q_kin (nq,), after frames without one: causally those frames held the
+        fit's extrapolation, and the person can reappear a metre from it (intel online: the character pulled after
+        such a jump at the force bound). If the character's bodies lie farther from q_kin's than stray_distance on
+        average, the character starts afresh (restart), as at the clip's start. Returns whether it did. (Offline,
+        the whole clip's fit bridges such gaps with data on both sides.)"""
+        if not self._frames:
+            return False
+        if self.floor is not None:
+            q_kin = self.floor.to_physics(q_kin)
+        model, data, target = self.tracker.model, self._deviation_data, self.tracker.target_data
+        data.qpos[:], target.qpos[:] = self.tracker.qpos, q_kin
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_kinematics(model, target)
+        distance = float(np.linalg.norm(data.xpos[1:] - target.xpos[1:], axis=1).mean())
+        if distance <= self.settings.stray_distance:
+            return False
+        self.restart()
+        return True
+
     @property
     def floor_plane(self) -> np.ndarray | None:
         """The refined floor n . x + d = 0 in the kinematic world, or None when not refining."""
@@ -453,9 +473,11 @@ def _track(stream: PhysicsStream, qpos_kin: np.ndarray, contacts: np.ndarray, st
     """Runs the character (stream) over the frames into out and recorded (as run_physcap's), from _first_frame on.
     Frames known unexplainable (T,) keep the kinematic pose with no force claimed, flagged; after them the
     character starts afresh (PhysicsStream.restart), as at the clip's start, at the first frame whose step to the
-    next is observed (both valid, both explainable: the frames waiting for it are kept and flagged too)."""
+    next is observed (both valid, both explainable: the frames waiting for it are kept and flagged too). Causally
+    (not observed_step), a person seen again after frames without one may restart it (PhysicsStream.resume)."""
     T = len(qpos_kin)
-    eligible = (np.ones(T, bool) if valid is None else np.asarray(valid, bool)) & ~unexplainable
+    seen = np.ones(T, bool) if valid is None else np.asarray(valid, bool)
+    eligible = seen & ~unexplainable
     first = _first_frame(valid, observed_step)
     flagged = out.unexplained
     assert flagged is not None, "run_physcap's motion carries its flags"
@@ -469,6 +491,8 @@ def _track(stream: PhysicsStream, qpos_kin: np.ndarray, contacts: np.ndarray, st
             if waiting:
                 stream.restart()
                 waiting = False
+            elif not observed_step and t > first and seen[t] and not seen[t - 1]:
+                stream.resume(qpos_kin[t])
             out.qpos[t], frame, out.corrected[t] = stream.push(qpos_kin[t], contacts[t], bool(stationary[t]))
             if recorded is not None:
                 recorded[0][t], recorded[1][t] = stream.tracker.qpos, stream.target
