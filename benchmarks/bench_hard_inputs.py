@@ -17,6 +17,8 @@ Variants (name: what it stresses):
   two_frames, three_frames, one_frame   the first frames of taiji alone
   person_leaves       sports2d with 2 s of an empty grey picture in the middle
   upside_down         taiji turned 180 degrees in the pixels (no rotation metadata)
+  sideways            taiji turned 90 degrees in the pixels (a camera on its side, no rotation metadata)
+  taiji_5fps          taiji, every fifth frame (4.8 fps, below issue 17's 8-120 fps)
   still_frame         taiji's first frame repeated for 3 s
   odd_size            sports2d scaled to 641 x 361 (odd sizes; the encoder keeps 640 x 360)
   no_person           2 s of an empty grey picture (expected: a one-sentence refusal, exit 2)
@@ -144,6 +146,8 @@ def variants() -> dict[str, Callable[[], tuple[Pictures, float]]]:
         "three_frames": lambda: head(3),
         "person_leaves": leaves,
         "upside_down": each(lambda q: q[::-1, ::-1], lambda: taiji(5.0)),
+        "sideways": each(lambda q: np.ascontiguousarray(np.rot90(q, -1)), lambda: taiji(5.0)),
+        "taiji_5fps": lambda: (lambda p, fps: (p[::5], fps / 5))(*taiji(10.0)),
         "still_frame": still,
         "odd_size": each(lambda q: cv2.resize(q, (641, 361)), sports),
         "no_person": empty,
