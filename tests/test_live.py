@@ -42,6 +42,23 @@ def test_streaming_physics_equals_the_physics_stage_on_the_same_inputs():
     assert np.array_equal(lock_feet(flags, report.motion.body, report.motion.qpos, settings.physics), report.contacts)
 
 
+def test_each_frames_own_window_gives_the_whole_clips_causal_probabilities(demo_detections):
+    """Live capture runs the causal network on each frame's own window (causal_window_start); that must give what
+    the network gives on the whole clip, probabilities and not only flags (a window one frame short agrees on the
+    demo's flags but not on its probabilities)."""
+    from physmocap.contacts.predict import causal_window_start, load_weights, network_probabilities
+
+    obs, weights = demo_detections, load_weights("causal")
+    kp, valid, fps = obs.keypoints_2d, obs.valid, obs.fps
+    whole, _ = network_probabilities(kp, valid, fps, weights, "causal")
+    own, short = [], []
+    for t in range(len(valid)):
+        for rows, start in ((own, causal_window_start(t)), (short, min(t, causal_window_start(t) + 1))):
+            rows.append(network_probabilities(kp[start:t + 1], valid[start:t + 1], fps, weights, "causal")[0][-1])
+    np.testing.assert_allclose(np.array(own), whole, atol=1e-6)
+    assert np.abs(np.array(short) - whole).max() > 1e-3
+
+
 FRAME_RATE = 23.976  # the demo clip's
 SHORT_WARMUP = Settings(online=True).replace("body", calibration_frames=8)  # poses come after 8 seen frames
 

@@ -31,10 +31,9 @@ import numpy as np
 
 from .config import Settings
 from .contacts.baselines import CAUSAL_SIZE_WINDOW, velocity_2d
-from .contacts.features import CAUSAL_WINDOW
 from .contacts.footlock import lock_feet
 from .contacts.networks import NUM_OUTPUTS
-from .contacts.predict import load_weights, network_probabilities
+from .contacts.predict import causal_window_start, load_weights, network_probabilities
 from .dynamics.stage import PhysicsMotion, PhysicsStream, onto_refined_floor
 from .errors import InputError
 from .kinematics.online import OnlineFitter
@@ -454,7 +453,7 @@ class _AfterFit:
         """Frame `index`'s fitted pose q (nq,) -> its final pose and the details `on_pose` receives."""
         started = time.perf_counter()
         self.qpos[index] = q
-        first = max(0, index - CAUSAL_WINDOW.length)  # the window and the frame before it (its first velocity)
+        first = causal_window_start(index)
         valid = np.array([r == "" for r in reasons[first:index + 1]])
         if valid[-1]:
             window = np.array(keypoints[first:index + 1])

@@ -97,6 +97,13 @@ def network_probabilities(
     return mean, flags
 
 
+def causal_window_start(index: int) -> int:
+    """The first frame whose keypoints the causal network reads for frame `index` on its own (live capture): the
+    frame's window and the frame before it, whose step gives the window's first velocity. On those frames alone it
+    gives what it gives on the whole clip."""
+    return max(0, index - CAUSAL_WINDOW.length)
+
+
 def interpolated_frames(keypoints_2d: np.ndarray, valid: np.ndarray, factor: int) -> tuple[np.ndarray, np.ndarray]:
     """keypoints_2d (T, 33, C) and valid (T,) with factor - 1 frames put linearly between each pair of frames:
     ((T - 1) factor + 1, 33, C), valid where both frames around are (an original frame: where it is); frame t
