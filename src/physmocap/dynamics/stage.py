@@ -155,12 +155,10 @@ class PhysicsStream:
             return False
         if self.floor is not None:
             q_kin = self.floor.to_physics(q_kin)
-        model, data, target = self.tracker.model, self._deviation_data, self.tracker.target_data
-        data.qpos[:], target.qpos[:] = self.tracker.qpos, q_kin
-        mujoco.mj_kinematics(model, data)
-        mujoco.mj_kinematics(model, target)
-        distance = float(np.linalg.norm(data.xpos[1:] - target.xpos[1:], axis=1).mean())
-        if distance <= self.settings.stray_distance:
+        target = self.tracker.target_data  # the tracker's scratch for target kinematics, next set in track()
+        target.qpos[:] = q_kin
+        mujoco.mj_kinematics(self.tracker.model, target)
+        if self._deviation() <= self.settings.stray_distance:
             return False
         self.restart()
         return True
@@ -309,8 +307,8 @@ class PhysicsStream:
         return pose
 
     def _deviation(self) -> float:
-        """m: mean distance between the character's bodies after the frame and the frame target's (whose
-        kinematics PhysCapTracker.kinematic_misfit left in tracker.target_data)."""
+        """m: mean distance between the character's bodies and the target's whose kinematics lie in
+        tracker.target_data (after a frame, PhysCapTracker.kinematic_misfit left the frame target's there)."""
         data = self._deviation_data
         data.qpos[:] = self.tracker.qpos
         mujoco.mj_kinematics(self.tracker.model, data)
