@@ -34,7 +34,8 @@ REST_SPEED_INTERVAL = 0.1  # s over which a resting sole point's speed is measur
 class PhysicsMotion:
     """qpos: (T, nq) physically tracked motion; grf: (T, 4, 3) N per contact point (l heel, l toe, r heel,
     r toe), world frame; residual: (T, 6) direct root actuation (force N in the world, torque N m in the pelvis
-    frame); contacts: (T, 4) contacts in use; corrected: (T,) frames whose pose the balance correction changed;
+    frame), both at the frame's instant offline (forces_at_frames), over the interval ending at the frame causally;
+    contacts: (T, 4) contacts in use; corrected: (T,) frames whose pose the balance correction changed;
     qp_failures: (T,) integration steps whose QP failed and fell back; seconds: time spent; floor_plane: (4,) the
     refined floor n . x + d = 0 in the motion's world where the physics ended on one (see PhysicsStream), else
     None (the floor is z = 0)."""
@@ -453,11 +454,14 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     # The character's own poses and the frames' targets, for centred_hand_back
     recorded = (qpos_kin.copy(), qpos_kin.copy()) if whole_clip and not refine_floor else None
     stream = PhysicsStream(body, settings, fps, refine_floor, refined_input, resting_labelled, whole_clip)
-    _track(stream, qpos_kin, contacts, stationary, valid, unexplainable, whole_clip, out, recorded, progress)
+    pushed = _track(stream, qpos_kin, contacts, stationary, valid, unexplainable, whole_clip, out, recorded,
+                    progress)
     if recorded is not None:
         out.qpos = centred_hand_back(stream.tracker.model, *recorded, unexplained, fps, settings.unexplained_blend)
     gone = np.zeros(T, bool) if valid is None else ~np.asarray(valid, bool)
     out.grf[gone], out.residual[gone], out.contacts[gone] = 0.0, 0.0, False  # tracked through, nothing claimed
+    if whole_clip:
+        out.grf, out.residual = forces_at_frames(out.grf, out.residual, pushed & ~gone)
     if whole_clip and settings.plant_reach:
         out.qpos = plant_held_feet(body, out.qpos, out.contacts, fps, settings.plant_reach, gone | unexplained)
     out.seconds = time.perf_counter() - start
@@ -467,8 +471,9 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
 
 def _track(stream: PhysicsStream, qpos_kin: np.ndarray, contacts: np.ndarray, stationary: np.ndarray,
            valid: np.ndarray | None, unexplainable: np.ndarray, observed_step: bool, out: PhysicsMotion,
-           recorded, progress) -> None:
-    """Runs the character (stream) over the frames into out and recorded (as run_physcap's), from _first_frame on.
+           recorded, progress) -> np.ndarray:
+    """Runs the character (stream) over the frames into out and recorded (as run_physcap's), from _first_frame on;
+    returns the frames it pushed (T,) bool.
     Frames known unexplainable (T,) keep the kinematic pose with no force claimed, flagged; after them the
     character starts afresh (PhysicsStream.restart), as at the clip's start, at the first frame whose step to the
     next is observed (both valid, both explainable: the frames waiting for it are kept and flagged too). Causally
@@ -480,6 +485,7 @@ def _track(stream: PhysicsStream, qpos_kin: np.ndarray, contacts: np.ndarray, st
     flagged = out.unexplained
     assert flagged is not None, "run_physcap's motion carries its flags"
     waiting = False  # after an unexplainable stretch, for an observed step
+    pushed = np.zeros(T, bool)
     for t in range(first, T):
         if unexplainable[t]:
             waiting, flagged[t] = True, True
@@ -492,12 +498,29 @@ def _track(stream: PhysicsStream, qpos_kin: np.ndarray, contacts: np.ndarray, st
             elif not observed_step and t > first and seen[t] and not seen[t - 1]:
                 stream.resume(qpos_kin[t])
             out.qpos[t], frame, out.corrected[t] = stream.push(qpos_kin[t], contacts[t], bool(stationary[t]))
+            pushed[t] = True
             if recorded is not None:
                 recorded[0][t], recorded[1][t] = stream.tracker.qpos, stream.target
             out.grf[t], out.residual[t], out.contacts[t], out.qp_failures[t], flagged[t] = (
                 frame.contact_forces, frame.residual, frame.active, frame.qp_failures, frame.unexplained_flag)
         if progress:
             progress(t + 1, T)
+    return pushed
+
+
+def forces_at_frames(grf: np.ndarray, residual: np.ndarray, claimed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The forces at each frame's instant (offline), from the character's forces over the interval that ends at
+    each frame (PhysCapTracker.track averages its steps): where the frame and the next both claim forces (claimed,
+    (T,) bool), the mean of the interval before the frame and the one after it; elsewhere the one interval.
+    Stamped at its end, an interval's force lags the motion by half a frame (50 ms at 10 fps), as a backward
+    difference would (docs/decisions/physics-force-timing.md). A point that touches down in the interval after a
+    frame carries half that interval's force at the frame, so that no impulse is lost.
+    grf: (T, 4, 3) N; residual: (T, 6) (force N, torque N m); returns both, new arrays."""
+    grf, residual = grf.copy(), residual.copy()
+    both = np.flatnonzero(claimed[:-1] & claimed[1:])
+    grf[both] = 0.5 * (grf[both] + grf[both + 1])
+    residual[both] = 0.5 * (residual[both] + residual[both + 1])
+    return grf, residual
 
 
 def _first_frame(valid: np.ndarray | None, observed_step: bool) -> int:
