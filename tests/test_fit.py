@@ -59,9 +59,11 @@ def camera():
 def _targets(body, qpos, camera, rng):
     T = len(qpos)
     M = len(MARKERS)
-    pts = kin.forward_kinematics(body, qpos).points[:, body.point_index([b for _, b in MARKERS])]
+    points = kin.forward_kinematics(body, qpos).points
+    pts = points[:, body.point_index([b for _, b in MARKERS])]
+    pelvis = points[:, body.point_index(["pelvis"])]  # the fit's 3D targets are relative to the pelvis point
     return FitTargets(camera.project(pts) + rng.normal(scale=3, size=(T, M, 2)), rng.uniform(0.5, 1, (T, M)),
-                      pts - pts[:, :1] + rng.normal(scale=0.02, size=(T, M, 3)), rng.uniform(0.3, 1, (T, M)),
+                      pts - pelvis + rng.normal(scale=0.02, size=(T, M, 3)), rng.uniform(0.3, 1, (T, M)),
                       np.full(T, 4.0))
 
 

@@ -25,14 +25,16 @@ def camera():
 
 def targets_for(body, qpos, camera, rng, contacts=None, floor=None):
     T, M = len(qpos), len(MARKERS)
-    pts = kin.forward_kinematics(body, qpos).points[:, body.point_index([b for _, b in MARKERS])]
+    points = kin.forward_kinematics(body, qpos).points
+    pts = points[:, body.point_index([b for _, b in MARKERS])]
+    pelvis = points[:, body.point_index(["pelvis"])]  # the fit's 3D targets are relative to the pelvis point
     if contacts is None:
         contacts = rng.uniform(0, 1, (T, 4)).round()
     if floor is None:
         n = np.array([0.05, -0.03, 1.0])
         floor = np.append(n / np.linalg.norm(n), 0.02)
     return FitTargets(camera.project(pts) + rng.normal(scale=3, size=(T, M, 2)), rng.uniform(0.5, 1, (T, M)),
-                      pts - pts[:, :1] + rng.normal(scale=0.02, size=(T, M, 3)), rng.uniform(0.3, 1, (T, M)),
+                      pts - pelvis + rng.normal(scale=0.02, size=(T, M, 3)), rng.uniform(0.3, 1, (T, M)),
                       np.full(T, 4.0), contacts, floor)
 
 
