@@ -638,6 +638,7 @@ def test_the_character_starts_at_the_first_frame_with_a_person(body):
     valid = np.arange(40) >= 5
     result = run_physcap(body, q, FPS, np.ones((40, 4), bool), np.ones(40, bool), PhysicsSettings(), valid=valid)
     np.testing.assert_array_equal(result.qpos[:5], q[:5])  # kept, without forces
+    assert not result.unexplained.any()  # nobody to explain before the person appears
     assert not result.grf[:5].any() and not result.residual[:5].any()
     weight = body.mass * G
     assert np.all(np.abs(result.grf[10:, :, 2].sum(axis=1) - weight) < 0.05 * weight)
@@ -658,6 +659,8 @@ def test_a_lone_valid_frame_does_not_start_the_character(body):
     args = (body, q, FPS, np.ones((40, 4), bool), np.ones(40, bool), PhysicsSettings())
     result = run_physcap(*args, valid=valid, whole_clip=True)
     np.testing.assert_allclose(result.qpos[:5], q[:5], atol=1e-5)  # kept (the held feet's planting blends in)
+    # the glimpsed person is flagged, as physics does not explain it; the frames without one are not
+    np.testing.assert_array_equal(np.flatnonzero(result.unexplained), [3])
     assert np.abs(result.qpos[5:, :3] - q[5:, :3]).max() < 0.01
     glimpsed = valid.copy()
     glimpsed[4] = True  # the lone frame's step observed: the character does start there, moving

@@ -427,8 +427,9 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     come from the contact stage. Causal: frame t uses frames up to t only, unless whole_clip.
     refine_floor: see PhysicsStream.
     valid: (T,) frames with a detected person (default all); the character starts at the first (whole_clip: at the
-    first observed step, _first_frame), and the frames before it keep the kinematic pose without forces (a
-    whole-clip fit extrapolates them without data, and a character started there can begin metres off); frames
+    first observed step, _first_frame), and the frames before it keep the kinematic pose without forces, flagged
+    where they show a person (a whole-clip fit extrapolates them without data, and a character started there can
+    begin metres off); frames
     after it without a person are tracked through but carry no contacts, contact forces or residual (their flags
     stay).
     refined_input: the kinematics come from Rempe's B.4 refinement (offline, PhysicsSettings.refine_offline), whose
@@ -484,6 +485,7 @@ def _track(stream: PhysicsStream, qpos_kin: np.ndarray, contacts: np.ndarray, st
     first = _first_frame(valid, observed_step)
     flagged = out.unexplained
     assert flagged is not None, "run_physcap's motion carries its flags"
+    flagged[:first] = seen[:first]  # a person shown before the first observed step: kept, no force claimed
     waiting = False  # after an unexplainable stretch, for an observed step
     pushed = np.zeros(T, bool)
     for t in range(first, T):
