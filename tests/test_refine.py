@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
+from physmocap.body.rotations import quat_exp, quat_multiply
 from physmocap.camera import Camera, Floor
 from physmocap.config import FitSettings, Settings, TrajoptSettings
 from physmocap.kinematics.fit import MARKERS
@@ -17,6 +18,7 @@ from physmocap.kinematics.refine import (
     false_flights,
     fit_contact_floor,
     fitted_observations,
+    flipped_steps,
     refine_kinematics,
     resting_points,
     slipping_contacts,
@@ -355,3 +357,50 @@ def test_refinement_fits_the_observations_the_kinematic_stage_corrected():
     assert np.array_equal(out.keypoints_2d[swaps, left], obs.keypoints_2d[swaps, right])
     assert np.array_equal(out.landmarks_3d[swaps, right], obs.landmarks_3d[swaps, left])
     assert np.array_equal(out.keypoints_2d[~swaps], obs.keypoints_2d[~swaps])
+
+
+def test_flipped_steps_find_a_joint_turned_through_a_half_turn(body):
+    """The bent leg twisted half a turn about the thigh from frame 10 on swings its shin across in one step, which
+    the fitted motion does not take; a jump both motions take, and steps next to a frame without a person, are
+    motion, not flips."""
+    fitted = one_leg_stance(body, 20)
+    fitted[15:, 0] += 0.5  # a jump of the whole body (a detector's), in both
+    refined = fitted.copy()
+    hip = body.qpos_address[body.joint_index["left_hip"]]
+    refined[10:, hip:hip + 4] = quat_multiply(refined[10:, hip:hip + 4], quat_exp(np.array([0.0, 0.0, np.pi])))
+    valid = np.ones(20, bool)
+    np.testing.assert_array_equal(np.flatnonzero(flipped_steps(body, fitted, refined, valid)), [9])
+    valid[10] = False
+    assert not flipped_steps(body, fitted, refined, valid).any()
+
+
+def test_a_refinement_that_flips_a_joint_is_solved_again_with_the_angles_unwrapped(body, camera, monkeypatch,
+                                                                                     caplog):
+    from physmocap.kinematics import refine as refine_module
+
+    obs = observe(body, one_leg_stance(body, 20), camera)
+    motion = fit_motion(obs, Settings().replace("body", height=body.height, mass=body.mass))
+    unwrapped = []
+    fitter_class = refine_module.KinematicFitter
+
+    def fitter(*args, unwrap_angles=False, **kwargs):
+        unwrapped.append(unwrap_angles)
+        return fitter_class(*args, unwrap_angles=unwrap_angles, **kwargs)
+
+    monkeypatch.setattr(refine_module, "KinematicFitter", fitter)
+    plain = refine_kinematics(obs, motion, np.ones((20, 4), bool), FitSettings(), TrajoptSettings())
+    assert unwrapped == [False, False]  # no flip: solved once
+    calls = []
+
+    def first_flips(body, fitted, refined, valid):
+        calls.append(refined)
+        return np.arange(len(refined) - 1) == 4 if len(calls) == 1 else np.zeros(len(refined) - 1, bool)
+
+    monkeypatch.setattr(refine_module, "flipped_steps", first_flips)
+    unwrapped.clear()
+    with caplog.at_level("INFO", logger="physmocap"):
+        again = refine_kinematics(obs, motion, np.ones((20, 4), bool), FitSettings(), TrajoptSettings())
+    assert unwrapped == [False, False, True, True]
+    assert "solved again with the joint angles unwrapped" in caplog.text
+    np.testing.assert_array_equal(again.motion.qpos, calls[1])
+    assert np.allclose(again.motion.qpos, plain.motion.qpos, atol=1e-3)  # no half turn here: the same motion

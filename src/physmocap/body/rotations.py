@@ -92,6 +92,20 @@ def rotation_between(source: np.ndarray, target: np.ndarray) -> np.ndarray:
     return np.eye(3) + skew + skew @ skew / (1.0 + cos)
 
 
+def unwrap_rotation_vectors(rotvec: np.ndarray) -> np.ndarray:
+    """(T, ..., 3) rotation vectors along time -> the same rotations, each frame's vector on the branch of the log
+    (phi + 2 pi k phi / |phi|, k in -1, 0, 1) nearest the previous frame's: differences are the rotation's own steps
+    where it passes a half turn, instead of jumps of up to 2 pi."""
+    out = np.array(rotvec, dtype=float)
+    axis = unit_vectors(out)
+    turns = 2 * np.pi * np.array([-1.0, 0.0, 1.0]).reshape((3,) + (1,) * (out.ndim - 1))
+    for t in range(1, len(out)):
+        branches = out[t] + turns * axis[t]  # (3, ..., 3)
+        nearest = np.argmin(np.linalg.norm(branches - out[t - 1], axis=-1), axis=0)
+        out[t] = np.take_along_axis(branches, nearest[None, ..., None], axis=0)[0]
+    return out
+
+
 def so3_right_jacobian_inverse(rotvec: np.ndarray) -> np.ndarray:
     """(..., 3) -> (..., 3, 3): d log(exp(phi) exp(delta)) / d delta at delta = 0."""
     angle = np.linalg.norm(rotvec, axis=-1)[..., None, None]

@@ -33,7 +33,14 @@ from scipy.linalg.lapack import dpotrf, dtrtrs
 
 from ..body import kinematics as kin
 from ..body.model import CONTACT_POINTS, JOINT_NAMES, BodyModel
-from ..body.rotations import matrix_to_quat, quat_conjugate, quat_left_matrix, quat_log, so3_right_jacobian_inverse
+from ..body.rotations import (
+    matrix_to_quat,
+    quat_conjugate,
+    quat_left_matrix,
+    quat_log,
+    so3_right_jacobian_inverse,
+    unwrap_rotation_vectors,
+)
 from ..camera import Camera
 from ..config import FitSettings
 from ..landmarks import LANDMARK_INDEX
@@ -120,10 +127,14 @@ class FitResult:
 class KinematicFitter:
     """Evaluates the energy of eq. (3) and minimises it. Holds preallocated MuJoCo data; one per thread."""
 
-    def __init__(self, body: BodyModel, camera: Camera, settings: FitSettings, fps: float, causal: bool = False):
+    def __init__(self, body: BodyModel, camera: Camera, settings: FitSettings, fps: float, causal: bool = False,
+                 unwrap_angles: bool = False):
         """causal: the fitter of an online stream (`fit_frames` with a fixed past); above 30 fps its temporal
-        terms follow the causal filter's law in seconds instead of the whole-clip fit's (see below)."""
+        terms follow the causal filter's law in seconds instead of the whole-clip fit's (see below).
+        unwrap_angles: the joint-angle velocity term differences rotation vectors unwrapped along time (see
+        `_angle_signal`)."""
         self.body, self.camera, self.settings = body, camera, settings
+        self.unwrap_angles = unwrap_angles
         self.model = body.mujoco_model()
         self.data = mujoco.MjData(self.model)
         self.site_ids = np.array([self.model.site(n).id for n in body.point_names])
@@ -302,10 +313,13 @@ class KinematicFitter:
     def _angle_signal(self, qpos: np.ndarray, weight: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Joint angles (T, 3 n_ball + n_hinge): the ball joints' rotation vectors from rest (the root excluded:
         its yaw wraps round) and the hinge angles; the derivative of log(q exp(d)) along a local step d is the
-        inverse right Jacobian of SO(3)."""
+        inverse right Jacobian of SO(3). The vectors jump by up to 2 pi where a joint passes a half turn, which
+        keeps joints away from it as a barrier would, unless `unwrap_angles` (docs/decisions/b4-rotation-wrap.md)."""
         T, nv = len(qpos), self.body.nv
         n_ball = len(self.ball_vadr)
         rotvec = quat_log(qpos[:, self.ball_qidx])  # (T, n_ball, 3)
+        if self.unwrap_angles:
+            rotvec = unwrap_rotation_vectors(rotvec)
         values = np.concatenate([rotvec.reshape(T, -1), qpos[:, self.hinge_qadr]], axis=1)
         jacobians = np.zeros((T, values.shape[1], nv))
         blocks = so3_right_jacobian_inverse(rotvec)  # (T, n_ball, 3, 3)

@@ -40,6 +40,9 @@ log = logging.getLogger("physmocap")
 MIN_FLOOR_POINTS = 8  # fewer contact points than this leave the floor as it was
 SINK_PERCENTILE, SINK_DEPTH = 5.0, 0.03  # a refitted floor with 5% of all foot points 3 cm below it is rejected
 HUBER_SCALE = 0.02  # m: contact points farther from the plane than this pull linearly (Huber)
+# m: a joint step this much longer than the fit's (and twice it) is a joint turned through a half turn, not motion
+# (validation and test: at most 0.03 m; the flips 0.28 and 0.71 m; docs/decisions/b4-rotation-wrap.md)
+FLIP_STEP = 0.1
 
 
 def tilt_axes(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -228,6 +231,19 @@ def _contact_floor(soles: np.ndarray, contacts: np.ndarray, valid: np.ndarray, c
     return floor, kept
 
 
+def flipped_steps(body, fitted: np.ndarray, refined: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(T - 1,) bool: the steps between two valid frames (valid (T,)) in which the refined poses (T, nq) move a
+    joint at least twice as far as the fitted poses (T, nq) and FLIP_STEP farther: the refinement turned a joint
+    through a half turn there, where its wrapped joint-angle velocity term counts a small turn as nearly 2 pi."""
+    def largest_step(qpos):
+        points = kin.forward_kinematics(body, qpos).points
+        return np.linalg.norm(np.diff(points, axis=0), axis=-1).max(axis=1)
+
+    before, after = largest_step(fitted), largest_step(refined)
+    valid = np.asarray(valid, bool)
+    return valid[1:] & valid[:-1] & (after > 2.0 * before) & (after > before + FLIP_STEP)
+
+
 def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.ndarray, fit: FitSettings,
                       settings: TrajoptSettings, keep_floor: bool = False,
                       progress: ProgressFactory | None = None) -> RefinedKinematics:
@@ -238,7 +254,8 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
     settings: the trajopt settings (weights of the optional terms, outlier distance); keep_floor: keep
     motion.floor (e.g. a floor given by the user) instead of refitting it, still relabelling the contacts far
     from it. progress: a display for each of the two fits, "refine 1/2" and "refine 2/2", counted in frame passes
-    (see KinematicFitter.fit_offline).
+    (see KinematicFitter.fit_offline). Where the result turns a joint through a half turn in one frame
+    (`flipped_steps`), both fits are solved again with the joint angles unwrapped, and kept unless they do too.
     """
     start = time.perf_counter()
     body, camera, fps = motion.body, motion.camera, obs.fps
@@ -258,28 +275,45 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
     def bar(fitter, name):
         return progress(name, fitter.planned_passes(obs.num_frames), "frame passes") if progress else None
 
-    # 1. Contacts still, no floor.
-    fitter = KinematicFitter(body, camera, contact_fit_settings(fit, settings, False), fps)
-    qpos = fitter.fit_offline(motion.qpos, targets_in(camera, contacts, None), bar(fitter, "refine 1/2")).qpos
-    # 2. The floor through the contact points (camera frame), outliers relabelled.
-    soles = camera.to_camera(kin.forward_kinematics(body, qpos).points[:, body.point_index(CONTACT_POINTS)])
-    floor, kept = _contact_floor(soles, contacts, obs.valid, camera, motion.floor, keep_floor, settings)
-    anchor = int(np.argmax(obs.valid))
-    qpos, camera = move_world_to_floor(qpos, camera, floor, anchor)
-    removed = labelled & ~kept
-    added = false_flights(body, qpos, fps, kept, obs.valid, settings.floor_outlier_distance)
-    if added.any():
-        log.info("trajopt: %d frame(s) labelled all in the air while the body does not fall: contacts added.",
-                 int(added.any(axis=1).sum()))
-    kept |= added
-    if settings.rest_height > 0:
-        resting = resting_points(body, qpos, fps, kept, obs.valid, settings)
-        added |= resting
-        kept |= resting
-    # 3. Again, with the feet in contact on the floor (z = 0 in the new world).
-    fitter = KinematicFitter(body, camera, contact_fit_settings(fit, settings, True), fps)
-    on_floor = targets_in(camera, kept, np.array([0.0, 0.0, 1.0, 0.0]))
-    qpos = hold_outside_valid(fitter.fit_offline(qpos, on_floor, bar(fitter, "refine 2/2")).qpos, obs.valid)
+    def fits(unwrap_angles: bool):
+        # 1. Contacts still, no floor.
+        fitter = KinematicFitter(body, motion.camera, contact_fit_settings(fit, settings, False), fps,
+                                 unwrap_angles=unwrap_angles)
+        qpos = fitter.fit_offline(motion.qpos, targets_in(motion.camera, contacts, None),
+                                  bar(fitter, "refine 1/2")).qpos
+        # 2. The floor through the contact points (camera frame), outliers relabelled.
+        soles = motion.camera.to_camera(kin.forward_kinematics(body, qpos).points[:, body.point_index(CONTACT_POINTS)])
+        floor, kept = _contact_floor(soles, contacts, obs.valid, motion.camera, motion.floor, keep_floor, settings)
+        qpos, camera = move_world_to_floor(qpos, motion.camera, floor, int(np.argmax(obs.valid)))
+        removed = labelled & ~kept
+        added = false_flights(body, qpos, fps, kept, obs.valid, settings.floor_outlier_distance)
+        if added.any():
+            log.info("trajopt: %d frame(s) labelled all in the air while the body does not fall: contacts added.",
+                     int(added.any(axis=1).sum()))
+        kept |= added
+        if settings.rest_height > 0:
+            resting = resting_points(body, qpos, fps, kept, obs.valid, settings)
+            added |= resting
+            kept |= resting
+        # 3. Again, with the feet in contact on the floor (z = 0 in the new world).
+        fitter = KinematicFitter(body, camera, contact_fit_settings(fit, settings, True), fps,
+                                 unwrap_angles=unwrap_angles)
+        on_floor = targets_in(camera, kept, np.array([0.0, 0.0, 1.0, 0.0]))
+        qpos = hold_outside_valid(fitter.fit_offline(qpos, on_floor, bar(fitter, "refine 2/2")).qpos, obs.valid)
+        return qpos, camera, floor, kept, removed, added
+
+    qpos, camera, floor, kept, removed, added = fits(unwrap_angles=False)
+    flips = flipped_steps(body, motion.qpos, qpos, obs.valid)
+    if flips.any():
+        again = fits(unwrap_angles=True)
+        frames = ", ".join(str(int(t)) for t in np.flatnonzero(flips)[:5])
+        if flipped_steps(body, motion.qpos, again[0], obs.valid).any():
+            log.warning("trajopt: the refinement turned a joint through a half turn in one frame (after frames %s), "
+                        "and again with the joint angles unwrapped: kept as first solved.", frames)
+        else:
+            log.info("trajopt: the refinement turned a joint through a half turn in one frame (after frames %s): "
+                     "solved again with the joint angles unwrapped.", frames)
+            qpos, camera, floor, kept, removed, added = again
     seconds = time.perf_counter() - start
     refined = dataclasses.replace(motion, camera=camera, floor=floor, qpos=qpos,
                                   reprojection_error=reprojection_errors(body, camera, qpos, raw),
