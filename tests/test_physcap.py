@@ -4,7 +4,6 @@ import mujoco
 import numpy as np
 import pytest
 
-from physmocap import metrics
 from physmocap.body import kinematics as kin
 from physmocap.body.kinematics import rigid_transform_qpos
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
@@ -689,34 +688,56 @@ def test_a_causal_run_starts_afresh_where_the_person_is_seen_again_far_away(body
     np.testing.assert_array_equal(run_physcap(*args, valid=valid).qpos, run_physcap(*args).qpos)
 
 
-def test_offline_forces_are_the_forces_at_the_frames_instant(body):
+@pytest.mark.parametrize("fps", [10.0, 30.0, 120.0])
+def test_offline_forces_are_the_forces_at_the_frames_instant(body, fps):
     """Offline, a frame's net vertical force (contacts and residual) is m (z'' + g) of the character's own centre
-    of mass by central differences at that frame: the mean of the intervals before and after it, not the interval
-    ending at it, which lags by half a frame (50 ms here; 0.085 body weights RMS on this squat)."""
-    fps, frames = 10.0, 40
-    physics = run_physcap(body, squat(body, frames, fps, period=1.5), fps, np.ones((frames, 4), bool),
+    of mass at that frame by central differences two frames apart, at any frame rate. Before, the interval ending
+    at the frame lagged by half a frame, and the mean of the intervals on either side still by a third of one
+    (0.117 / 0.036 / 0.015 body weights RMS from the same figure on this squat at 10 / 30 / 120 fps): the
+    character takes up each change of the target's chord just after the frame."""
+    frames = int(4 * fps)
+    physics = run_physcap(body, squat(body, frames, fps, period=1.0), fps, np.ones((frames, 4), bool),
                           np.zeros(frames, bool), PhysicsSettings(), refined_input=True)
     assert not physics.unexplained.any()
-    com = kin.center_of_mass(body, kin.forward_kinematics(body, physics.qpos))
-    implied = metrics.implied_grf(com, body.mass, fps, G)[:, 2]
-    vertical = physics.grf[..., 2].sum(axis=1) + physics.residual[:, 2]
-    error = (vertical - implied)[3:-4] / (body.mass * G)
-    assert np.sqrt(np.mean(error**2)) < 0.05
+    height = kin.center_of_mass(body, kin.forward_kinematics(body, physics.qpos))[:, 2]
+    implied = (height[4:] - 2 * height[2:-2] + height[:-4]) * (fps / 2) ** 2 / G + 1.0  # frames 2 .. T - 3
+    vertical = (physics.grf[..., 2].sum(axis=1) + physics.residual[:, 2])[2:-2] / (body.mass * G)
+    error = (vertical - implied)[2:-2]
+    assert np.sqrt(np.mean(error**2)) < 0.005
 
 
-def test_forces_at_frames_centre_each_intervals_force_where_both_neighbours_claim_one():
-    """A force growing steadily, stamped at the end of each interval, is read at the frames themselves; a frame
-    whose next interval claims nothing (the clip's end, a frame without a person) keeps its own interval's."""
-    intervals = np.arange(6.0) - 0.5  # the force at the middle of each interval ending at frames 0-5
-    grf = np.zeros((6, 4, 3))
+def test_forces_at_frames_read_the_bend_at_each_frame_and_its_neighbours():
+    """A frame bends the path by its share of the interval ending at it plus its share of the next one (the
+    tracker's shares where it split the interval, else the interval's force by the steps' weights: (n + 1) / 2n to
+    the interval's start frame); its force is 1/4, 1/2, 1/4 of the bends at the frame before, itself and the frame
+    after, a missing neighbour's counted as its own, and so is one supported where the frame is not, or the other way
+    round. A frame whose next interval claims nothing (the clip's end, a frame without a person) keeps its own
+    interval's."""
+    n = 4
+    intervals = np.arange(7.0)  # the force over each interval ending at frames 0-6
+    grf = np.zeros((7, 4, 3))
     grf[:, 1, 2] = intervals
     residual = np.repeat(intervals[:, None], 6, axis=1)
-    claimed = np.array([True, True, True, False, True, True])
-    at_frames, residual_at_frames = forces_at_frames(grf, residual, claimed)
-    assert np.allclose(at_frames[[0, 1, 4], 1, 2], [0.0, 1.0, 4.0])
-    assert np.allclose(at_frames[[2, 3, 5], 1, 2], intervals[[2, 3, 5]])
-    assert np.allclose(residual_at_frames, at_frames[:, 1, 2:3])
+    claimed = np.array([True, True, True, True, False, True, True])
+    shares = [None] * 7
+    split = np.zeros((4, 3))
+    split[0, 2] = 8.0
+    shares[2] = ((split, np.zeros(6)), (2 * split, np.ones(6)))  # the interval ending at frame 2
+    supported = np.ones(7, bool)
+    at_frames, residual_at_frames = forces_at_frames(grf, residual, claimed, supported, shares, n)
+    start, end = 5 / 8, 3 / 8
+    bend = {0: end * 0 + start * 1, 1: end * 1, 2: start * 3}  # on point 1; point 0 takes 8 at 1 and 16 at 2
+    assert np.allclose(at_frames[[0, 1, 2], 1, 2], [0.75 * bend[0] + 0.25 * bend[1],
+                                                    0.25 * bend[0] + 0.5 * bend[1] + 0.25 * bend[2],
+                                                    0.25 * bend[1] + 0.75 * bend[2]])
+    assert np.allclose(at_frames[[0, 1, 2], 0, 2], [0.25 * 8, 0.5 * 8 + 0.25 * 16, 0.25 * 8 + 0.75 * 16])
+    assert np.allclose(at_frames[5, 1, 2], end * 5 + start * 6)  # its only neighbour with a bend: none
+    assert np.allclose(at_frames[[3, 4, 6], 1, 2], intervals[[3, 4, 6]])
+    assert np.allclose(residual_at_frames[2], 0.25 * (end * 1 + 0.0) + 0.75 * (1.0 + start * 3))
     assert np.array_equal(grf[:, 1, 2], intervals)  # the inputs are left as they were
+    supported[2] = False  # frame 2 in the air: its bend and frame 1's stay apart
+    at_frames, _ = forces_at_frames(grf, residual, claimed, supported, shares, n)
+    assert np.allclose(at_frames[[1, 2], 1, 2], [0.25 * bend[0] + 0.75 * bend[1], bend[2]])
 
 
 def test_frames_without_a_person_carry_no_contacts_or_forces(body):

@@ -80,6 +80,9 @@ class FrameOutput:
     # ((4, 3) N, (6,)) the contact forces and root residual fitted to the root wrench the frame's motion needed (eq.
     # 6-7 on the steps' mean M qdd + c, at the last step's contacts), None without contacts: see PhysicsStream
     motion_forces: tuple[np.ndarray, np.ndarray] | None = None
+    # (the interval's start frame's, its end frame's) shares of motion_forces, each (forces (4, 3) N, residual (6,)):
+    # each step's impulse split between the two frames by its closeness to each (PhysCapTracker.split_forces)
+    shares: tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None
     unexplained_flag: bool = False  # set by the stage's diagnosis (stage.PhysicsStream)
 
 
@@ -95,6 +98,13 @@ def tracking_gains(settings: PhysicsSettings, nv: int) -> tuple[np.ndarray, np.n
         kd[:2] = settings.kd_root_horizontal
     kp[3:6], kd[3:6] = settings.kp_root_rotation, settings.kd_root_rotation
     return kp, kd
+
+
+def _within(forces: np.ndarray, residual: np.ndarray, bound: float) -> bool:
+    """The summed contact force (4, 3), the residual's force and its torque (6,) each no larger than bound (N; the
+    torque in N m, as the stage bounds it); False for non-finite values."""
+    sizes = (np.linalg.norm(forces.sum(axis=0)), np.linalg.norm(residual[:3]), np.linalg.norm(residual[3:]))
+    return all(size <= bound for size in sizes)  # NaN fails
 
 
 def _bounded(qdd: np.ndarray) -> bool:
@@ -113,6 +123,7 @@ class PhysCapTracker:
         (settings.contact_settle_time); the stage turns it off for targets it lifts itself (online fits)."""
         self.body, self.settings, self.record = body, settings, record
         self.settle_contacts = settle_contacts
+        self.split_forces = False  # FrameOutput.shares too (offline: the forces at the frames' instants)
         self.model = copy.copy(body.mujoco_model())  # its own: the foot geoms get the touch margin
         self.data = mujoco.MjData(self.model)
         nv = self.model.nv
@@ -389,6 +400,7 @@ class PhysCapTracker:
         frame's released contacts from release_contacts (None: judged here against the target's points)."""
         s, n = self.settings, self.substeps
         forces_sum, residual_sum, root_forces_sum = np.zeros((4, 3)), np.zeros(6), np.zeros(6)
+        later_sum = np.zeros(6)  # the steps' root wrenches, step i weighted by i (split_forces)
         failures, diverged, records, target = 0, False, [], np.empty_like(q_kin)
         # The steps advance the character through the frame: step i aims at the pose interpolated (on the
         # manifold) between the last frame's target and this one at the step's end time, so that the last step
@@ -438,11 +450,38 @@ class PhysCapTracker:
             forces_sum += forces
             residual_sum += torque[:6]
             root_forces_sum += self._external[:6]  # with the residual: the root wrench M qdd + c of the step
+            if self.split_forces:
+                later_sum += i * (torque[:6] + self._external[:6])
         self._remember_frame(q_kin, target_sites, predicted_contacts)
         motion_forces = None if diverged else self._motion_forces((residual_sum + root_forces_sum) / n, flags)
+        shares = None
+        if self.split_forces and motion_forces is not None:
+            shares = self._frame_shares(residual_sum + root_forces_sum, later_sum, motion_forces, flags)
         unexplained = self.kinematic_misfit(q_kin, qd_kin, qdd_kin)
         return FrameOutput(forces_sum / n, residual_sum / n, self._contact_index[flags][2].copy(), failures, records,
-                           unexplained, diverged, motion_forces=motion_forces)
+                           unexplained, diverged, motion_forces=motion_forces, shares=shares)
+
+    def _frame_shares(self, total: np.ndarray, later: np.ndarray, motion_forces: tuple[np.ndarray, np.ndarray],
+                      active: tuple[bool, ...]):
+        """FrameOutput.shares from the sums over the interval's n steps of the root wrench (6,), plain (total) and
+        step i (0 .. n-1) weighted by i (later). The character's positions at the frames (semi-implicit Euler: a
+        step's velocity moves that step's position) bend by (x[t+1] - 2 x[t] + x[t-1]) = dt^2 (sum over the
+        interval before frame t of i a_i + sum over the one after it of (n - i) a_i): so the end frame takes
+        sum i w_i / n^2 of the interval's impulse, its start frame sum (n - i) w_i / n^2, and a frame's two shares
+        add up to the force its central second difference reads (the interval mean stamped on both frames lagged
+        the motion by a third to half a frame: docs/decisions/physics-force-timing.md). Each share is fitted to
+        the contacts (eq. 6-7) as a unit-weight wrench, then scaled by its weight ((n -/+ 1) / 2n), so that both
+        stay admissible; None where a fit fails."""
+        n = self.substeps
+        if n == 1:  # all of the step's impulse belongs to the frame it starts at
+            return motion_forces, (np.zeros((4, 3)), np.zeros(6))
+        start_weight, end_weight = (n + 1) / (2 * n), (n - 1) / (2 * n)
+        start = self._motion_forces((n * total - later) / (n * n * start_weight), active)
+        end = self._motion_forces(later / (n * n * end_weight), active)
+        bound = self.settings.max_force * self._weight  # each within it, so is a frame's sum of two shares
+        if start is None or end is None or not (_within(*start, bound) and _within(*end, bound)):
+            return None
+        return ((start_weight * start[0], start_weight * start[1]), (end_weight * end[0], end_weight * end[1]))
 
     def _remember_frame(self, q_kin: np.ndarray, target_sites: np.ndarray, predicted_contacts: np.ndarray) -> None:
         """The frame's target pose (nq,), its contact points' heights (from target_sites (4, 3), m) and predicted

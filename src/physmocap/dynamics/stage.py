@@ -94,6 +94,7 @@ class PhysicsStream:
         # flattening them again only raised the feet (docs/decisions/physics-default.md); nor are they planted.
         self._fit_feet = settings.foot_lock != "never" and not refined_input  # a fit's feet on the floor, B.4's not
         self._whole_clip = whole_clip
+        self.tracker.split_forces = whole_clip and self.floor is None  # forces at the frames' instants (offline)
         self._lift_share = (1.0 - np.exp(-1.0 / (fps * settings.target_lift_time))
                             if settings.target_lift_time is not None and self._fit_feet else 0.0)
         model = self.tracker.model
@@ -296,6 +297,10 @@ class PhysicsStream:
             squares = (fx * fx + fy * fy + fz * fz, rx * rx + ry * ry + rz * rz, tx * tx + ty * ty + tz * tz)
             if all(square <= bound * bound for square in squares):  # NaN fails: the bounded fit above stays
                 frame.contact_forces, frame.residual = forces, residual
+            else:
+                frame.shares = None
+        else:
+            frame.shares = None  # a flagged frame's forces (bounded, the load on the residual): split by step weights
         self._kinematic_share = min(1.0, self._kinematic_share + self._blend_rate) if flagged else \
             max(0.0, self._kinematic_share - self._blend_rate)
         if self._kinematic_share >= 1.0:
@@ -455,14 +460,16 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     # The character's own poses and the frames' targets, for centred_hand_back
     recorded = (qpos_kin.copy(), qpos_kin.copy()) if whole_clip and not refine_floor else None
     stream = PhysicsStream(body, settings, fps, refine_floor, refined_input, resting_labelled, whole_clip)
+    shares: list = [None] * T  # each pushed frame's FrameOutput.shares
     pushed = _track(stream, qpos_kin, contacts, stationary, valid, unexplainable, whole_clip, out, recorded,
-                    progress)
+                    shares, progress)
     if recorded is not None:
         out.qpos = centred_hand_back(stream.tracker.model, *recorded, unexplained, fps, settings.unexplained_blend)
     gone = np.zeros(T, bool) if valid is None else ~np.asarray(valid, bool)
     out.grf[gone], out.residual[gone], out.contacts[gone] = 0.0, 0.0, False  # tracked through, nothing claimed
     if whole_clip:
-        out.grf, out.residual = forces_at_frames(out.grf, out.residual, pushed & ~gone)
+        out.grf, out.residual = forces_at_frames(out.grf, out.residual, pushed & ~gone, out.contacts.any(axis=1),
+                                                 shares, stream.tracker.substeps)
     if whole_clip and settings.plant_reach:
         out.qpos = plant_held_feet(body, out.qpos, out.contacts, fps, settings.plant_reach, gone | unexplained)
     out.seconds = time.perf_counter() - start
@@ -472,9 +479,9 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
 
 def _track(stream: PhysicsStream, qpos_kin: np.ndarray, contacts: np.ndarray, stationary: np.ndarray,
            valid: np.ndarray | None, unexplainable: np.ndarray, observed_step: bool, out: PhysicsMotion,
-           recorded, progress) -> np.ndarray:
-    """Runs the character (stream) over the frames into out and recorded (as run_physcap's), from _first_frame on;
-    returns the frames it pushed (T,) bool.
+           recorded, shares: list, progress) -> np.ndarray:
+    """Runs the character (stream) over the frames into out, recorded and shares (as run_physcap's), from
+    _first_frame on; returns the frames it pushed (T,) bool.
     Frames known unexplainable (T,) keep the kinematic pose with no force claimed, flagged; after them the
     character starts afresh (PhysicsStream.restart), as at the clip's start, at the first frame whose step to the
     next is observed (both valid, both explainable: the frames waiting for it are kept and flagged too). Causally
@@ -505,24 +512,46 @@ def _track(stream: PhysicsStream, qpos_kin: np.ndarray, contacts: np.ndarray, st
                 recorded[0][t], recorded[1][t] = stream.tracker.qpos, stream.target
             out.grf[t], out.residual[t], out.contacts[t], out.qp_failures[t], flagged[t] = (
                 frame.contact_forces, frame.residual, frame.active, frame.qp_failures, frame.unexplained_flag)
+            shares[t] = frame.shares
         if progress:
             progress(t + 1, T)
     return pushed
 
 
-def forces_at_frames(grf: np.ndarray, residual: np.ndarray, claimed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def forces_at_frames(grf: np.ndarray, residual: np.ndarray, claimed: np.ndarray, supported: np.ndarray,
+                     shares: list, substeps: int) -> tuple[np.ndarray, np.ndarray]:
     """The forces at each frame's instant (offline), from the character's forces over the interval that ends at
-    each frame (PhysCapTracker.track averages its steps): where the frame and the next both claim forces (claimed,
-    (T,) bool), the mean of the interval before the frame and the one after it; elsewhere the one interval.
-    Stamped at its end, an interval's force lags the motion by half a frame (50 ms at 10 fps), as a backward
-    difference would (docs/decisions/physics-force-timing.md). A point that touches down in the interval after a
-    frame carries half that interval's force at the frame, so that no impulse is lost.
-    grf: (T, 4, 3) N; residual: (T, 6) (force N, torque N m); returns both, new arrays."""
-    grf, residual = grf.copy(), residual.copy()
-    both = np.flatnonzero(claimed[:-1] & claimed[1:])
-    grf[both] = 0.5 * (grf[both] + grf[both + 1])
-    residual[both] = 0.5 * (residual[both] + residual[both + 1])
-    return grf, residual
+    each frame (PhysCapTracker.track averages its `substeps` steps): what m (x'' + g) of the character's own path
+    reads at the frame by central differences two frames apart, (v[t+1] - v[t-1]) / 2 dt with the velocities
+    themselves centred, v[t] = (x[t+1] - x[t-1]) / 2 dt.
+    - First the force that bends the path at each frame (x[t+1] - 2 x[t] + x[t-1]): its share of the interval
+      before it plus its share of the one after it (FrameOutput.shares; where the tracker did not split an
+      interval's forces, a flagged frame's, by the steps' weights: (n + 1) / 2n to the start frame).
+    - Then 1/4, 1/2, 1/4 of those bends at the frame before, the frame and the frame after, where the neighbour
+      is supported as the frame is or is not (supported, (T,) bool: a contact in use), so that a landing's force
+      does not spread into the flight before it; a missing or other neighbour's bend counts as the frame's own,
+      so that each frame's bend is shared out whole.
+    The mean of the two intervals' forces, read with the character's own velocities at the frames, lagged the
+    motion by a third to half a frame: the character takes up each frame's change of the target's chord just
+    after the frame (docs/decisions/physics-force-timing.md). Frames where the frame and the next both claim
+    forces (claimed, (T,) bool) are read so; the others keep their own interval's. A point that touches down in
+    the interval after a frame carries its share of that interval's force at the frame, so that no impulse is
+    lost. grf: (T, 4, 3) N; residual: (T, 6) (force N, torque N m); returns both, new arrays."""
+    weights = ((substeps + 1) / (2 * substeps), (substeps - 1) / (2 * substeps))  # (start frame's, end frame's)
+
+    def share(t: int, k: int) -> tuple[np.ndarray, np.ndarray]:  # k: 0 the start frame's share, 1 the end's
+        return shares[t][k] if shares[t] is not None else (weights[k] * grf[t], weights[k] * residual[t])
+
+    bending: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    for t in np.flatnonzero(claimed[:-1] & claimed[1:]).tolist():
+        (end_forces, end_residual), (start_forces, start_residual) = share(t, 1), share(t + 1, 0)
+        bending[t] = (end_forces + start_forces, end_residual + start_residual)
+    at_grf, at_residual = grf.copy(), residual.copy()
+    for t, own in bending.items():
+        before, after = [bending[u] if u in bending and supported[u] == supported[t] else own for u in (t - 1, t + 1)]
+        at_grf[t] = 0.25 * before[0] + 0.5 * own[0] + 0.25 * after[0]
+        at_residual[t] = 0.25 * before[1] + 0.5 * own[1] + 0.25 * after[1]
+    return at_grf, at_residual
 
 
 def _first_frame(valid: np.ndarray | None, observed_step: bool) -> int:
