@@ -23,6 +23,8 @@ from physmocap.kinematics.refine import (
     resting_points,
     slipping_contacts,
     tilt_axes,
+    wrapped_flips,
+    wrapping_joints,
 )
 from physmocap.kinematics.stage import fit_motion
 from physmocap.trajopt.ik import ik_targets, solve_ik
@@ -374,6 +376,30 @@ def test_flipped_steps_find_a_joint_turned_through_a_half_turn(body):
     assert not flipped_steps(body, fitted, refined, valid).any()
 
 
+def test_wrapping_joints_find_a_joint_turning_through_a_half_turn(body):
+    """A hip turning steadily about one axis from 0.8 pi to 1.2 pi from rest passes to the log's other branch once,
+    between the frames either side of pi; the same turn from 0.4 pi to 0.8 pi never does. A flip of the knee, which
+    the hip moves, next to that step is the wrapped angles' doing; a flip of the other knee is not."""
+    hip = body.qpos_address[body.joint_index["left_hip"]]
+    ball = list(kin.tables(body).ball_bodies)
+    axis = np.array([0.0, 0.6, 0.8])
+    for start, crossing in ((0.8 * np.pi, [4]), (0.4 * np.pi, [])):
+        qpos = one_leg_stance(body, 10)
+        angles = start + np.arange(10) * 0.4 * np.pi / 9
+        qpos[:, hip:hip + 4] = quat_exp(angles[:, None] * axis)
+        wrapping = wrapping_joints(body, qpos)
+        expected = [[t, ball.index(body.joint_index["left_hip"])] for t in crossing]
+        np.testing.assert_array_equal(np.argwhere(wrapping), np.reshape(expected, (-1, 2)))
+    flips = np.zeros((9, len(body.point_names)), bool)
+    flips[5, body.point_index(["left_knee"])] = True
+    np.testing.assert_array_equal(np.flatnonzero(wrapped_flips(body, qpos, qpos, flips)), [])  # 0.4-0.8 pi
+    qpos[:, hip:hip + 4] = quat_exp((0.8 * np.pi + np.arange(10) * 0.4 * np.pi / 9)[:, None] * axis)
+    np.testing.assert_array_equal(np.flatnonzero(wrapped_flips(body, qpos, qpos, flips)), [5])
+    flips[5] = False
+    flips[5, body.point_index(["right_knee"])] = True
+    assert not wrapped_flips(body, qpos, qpos, flips).any()
+
+
 def test_a_refinement_that_flips_a_joint_is_solved_again_with_the_angles_unwrapped(body, camera, monkeypatch,
                                                                                      caplog):
     from physmocap.kinematics import refine as refine_module
@@ -394,9 +420,19 @@ def test_a_refinement_that_flips_a_joint_is_solved_again_with_the_angles_unwrapp
 
     def first_flips(body, fitted, refined, valid):
         calls.append(refined)
-        return np.arange(len(refined) - 1) == 4 if len(calls) == 1 else np.zeros(len(refined) - 1, bool)
+        flips = np.zeros((len(refined) - 1, len(body.point_names)), bool)
+        flips[4] = len(calls) == 1
+        return flips
 
-    monkeypatch.setattr(refine_module, "flipped_steps", first_flips)
+    monkeypatch.setattr(refine_module, "flipped_points", first_flips)
+    unwrapped.clear()
+    with caplog.at_level("INFO", logger="physmocap"):
+        kept = refine_kinematics(obs, motion, np.ones((20, 4), bool), FitSettings(), TrajoptSettings())
+    assert unwrapped == [False, False]  # no joint passes a half turn there: not the wrapped angles' doing
+    assert "not through a half turn: kept" in caplog.text
+    np.testing.assert_array_equal(kept.motion.qpos, calls[0])
+    calls.clear()
+    monkeypatch.setattr(refine_module, "wrapped_flips", lambda body, fitted, refined, flips: flips.any(axis=1))
     unwrapped.clear()
     with caplog.at_level("INFO", logger="physmocap"):
         again = refine_kinematics(obs, motion, np.ones((20, 4), bool), FitSettings(), TrajoptSettings())

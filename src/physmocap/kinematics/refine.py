@@ -23,6 +23,7 @@ import numpy as np
 
 from ..body import kinematics as kin
 from ..body.model import CONTACT_POINTS
+from ..body.rotations import quat_log, unwrap_rotation_vectors
 from ..camera import WORLD_UP, Camera, Floor, tangent_basis
 from ..config import FitSettings, TrajoptSettings
 from ..detect.foot_swaps import find_foot_swaps, undo_foot_swaps
@@ -231,17 +232,50 @@ def _contact_floor(soles: np.ndarray, contacts: np.ndarray, valid: np.ndarray, c
     return floor, kept
 
 
-def flipped_steps(body, fitted: np.ndarray, refined: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """(T - 1,) bool: the steps between two valid frames (valid (T,)) in which the refined poses (T, nq) move a
-    joint at least twice as far as the fitted poses (T, nq) and FLIP_STEP farther: the refinement turned a joint
-    through a half turn there, where its wrapped joint-angle velocity term counts a small turn as nearly 2 pi."""
-    def largest_step(qpos):
+def flipped_points(body, fitted: np.ndarray, refined: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(T - 1, P) bool: per step between two valid frames (valid (T,)), the body's points that the refined poses
+    (T, nq) move at least twice as far as the fitted poses (T, nq) move any point, and FLIP_STEP farther: where the
+    refinement turned a joint through a half turn, its wrapped joint-angle velocity term counting a small turn as
+    nearly 2 pi."""
+    def steps(qpos):
         points = kin.forward_kinematics(body, qpos).points
-        return np.linalg.norm(np.diff(points, axis=0), axis=-1).max(axis=1)
+        return np.linalg.norm(np.diff(points, axis=0), axis=-1)  # (T - 1, P)
 
-    before, after = largest_step(fitted), largest_step(refined)
+    before, after = steps(fitted).max(axis=1, keepdims=True), steps(refined)
     valid = np.asarray(valid, bool)
-    return valid[1:] & valid[:-1] & (after > 2.0 * before) & (after > before + FLIP_STEP)
+    return (valid[1:] & valid[:-1])[:, None] & (after > 2.0 * before) & (after > before + FLIP_STEP)
+
+
+def flipped_steps(body, fitted: np.ndarray, refined: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(T - 1,) bool: the steps in which the refinement flipped some point (`flipped_points`)."""
+    return flipped_points(body, fitted, refined, valid).any(axis=1)
+
+
+def wrapping_joints(body, qpos: np.ndarray) -> np.ndarray:
+    """(T - 1, J) bool: per step of the poses (T, nq), the ball joints (kin.tables(body).ball_bodies) whose rotation
+    vector from rest, as the fit's joint-angle velocity term reads it (KinematicFitter._angle_signal), passes to
+    another branch of the log (a turn through a half turn): there the wrapped term counts a step of up to 2 pi
+    where the rotation's own is smaller."""
+    tab = kin.tables(body)
+    rotvec = quat_log(qpos[:, tab.qadr[tab.ball_bodies][:, None] + np.arange(4)])  # (T, J, 3)
+
+    def steps(vectors: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(np.diff(vectors, axis=0), axis=-1)
+
+    return steps(rotvec) > steps(unwrap_rotation_vectors(rotvec)) + 1e-6
+
+
+def wrapped_flips(body, fitted: np.ndarray, refined: np.ndarray, flips: np.ndarray) -> np.ndarray:
+    """(T - 1,) bool: the steps with a flipped point (flips, (T - 1, P) from `flipped_points`) moved by a ball joint
+    that passes a half turn within a step of it, in the fitted or the refined poses (T, nq): the flips the wrapped
+    joint-angle velocity term made, which solving again with the angles unwrapped can remove."""
+    tab = kin.tables(body)
+    wrapping = wrapping_joints(body, fitted) | wrapping_joints(body, refined)  # (T - 1, J)
+    near = wrapping.copy()
+    near[1:] |= wrapping[:-1]
+    near[:-1] |= wrapping[1:]
+    moves = body.ancestors[tab.point_body][:, tab.ball_bodies].astype(float)  # (P, J): the joint moves the point
+    return ((flips.astype(float) @ moves) * near).any(axis=1)
 
 
 def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.ndarray, fit: FitSettings,
@@ -254,8 +288,10 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
     settings: the trajopt settings (weights of the optional terms, outlier distance); keep_floor: keep
     motion.floor (e.g. a floor given by the user) instead of refitting it, still relabelling the contacts far
     from it. progress: a display for each of the two fits, "refine 1/2" and "refine 2/2", counted in frame passes
-    (see KinematicFitter.fit_offline). Where the result turns a joint through a half turn in one frame
-    (`flipped_steps`), both fits are solved again with the joint angles unwrapped, and kept unless they do too.
+    (see KinematicFitter.fit_offline). Where the result flips a point in one frame (`flipped_points`) through a
+    joint whose angles, or the fit's, pass a half turn there (`wrapped_flips`), both fits are solved again with the
+    joint angles unwrapped, and kept unless they flip too. A flip elsewhere is not the wrapped angles' doing, and
+    solving again unwrapped cannot remove it (docs/decisions/b4-rotation-wrap.md).
     """
     start = time.perf_counter()
     body, camera, fps = motion.body, motion.camera, obs.fps
@@ -303,7 +339,11 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
         return qpos, camera, floor, kept, removed, added
 
     qpos, camera, floor, kept, removed, added = fits(unwrap_angles=False)
-    flips = flipped_steps(body, motion.qpos, qpos, obs.valid)
+    points = flipped_points(body, motion.qpos, qpos, obs.valid)
+    flips = wrapped_flips(body, motion.qpos, qpos, points) if points.any() else np.zeros(len(points), bool)
+    if points.any() and not flips.any():
+        log.info("trajopt: the refinement moves a joint far in one frame (after frames %s), not through a half turn: "
+                 "kept.", ", ".join(str(int(t)) for t in np.flatnonzero(points.any(axis=1))[:5]))
     if flips.any():
         again = fits(unwrap_angles=True)
         frames = ", ".join(str(int(t)) for t in np.flatnonzero(flips)[:5])
