@@ -23,7 +23,7 @@ import numpy as np
 
 from ..body import kinematics as kin
 from ..body.model import CONTACT_POINTS
-from ..body.rotations import quat_log, unwrap_rotation_vectors
+from ..body.rotations import unwrap_rotation_vectors
 from ..camera import WORLD_UP, Camera, Floor, tangent_basis
 from ..config import FitSettings, TrajoptSettings
 from ..detect.foot_swaps import find_foot_swaps, undo_foot_swaps
@@ -44,6 +44,9 @@ HUBER_SCALE = 0.02  # m: contact points farther from the plane than this pull li
 # m: a joint step this much longer than the fit's (and twice it) is a joint turned through a half turn, not motion
 # (validation and test: at most 0.03 m; the flips 0.28 and 0.71 m; docs/decisions/b4-rotation-wrap.md)
 FLIP_STEP = 0.1
+# s: the stretch solved again on either side of a flip, and the part of it blended into the first solution at each
+# end (docs/decisions/b4-rotation-wrap.md)
+FLIP_WINDOW, FLIP_BLEND = 1.0, 0.25
 
 
 def tilt_axes(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -256,8 +259,7 @@ def wrapping_joints(body, qpos: np.ndarray) -> np.ndarray:
     vector from rest, as the fit's joint-angle velocity term reads it (KinematicFitter._angle_signal), passes to
     another branch of the log (a turn through a half turn): there the wrapped term counts a step of up to 2 pi
     where the rotation's own is smaller."""
-    tab = kin.tables(body)
-    rotvec = quat_log(qpos[:, tab.qadr[tab.ball_bodies][:, None] + np.arange(4)])  # (T, J, 3)
+    rotvec = kin.ball_rotation_vectors(body, qpos)  # (T, J, 3)
 
     def steps(vectors: np.ndarray) -> np.ndarray:
         return np.linalg.norm(np.diff(vectors, axis=0), axis=-1)
@@ -278,6 +280,69 @@ def wrapped_flips(body, fitted: np.ndarray, refined: np.ndarray, flips: np.ndarr
     return ((flips.astype(float) @ moves) * near).any(axis=1)
 
 
+def flip_windows(flips: np.ndarray, fps: float) -> list[tuple[int, int]]:
+    """[(first, end)] frame ranges: FLIP_WINDOW seconds on either side of each flipped step (flips, (T - 1,) bool),
+    overlapping ranges merged, within the clip."""
+    reach, end = int(round(FLIP_WINDOW * fps)), len(flips) + 1
+    windows: list[tuple[int, int]] = []
+    for step in np.flatnonzero(flips).tolist():
+        first, last = max(0, step - reach), min(end, step + 2 + reach)
+        if windows and first <= windows[-1][1]:
+            windows[-1] = (windows[-1][0], max(windows[-1][1], last))
+        else:
+            windows.append((first, last))
+    return windows
+
+
+def blend_window(body, qpos: np.ndarray, solved: np.ndarray, first: int, end: int, frames: int) -> np.ndarray:
+    """qpos (T, nq) with frames first .. end - 1 replaced by `solved` (end - first, nq), blended on the manifold
+    from qpos over `frames` frames at each end of the window that is not the clip's."""
+    share = np.ones(end - first)
+    ramp = np.arange(1, frames + 1) / (frames + 1)
+    if first > 0:
+        share[:frames] = np.minimum(share[:frames], ramp[:end - first])
+    if end < len(qpos):
+        share[-frames:] = np.minimum(share[-frames:], ramp[::-1][-(end - first):])
+    out = qpos.copy()
+    window = qpos[first:end]
+    out[first:end] = kin.integrate(body, window, share[:, None] * kin.difference(body, window, solved))
+    return out
+
+
+def _solve_flips_again(body, motion: KinematicMotion, camera: Camera, on_floor, fit: FitSettings, fps: float,
+                       qpos: np.ndarray, points: np.ndarray, flips: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """B.4's last fit (fit: its settings; on_floor: its targets) solved again with the joint angles unwrapped over
+    each flip's window (`flip_windows`), from the fitted poses (motion, moved into the floor's world: camera), and
+    blended into the first solution (qpos (T, nq)). A window is kept where it flips nothing but what the first
+    solution flipped without a half turn (points, flips: `flipped_points`, `wrapped_flips`). The floor stays the
+    first solution's, and so do the frames outside the windows."""
+    fitted = kin.rigid_transform_qpos(motion.qpos, camera.R.T @ motion.camera.R,
+                                      camera.R.T @ (motion.camera.t - camera.t))
+    fitter = KinematicFitter(body, camera, fit, fps, unwrap_angles=True)
+    allowed = points.any(axis=1) & ~flips  # flips the first solution has without a half turn
+    blend = max(1, int(round(FLIP_BLEND * fps)))
+    windows = flip_windows(flips, fps)
+    repaired, failed = qpos, 0
+    for first, end in windows:
+        window = slice(first, end)
+        solved = fitter.fit_offline(fitted[window], on_floor.frames(window)).qpos
+        candidate = hold_outside_valid(blend_window(body, repaired, solved, first, end, blend), valid)
+        if (flipped_steps(body, motion.qpos[window], candidate[window], valid[window])
+                & ~allowed[first:end - 1]).any():
+            failed += 1
+        else:
+            repaired = candidate
+    frames = ", ".join(str(int(t)) for t in np.flatnonzero(flips)[:5])
+    if failed:
+        log.warning("trajopt: the refinement turned a joint through a half turn in one frame (after frames %s); "
+                    "solved again there with the joint angles unwrapped, %d of %d stretches still flip and are "
+                    "kept as first solved.", frames, failed, len(windows))
+    else:
+        log.info("trajopt: the refinement turned a joint through a half turn in one frame (after frames %s): "
+                 "solved again there with the joint angles unwrapped.", frames)
+    return repaired
+
+
 def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.ndarray, fit: FitSettings,
                       settings: TrajoptSettings, keep_floor: bool = False,
                       progress: ProgressFactory | None = None) -> RefinedKinematics:
@@ -289,9 +354,10 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
     motion.floor (e.g. a floor given by the user) instead of refitting it, still relabelling the contacts far
     from it. progress: a display for each of the two fits, "refine 1/2" and "refine 2/2", counted in frame passes
     (see KinematicFitter.fit_offline). Where the result flips a point in one frame (`flipped_points`) through a
-    joint whose angles, or the fit's, pass a half turn there (`wrapped_flips`), both fits are solved again with the
-    joint angles unwrapped, and kept unless they flip too. A flip elsewhere is not the wrapped angles' doing, and
-    solving again unwrapped cannot remove it (docs/decisions/b4-rotation-wrap.md).
+    joint whose angles, or the fit's, pass a half turn there (`wrapped_flips`), the last fit is solved again with
+    the joint angles unwrapped over FLIP_WINDOW seconds on either side, kept where it flips no more
+    (`_solve_flips_again`). A flip elsewhere is not the wrapped angles' doing, and solving again unwrapped cannot
+    remove it (docs/decisions/b4-rotation-wrap.md).
     """
     start = time.perf_counter()
     body, camera, fps = motion.body, motion.camera, obs.fps
@@ -311,10 +377,9 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
     def bar(fitter, name):
         return progress(name, fitter.planned_passes(obs.num_frames), "frame passes") if progress else None
 
-    def fits(unwrap_angles: bool):
+    def fits():
         # 1. Contacts still, no floor.
-        fitter = KinematicFitter(body, motion.camera, contact_fit_settings(fit, settings, False), fps,
-                                 unwrap_angles=unwrap_angles)
+        fitter = KinematicFitter(body, motion.camera, contact_fit_settings(fit, settings, False), fps)
         qpos = fitter.fit_offline(motion.qpos, targets_in(motion.camera, contacts, None),
                                   bar(fitter, "refine 1/2")).qpos
         # 2. The floor through the contact points (camera frame), outliers relabelled.
@@ -332,28 +397,20 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
             added |= resting
             kept |= resting
         # 3. Again, with the feet in contact on the floor (z = 0 in the new world).
-        fitter = KinematicFitter(body, camera, contact_fit_settings(fit, settings, True), fps,
-                                 unwrap_angles=unwrap_angles)
+        fitter = KinematicFitter(body, camera, contact_fit_settings(fit, settings, True), fps)
         on_floor = targets_in(camera, kept, np.array([0.0, 0.0, 1.0, 0.0]))
         qpos = hold_outside_valid(fitter.fit_offline(qpos, on_floor, bar(fitter, "refine 2/2")).qpos, obs.valid)
         return qpos, camera, floor, kept, removed, added
 
-    qpos, camera, floor, kept, removed, added = fits(unwrap_angles=False)
+    qpos, camera, floor, kept, removed, added = fits()
     points = flipped_points(body, motion.qpos, qpos, obs.valid)
     flips = wrapped_flips(body, motion.qpos, qpos, points) if points.any() else np.zeros(len(points), bool)
     if points.any() and not flips.any():
         log.info("trajopt: the refinement moves a joint far in one frame (after frames %s), not through a half turn: "
                  "kept.", ", ".join(str(int(t)) for t in np.flatnonzero(points.any(axis=1))[:5]))
     if flips.any():
-        again = fits(unwrap_angles=True)
-        frames = ", ".join(str(int(t)) for t in np.flatnonzero(flips)[:5])
-        if flipped_steps(body, motion.qpos, again[0], obs.valid).any():
-            log.warning("trajopt: the refinement turned a joint through a half turn in one frame (after frames %s), "
-                        "and again with the joint angles unwrapped: kept as first solved.", frames)
-        else:
-            log.info("trajopt: the refinement turned a joint through a half turn in one frame (after frames %s): "
-                     "solved again with the joint angles unwrapped.", frames)
-            qpos, camera, floor, kept, removed, added = again
+        qpos = _solve_flips_again(body, motion, camera, targets_in(camera, kept, np.array([0.0, 0.0, 1.0, 0.0])),
+                                  contact_fit_settings(fit, settings, True), fps, qpos, points, flips, obs.valid)
     seconds = time.perf_counter() - start
     refined = dataclasses.replace(motion, camera=camera, floor=floor, qpos=qpos,
                                   reprojection_error=reprojection_errors(body, camera, qpos, raw),
