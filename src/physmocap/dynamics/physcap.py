@@ -100,11 +100,18 @@ def tracking_gains(settings: PhysicsSettings, nv: int) -> tuple[np.ndarray, np.n
     return kp, kd
 
 
-def _within(forces: np.ndarray, residual: np.ndarray, bound: float) -> bool:
+def within_bound(forces: np.ndarray, residual: np.ndarray, bound: float) -> bool:
     """The summed contact force (4, 3), the residual's force and its torque (6,) each no larger than bound (N; the
-    torque in N m, as the stage bounds it); False for non-finite values."""
-    sizes = (np.linalg.norm(forces.sum(axis=0)), np.linalg.norm(residual[:3]), np.linalg.norm(residual[3:]))
-    return all(size <= bound for size in sizes)  # NaN fails
+    torque in N m); False for non-finite values. In floats: numpy's norms cost more than the arithmetic."""
+    (fx, fy, fz), (rx, ry, rz, tx, ty, tz) = forces.sum(axis=0).tolist(), residual.tolist()
+    squares = (fx * fx + fy * fy + fz * fz, rx * rx + ry * ry + rz * rz, tx * tx + ty * ty + tz * tz)
+    return all(square <= bound * bound for square in squares)  # NaN fails
+
+
+def frame_share_weights(substeps: int) -> tuple[float, float]:
+    """(start frame's, end frame's) shares of an interval's impulse over `substeps` semi-implicit Euler steps
+    (PhysCapTracker._frame_shares): (n + 1) / 2n and (n - 1) / 2n."""
+    return (substeps + 1) / (2 * substeps), (substeps - 1) / (2 * substeps)
 
 
 def _bounded(qdd: np.ndarray) -> bool:
@@ -475,11 +482,11 @@ class PhysCapTracker:
         n = self.substeps
         if n == 1:  # all of the step's impulse belongs to the frame it starts at
             return motion_forces, (np.zeros((4, 3)), np.zeros(6))
-        start_weight, end_weight = (n + 1) / (2 * n), (n - 1) / (2 * n)
+        start_weight, end_weight = frame_share_weights(n)
         start = self._motion_forces((n * total - later) / (n * n * start_weight), active)
         end = self._motion_forces(later / (n * n * end_weight), active)
         bound = self.settings.max_force * self._weight  # each within it, so is a frame's sum of two shares
-        if start is None or end is None or not (_within(*start, bound) and _within(*end, bound)):
+        if start is None or end is None or not (within_bound(*start, bound) and within_bound(*end, bound)):
             return None
         return ((start_weight * start[0], start_weight * start[1]), (end_weight * end[0], end_weight * end[1]))
 

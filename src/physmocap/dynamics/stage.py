@@ -22,7 +22,7 @@ from ..kinematics.stage import KinematicMotion
 from ..metrics import GRAVITY
 from .balance import BalanceCorrector
 from .floor import FloorRefiner, floor_frame
-from .physcap import FrameOutput, PhysCapTracker
+from .physcap import FrameOutput, PhysCapTracker, frame_share_weights, within_bound
 from .planting import FootPlanter, OutputPlanter, plant_held_feet
 
 MAX_FLATTENING = np.radians(20.0)  # a foot tilted more than this with heel and toe predicted down is a wrong label
@@ -287,20 +287,15 @@ class PhysicsStream:
                    or bool(resting_off_feet(self.tracker.target_data.site_xpos[self._resting_sites, 2]))
                    or self._deviation() > s.stray_distance)
         frame.unexplained_flag = flagged
-        if not flagged and frame.motion_forces is not None:
-            # An explained frame reports the forces its motion needed (PhysCapTracker.track): what the contact
-            # constraints did (a floor holding up a body its PD pulls down) is then the floor's force where an
-            # admissible one gives it, not root residual (docs/decisions/physics-residual-attribution.md). Flagged
-            # frames keep the load the contact model cannot explain on the residual.
-            forces, residual = frame.motion_forces
-            (fx, fy, fz), (rx, ry, rz, tx, ty, tz) = forces.sum(axis=0).tolist(), residual.tolist()
-            squares = (fx * fx + fy * fy + fz * fz, rx * rx + ry * ry + rz * rz, tx * tx + ty * ty + tz * tz)
-            if all(square <= bound * bound for square in squares):  # NaN fails: the bounded fit above stays
-                frame.contact_forces, frame.residual = forces, residual
-            else:
-                frame.shares = None
+        # An explained frame reports the forces its motion needed (PhysCapTracker.track): what the contact
+        # constraints did (a floor holding up a body its PD pulls down) is then the floor's force where an
+        # admissible one gives it, not root residual (docs/decisions/physics-residual-attribution.md). Flagged
+        # frames keep the load the contact model cannot explain on the residual (a NaN fit fails the bound: the
+        # bounded fit above stays), and their forces split between frames by the steps' weights alone.
+        if not flagged and frame.motion_forces is not None and within_bound(*frame.motion_forces, bound):
+            frame.contact_forces, frame.residual = frame.motion_forces
         else:
-            frame.shares = None  # a flagged frame's forces (bounded, the load on the residual): split by step weights
+            frame.shares = None
         self._kinematic_share = min(1.0, self._kinematic_share + self._blend_rate) if flagged else \
             max(0.0, self._kinematic_share - self._blend_rate)
         if self._kinematic_share >= 1.0:
@@ -537,7 +532,7 @@ def forces_at_frames(grf: np.ndarray, residual: np.ndarray, claimed: np.ndarray,
     forces (claimed, (T,) bool) are read so; the others keep their own interval's. A point that touches down in
     the interval after a frame carries its share of that interval's force at the frame, so that no impulse is
     lost. grf: (T, 4, 3) N; residual: (T, 6) (force N, torque N m); returns both, new arrays."""
-    weights = ((substeps + 1) / (2 * substeps), (substeps - 1) / (2 * substeps))  # (start frame's, end frame's)
+    weights = frame_share_weights(substeps)  # (start frame's, end frame's)
 
     def share(t: int, k: int) -> tuple[np.ndarray, np.ndarray]:  # k: 0 the start frame's share, 1 the end's
         return shares[t][k] if shares[t] is not None else (weights[k] * grf[t], weights[k] * residual[t])

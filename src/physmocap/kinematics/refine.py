@@ -377,40 +377,38 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
     def bar(fitter, name):
         return progress(name, fitter.planned_passes(obs.num_frames), "frame passes") if progress else None
 
-    def fits():
-        # 1. Contacts still, no floor.
-        fitter = KinematicFitter(body, motion.camera, contact_fit_settings(fit, settings, False), fps)
-        qpos = fitter.fit_offline(motion.qpos, targets_in(motion.camera, contacts, None),
-                                  bar(fitter, "refine 1/2")).qpos
-        # 2. The floor through the contact points (camera frame), outliers relabelled.
-        soles = motion.camera.to_camera(kin.forward_kinematics(body, qpos).points[:, body.point_index(CONTACT_POINTS)])
-        floor, kept = _contact_floor(soles, contacts, obs.valid, motion.camera, motion.floor, keep_floor, settings)
-        qpos, camera = move_world_to_floor(qpos, motion.camera, floor, int(np.argmax(obs.valid)))
-        removed = labelled & ~kept
-        added = false_flights(body, qpos, fps, kept, obs.valid, settings.floor_outlier_distance)
-        if added.any():
-            log.info("trajopt: %d frame(s) labelled all in the air while the body does not fall: contacts added.",
-                     int(added.any(axis=1).sum()))
-        kept |= added
-        if settings.rest_height > 0:
-            resting = resting_points(body, qpos, fps, kept, obs.valid, settings)
-            added |= resting
-            kept |= resting
-        # 3. Again, with the feet in contact on the floor (z = 0 in the new world).
-        fitter = KinematicFitter(body, camera, contact_fit_settings(fit, settings, True), fps)
-        on_floor = targets_in(camera, kept, np.array([0.0, 0.0, 1.0, 0.0]))
-        qpos = hold_outside_valid(fitter.fit_offline(qpos, on_floor, bar(fitter, "refine 2/2")).qpos, obs.valid)
-        return qpos, camera, floor, kept, removed, added
-
-    qpos, camera, floor, kept, removed, added = fits()
+    # 1. Contacts still, no floor.
+    fitter = KinematicFitter(body, camera, contact_fit_settings(fit, settings, False), fps)
+    qpos = fitter.fit_offline(motion.qpos, targets_in(camera, contacts, None), bar(fitter, "refine 1/2")).qpos
+    # 2. The floor through the contact points (camera frame), outliers relabelled.
+    soles = camera.to_camera(kin.forward_kinematics(body, qpos).points[:, body.point_index(CONTACT_POINTS)])
+    floor, kept = _contact_floor(soles, contacts, obs.valid, camera, motion.floor, keep_floor, settings)
+    anchor = int(np.argmax(obs.valid))
+    qpos, camera = move_world_to_floor(qpos, camera, floor, anchor)
+    removed = labelled & ~kept
+    added = false_flights(body, qpos, fps, kept, obs.valid, settings.floor_outlier_distance)
+    if added.any():
+        log.info("trajopt: %d frame(s) labelled all in the air while the body does not fall: contacts added.",
+                 int(added.any(axis=1).sum()))
+    kept |= added
+    if settings.rest_height > 0:
+        resting = resting_points(body, qpos, fps, kept, obs.valid, settings)
+        added |= resting
+        kept |= resting
+    # 3. Again, with the feet in contact on the floor (z = 0 in the new world).
+    on_floor_settings = contact_fit_settings(fit, settings, True)
+    fitter = KinematicFitter(body, camera, on_floor_settings, fps)
+    on_floor = targets_in(camera, kept, np.array([0.0, 0.0, 1.0, 0.0]))
+    qpos = hold_outside_valid(fitter.fit_offline(qpos, on_floor, bar(fitter, "refine 2/2")).qpos, obs.valid)
     points = flipped_points(body, motion.qpos, qpos, obs.valid)
-    flips = wrapped_flips(body, motion.qpos, qpos, points) if points.any() else np.zeros(len(points), bool)
-    if points.any() and not flips.any():
-        log.info("trajopt: the refinement moves a joint far in one frame (after frames %s), not through a half turn: "
-                 "kept.", ", ".join(str(int(t)) for t in np.flatnonzero(points.any(axis=1))[:5]))
-    if flips.any():
-        qpos = _solve_flips_again(body, motion, camera, targets_in(camera, kept, np.array([0.0, 0.0, 1.0, 0.0])),
-                                  contact_fit_settings(fit, settings, True), fps, qpos, points, flips, obs.valid)
+    if points.any():
+        flips = wrapped_flips(body, motion.qpos, qpos, points)
+        if flips.any():
+            qpos = _solve_flips_again(body, motion, camera, on_floor, on_floor_settings, fps, qpos, points, flips,
+                                      obs.valid)
+        else:
+            log.info("trajopt: the refinement moves a joint far in one frame (after frames %s), not through a half "
+                     "turn: kept.", ", ".join(str(int(t)) for t in np.flatnonzero(points.any(axis=1))[:5]))
     seconds = time.perf_counter() - start
     refined = dataclasses.replace(motion, camera=camera, floor=floor, qpos=qpos,
                                   reprojection_error=reprojection_errors(body, camera, qpos, raw),
