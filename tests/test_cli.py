@@ -174,6 +174,7 @@ def test_unreadable_observations_file(tmp_path):
     (["--fov", "400"], ["camera.fov"]),
     (["--floor", "0,0,0,1"], ["floor"]),
     (["--person-box", "10,10,5,5"], ["person_box"]),
+    (["--fps", "0"], ["camera.fps", "1 .. 1000 fps"]),
 ])
 def test_nonsense_settings(tmp_path, args, words):
     proc = physmocap_in_process("capture", DEMO_VIDEO, "-o", tmp_path / "o", *args)

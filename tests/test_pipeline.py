@@ -8,6 +8,7 @@ import logging
 import os
 import shutil
 
+import av
 import numpy as np
 import pytest
 
@@ -262,6 +263,25 @@ def test_the_overlay_parts_setting_is_followed_and_recorded(demo_folder, tmp_pat
     summary = run_capture(out, KINEMATICS_ONLY.replace(None, overlay_parts=parts), video=DEMO_VIDEO)
     assert (out / "overlay.mp4").stat().st_size > 0
     assert json.loads((out / "summary.json").read_text())["overlay_parts"] == summary.overlay_parts == parts
+
+
+@pytest.mark.parametrize("online", [False, True], ids=["offline", "online"])
+def test_a_given_filming_rate_times_the_motion_and_the_overlay(demo_folder, tmp_path, online):
+    """camera.fps (--fps): a slow-motion file's frames timed at the rate they were filmed at; detection cached at
+    the file's own rate, reused offline and written so by the online stream."""
+    stored = Observations.load(demo_folder / "cache" / "observations.npz").fps
+    filmed = 2.5 * stored
+    out = tmp_path / "run"
+    if not online:
+        shutil.copytree(demo_folder, out)
+    summary = run_capture(out, KINEMATICS_ONLY.replace("camera", fps=filmed).replace(None, online=online),
+                          video=DEMO_VIDEO)
+    assert summary.fps == filmed and load_result(out / "result.npz")["fps"] == filmed
+    assert ("detect" in summary.cached_stages) is not online
+    assert Observations.load(out / "cache" / "observations.npz").fps == stored
+    with av.open(str(out / "overlay.mp4")) as video:
+        assert float(video.streams.video[0].average_rate) == pytest.approx(filmed)
+    assert set(summary.video_clock) == {"arcs", "fall", "consistent_fps", "warning"}
 
 
 # ---- determinism -------------------------------------------------------------------------------------------------

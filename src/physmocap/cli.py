@@ -288,6 +288,7 @@ def _add_settings_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--focal", type=float, default=None, help=describe(Settings, "camera.focal"))
     p.add_argument("--fov", type=float, default=None, help=describe(Settings, "camera.fov"))
     p.add_argument("--floor", type=_floats(4, "--floor"), metavar="NX,NY,NZ,D", help=describe(Settings, "camera.floor"))
+    p.add_argument("--fps", type=float, default=None, help=describe(Settings, "camera.fps"))
     p.add_argument("--person-box", type=_floats(4, "--person-box"), metavar="X0,Y0,X1,Y1",
                    help=describe(Settings, "detect.person_box"))
     p.add_argument("--one-euro", action="store_true", help=describe(Settings, "fit.one_euro"))
@@ -313,7 +314,8 @@ def settings_from_args(args):
     if args.foot_lock is not None:
         s = s.replace("physics", foot_lock=args.foot_lock)
     body = {k: v for k, v in (("height", args.height), ("mass", args.mass)) if v is not None}
-    camera = {k: v for k, v in (("focal", args.focal), ("fov", args.fov), ("floor", args.floor)) if v is not None}
+    camera = {k: v for k, v in (("focal", args.focal), ("fov", args.fov), ("floor", args.floor), ("fps", args.fps))
+              if v is not None}
     if body:
         s = s.replace("body", **body)
     if camera:
@@ -399,8 +401,9 @@ def cmd_capture(args) -> int:
     summary = run_capture(out, settings, video=args.video, observations=args.observations,
                           overlay=not args.no_overlay, progress=_progress_factory())
     invalid = summary.frames - summary.valid_frames
-    print(f"captured {summary.valid_frames}/{summary.frames} frames at {summary.fps:.1f} fps "
-          f"({'online' if summary.online else 'offline'} fit, physics: {summary.physics})")
+    print(f"captured {summary.valid_frames}/{summary.frames} frames at {summary.fps:.1f} fps"
+          + (" (given with --fps)" if settings.camera.fps else "")
+          + f" ({'online' if summary.online else 'offline'} fit, physics: {summary.physics})")
     if invalid:
         details = "; ".join(f"{reason}: frames {_first_ranges(r)}" for reason, r in summary.invalid_frames.items())
         print(f"warning: {invalid} frames could not be reconstructed and are flagged invalid ({details})")

@@ -27,6 +27,8 @@ class CameraSettings(Section):
     fov: float | None = setting(None, "deg", (10.0, 160.0), "field of view across the longer image side (None: 60)")
     floor: tuple[float, float, float, float] | None = setting(None, "m", check=floor_plane, help="plane n.x + d = 0 "
                                                               "in the camera frame (None: estimated from the feet)")
+    fps: float | None = setting(None, "fps", (1.0, 1000.0), "the camera's frames per second, where the file plays them "
+                                "at another rate (slow motion) (None: the file's)")
 
 
 @dataclass(frozen=True)

@@ -127,6 +127,7 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
         frames after it, as a slower fit would.
     """
     frames, fps, image_size, close, camera = _open_source(source)
+    filmed = settings.camera.fps or fps  # the motion's rate; frames still arrive and are paced at the source's
     scheduled = realtime and not camera  # a file played as a camera: frames arrive at start + index / fps
     paced = realtime or camera  # frames arrive whether or not the pipeline is ready for them
     stop = threading.Event()
@@ -137,7 +138,7 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
     detection_handoff = _Handoff(keep_newest=False)
     reader = _SourceThread(frames, fps, close, scheduled, max_frames, frame_handoff, stop)
     detector = _DetectionThread(frame_handoff, detection_handoff, fps, image_size, settings, stop)
-    loop = _FitLoop(OnlineFitter(settings, fps, image_size), _AfterFit(settings, fps),
+    loop = _FitLoop(OnlineFitter(settings, filmed, image_size), _AfterFit(settings, filmed),
                     _FallingBehind(fps, paced and drop_stale_frames) if paced else None, on_pose,
                     (frame_handoff, detection_handoff), paced and drop_stale_frames)
     detector.start()
@@ -167,7 +168,7 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
         stop.set()
         if reader.ident is None:  # never started, so it will not close the source
             close()
-    return _live_report(str(source), loop, detector, fps, image_size, wall, paced and drop_stale_frames,
+    return _live_report(str(source), loop, detector, filmed, image_size, wall, paced and drop_stale_frames,
                         frame_handoff.dropped, detection_handoff.dropped)
 
 

@@ -18,6 +18,7 @@ at a time holds the folder (run_folder.py), and outputs an earlier run wrote but
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import os
@@ -34,6 +35,7 @@ from .detect.repeats import interpolate_repeated
 from .errors import InputError
 from .io.atomic import write_text
 from .kinematics.calibration import height_line
+from .kinematics.clock import ClockCheck, check_clock
 from .kinematics.stage import KinematicMotion
 from .motion import Observations, frame_ranges
 from .result import RESULT_POINTS, build_result, save_result
@@ -98,6 +100,7 @@ class RunSummary:
     body_height_note: str = ""  # the line that says which height was assumed and how to set it
     floor: dict = field(default_factory=dict)  # the floor's confidence (camera.Floor.confidence)
     overlay_parts: int = 0  # parts overlay.mp4 was drawn and encoded in at once (0: no overlay)
+    video_clock: dict = field(default_factory=dict)  # the jumps against the frame rate (kinematics.clock.ClockCheck)
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=2)
@@ -135,7 +138,7 @@ def _observe_and_fit(runner: Runner, video: Path | None,
 
     source = str(video if observations is None else observations)
     if observations is not None:  # with a video too, the video is only drawn over (the overlay)
-        obs = Observations.load(observations)
+        obs = at_filmed_rate(Observations.load(observations), runner.settings)
         if video is not None:
             check_observations_fit_video(video, obs, observations)
     else:
@@ -148,7 +151,7 @@ def _observe_and_fit(runner: Runner, video: Path | None,
             for warning in check_observations(obs, runner.settings, source):
                 log.warning(warning)
             return obs, motion
-        obs = runner.run(DETECT, video_key, video) if cached is None else cached
+        obs = at_filmed_rate(runner.run(DETECT, video_key, video) if cached is None else cached, runner.settings)
         check_truncation(video, obs, runner.settings)
         runner.seconds["detect"] = obs.seconds_per_frame * obs.num_frames
     if not runner.settings.online:  # online, a repeat's next new picture is still to come
@@ -158,6 +161,13 @@ def _observe_and_fit(runner: Runner, video: Path | None,
     return obs, runner.run(KINEMATICS, (observations_digest(obs),), obs)
 
 
+def at_filmed_rate(obs: Observations, settings: Settings) -> Observations:
+    """The observations at the rate the camera filmed them (settings.camera.fps), where the file plays them at
+    another (slow motion): every velocity, acceleration and force follows from it."""
+    fps = settings.camera.fps
+    return obs if fps is None else dataclasses.replace(obs, fps=float(fps))
+
+
 def _stream(runner: Runner, video: Path, video_key: tuple[str]) -> tuple[Observations, KinematicMotion]:
     """Detection and causal fit together (live order); both outputs are cached like the separate stages'."""
     from .live import stream_capture
@@ -165,7 +175,12 @@ def _stream(runner: Runner, video: Path, video_key: tuple[str]) -> tuple[Observa
     # Physics runs as its own cached stage afterwards; here only what the detector and the fit produce.
     report = stream_capture(str(video), runner.settings.replace("physics", method="none"))
     check_truncation(video, report.observations, runner.settings)
-    runner.store(DETECT, video_key, report.observations)
+    from .io.video import probe_video
+
+    stored = report.observations
+    if runner.settings.camera.fps is not None:  # cached at the file's rate, as detection caches it
+        stored = dataclasses.replace(stored, fps=probe_video(video).fps)
+    runner.store(DETECT, video_key, stored)
     runner.store(KINEMATICS, (observations_digest(report.observations),), report.motion)
     return report.observations, report.motion
 
@@ -271,11 +286,27 @@ def write_outputs(out_dir: Path, source: str, obs: Observations, motion: Kinemat
         summary = _summary(out_dir, source, obs, motion, result, settings, seconds, cached, physics_report or {},
                            files)
         summary.overlay_parts = overlay_parts
+        clock = _video_clock(obs, motion, contacts, settings, source)
+        if clock.warning:
+            log.warning(clock.warning)
+        summary.video_clock = clock.to_dict()
         files["summary"] = str(out_dir / "summary.json")
         summary.removed_stale_outputs = [str(p) for p in remove_stale_outputs(earlier, files)]
         write_text(files["summary"], summary.to_json())
         write_report(out_dir, result, report_parts)  # last: it links every output that exists
     return summary
+
+
+def _video_clock(obs: Observations, motion: KinematicMotion, contacts: np.ndarray, settings: Settings,
+                 source: str) -> ClockCheck:
+    """The kinematic motion's jumps against the frame rate (kinematics.clock.check_clock)."""
+    from .body.kinematics import center_of_mass, forward_kinematics
+    from .body.model import CONTACT_POINTS
+
+    pose = forward_kinematics(motion.body, motion.qpos)
+    soles = pose.points[:, motion.body.point_index(CONTACT_POINTS), 2]
+    return check_clock(center_of_mass(motion.body, pose)[:, 2], soles, contacts, motion.valid, obs.fps,
+                       settings.physics.contact_height, source)
 
 
 def _write_files(out_dir: Path, obs: Observations, motion: KinematicMotion, result: dict[str, np.ndarray],
@@ -328,7 +359,7 @@ def _start_overlay(path: str | None, video: Path | None, obs: Observations, moti
     return start_overlay(video, path, points_2d, skeleton_edges(motion.body), motion.valid,
                          keypoints=obs.keypoints_2d, contacts=result["contacts"], labels=RESULT_POINTS, progress=bar,
                          force_arrows=arrows, unexplained=result["physics_unexplained"],
-                         max_width=settings.overlay_width or None, parts=settings.overlay_parts)
+                         max_width=settings.overlay_width or None, fps=obs.fps, parts=settings.overlay_parts)
 
 
 def _summary(out_dir: Path, source: str, obs: Observations, motion: KinematicMotion, result: dict[str, np.ndarray],

@@ -442,6 +442,7 @@ def render_overlay(
     force_arrows: np.ndarray | None = None,
     unexplained: np.ndarray | None = None,
     max_width: int | None = DEFAULT_OVERLAY_WIDTH,
+    fps: float | None = None,
     parts: int | None = None,
     progress: Callable[[int, int], None] | None = None,
     cancel: threading.Event | None = None,
@@ -455,16 +456,18 @@ def render_overlay(
     contact points (required with `contacts`). force_arrows: (T, C, 2, 2) ground reaction force arrows in native
     pixels (see `force_arrows_2d`). unexplained: (T,) bool, True marks frames physics could not explain.
     max_width: frames wider than this are scaled down to it, in pixels (None: native size).
+    fps: the output's frame rate, frames/s (None: the input's): the rate the camera filmed at, where the file plays
+    its frames at another (settings camera.fps), keeps the overlay in time with the result.
     parts: 2 draws and encodes the two halves of the video at once, in two threads, and joins them without
     re-encoding (the same frames as one part, within the encoder's noise); 1 renders it in one pass; None
     chooses (see `overlay_parts`). Parts that cannot be joined are rendered again in one pass.
     progress: called as progress(frames_done, T) after each frame, one count over the parts. cancel: once set,
     rendering stops with OverlayCancelled and writes nothing.
-    The output keeps the input's (constant, see io.video) frame rate. A video with fewer than T frames raises
+    The output keeps the input's (constant, see io.video) frames, one for one. A video with fewer than T frames raises
     ValueError (and writes nothing). Non-finite points and arrows are not drawn; the report lists the frames.
     """
     started = time.perf_counter()
-    drawing = _overlay_drawing(points_2d, edges, valid, keypoints, contacts, labels, force_arrows, unexplained)
+    drawing = _overlay_drawing(points_2d, edges, valid, keypoints, contacts, labels, force_arrows, unexplained, fps)
     out_path = mp4_output_path(out_path)
     frames = iter_frames(video_path, max_width=max_width, prefetch=PREFETCH_FRAMES, pixel_format="yuv420p")
     count = _FrameCount(progress, drawing.frames)
@@ -502,10 +505,11 @@ class _OverlayDrawing:
     labels: Sequence[str] | None
     force_arrows: np.ndarray | None
     unexplained: np.ndarray
+    fps: float | None  # the output's frame rate (None: the input's)
 
 
 def _overlay_drawing(points_2d, edges: Sequence[tuple[int, int]], valid, keypoints, contacts,
-                     labels: Sequence[str] | None, force_arrows, unexplained) -> _OverlayDrawing:
+                     labels: Sequence[str] | None, force_arrows, unexplained, fps: float | None) -> _OverlayDrawing:
     """render_overlay's inputs as arrays; ValueError naming the first whose shape or indices do not fit."""
     points_2d = np.asarray(points_2d, dtype=float)
     valid = np.asarray(valid, dtype=bool)
@@ -532,7 +536,7 @@ def _overlay_drawing(points_2d, edges: Sequence[tuple[int, int]], valid, keypoin
         raise ValueError(f"labels must name all {P} points, got {len(labels)} names.")
     if any(not (0 <= i < P and 0 <= j < P) for i, j in edges):
         raise ValueError(f"edges must index the {P} points.")
-    return _OverlayDrawing(T, points_2d, edges, valid, keypoints, contacts, labels, force_arrows, unexplained)
+    return _OverlayDrawing(T, points_2d, edges, valid, keypoints, contacts, labels, force_arrows, unexplained, fps)
 
 
 def _nonfinite_frames(drawing: _OverlayDrawing) -> np.ndarray:
@@ -602,7 +606,7 @@ def _render_part(frames: FrameReader[av.VideoFrame], path: str | os.PathLike, dr
     """The drawing's frames from frames.start_frame up to `end` drawn and encoded into MP4 `path`; _VideoEnded
     (and no file) where the video ends before `end`, OverlayCancelled once any of `stops` is set."""
     out_width, out_height = frames.output_size
-    with VideoWriter(path, frames.info.fps, out_width, out_height, qp=OVERLAY_QP, preset=OVERLAY_PRESET,
+    with VideoWriter(path, drawing.fps or frames.info.fps, out_width, out_height, qp=OVERLAY_QP, preset=OVERLAY_PRESET,
                      faststart=Path(path) == Path(out_path)) as writer:  # a part is only read back by the join
         _draw_frames(frames, writer, drawing, end, count, stops, out_path)
         if writer.frames_written < end - frames.start_frame:
