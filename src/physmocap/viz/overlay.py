@@ -456,8 +456,7 @@ def render_overlay(
     contact points (required with `contacts`). force_arrows: (T, C, 2, 2) ground reaction force arrows in native
     pixels (see `force_arrows_2d`). unexplained: (T,) bool, True marks frames physics could not explain.
     max_width: frames wider than this are scaled down to it, in pixels (None: native size).
-    fps: the output's frame rate, frames/s (None: the input's): the rate the camera filmed at, where the file plays
-    its frames at another (settings camera.fps), keeps the overlay in time with the result.
+    fps: the output's frame rate, frames/s (None: the input's; the result's keeps a slow-motion file in its time).
     parts: 2 draws and encodes the two halves of the video at once, in two threads, and joins them without
     re-encoding (the same frames as one part, within the encoder's noise); 1 renders it in one pass; None
     chooses (see `overlay_parts`). Parts that cannot be joined are rendered again in one pass.
