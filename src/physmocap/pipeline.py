@@ -282,11 +282,11 @@ def write_outputs(out_dir: Path, source: str, obs: Observations, motion: Kinemat
         files, overlay_parts = _write_files(out_dir, obs, motion, result, overlay_video, progress, settings)
         # the report's plots and metrics count in the stage; its page comes last, once every output exists
         report_parts = write_report_parts(out_dir, result)
+        clock = _video_clock(obs, motion, contacts, settings, source)
         seconds["outputs"] = time.perf_counter() - started
         summary = _summary(out_dir, source, obs, motion, result, settings, seconds, cached, physics_report or {},
                            files)
         summary.overlay_parts = overlay_parts
-        clock = _video_clock(obs, motion, contacts, settings, source)
         if clock.warning:
             log.warning(clock.warning)
         summary.video_clock = clock.to_dict()

@@ -14,6 +14,9 @@ from ..metrics import GRAVITY
 
 MIN_FLIGHT_FRAMES = 3  # a parabola is fitted to these and the take-off and landing frames around them; stances too
 MIN_RISE = 0.03  # m: the arc's top above both its ends (a fitted centre of mass is steady to about 1 cm)
+# A flight is a parabola to within the fitted centre of mass's noise (rms 0.1-0.8 cm on the measured arcs) plus this
+# share of its rise; a pull-up's smooth rise, hold and lowering is not (rms 3-5 cm on 0.5 m: video-clock.md)
+PARABOLA_NOISE, PARABOLA_SHARE = 0.01, 0.02  # m, 1
 CLOCK_TOLERANCE = 2.0  # jumps falling slower than g / this or faster than g * this: the clock is wrong (rate x1.4)
 
 
@@ -38,9 +41,10 @@ def airborne(sole_heights: np.ndarray, contacts: np.ndarray, clearance: float) -
 def flight_arcs(com_height: np.ndarray, air: np.ndarray, valid: np.ndarray, fps: float) -> list[FlightArc]:
     """The flights of `air` (T,) bool, within runs of `valid` (T,) frames, of at least MIN_FLIGHT_FRAMES between
     stances of as many frames, whose centre-of-mass height (T,) m at `fps` frames/s follows a parabola with its top
-    inside the flight and MIN_RISE above both its ends. A standing body the labels call airborne does not rise; a
-    supported descent has no top; a person walking into the picture, whom the fit raises out of the floor, has no
-    stance before (docs/decisions/video-clock.md)."""
+    inside the flight and MIN_RISE above both its ends, to within PARABOLA_NOISE + PARABOLA_SHARE x rise (rms). A
+    standing body the labels call airborne does not rise; a supported descent has no top; a pull-up is no parabola;
+    a person walking into the picture, whom the fit raises out of the floor, has no stance before
+    (docs/decisions/video-clock.md)."""
     arcs = []
     for first, end in valid_runs(np.asarray(valid, bool)):
         starts, lengths = runs(air[first:end])
@@ -56,7 +60,8 @@ def flight_arcs(com_height: np.ndarray, air: np.ndarray, valid: np.ndarray, fps:
                 continue
             top = -b / (2 * a)
             rise = c - b * b / (4 * a) - max(com_height[lo], com_height[hi - 1])
-            if t[0] < top < t[-1] and rise >= MIN_RISE:
+            misfit = float(np.sqrt(np.mean((np.polyval((a, b, c), t) - com_height[lo:hi]) ** 2)))
+            if t[0] < top < t[-1] and rise >= MIN_RISE and misfit <= PARABOLA_NOISE + PARABOLA_SHARE * rise:
                 arcs.append(FlightArc(first + s, first + s + n, float(-2 * a), float(rise)))
     return arcs
 
