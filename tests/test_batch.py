@@ -74,6 +74,7 @@ def assert_batch_complete(out: Path, inputs: dict, proc) -> None:
         assert row["status"] == "done" and row["exit_status"] == "0" and row["reason"] == ""
         assert int(row["frames"]) == CLIP_FRAMES and 0 < int(row["valid_frames"]) <= CLIP_FRAMES
         assert row["physics"] == "none" and float(row["wall_seconds"]) > 0
+        assert row["fps_by_jumps"] == ""  # no jump says the clip's rate is wrong (kinematics.clock)
         for field in ("reprojection_error_px", "skate_percent", "penetration_percent", "mean_acceleration"):
             assert np.isfinite(float(row[field])), field
         expected = load_result(inputs["reference"] / name / "result.npz")

@@ -16,7 +16,7 @@ HTML_COLUMNS = (("name", "run"), ("status", "status"), ("frames", "frames"), ("v
                 ("skate_percent", "skate %"), ("penetration_percent", "penetration %"),
                 ("floating_percent", "floating %"), ("mean_acceleration", "jitter m/s²"),
                 ("residual_force_percent_bw", "residual % BW"), ("com_over_support_percent", "CoM over support %"),
-                ("reason", "reason"))
+                ("fps_by_jumps", "fps its jumps say"), ("reason", "reason"))
 
 
 def write_tables(out_dir: Path, records: list[dict]) -> None:

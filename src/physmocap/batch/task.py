@@ -136,7 +136,7 @@ def record_fields() -> list[str]:
     """The columns of batch.csv, in order."""
     return ["name", "input", "kind", "status", "exit_status", "reason", "frames", "valid_frames", "wall_seconds",
             "frames_per_second", "physics", "physics_fallback_frames", "reprojection_error_px",
-            "reprojection_error_percent_of_height", *PLAUSIBILITY, "cached_stages", "resumed", "node",
+            "reprojection_error_percent_of_height", *PLAUSIBILITY, "fps_by_jumps", "cached_stages", "resumed", "node",
             "worker_peak_memory_mb"]
 
 
@@ -161,6 +161,8 @@ def done_record(task: BatchTask, summary, seconds: float) -> dict:
     with np.load(run_dir / "result.npz", allow_pickle=False) as result:
         fallback = int(np.sum(result["physics_fallback"]))
     figures = {name: _rounded(metrics.get(name, {}).get("final")) for name in PLAUSIBILITY}
+    clock = summary.video_clock  # the rate the jumps say, where it is not the video's (kinematics.clock)
+    figures["fps_by_jumps"] = _rounded(clock.get("consistent_fps")) if clock.get("warning") else ""
     return empty_record(task.name, task.source, task.kind, "done") | figures | dict(
         exit_status=0, frames=summary.frames, valid_frames=summary.valid_frames, wall_seconds=round(seconds, 2),
         frames_per_second=round(summary.frames / max(seconds, 1e-9), 2), physics=summary.physics,
