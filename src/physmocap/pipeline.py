@@ -170,13 +170,12 @@ def at_filmed_rate(obs: Observations, settings: Settings) -> Observations:
 
 def _stream(runner: Runner, video: Path, video_key: tuple[str]) -> tuple[Observations, KinematicMotion]:
     """Detection and causal fit together (live order); both outputs are cached like the separate stages'."""
+    from .io.video import probe_video
     from .live import stream_capture
 
     # Physics runs as its own cached stage afterwards; here only what the detector and the fit produce.
     report = stream_capture(str(video), runner.settings.replace("physics", method="none"))
     check_truncation(video, report.observations, runner.settings)
-    from .io.video import probe_video
-
     stored = report.observations
     if runner.settings.camera.fps is not None:  # cached at the file's rate, as detection caches it
         stored = dataclasses.replace(stored, fps=probe_video(video).fps)
