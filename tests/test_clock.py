@@ -72,6 +72,12 @@ def test_a_standing_body_labelled_airborne_and_a_supported_descent_are_no_arcs()
         assert check.arcs == 0 and np.isnan(check.fall) and check.warning == ""
 
 
+def test_a_non_finite_height_is_no_arc_and_no_error():
+    com, soles, contacts = jumps(30.0, seconds=2.0)
+    com[np.flatnonzero(~contacts.any(axis=1))[3]] = np.nan
+    assert check_clock(com, soles, contacts, np.ones(len(com), bool), 30.0, CLEARANCE, "x").arcs == 0
+
+
 def test_frames_without_a_person_split_a_flight():
     """A flight is judged within a run of valid frames: no parabola through a gap the fit filled in."""
     com, soles, contacts = jumps(30.0, seconds=2.0)

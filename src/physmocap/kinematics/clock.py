@@ -53,7 +53,9 @@ def flight_arcs(com_height: np.ndarray, air: np.ndarray, valid: np.ndarray, fps:
                 continue
             if min(lengths[k - 1], lengths[k + 1]) < MIN_FLIGHT_FRAMES:  # a jump leaves a stance and lands on one
                 continue
-            lo, hi = first + max(s - 1, 0), first + min(s + n + 1, end - first)
+            lo, hi = first + s - 1, first + s + n + 1  # with the take-off and landing frames
+            if not np.isfinite(com_height[lo:hi]).all():
+                continue
             t = np.arange(hi - lo) / fps
             a, b, c = np.polyfit(t, com_height[lo:hi], 2)
             if a >= 0:
