@@ -83,11 +83,10 @@ def stated_case(name: str, true_fps: float, stated_fps: float, seed: int = 0):
 
 def synthetic_row(name: str, true_fps: float, stated_fps: float) -> dict:
     """One clip observed at true_fps and labelled stated_fps: the check on its offline fit and centred contacts."""
-    _, _, settings, motion, contacts, _ = stated_case(name, true_fps, stated_fps)
+    _, _, _, motion, contacts, _ = stated_case(name, true_fps, stated_fps)
     pose = kin.forward_kinematics(motion.body, motion.qpos)
     soles = pose.points[:, motion.body.point_index(CONTACT_POINTS), 2]
-    check = check_clock(kin.center_of_mass(motion.body, pose)[:, 2], soles, contacts, motion.valid, stated_fps,
-                        settings.physics.contact_height, name)
+    check = check_clock(kin.center_of_mass(motion.body, pose)[:, 2], soles, contacts, motion.valid, stated_fps, name)
     return dict(clip=name, true_fps=true_fps, stated_fps=stated_fps, arcs=check.arcs, fall=check.fall,
                 consistent_fps=check.consistent_fps, warned=bool(check.warning))
 

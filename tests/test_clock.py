@@ -7,8 +7,6 @@ import pytest
 from physmocap.kinematics.clock import CLOCK_TOLERANCE, airborne, check_clock, flight_arcs
 from physmocap.metrics import GRAVITY
 
-CLEARANCE = 0.1  # m, physics' contact_height
-
 
 def jumps(true_fps: float, seconds: float = 6.0, flight: float = 0.5, every: float = 2.0, noise: float = 0.005,
           seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -28,7 +26,7 @@ def jumps(true_fps: float, seconds: float = 6.0, flight: float = 0.5, every: flo
 
 def test_jumps_on_a_right_clock_fall_at_g():
     com, soles, contacts = jumps(30.0)
-    check = check_clock(com, soles, contacts, np.ones(len(com), bool), 30.0, CLEARANCE, "clip.mp4")
+    check = check_clock(com, soles, contacts, np.ones(len(com), bool), 30.0, "clip.mp4")
     assert check.arcs == 3 and check.warning == ""
     assert check.fall == pytest.approx(GRAVITY, rel=0.1)
     assert check.consistent_fps == pytest.approx(30.0, rel=0.05)
@@ -37,7 +35,7 @@ def test_jumps_on_a_right_clock_fall_at_g():
 def test_footage_filmed_at_25_fps_stated_as_10_is_found_and_its_rate_named():
     """Issue 17's parkour files: every jump falls at g (10 / 25)^2 on the stated clock."""
     com, soles, contacts = jumps(25.0)
-    check = check_clock(com, soles, contacts, np.ones(len(com), bool), 10.0, CLEARANCE, "vault.mp4")
+    check = check_clock(com, soles, contacts, np.ones(len(com), bool), 10.0, "vault.mp4")
     assert check.fall == pytest.approx(GRAVITY * (10 / 25) ** 2, rel=0.1)
     assert check.consistent_fps == pytest.approx(25.0, rel=0.05)
     assert check.warning.startswith(f"vault.mp4: its jumps fall at {check.fall:.1f} m/s^2, not 9.8")
@@ -47,7 +45,7 @@ def test_footage_filmed_at_25_fps_stated_as_10_is_found_and_its_rate_named():
 
 def test_a_file_stating_too_many_frames_per_second_is_found_too():
     com, soles, contacts = jumps(30.0)
-    check = check_clock(com, soles, contacts, np.ones(len(com), bool), 30.0 * CLOCK_TOLERANCE, CLEARANCE, "x.mp4")
+    check = check_clock(com, soles, contacts, np.ones(len(com), bool), 30.0 * CLOCK_TOLERANCE, "x.mp4")
     assert "faster than it was filmed" in check.warning and check.consistent_fps == pytest.approx(30.0, rel=0.05)
 
 
@@ -57,8 +55,8 @@ def test_a_jump_whose_top_the_labels_call_a_contact_still_counts():
     com, soles, contacts = jumps(30.0)
     high = soles.min(axis=1) > 0.3
     contacts[high] = True
-    assert airborne(soles, contacts, CLEARANCE)[high].all()
-    assert check_clock(com, soles, contacts, np.ones(len(com), bool), 30.0, CLEARANCE, "x").arcs == 3
+    assert airborne(soles, contacts)[high].all()
+    assert check_clock(com, soles, contacts, np.ones(len(com), bool), 30.0, "x").arcs == 3
 
 
 def test_a_standing_body_labelled_airborne_and_a_supported_descent_are_no_arcs():
@@ -67,21 +65,20 @@ def test_a_standing_body_labelled_airborne_and_a_supported_descent_are_no_arcs()
     descent = 1.5 - 0.5 * np.linspace(0, 1, 90) ** 2 / 2  # lowered from a wall by the hands: no top, slow
     for com in (standing, descent):
         assert flight_arcs(com, np.ones(90, bool), np.ones(90, bool), fps) == []
-        check = check_clock(com, np.full((90, 4), 0.3), np.zeros((90, 4), bool), np.ones(90, bool), fps,
-                            CLEARANCE, "x")
+        check = check_clock(com, np.full((90, 4), 0.3), np.zeros((90, 4), bool), np.ones(90, bool), fps, "x")
         assert check.arcs == 0 and np.isnan(check.fall) and check.warning == ""
 
 
 def test_a_non_finite_height_is_no_arc_and_no_error():
     com, soles, contacts = jumps(30.0, seconds=2.0)
     com[np.flatnonzero(~contacts.any(axis=1))[3]] = np.nan
-    assert check_clock(com, soles, contacts, np.ones(len(com), bool), 30.0, CLEARANCE, "x").arcs == 0
+    assert check_clock(com, soles, contacts, np.ones(len(com), bool), 30.0, "x").arcs == 0
 
 
 def test_frames_without_a_person_split_a_flight():
     """A flight is judged within a run of valid frames: no parabola through a gap the fit filled in."""
     com, soles, contacts = jumps(30.0, seconds=2.0)
-    air = airborne(soles, contacts, CLEARANCE)
+    air = airborne(soles, contacts)
     middle = np.flatnonzero(air)[len(np.flatnonzero(air)) // 2]
     valid = np.ones(len(com), bool)
     valid[middle] = False
@@ -98,5 +95,5 @@ def test_a_pull_up_is_no_flight_however_slow(hold):
     path = np.concatenate([np.zeros(10), ramp, np.full(int(hold * fps), 0.5), ramp[::-1], np.zeros(10)])
     soles = np.where(path[:, None] > 0, 0.3, 0.0).repeat(4, axis=1)
     contacts = soles < 0.1
-    check = check_clock(1.0 + path, soles, contacts, np.ones(len(path), bool), fps, CLEARANCE, "bar.mp4")
+    check = check_clock(1.0 + path, soles, contacts, np.ones(len(path), bool), fps, "bar.mp4")
     assert check.arcs == 0 and check.warning == ""

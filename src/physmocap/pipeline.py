@@ -281,7 +281,7 @@ def write_outputs(out_dir: Path, source: str, obs: Observations, motion: Kinemat
         files, overlay_parts = _write_files(out_dir, obs, motion, result, overlay_video, progress, settings)
         # the report's plots and metrics count in the stage; its page comes last, once every output exists
         report_parts = write_report_parts(out_dir, result)
-        clock = _video_clock(obs, motion, contacts, settings, source)
+        clock = _video_clock(obs, motion, contacts, source)
         seconds["outputs"] = time.perf_counter() - started
         summary = _summary(out_dir, source, obs, motion, result, settings, seconds, cached, physics_report or {},
                            files)
@@ -296,16 +296,14 @@ def write_outputs(out_dir: Path, source: str, obs: Observations, motion: Kinemat
     return summary
 
 
-def _video_clock(obs: Observations, motion: KinematicMotion, contacts: np.ndarray, settings: Settings,
-                 source: str) -> ClockCheck:
+def _video_clock(obs: Observations, motion: KinematicMotion, contacts: np.ndarray, source: str) -> ClockCheck:
     """The kinematic motion's jumps against the frame rate (kinematics.clock.check_clock)."""
     from .body.kinematics import center_of_mass, forward_kinematics
     from .body.model import CONTACT_POINTS
 
     pose = forward_kinematics(motion.body, motion.qpos)
     soles = pose.points[:, motion.body.point_index(CONTACT_POINTS), 2]
-    return check_clock(center_of_mass(motion.body, pose)[:, 2], soles, contacts, motion.valid, obs.fps,
-                       settings.physics.contact_height, source)
+    return check_clock(center_of_mass(motion.body, pose)[:, 2], soles, contacts, motion.valid, obs.fps, source)
 
 
 def _write_files(out_dir: Path, obs: Observations, motion: KinematicMotion, result: dict[str, np.ndarray],

@@ -10,7 +10,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..contacts.flights import runs, valid_runs
-from ..metrics import GRAVITY
+from ..metrics import FLOATING_THRESHOLD, GRAVITY
 
 MIN_FLIGHT_FRAMES = 3  # a parabola is fitted to these and the take-off and landing frames around them; stances too
 MIN_RISE = 0.03  # m: the arc's top above both its ends (a fitted centre of mass is steady to about 1 cm)
@@ -31,11 +31,12 @@ class FlightArc:
     rise: float
 
 
-def airborne(sole_heights: np.ndarray, contacts: np.ndarray, clearance: float) -> np.ndarray:
-    """(T,) bool: frames with no sole point labelled in contact, or every sole point higher than `clearance` m
-    (physics' contact_height, above which a label is not used): the labels of a slowed video can call the top of a
-    jump a contact. sole_heights (T, 4) m above the floor, contacts (T, 4) bool."""
-    return ~np.asarray(contacts, bool).any(axis=1) | (np.asarray(sole_heights) > clearance).all(axis=1)
+def airborne(sole_heights: np.ndarray, contacts: np.ndarray) -> np.ndarray:
+    """(T,) bool: frames with no sole point labelled in contact, or every sole point more than FLOATING_THRESHOLD
+    above the floor (Rempe et al.'s 3 cm: off the ground), which touches nothing whatever the labels say: those of a
+    slowed video call the top of a jump or a running stride a contact. sole_heights (T, 4) m above the floor,
+    contacts (T, 4) bool."""
+    return ~np.asarray(contacts, bool).any(axis=1) | (np.asarray(sole_heights) > FLOATING_THRESHOLD).all(axis=1)
 
 
 def flight_arcs(com_height: np.ndarray, air: np.ndarray, valid: np.ndarray, fps: float) -> list[FlightArc]:
@@ -84,12 +85,12 @@ class ClockCheck:
 
 
 def check_clock(com_height: np.ndarray, sole_heights: np.ndarray, contacts: np.ndarray, valid: np.ndarray,
-                fps: float, clearance: float, source: str) -> ClockCheck:
+                fps: float, source: str) -> ClockCheck:
     """The video's clock judged by the jumps (see the module docstring): com_height (T,) and sole_heights (T, 4) m
-    above the floor, contacts (T, 4) bool, valid (T,) bool, fps the frame rate the motion was fitted at, clearance
-    physics' contact_height (m), source the input's name for the warning. A fall scales with the square of the
+    above the floor, contacts (T, 4) bool, valid (T,) bool, fps the frame rate the motion was fitted at, source the
+    input's name for the warning. A fall scales with the square of the
     rate, so the rate that makes the fastest fall g is fps * sqrt(g / fall)."""
-    arcs = flight_arcs(com_height, airborne(sole_heights, contacts, clearance), valid, fps)
+    arcs = flight_arcs(com_height, airborne(sole_heights, contacts), valid, fps)
     if not arcs:
         return ClockCheck(0, float("nan"), float("nan"), "")
     fall = max(arc.fall for arc in arcs)
