@@ -50,10 +50,11 @@ LIMB_LANDMARKS = tuple((side + part, side + part) for side in ("left_", "right_"
     ("left_foot_index", "left_toe"), ("right_foot_index", "right_toe"))
 
 
-def reencode(source: Path, target: Path, keep_every: int) -> float:
-    """Every `keep_every`-th frame of `source` written to `target` at fps / keep_every; returns the new fps."""
+def reencode(source: Path, target: Path, keep_every: int, fps: float | None = None) -> float:
+    """Every `keep_every`-th frame of `source` written to `target` stating `fps` frames per second (default: the
+    source's / keep_every, its true rate; another is a slow-motion file); returns the stated fps."""
     capture = cv2.VideoCapture(str(source))
-    fps = capture.get(cv2.CAP_PROP_FPS) / keep_every
+    fps = fps or capture.get(cv2.CAP_PROP_FPS) / keep_every
     size = (int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT)))
     writer = cv2.VideoWriter(str(target), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
     index = 0

@@ -29,8 +29,6 @@ import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loa
 import argparse
 import dataclasses
 import json
-import os
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -40,8 +38,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_physics_limits import true_vertical_force  # noqa: E402
+from bench_physics_videos import reencode, run_video  # noqa: E402
 from bench_synthetic import CLIPS as TEST_CLIPS, SECONDS, first_seconds, model_height  # noqa: E402
-from common import MOCAP, REPO, RESULTS, VIDEOS, machine_description  # noqa: E402
+from common import MOCAP, RESULTS, VIDEOS, machine_description  # noqa: E402
 from physmocap.body import kinematics as kin  # noqa: E402
 from physmocap.body.model import CONTACT_POINTS  # noqa: E402
 from physmocap.config import Settings  # noqa: E402
@@ -110,30 +109,16 @@ def physics_row(name: str, stated_fps: float, true_fps: float = 25.0) -> dict:
                 vertical_force_error_bw=float(np.sqrt(np.mean((vertical - true_vertical_force(body, truth)) ** 2))))
 
 
-def restate_rate(source: Path, target: Path, fps: float) -> None:
-    """Every frame of `source` written to `target` stating `fps` frames per second (a slow-motion file)."""
-    capture = cv2.VideoCapture(str(source))
-    size = (int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT)))
-    writer = cv2.VideoWriter(str(target), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
-    while True:
-        ok, frame = capture.read()
-        if not ok:
-            break
-        writer.write(frame)
-    capture.release()
-    writer.release()
-
-
 def video_row(video: Path, out: Path, stated_fps: float | None = None) -> dict:
-    """`video` captured as a user would (restated at stated_fps first when given): summary.json's video_clock."""
+    """`video` captured as a user would (bench_physics_videos.run_video; restated at stated_fps first when given):
+    summary.json's video_clock."""
     if stated_fps is not None:
         restated = out.with_suffix(".mp4")
-        restate_rate(video, restated, stated_fps)
+        reencode(video, restated, 1, stated_fps)
         video = restated
-    command = [sys.executable, "-m", "physmocap.cli", "capture", str(video), "-o", str(out), "--no-overlay"]
-    done = subprocess.run(command, capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(REPO / "src")})
-    row = dict(video=video.name, exit_code=done.returncode)
-    if done.returncode == 0:
+    captured = run_video(video, out, "physcap")
+    row = dict(video=captured["video"], exit_code=captured["exit_code"])
+    if row["exit_code"] == 0:
         summary = json.loads((out / "summary.json").read_text())
         clock = summary["video_clock"]
         row.update(fps=summary["fps"], arcs=clock["arcs"], fall=clock["fall"], consistent_fps=clock["consistent_fps"],

@@ -402,7 +402,7 @@ def cmd_capture(args) -> int:
                           overlay=not args.no_overlay, progress=_progress_factory())
     invalid = summary.frames - summary.valid_frames
     print(f"captured {summary.valid_frames}/{summary.frames} frames at {summary.fps:.1f} fps"
-          + (" (given with --fps)" if settings.camera.fps else "")
+          + (" (given: --fps or camera.fps)" if settings.camera.fps else "")
           + f" ({'online' if summary.online else 'offline'} fit, physics: {summary.physics})")
     if invalid:
         details = "; ".join(f"{reason}: frames {_first_ranges(r)}" for reason, r in summary.invalid_frames.items())

@@ -61,16 +61,24 @@ def edge_easing(held: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
     return weights, edges
 
 
+def flight_parabola(com_height: np.ndarray, times: np.ndarray, start: int,
+                    stop: int) -> tuple[np.ndarray, np.ndarray, slice] | None:
+    """The parabola fitted to a COM height path (T,) m at `times` (T,) s over the flight of frames [start, stop) and
+    the frame on either side where the clip has it (its take-off and landing): its coefficients (a, b, c) of
+    a t^2 + b t + c, the window's times t from its first frame, and the window; None for fewer than 3 frames."""
+    window = slice(max(start - 1, 0), min(stop + 1, len(com_height)))
+    if window.stop - window.start < 3:
+        return None
+    t = times[window] - times[window.start]
+    return np.polyfit(t, com_height[window], 2), t, window
+
+
 def flight_support(com_height: np.ndarray, times: np.ndarray, start: int, stop: int, gravity: float) -> float:
     """The mean vertical force, in body weights, that a COM height path (T,) m at `times` (T,) s needs over the
-    flight of frames [start, stop): 1 + z''/g, z'' the curvature of the parabola fitted to the flight and the two
-    frames around it (its take-off and landing). A free fall needs 0; a body held up, 1. nan for fewer than 3
-    frames."""
-    lo, hi = max(start - 1, 0), min(stop + 1, len(com_height))
-    if hi - lo < 3:
-        return float("nan")
-    t = times[lo:hi] - times[lo]
-    return 1.0 + 2.0 * float(np.polyfit(t, com_height[lo:hi], 2)[0]) / gravity
+    flight of frames [start, stop): 1 + z''/g, z'' the curvature of `flight_parabola`. A free fall needs 0; a body
+    held up, 1. nan for fewer than 3 frames."""
+    parabola = flight_parabola(com_height, times, start, stop)
+    return float("nan") if parabola is None else 1.0 + 2.0 * float(parabola[0][0]) / gravity
 
 
 def _bridge(flags: np.ndarray, a: int, b: int) -> tuple[int, int]:

@@ -9,7 +9,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ..contacts.flights import runs, valid_runs
+from ..contacts.flights import flight_parabola, runs, valid_runs
 from ..metrics import FLOATING_THRESHOLD, GRAVITY
 
 MIN_FLIGHT_FRAMES = 3  # a parabola is fitted to these and the take-off and landing frames around them; stances too
@@ -46,7 +46,7 @@ def flight_arcs(com_height: np.ndarray, air: np.ndarray, valid: np.ndarray, fps:
     standing body the labels call airborne does not rise; a supported descent has no top; a pull-up is no parabola;
     a person walking into the picture, whom the fit raises out of the floor, has no stance before
     (docs/decisions/video-clock.md)."""
-    arcs = []
+    arcs, times = [], np.arange(len(com_height)) / fps
     for first, end in valid_runs(np.asarray(valid, bool)):
         starts, lengths = runs(air[first:end])
         for k, (s, n) in enumerate(zip(starts.tolist(), lengths.tolist(), strict=True)):
@@ -54,18 +54,20 @@ def flight_arcs(com_height: np.ndarray, air: np.ndarray, valid: np.ndarray, fps:
                 continue
             if min(lengths[k - 1], lengths[k + 1]) < MIN_FLIGHT_FRAMES:  # a jump leaves a stance and lands on one
                 continue
-            lo, hi = first + s - 1, first + s + n + 1  # with the take-off and landing frames
-            if not np.isfinite(com_height[lo:hi]).all():
+            start, stop = first + s, first + s + n  # a stance on either side: the window is the flight and both
+            if not np.isfinite(com_height[start - 1:stop + 1]).all():
                 continue
-            t = np.arange(hi - lo) / fps
-            a, b, c = np.polyfit(t, com_height[lo:hi], 2)
+            parabola = flight_parabola(com_height, times, start, stop)
+            assert parabola is not None, "at least MIN_FLIGHT_FRAMES + 2 frames"
+            (a, b, c), t, window = parabola
             if a >= 0:
                 continue
+            heights = com_height[window]
             top = -b / (2 * a)
-            rise = c - b * b / (4 * a) - max(com_height[lo], com_height[hi - 1])
-            misfit = float(np.sqrt(np.mean((np.polyval((a, b, c), t) - com_height[lo:hi]) ** 2)))
+            rise = c - b * b / (4 * a) - max(heights[0], heights[-1])
+            misfit = float(np.sqrt(np.mean((np.polyval((a, b, c), t) - heights) ** 2)))
             if t[0] < top < t[-1] and rise >= MIN_RISE and misfit <= PARABOLA_NOISE + PARABOLA_SHARE * rise:
-                arcs.append(FlightArc(first + s, first + s + n, float(-2 * a), float(rise)))
+                arcs.append(FlightArc(start, stop, float(-2 * a), float(rise)))
     return arcs
 
 
