@@ -18,6 +18,7 @@ from scipy.spatial.transform import Rotation
 from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, JOINT_NAMES, SkeletonLengths, build_body_model, template_lengths
 from physmocap.body.rotations import quat_exp
+from physmocap.contacts.flights import flight_support
 from physmocap.errors import InputError
 from physmocap.export import body_from_result
 from physmocap.io.bvh_export import write_bvh
@@ -28,7 +29,7 @@ from physmocap.retarget import retarget_result
 from physmocap.retarget.character import build_character
 from physmocap.retarget.mapping import load_character_config, map_bones, normalise
 from physmocap.retarget.rig import read_accessor, read_rig
-from physmocap.retarget.solve import follow_planted_feet, solve_feet
+from physmocap.retarget.solve import flights_at_full_gravity, follow_planted_feet, retarget_qpos, solve_feet
 from test_export import synthetic_result
 from test_glb import issue_counts, khronos_issues
 
@@ -340,6 +341,64 @@ def test_the_offset_a_sliding_contact_leaves_returns_over_the_next_steps():
     assert np.all(np.diff(distances) <= 1e-9)  # never away from the source's path
     assert np.all(np.diff(distances) >= -0.1 - 1e-9)  # at most one adjustment a step
     assert distances[-1] < 1e-9
+
+
+def jump_heights(fps: float = 30.0) -> tuple[np.ndarray, np.ndarray, slice]:
+    """Root heights (T,) m of a standing jump at `fps`: 0.9 m, a 0.3 s flight falling at g, 0.9 m; its contacts
+    (T, 4) bool, and the flight's frames."""
+    t = np.arange(45) / fps
+    take_off, flight = 0.5, 0.3
+    in_flight = (t > take_off) & (t < take_off + flight)
+    heights = 0.9 + np.where(in_flight, 9.81 / 2 * (t - take_off) * (take_off + flight - t), 0.0)
+    contacts = np.repeat(~in_flight[:, None], 4, axis=1)
+    frames = np.flatnonzero(in_flight)
+    return heights, contacts, slice(frames[0], frames[-1] + 1)
+
+
+def test_a_jump_scaled_to_a_smaller_character_still_falls_at_g():
+    """Scaling the root's path by 0.5 would make the flight fall at g / 2; the flight keeps its rise above the
+    chord unscaled, so its second differences (the fall) are the source's, and stances are only scaled."""
+    fps = 30.0
+    heights, contacts, flight = jump_heights(fps)
+    valid = np.ones(len(heights), bool)
+    scaled = flights_at_full_gravity(heights, contacts, valid, fps, 0.5)
+    fall = np.diff(scaled, 2)[flight.start:flight.stop - 2] * fps ** 2
+    assert fall == pytest.approx(np.full(len(fall), -9.81), abs=1e-9)
+    stance = contacts.any(axis=1)
+    assert scaled[stance] == pytest.approx(0.5 * heights[stance])
+
+
+def test_flights_without_both_ends_or_held_up_are_only_scaled():
+    """A flight beside a frame without a person or at the clip's end has no measured extent, and a labelled flight
+    whose body does not fall (held up: the labels' error) is no flight: each is scaled like the rest."""
+    fps = 30.0
+    heights, contacts, flight = jump_heights(fps)
+    valid = np.ones(len(heights), bool)
+    valid[flight.stop] = False
+    assert flights_at_full_gravity(heights, contacts, valid, fps, 0.5) == pytest.approx(0.5 * heights)
+    cut = flight.stop - 2
+    assert flights_at_full_gravity(heights[:cut], contacts[:cut], valid[:cut], fps, 0.5) == pytest.approx(
+        0.5 * heights[:cut])
+    held = 0.9 + (heights - 0.9) * 0.2  # an arc at g / 5: a body held up needing 0.8 body weights
+    assert flights_at_full_gravity(held, contacts, np.ones(len(held), bool), fps, 0.5) == pytest.approx(0.5 * held)
+
+
+def test_a_character_half_the_size_needs_no_support_in_the_sources_flight():
+    """The whole retargeting of a jump onto a body with half the leg length: the character's centre of mass
+    falls through the flight as the source's does (flight_support near 0, not the 0.5 body weights that scaling
+    alone leaves, the bar above which physics takes a flight for a labelling error)."""
+    fps = 30.0
+    heights, contacts, flight = jump_heights(fps)
+    source = build_body_model(template_lengths(1.70), 65.0)
+    lengths = template_lengths(1.70)
+    small = build_body_model(SkeletonLengths(**{**lengths.__dict__, "thigh": lengths.thigh / 2,
+                                                "shank": lengths.shank / 2}), 30.0)
+    qpos = np.tile(source.rest_qpos, (len(heights), 1))
+    qpos[:, 2] = heights
+    retargeted = retarget_qpos(small, qpos, source.lengths, contacts, fps)
+    com = kin.center_of_mass(small, kin.forward_kinematics(small, retargeted.qpos))
+    times = np.arange(len(heights)) / fps
+    assert flight_support(com[:, 2], times, flight.start, flight.stop, 9.81) == pytest.approx(0.0, abs=0.05)
 
 
 @pytest.mark.slow

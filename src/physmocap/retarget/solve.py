@@ -18,6 +18,11 @@ pose moves with the offset that keeps that point on its spot, and that offset st
 changes it; the pose itself stays the source's. Each new footstep lands up to STEP_ADJUSTMENT leg lengths nearer
 the source's own footprint, so the character returns to the capture's path over the following steps
 (docs/decisions/retarget-follow-planted-feet.md).
+
+Scaling a path in space but not in time scales its accelerations too: a jump scaled by 0.5 would fall at g / 2,
+a flight neither the character's physics nor a viewer can believe. So over each whole-body flight the root keeps
+the source's rise above the chord from take-off to landing at full size (`flights_at_full_gravity`), and the
+character falls as the source does (docs/decisions/retarget-grf.md).
 """
 
 from __future__ import annotations
@@ -29,7 +34,8 @@ import numpy as np
 from ..body import kinematics as kin
 from ..body.ik import solve_points
 from ..body.model import CONTACT_POINTS, JOINT_NAMES, BodyModel
-from ..contacts.flights import ease_frames, edge_easing
+from ..contacts.flights import STANDING_SUPPORT, ease_frames, edge_easing, flight_support, runs
+from ..metrics import GRAVITY
 
 POSE_WEIGHT = 1.0  # each joint's pull towards the scaled source pose (residual in metres)
 CONTACT_WEIGHT = 30.0  # a contact point's pull to its planted spot; much stronger than the pose, so feet stay put
@@ -60,6 +66,31 @@ def scaled_qpos(source_qpos: np.ndarray, scale: float, lift: float = 0.0) -> np.
     qpos[:, 0:3] *= scale
     qpos[:, 2] += lift
     return qpos
+
+
+def flights_at_full_gravity(heights: np.ndarray, contacts: np.ndarray, valid: np.ndarray, fps: float,
+                            scale: float) -> np.ndarray:
+    """(T,) m: the source's root heights (T,) m times `scale`, except over each whole-body flight of the labels (no
+    point in contact, contacts (T, 4) bool) between two frames with a person (valid (T,)) and a contact, at `fps`
+    frames/s, whose root falls as a body in flight does (`flight_support` at most STANDING_SUPPORT): there the
+    scaled chord from take-off to landing plus the source's own rise above it, unscaled. The chord is straight, so
+    the height's second difference, the fall, stays the source's. A flight with an end outside the clip or beside
+    frames without a person has no measured extent, and one held up (a labelling error) does not fall: both are
+    only scaled."""
+    heights = np.asarray(heights, dtype=float)
+    out = scale * heights
+    airborne = np.asarray(valid, bool) & ~np.asarray(contacts, bool).any(axis=1)
+    times = np.arange(len(out)) / fps
+    for start, length in zip(*runs(airborne), strict=True):
+        before, after = start - 1, start + length
+        if not airborne[start] or before < 0 or after >= len(out) or not (valid[before] and valid[after]):
+            continue
+        if not flight_support(heights, times, start, after, GRAVITY) <= STANDING_SUPPORT:
+            continue
+        frames = np.arange(start, after)
+        chord = np.interp(frames, [before, after], heights[[before, after]])
+        out[frames] = scale * chord + (heights[frames] - chord)
+    return out
 
 
 def follow_planted_feet(points: np.ndarray, contacts: np.ndarray,
@@ -145,11 +176,15 @@ def solve_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, fps: flo
     return solve_points(body, qpos, joints, goal, weights, feet, iterations), spots
 
 
-def retarget_qpos(body: BodyModel, source_qpos: np.ndarray, source_lengths, contacts: np.ndarray,
-                  fps: float) -> Retargeted:
+def retarget_qpos(body: BodyModel, source_qpos: np.ndarray, source_lengths, contacts: np.ndarray, fps: float,
+                  valid: np.ndarray | None = None) -> Retargeted:
     """The source motion (T, nq) of a skeleton with `source_lengths` (SkeletonLengths) on `body`: uniform scale
-    by the leg lengths, the soles brought to the character's, then `solve_feet`."""
+    by the leg lengths (flights at full gravity: `flights_at_full_gravity`, over the valid (T,) frames, None:
+    all), the soles brought to the character's, then `solve_feet`."""
     scale = leg_length(body.lengths) / leg_length(source_lengths)
+    contacts = np.asarray(contacts, bool)
     scaled = scaled_qpos(source_qpos, scale, body.lengths.ankle_height - scale * source_lengths.ankle_height)
-    qpos, spots = solve_feet(body, scaled, np.asarray(contacts, bool), fps)
+    valid = np.ones(len(contacts), bool) if valid is None else np.asarray(valid, bool)
+    scaled[:, 2] += flights_at_full_gravity(source_qpos[:, 2], contacts, valid, fps, scale) - scale * source_qpos[:, 2]
+    qpos, spots = solve_feet(body, scaled, contacts, fps)
     return Retargeted(qpos, scaled, scale, spots)

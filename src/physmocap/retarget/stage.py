@@ -301,7 +301,7 @@ def retarget_result(result_path: str | os.PathLike, character_path: str | os.Pat
     T = len(source["qpos"])
 
     started = time.perf_counter()
-    retargeted = retarget_qpos(body, source["qpos"], source_body.lengths, contacts, fps)
+    retargeted = retarget_qpos(body, source["qpos"], source_body.lengths, contacts, fps, valid)
     retarget_seconds = time.perf_counter() - started
     notes = list(character.notes)
     started = time.perf_counter()
