@@ -252,6 +252,25 @@ def test_contact_floor_replaces_a_kinematic_floor_the_feet_sink_deeper_through(c
     assert (kept == contacts).all()
 
 
+def test_contact_floor_keeps_an_untrusted_floor_and_the_confidence_of_a_refitted_one(camera):
+    """The kinematic stage did not trust the feet's plane (it leant from the person's posture) and levelled the
+    floor with the posture: the same feet, labelled in contact, must not lean it again, and the floor says it is
+    still not trusted. A trusted floor is refitted through the contacts and keeps its confidence."""
+    frames = 40
+    soles, contacts = running_soles(frames)
+    valid = np.ones(frames, bool)
+    lean = np.radians(12.0)
+    tilted_world = np.array([np.sin(lean), 0.0, np.cos(lean)])
+    posture = Floor(camera.R @ tilted_world, -float(camera.R @ tilted_world @ camera.t), 0.3, 1.0, 25.0, False,
+                    "posture")
+    floor, _ = _contact_floor(camera.to_camera(soles), contacts, valid, camera, posture, False, TrajoptSettings())
+    assert floor is posture
+    trusted = dataclasses.replace(posture, trusted=True, source="feet and posture")
+    floor, _ = _contact_floor(camera.to_camera(soles), contacts, valid, camera, trusted, False, TrajoptSettings())
+    assert np.degrees(np.arccos(floor.normal @ camera.R[:, 2])) < 1.0  # refitted onto the feet
+    assert floor.trusted and floor.source == "contacts" and floor.prior_disagreement == 25.0
+
+
 def on_floor(body, q):
     """q moved up or down so that its lowest heel or toe touches z = 0."""
     soles = kin.forward_kinematics(body, q).points[:, body.point_index(CONTACT_POINTS), 2]

@@ -93,7 +93,9 @@ class Floor:
     prior_disagreement, degrees, between the plane of the feet alone and the person's own vertical (nan where
     not measured); trusted, False where they disagree so far that the normal is the person's vertical instead;
     source: "feet and posture", "feet" (fit_floor alone), "posture" or "unseen feet" (not trusted: the feet's plane
-    leant from the posture, or no foot was in the picture), or "given" (the user's)."""
+    leant from the posture, or no foot was in the picture), "contacts" (B.4's plane through the labelled contacts,
+    refining a trusted one: tilt_spread and prior_disagreement are then the kinematic estimate's), or "given" (the
+    user's)."""
 
     normal: np.ndarray
     offset: float

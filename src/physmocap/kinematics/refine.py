@@ -213,10 +213,13 @@ def _contact_floor(soles: np.ndarray, contacts: np.ndarray, valid: np.ndarray, c
                    keep_floor: bool, settings: TrajoptSettings) -> tuple[Floor, np.ndarray]:
     """B.4's second step: the floor through the contact points `soles` (T, 4, 3, camera frame) unless
     keep_floor (or too few contacts, or it would sink the feet, deeper than `floor` does: then `floor`), and the
-    contacts (T, 4) kept as its inliers."""
+    contacts (T, 4) kept as its inliers. A kinematic floor that was not trusted (its feet's plane leant from the
+    person's posture, kinematics.floor) is kept as well: the contacts are the same feet, and refitted through them
+    the floor leant again, by 22 degrees on one video, while reporting itself trusted. The refitted floor keeps the
+    kinematic one's confidence, source "contacts"."""
     kept = contacts.copy()
     if contacts.sum() >= MIN_FLOOR_POINTS:
-        if not keep_floor:
+        if not keep_floor and floor.trusted:
             fitted, _ = fit_contact_floor(soles[contacts], camera.R[:, 2], settings.floor_outlier_distance,
                                           settings.floor_roll_prior, settings.floor_pitch_prior)
             # A floor that many feet would sink through is made of wrong labels (feet labelled in contact in
@@ -225,7 +228,8 @@ def _contact_floor(soles: np.ndarray, contacts: np.ndarray, valid: np.ndarray, c
             sunk, kinematic_sunk = (np.percentile(f.height(soles[valid].reshape(-1, 3)), SINK_PERCENTILE)
                                     for f in (fitted, floor))
             if sunk > -SINK_DEPTH or sunk > kinematic_sunk:
-                floor = fitted
+                floor = dataclasses.replace(floor, normal=fitted.normal, offset=fitted.offset,
+                                            inlier_fraction=fitted.inlier_fraction, source="contacts")
             else:
                 log.info("trajopt: the floor through the labelled contacts lies above %.0f%% of the foot points "
                          "(by %.0f cm, the kinematic floor by %.0f); the kinematic floor is kept.", SINK_PERCENTILE,
