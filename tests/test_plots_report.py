@@ -16,7 +16,7 @@ from physmocap.io.video import VideoWriter
 from physmocap.result import save_result
 from physmocap.viz.overlay import FORCE_COLOUR, draw_overlay, force_arrow_scale, force_arrows_2d, render_overlay
 from physmocap.viz.plots import PLOT_FILES, write_plots
-from physmocap.viz.report import run_metrics, write_report, write_report_parts
+from physmocap.viz.report import floor_sentence, run_metrics, write_report, write_report_parts
 from physmocap.viz.viewer import write_viewer
 from test_export import synthetic_result
 
@@ -83,6 +83,21 @@ def test_report_links_every_output_and_shows_the_metrics(result, tmp_path):
     metrics = json.loads(Path(files["metrics"]).read_text())
     assert f"{metrics['reprojection_error']['final']:.3g}" in page
     assert "mean joint acceleration" in page and "implied GRF" in page
+
+
+def test_report_says_which_floor_and_whether_it_is_trusted(result, tmp_path):
+    """The page names the floor the motion stands on; one the run did not trust says so and how to give it."""
+    def with_floor(**confidence):
+        return dict(result, floor_confidence=np.array(json.dumps(confidence)))
+
+    trusted = floor_sentence(with_floor(trusted=True, source="contacts", prior_disagreement_degrees=2.0))
+    assert trusted.startswith("Floor: fitted to the feet in contact") and "not trusted" not in trusted
+    untrusted = with_floor(trusted=False, source="posture", inlier_fraction=0.7, tilt_spread_degrees=9.9,
+                           prior_disagreement_degrees=35.3)
+    page = Path(write_report(tmp_path, untrusted)["report"]).read_text()
+    assert "level with the person's own vertical" in page and "not trusted" in page
+    assert "leant 35 degrees" in page and "--floor" in page
+    assert floor_sentence({}) == ""
 
 
 def test_force_arrows_point_along_the_force():

@@ -169,6 +169,24 @@ def _number(value: float | None) -> str:
     return f"{value:.3g}" if abs(value) < 1000 else f"{value:.0f}"
 
 
+def floor_sentence(result: dict[str, np.ndarray]) -> str:
+    """One sentence on the floor the motion stands on and how far it is trusted (result.npz floor_confidence;
+    empty for a result file without it)."""
+    if "floor_confidence" not in result:
+        return ""
+    floor = json.loads(str(result["floor_confidence"]))
+    source = {"feet and posture": "fitted to the feet, its tilt pulled towards the person's vertical",
+              "feet": "fitted to the feet", "contacts": "fitted to the feet in contact (Rempe et al.'s B.4)",
+              "given": "given by the user", "posture": "level with the person's own vertical",
+              "unseen feet": "fitted to where the fit placed feet that were never in the picture"}
+    sentence = f"Floor: {source.get(floor.get('source'), str(floor.get('source')))}"
+    if floor.get("trusted", True):
+        return sentence + "."
+    why = ("the feet were outside the picture on every frame" if floor.get("source") == "unseen feet" else
+           f"the plane of the feet leant {floor.get('prior_disagreement_degrees') or float('nan'):.0f} degrees from it")
+    return sentence + f"; <strong>not trusted</strong> ({why}): give it with --floor if it is known."
+
+
 def report_html(run_dir: Path, result: dict[str, np.ndarray], rows: list[Metric], plots: dict[str, str]) -> str:
     """The report page; links are relative to `run_dir`, where it is written."""
     fps, frames = float(result["fps"]), len(result["joints_world"])
@@ -203,7 +221,8 @@ def report_html(run_dir: Path, result: dict[str, np.ndarray], rows: list[Metric]
 </style></head><body>
 <h1>physmocap run: {html.escape(run_dir.name)}</h1>
 <p>{frames} frames at {fps:.4g} fps ({frames / fps:.1f} s), {valid} reconstructed; physics: {html.escape(physics)};
-body {float(result["body_height"]):.2f} m, {float(result["body_mass"]):.0f} kg. Time per stage: {timings}.</p>
+body {float(result["body_height"]):.2f} m, {float(result["body_mass"]):.0f} kg. Time per stage: {timings}.
+{floor_sentence(result)}</p>
 <h2>Files</h2><ul>{links}</ul>
 {video}
 <h2>Metrics</h2>
