@@ -15,6 +15,7 @@ from physmocap.config import FitSettings, Settings, TrajoptSettings
 from physmocap.kinematics.fit import MARKERS
 from physmocap.kinematics.refine import (
     _contact_floor,
+    added_contacts,
     blend_window,
     false_flights,
     fit_contact_floor,
@@ -343,6 +344,18 @@ def test_false_flights_get_the_points_near_the_floor_back(body):
     flight = q.copy()
     flight[6:24, 2] += 0.5 * 9.81 * ((8.5 / FPS) ** 2 - t[6:24] ** 2)
     assert not false_flights(body, flight, FPS, labelled, valid, near).any()
+
+
+def test_no_contact_is_added_where_the_body_stands_on_another_level(body):
+    """Standing still, unlabelled, first on the floor, then on ground 1.3 m below it (the man who stepped off the
+    box the floor was found on): the resting points are given back on the floor only; under it they stay the
+    floor's outliers, which B.4 would otherwise pull up to it."""
+    frames = 40
+    q = on_floor(body, np.repeat(body.rest_qpos[None], frames, axis=0))
+    q[20:, 2] -= 1.3
+    unlabelled = np.zeros((frames, 4), bool)
+    added = added_contacts(body, q, FPS, unlabelled, np.ones(frames, bool), TrajoptSettings())
+    assert added[:20].any(axis=1).all() and not added[20:].any()
 
 
 def test_a_runs_short_flights_stay_flights_though_the_fit_smooths_them(body):

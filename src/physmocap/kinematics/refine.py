@@ -171,6 +171,23 @@ def resting_points(body, qpos: np.ndarray, fps: float, contacts: np.ndarray, val
     return resting & ~contacts
 
 
+def added_contacts(body, qpos: np.ndarray, fps: float, contacts: np.ndarray, valid: np.ndarray,
+                   settings: TrajoptSettings) -> np.ndarray:
+    """(T, 4) flags B.4 adds to the contacts (T, 4) kept on its floor, for the motion qpos (T, nq) on that floor
+    (z = 0) at `fps`: the points of false flights (`false_flights`) and, with settings.rest_height, the points
+    resting on the floor (`resting_points`). Only on valid (T,) frames whose centre of mass lies above the floor:
+    a body under it stands on another level (the ground beside the box the floor was found on), and contacts
+    added there pulled it up to the floor, 80 px out of the picture (docs/decisions/refine-short-runs.md)."""
+    on_this_floor = np.asarray(valid, bool) & (kin.center_of_mass(body, kin.forward_kinematics(body, qpos))[:, 2] > 0.0)
+    added = false_flights(body, qpos, fps, contacts, on_this_floor, settings.floor_outlier_distance)
+    if added.any():
+        log.info("trajopt: %d frame(s) labelled all in the air while the body does not fall: contacts added.",
+                 int(added.any(axis=1).sum()))
+    if settings.rest_height > 0:
+        added |= resting_points(body, qpos, fps, contacts | added, on_this_floor, settings)
+    return added
+
+
 def clean_runs(flags: np.ndarray, min_frames: int) -> np.ndarray:
     """flags without the runs of True shorter than min_frames."""
     edges = np.flatnonzero(np.diff(np.concatenate([[0], flags.astype(int), [0]])))
@@ -390,15 +407,8 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
     anchor = int(np.argmax(obs.valid))
     qpos, camera = move_world_to_floor(qpos, camera, floor, anchor)
     removed = labelled & ~kept
-    added = false_flights(body, qpos, fps, kept, obs.valid, settings.floor_outlier_distance)
-    if added.any():
-        log.info("trajopt: %d frame(s) labelled all in the air while the body does not fall: contacts added.",
-                 int(added.any(axis=1).sum()))
+    added = added_contacts(body, qpos, fps, kept, obs.valid, settings)
     kept |= added
-    if settings.rest_height > 0:
-        resting = resting_points(body, qpos, fps, kept, obs.valid, settings)
-        added |= resting
-        kept |= resting
     # 3. Again, with the feet in contact on the floor (z = 0 in the new world).
     on_floor_settings = contact_fit_settings(fit, settings, True)
     fitter = KinematicFitter(body, camera, on_floor_settings, fps)
