@@ -98,6 +98,7 @@ def test_report_says_which_floor_and_whether_it_is_trusted(result, tmp_path):
     assert "level with the person's own vertical" in page and "not trusted" in page
     assert "leant 35 degrees" in page and "--floor" in page
     assert floor_sentence({}) == ""
+    assert "&lt;b&gt;" in floor_sentence(with_floor(trusted=True, source="<b>"))  # a foreign file's words, escaped
 
 
 def test_force_arrows_point_along_the_force():

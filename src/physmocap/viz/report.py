@@ -179,7 +179,7 @@ def floor_sentence(result: dict[str, np.ndarray]) -> str:
               "feet": "fitted to the feet", "contacts": "fitted to the feet in contact (Rempe et al.'s B.4)",
               "given": "given by the user", "posture": "level with the person's own vertical",
               "unseen feet": "fitted to where the fit placed feet that were never in the picture"}
-    sentence = f"Floor: {source.get(floor.get('source'), str(floor.get('source')))}"
+    sentence = f"Floor: {source.get(floor.get('source'), html.escape(str(floor.get('source'))))}"
     if floor.get("trusted", True):
         return sentence + "."
     why = ("the feet were outside the picture on every frame" if floor.get("source") == "unseen feet" else
