@@ -155,6 +155,7 @@ class OnlineFitter:
         self._depths: deque[float] = deque(maxlen=DEPTH_WINDOW)
         self._past = CausalPast([], [])
         self._foot_swaps = CausalFootSwaps(FOOT_SWAP_MARGIN)
+        self._seen = False  # whether the last fitted frame showed the person
         self.foot_swap_frames: list[int] = []
 
     def push(self, keypoints_2d: np.ndarray, landmarks_3d: np.ndarray, valid: bool) -> list[tuple[int, np.ndarray]]:
@@ -260,6 +261,12 @@ class OnlineFitter:
         if np.isfinite(depth):
             self._depths.append(float(depth))
         depth = np.array([np.median(self._depths)])
+        if valid and not self._seen:
+            # Seen again after frames without the person: the feet's reading starts as detected. Kept through the
+            # gap, a swapped reading was predicted onward and stayed (sports2d: 45 frames read swapped where the
+            # whole clip's decision swaps one).
+            self._foot_swaps.swapped = False
+        self._seen = valid
         q = predicted_pose(fitter, self._past) if self._past.poses else None
         if s.fit.undo_foot_swaps and valid and q is not None and len(self._past.poses) == 2:
             # Both readings of the feet, scored at the pose the past predicts; the better one is fitted.
