@@ -33,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from bench_physics_videos import feet_only_jitter  # noqa: E402
 from common import RESULTS  # noqa: E402
 from physmocap.config import PhysicsSettings  # noqa: E402
-from physmocap.dynamics.physcap import integration_steps, tracking_gains  # noqa: E402
+from physmocap.dynamics.physcap import feedforward_shares, integration_steps, tracking_gains  # noqa: E402
 
 GROUPS = {"root horizontal": 0, "root height": 2, "root rotation": 3, "joints": 6}  # a DOF index of each group
 
@@ -51,12 +51,11 @@ def response_peak(kp: float, kd: float) -> dict:
 def linear_tracker(path: np.ndarray, fps: float, settings: PhysicsSettings) -> np.ndarray:
     """(T, 2) m: eq. (4) on the root's horizontal DOFs alone, tracking `path` (T, 2) m as the tracker does: the
     target moves along the chord between frames at the chord's velocity, the backward-difference acceleration
-    fed forward times x / (e^x - 1), x = kd / fps, semi-implicit Euler steps of `integration_steps`."""
+    fed forward at `feedforward_shares`, semi-implicit Euler steps of `integration_steps`."""
     kp_all, kd_all = tracking_gains(settings, 7)
     kp, kd = float(kp_all[0]), float(kd_all[0])
     steps, h = integration_steps(settings, fps)
-    frame_damping = kd / fps
-    feedforward = settings.acceleration_feedforward * frame_damping / np.expm1(frame_damping)
+    feedforward = float(feedforward_shares(settings, kd_all, fps)[0])
     position, velocity, chord_before = path[0].copy(), np.zeros(2), np.zeros(2)
     out = [position.copy()]
     for k in range(1, len(path)):

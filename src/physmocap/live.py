@@ -239,11 +239,9 @@ def _live_report(source: str, loop: _FitLoop, detector: _DetectionThread, fps: f
     obs = _observations(loop.keypoints, loop.world, loop.reasons, fps, image_size, source,
                         detector.seconds / max(detector.detected, 1))
     q = np.stack([after.qpos[i] for i in range(T)])
-    swaps = np.zeros(T, bool)
-    swaps[[i for i in fitter.foot_swap_frames if i < T]] = True
     motion = KinematicMotion(fitter.body, fitter.calibration, fitter.camera, fitter.floor, q,
                              reprojection_errors(fitter.body, fitter.camera, q, obs), obs.valid.copy(),
-                             loop.fit_seconds, True, swaps)
+                             loop.fit_seconds, True, fitter.foot_swaps(T))
     physics = after.physics_motion(T)
     if physics is not None:  # both on the floor the physics refined, which becomes z = 0
         motion, physics = onto_refined_floor(motion, physics)

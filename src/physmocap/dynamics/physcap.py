@@ -100,6 +100,17 @@ def tracking_gains(settings: PhysicsSettings, nv: int) -> tuple[np.ndarray, np.n
     return kp, kd
 
 
+def feedforward_shares(settings: PhysicsSettings, kd: np.ndarray, fps: float) -> np.ndarray:
+    """Eq. (4)'s fed-forward share of the kinematic acceleration per DOF, for damping kd (n,) 1/s at `fps`: between
+    frames the target is a chord, whose velocity step at the frame the damping alone reaches by the interval's end
+    when the acceleration is fed forward at x / (e^x - 1), x = kd / fps (1 as the interval vanishes, the paper's
+    continuous form), times settings.acceleration_feedforward: a larger share overshoots the chord
+    (docs/decisions/physics-video-jitter.md)."""
+    frame_damping = np.asarray(kd, dtype=float) / fps
+    return settings.acceleration_feedforward * np.divide(frame_damping, np.expm1(frame_damping),
+                                                         out=np.ones(len(frame_damping)), where=frame_damping > 0.0)
+
+
 def within_bound(forces: np.ndarray, residual: np.ndarray, bound: float) -> bool:
     """The summed contact force (4, 3), the residual's force and its torque (6,) each no larger than bound (N; the
     torque in N m); False for non-finite values. In floats: numpy's norms cost more than the arithmetic."""
@@ -136,13 +147,7 @@ class PhysCapTracker:
         nv = self.model.nv
         self.substeps, self.dt = integration_steps(settings, fps)
         self.kp, self.kd = tracking_gains(settings, nv)
-        # Eq. (4)'s feed-forward share per DOF: between frames the target is a chord, whose velocity step at the
-        # frame the damping alone reaches by the interval's end when the acceleration is fed forward at x / (e^x - 1),
-        # x = kd / fps (1 as the interval vanishes, the paper's continuous form): a larger share overshoots the chord
-        # (docs/decisions/physics-video-jitter.md)
-        frame_damping = self.kd / fps
-        self.feedforward = settings.acceleration_feedforward * np.divide(
-            frame_damping, np.expm1(frame_damping), out=np.ones(nv), where=frame_damping > 0.0)
+        self.feedforward = feedforward_shares(settings, self.kd, fps)
         # kd times the share of the kinematic velocity in the derivative term (settings.rotation_velocity_share)
         self.kd_target = self.kd.copy()
         self.kd_target[3:] *= settings.rotation_velocity_share

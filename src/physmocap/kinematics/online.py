@@ -172,6 +172,12 @@ class OnlineFitter:
             self.foot_swap_frames.append(index)
         return [(index, q)]
 
+    def foot_swaps(self, frames: int) -> np.ndarray:
+        """(frames,) bool: the stream's frames whose feet were read swapped (foot_swap_frames)."""
+        swaps = np.zeros(frames, dtype=bool)
+        swaps[self.foot_swap_frames] = True
+        return swaps
+
     def skip(self) -> list[tuple[int, np.ndarray]]:
         """A frame that is not fitted (live capture dropped it): during the warm-up it is held as unseen; after,
         its pose is the constant-velocity prediction the fit of an unseen frame starts from, at a fraction of the

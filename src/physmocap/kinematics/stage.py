@@ -134,11 +134,9 @@ def _fit_online(obs: Observations, settings: Settings, progress: ProgressFactory
     store(online.finish())
     if online.body is None or online.calibration is None or online.floor is None or qpos is None:
         raise ReconstructionError(f"{obs.source}: no frame shows a person to fit.")
-    swaps = np.zeros(obs.num_frames, dtype=bool)
-    swaps[online.foot_swap_frames] = True
     unmeasured = np.full(obs.num_frames, np.nan)  # fit_motion measures the reprojection errors
     return KinematicMotion(online.body, online.calibration, online.camera, online.floor, qpos, unmeasured,
-                           obs.valid.copy(), 0.0, True, swaps)
+                           obs.valid.copy(), 0.0, True, online.foot_swaps(obs.num_frames))
 
 
 def _fit_offline(obs: Observations, settings: Settings, progress: ProgressFactory | None) -> KinematicMotion:

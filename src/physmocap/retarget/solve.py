@@ -34,7 +34,7 @@ import numpy as np
 from ..body import kinematics as kin
 from ..body.ik import solve_points
 from ..body.model import CONTACT_POINTS, JOINT_NAMES, BodyModel
-from ..contacts.flights import STANDING_SUPPORT, ease_frames, edge_easing, flight_support, runs
+from ..contacts.flights import STANDING_SUPPORT, ease_frames, edge_easing, flight_support, valid_runs
 from ..metrics import GRAVITY
 
 POSE_WEIGHT = 1.0  # each joint's pull towards the scaled source pose (residual in metres)
@@ -81,9 +81,9 @@ def flights_at_full_gravity(heights: np.ndarray, contacts: np.ndarray, valid: np
     out = scale * heights
     airborne = np.asarray(valid, bool) & ~np.asarray(contacts, bool).any(axis=1)
     times = np.arange(len(out)) / fps
-    for start, length in zip(*runs(airborne), strict=True):
-        before, after = start - 1, start + length
-        if not airborne[start] or before < 0 or after >= len(out) or not (valid[before] and valid[after]):
+    for start, after in valid_runs(airborne):
+        before = start - 1
+        if before < 0 or after >= len(out) or not (valid[before] and valid[after]):
             continue
         if not flight_support(heights, times, start, after, GRAVITY) <= STANDING_SUPPORT:
             continue
@@ -183,8 +183,9 @@ def retarget_qpos(body: BodyModel, source_qpos: np.ndarray, source_lengths, cont
     all), the soles brought to the character's, then `solve_feet`."""
     scale = leg_length(body.lengths) / leg_length(source_lengths)
     contacts = np.asarray(contacts, bool)
-    scaled = scaled_qpos(source_qpos, scale, body.lengths.ankle_height - scale * source_lengths.ankle_height)
+    lift = body.lengths.ankle_height - scale * source_lengths.ankle_height
+    scaled = scaled_qpos(source_qpos, scale, lift)
     valid = np.ones(len(contacts), bool) if valid is None else np.asarray(valid, bool)
-    scaled[:, 2] += flights_at_full_gravity(source_qpos[:, 2], contacts, valid, fps, scale) - scale * source_qpos[:, 2]
+    scaled[:, 2] = flights_at_full_gravity(source_qpos[:, 2], contacts, valid, fps, scale) + lift
     qpos, spots = solve_feet(body, scaled, contacts, fps)
     return Retargeted(qpos, scaled, scale, spots)

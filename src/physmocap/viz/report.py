@@ -169,17 +169,20 @@ def _number(value: float | None) -> str:
     return f"{value:.3g}" if abs(value) < 1000 else f"{value:.0f}"
 
 
+# camera.Floor.source -> what the report says of it
+FLOOR_SOURCES = {"feet and posture": "fitted to the feet, its tilt pulled towards the person's vertical",
+                 "feet": "fitted to the feet", "contacts": "fitted to the feet in contact (Rempe et al.'s B.4)",
+                 "given": "given by the user", "posture": "level with the person's own vertical",
+                 "unseen feet": "fitted to where the fit placed feet that were never in the picture"}
+
+
 def floor_sentence(result: dict[str, np.ndarray]) -> str:
     """One sentence on the floor the motion stands on and how far it is trusted (result.npz floor_confidence;
     empty for a result file without it)."""
     if "floor_confidence" not in result:
         return ""
     floor = json.loads(str(result["floor_confidence"]))
-    source = {"feet and posture": "fitted to the feet, its tilt pulled towards the person's vertical",
-              "feet": "fitted to the feet", "contacts": "fitted to the feet in contact (Rempe et al.'s B.4)",
-              "given": "given by the user", "posture": "level with the person's own vertical",
-              "unseen feet": "fitted to where the fit placed feet that were never in the picture"}
-    sentence = f"Floor: {source.get(floor.get('source'), html.escape(str(floor.get('source'))))}"
+    sentence = f"Floor: {FLOOR_SOURCES.get(floor.get('source'), html.escape(str(floor.get('source'))))}"
     if floor.get("trusted", True):
         return sentence + "."
     why = ("the feet were outside the picture on every frame" if floor.get("source") == "unseen feet" else
