@@ -571,6 +571,26 @@ def test_online_physics_keeps_the_feet_on_a_refined_tilted_floor(body):
     assert np.abs(soles @ normal).max() < 0.005  # over the last second
 
 
+def test_an_untrusted_warm_up_floor_keeps_its_tilt_and_has_its_height_refined(body):
+    """A warm-up floor that was not trusted (the feet's plane leant from the posture, and the floor was levelled
+    with the posture instead) is not leant towards the same feet by the online refits; its height still follows
+    them. Without keep_tilt the refined floor turns the 6 degrees of the feet's plane."""
+    q, normal = _on_tilted_floor(body, 250, 6.0)
+    q[:, 2] += 0.03  # the feet 3 cm above the warm-up's floor
+    contacts = np.ones((250, 4), bool)
+    refined = run_physcap(body, q, FPS, contacts, np.ones(250, bool), PhysicsSettings(), refine_floor=True,
+                          floor_trusted=False)
+    leaning = run_physcap(body, q, FPS, contacts, np.ones(250, bool), PhysicsSettings(), refine_floor=True)
+    assert refined.floor_plane is not None and leaning.floor_plane is not None
+    assert np.allclose(refined.floor_plane[:3], [0.0, 0.0, 1.0])
+    assert np.degrees(np.arccos(leaning.floor_plane[:3] @ normal)) < 1.0
+    # the last refit (at 9 s) lays the floor at the median of each frame's lowest point, frames 1-224 (a point is
+    # evidence from the second frame of its contact on)
+    soles = kin.forward_kinematics(body, q[1:225]).points[:, body.point_index(CONTACT_POINTS)]
+    lowest = np.median(soles[..., 2].min(axis=1))
+    assert abs(refined.floor_plane[3] + lowest) < 0.002  # the plane z = lowest: n . x + d = 0 with d = -lowest
+
+
 def test_resting_contacts_do_not_dip_under_the_floor_while_the_feet_roll(body):
     """Feet pitching and rolling while all four points are in contact never take a point under the floor."""
     names = [b.joint for b in body.bodies]

@@ -190,7 +190,8 @@ class _FitLoop:
 
     def deliver(self, results: list[tuple[int, np.ndarray]], fitted_straight_away: bool) -> None:
         for index, q in results:
-            final, details = self.after.push(index, q, self.fitter.body, self.keypoints, self.reasons)
+            final, details = self.after.push(index, q, self.fitter.body, self.fitter.floor, self.keypoints,
+                                             self.reasons)
             if index in self.arrivals:
                 self.after.latency[index] = details["latency_s"] = time.perf_counter() - self.arrivals[index]
                 if self.warning and fitted_straight_away:
@@ -450,8 +451,9 @@ class _AfterFit:
         self.physics_frames: dict[int, tuple] = {}
         self.seconds = 0.0
 
-    def push(self, index: int, q: np.ndarray, body, keypoints: list, reasons: list) -> tuple[np.ndarray, dict]:
-        """Frame `index`'s fitted pose q (nq,) -> its final pose and the details `on_pose` receives."""
+    def push(self, index: int, q: np.ndarray, body, floor, keypoints: list, reasons: list) -> tuple[np.ndarray, dict]:
+        """Frame `index`'s fitted pose q (nq,) on the warm-up's floor -> its final pose and the details `on_pose`
+        receives."""
         started = time.perf_counter()
         self.qpos[index] = q
         first = causal_window_start(index)
@@ -472,7 +474,8 @@ class _AfterFit:
         final = q
         if self.physics_on:
             if self.stream is None:
-                self.stream = PhysicsStream(body, self.settings.physics, self.fps, self.settings.camera.floor is None)
+                self.stream = PhysicsStream(body, self.settings.physics, self.fps, self.settings.camera.floor is None,
+                                            floor_trusted=floor.trusted)
             elif valid[-1] and len(valid) > 1 and not valid[-2]:
                 self.stream.resume(q)  # the person seen again after frames without one, as run_physcap does
             final, frame, corrected = self.stream.push(q, contacts, stationary)

@@ -346,7 +346,8 @@ def physcap(settings: Settings, progress: ProgressFactory | None, obs: Observati
     refine_floor = settings.online and settings.camera.floor is None
     refined_input = settings.refines_before_physics  # the pipeline then tracks REFINE's motion
     return run_physcap(motion.body, motion.qpos, obs.fps, contacts, stationary, settings.physics,
-                       _bar(progress, "physics", obs.num_frames), refine_floor, motion.valid, refined_input)
+                       _bar(progress, "physics", obs.num_frames), refine_floor, motion.valid, refined_input,
+                       floor_trusted=motion.floor.trusted)
 
 
 def trajopt(settings: Settings, progress: ProgressFactory | None, obs: Observations, motion: KinematicMotion,

@@ -39,16 +39,18 @@ class FloorRefiner:
 
     refit_interval: s between robust refits; first_refit: s of frames before the first (the warm-up placed the
     floor from as many); tilt_rate: rad/s and lift_rate: m/s, the fastest the estimate moves towards a new fit
-    (the physics sees its targets move, so it must be gentle)."""
+    (the physics sees its targets move, so it must be gentle); keep_tilt: refine the height only, for a warm-up
+    floor that was not trusted and was levelled with the posture instead (its feet's plane leant from it)."""
 
     def __init__(self, body: BodyModel, fps: float, refit_interval: float, tilt_rate: float, lift_rate: float,
-                 first_refit: float):
+                 first_refit: float, keep_tilt: bool = False):
         self.model = body.mujoco_model()
         self.data = mujoco.MjData(self.model)
         self.sites = np.array([self.model.site(n).id for n in CONTACT_POINTS])
         self.refit_frames = max(1, round(refit_interval * fps))
         self.first_refit = round(first_refit * fps)
         self.max_turn, self.max_lift = tilt_rate / fps, lift_rate / fps
+        self.keep_tilt = keep_tilt
         self.normal, self.offset = WORLD_UP.copy(), 0.0  # the current estimate
         self.fitted_normal, self.fitted_offset = WORLD_UP.copy(), 0.0  # the latest fit, approached at the rates above
         self._points = np.empty((MAX_POINTS, 3))
@@ -88,10 +90,14 @@ class FloorRefiner:
         floor through the middle of a fit's contact points held the body up by their spread (10-15 mm on real
         videos, against the image; docs/decisions/physics-online-support.md)."""
         points, frames = self._points[:self._count], self._point_frames[:self._count]
-        floor, _ = fit_floor(points, WORLD_UP, prior_weight=TILT_PRIOR)
+        if self.keep_tilt:  # the feet that leant the warm-up's plane would lean this one too
+            normal, offset = WORLD_UP, 0.0
+        else:
+            floor, _ = fit_floor(points, WORLD_UP, prior_weight=TILT_PRIOR)
+            normal, offset = floor.normal, floor.offset
         first_of_frame = np.flatnonzero(np.diff(frames, prepend=-1))  # kept in the order they came
-        lowest = np.minimum.reduceat(points @ floor.normal + floor.offset, first_of_frame)
-        self.fitted_normal, self.fitted_offset = floor.normal, floor.offset - float(np.median(lowest))
+        lowest = np.minimum.reduceat(points @ normal + offset, first_of_frame)
+        self.fitted_normal, self.fitted_offset = normal, offset - float(np.median(lowest))
 
     def _step(self) -> None:
         """Move the estimate towards the latest fit by at most max_turn and max_lift, and update the map."""

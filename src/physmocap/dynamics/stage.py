@@ -74,14 +74,16 @@ class PhysicsStream:
     kinematic velocities causally, lifts targets whose feet sink out of the floor, corrects balance, and tracks.
     With refine_floor (an online fit whose floor was estimated, not given) the floor is refined as frames arrive
     and the character runs on the refined floor; poses and forces come back in the kinematic world
-    (`onto_refined_floor` moves both onto the final floor). refined_input, resting_labelled, whole_clip: see
-    `run_physcap`."""
+    (`onto_refined_floor` moves both onto the final floor); floor_trusted False (a warm-up floor levelled with the
+    posture because its feet's plane leant from it) refines only its height. refined_input, resting_labelled,
+    whole_clip: see `run_physcap`."""
 
     def __init__(self, body: BodyModel, settings: PhysicsSettings, fps: float, refine_floor: bool = False,
-                 refined_input: bool = False, resting_labelled: bool = False, whole_clip: bool = False):
+                 refined_input: bool = False, resting_labelled: bool = False, whole_clip: bool = False,
+                 floor_trusted: bool = True):
         self.body, self.settings, self.fps = body, settings, fps
         self.floor = (FloorRefiner(body, fps, settings.floor_refit_interval, np.radians(settings.floor_tilt_rate),
-                                   settings.floor_lift_rate, settings.floor_refine_after)
+                                   settings.floor_lift_rate, settings.floor_refine_after, keep_tilt=not floor_trusted)
                       if refine_floor and settings.floor_refit_interval is not None else None)
         # Held contacts are settled onto B.4's feet; targets this stream lifts itself (online fits) are not: there
         # it doubled the held contacts' p95 slide on the estimated floor (docs/decisions/physics-default.md).
@@ -422,10 +424,10 @@ def kinematic_derivatives(body: BodyModel, qpos: np.ndarray, fps: float) -> tupl
 def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.ndarray, stationary: np.ndarray,
                 settings: PhysicsSettings, progress=None, refine_floor: bool = False,
                 valid: np.ndarray | None = None, refined_input: bool = False,
-                resting_labelled: bool = False, whole_clip: bool = False) -> PhysicsMotion:
+                resting_labelled: bool = False, whole_clip: bool = False, floor_trusted: bool = True) -> PhysicsMotion:
     """Track the kinematic motion (T, nq) with the physics character; contacts (T, 4) and stationary (T,)
     come from the contact stage. Causal: frame t uses frames up to t only, unless whole_clip.
-    refine_floor: see PhysicsStream.
+    refine_floor, floor_trusted: see PhysicsStream.
     valid: (T,) frames with a detected person (default all); the character starts at the first (whole_clip: at the
     first observed step, _first_frame), and the frames before it keep the kinematic pose without forces, flagged
     where they show a person (a whole-clip fit extrapolates them without data, and a character started there can
@@ -454,7 +456,8 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
                         np.zeros(T, bool), np.zeros(T, int), 0.0, unexplained=unexplained)
     # The character's own poses and the frames' targets, for centred_hand_back
     recorded = (qpos_kin.copy(), qpos_kin.copy()) if whole_clip and not refine_floor else None
-    stream = PhysicsStream(body, settings, fps, refine_floor, refined_input, resting_labelled, whole_clip)
+    stream = PhysicsStream(body, settings, fps, refine_floor, refined_input, resting_labelled, whole_clip,
+                           floor_trusted)
     shares: list = [None] * T  # each pushed frame's FrameOutput.shares
     pushed = _track(stream, qpos_kin, contacts, stationary, valid, unexplainable, whole_clip, out, recorded,
                     shares, progress)
