@@ -346,6 +346,30 @@ def test_false_flights_get_the_points_near_the_floor_back(body):
     assert not false_flights(body, flight, FPS, labelled, valid, near).any()
 
 
+def test_a_false_flight_made_by_dropping_outlying_labels_gets_those_labels_back(body):
+    """The clip's last frames fitted 10 cm up (the feet drift up over the clip) while the labels keep the feet down
+    and the body does not fall: the floor drops those labels as its outliers, which makes a flight. The labels and
+    the centre of mass agree that the body stands, so they are given back (B.4's next fit puts the feet on the
+    floor); unlabelled points far up stay in the air, and a real flight keeps its labels dropped."""
+    frames = 30
+    q = on_floor(body, np.repeat(body.rest_qpos[None], frames, axis=0))
+    q[:, 2] += np.linspace(0.0, 0.1, frames)
+    valid = np.ones(frames, bool)
+    near = TrajoptSettings().floor_outlier_distance
+    labelled = np.ones((frames, 4), bool)
+    labelled[24:, 2:] = False  # the right foot labelled lifted there
+    kept = labelled.copy()
+    kept[24:] = False  # dropped: more than `near` above the floor
+    outliers = labelled & ~kept
+    added = false_flights(body, q, FPS, kept, valid, near, outliers)
+    assert (added == outliers).all()
+    assert not false_flights(body, q, FPS, kept, valid, near).any()  # without them: only points near the floor
+    t = np.arange(frames) / FPS - 27 / FPS
+    jump = q.copy()
+    jump[20:, 2] += 0.5 * 9.81 * ((7 / FPS) ** 2 - t[20:] ** 2)  # falling freely from frame 20 on
+    assert not false_flights(body, jump, FPS, kept, valid, near, outliers).any()
+
+
 def test_no_contact_is_added_where_the_body_stands_on_another_level(body):
     """Standing still, unlabelled, first on the floor, then on ground 1.3 m below it (the man who stepped off the
     box the floor was found on): the resting points are given back on the floor only; under it they stay the

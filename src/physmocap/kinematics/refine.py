@@ -110,7 +110,7 @@ class RefinedKinematics:
 
 
 def false_flights(body, qpos: np.ndarray, fps: float, contacts: np.ndarray, valid: np.ndarray,
-                  near_floor: float, gravity: float = 9.81) -> np.ndarray:
+                  near_floor: float, outliers: np.ndarray | None = None, gravity: float = 9.81) -> np.ndarray:
     """(T, 4) contact flags to add where the labels have every point in the air but the kinematic COM does not
     fall freely: the parabola fitted to the COM height over such a run and its take-off and landing frames
     curves down by less than half of gravity (ours: a contact network's false flight makes the optimiser launch
@@ -119,7 +119,10 @@ def false_flights(body, qpos: np.ndarray, fps: float, contacts: np.ndarray, vali
     did not: docs/decisions/refine-short-runs.md). Runs of fewer than 3 frames with their neighbours are left
     alone. The points within `near_floor` of the floor (z = 0) in those frames are marked in contact; farther
     points are the floor's outliers, as for the labelled contacts (measured: a lowest point 13 cm up marked in
-    contact put a jump's flight on the floor)."""
+    contact put a jump's flight on the floor), except the labelled ones that the floor dropped as its `outliers`
+    (T, 4): where dropping them made the flight, the labels and the centre of mass agree that the body stands and
+    only the fitted feet's height does not, which the next fit mends (a 12 fps video's last 5 frames, the feet
+    planted in the picture and fitted 7-10 cm up, were otherwise handed back kinematic and flagged)."""
     pose = kin.forward_kinematics(body, qpos)
     com_height = kin.center_of_mass(body, pose)[:, 2]
     heights = pose.points[:, body.point_index(CONTACT_POINTS), 2]
@@ -134,6 +137,8 @@ def false_flights(body, qpos: np.ndarray, fps: float, contacts: np.ndarray, vali
         fall = -2.0 * np.polyfit(np.arange(hi - lo) / fps, com_height[lo:hi], 2)[0] / gravity
         if fall < 0.5:
             added[a:b] = heights[a:b] < near_floor
+            if outliers is not None:
+                added[a:b] |= outliers[a:b]
     return added
 
 
@@ -172,14 +177,15 @@ def resting_points(body, qpos: np.ndarray, fps: float, contacts: np.ndarray, val
 
 
 def added_contacts(body, qpos: np.ndarray, fps: float, contacts: np.ndarray, valid: np.ndarray,
-                   settings: TrajoptSettings) -> np.ndarray:
+                   settings: TrajoptSettings, outliers: np.ndarray | None = None) -> np.ndarray:
     """(T, 4) flags B.4 adds to the contacts (T, 4) kept on its floor, for the motion qpos (T, nq) on that floor
-    (z = 0) at `fps`: the points of false flights (`false_flights`) and, with settings.rest_height, the points
+    (z = 0) at `fps`: the points of false flights (`false_flights`, with the labelled `outliers` (T, 4) that the
+    floor dropped) and, with settings.rest_height, the points
     resting on the floor (`resting_points`). Only on valid (T,) frames whose centre of mass lies above the floor:
     a body under it stands on another level (the ground beside the box the floor was found on), and contacts
     added there pulled it up to the floor, 80 px out of the picture (docs/decisions/refine-short-runs.md)."""
     on_this_floor = np.asarray(valid, bool) & (kin.center_of_mass(body, kin.forward_kinematics(body, qpos))[:, 2] > 0.0)
-    added = false_flights(body, qpos, fps, contacts, on_this_floor, settings.floor_outlier_distance)
+    added = false_flights(body, qpos, fps, contacts, on_this_floor, settings.floor_outlier_distance, outliers)
     if added.any():
         log.info("trajopt: %d frame(s) labelled all in the air while the body does not fall: contacts added.",
                  int(added.any(axis=1).sum()))
@@ -406,9 +412,9 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
     floor, kept = _contact_floor(soles, contacts, obs.valid, camera, motion.floor, keep_floor, settings)
     anchor = int(np.argmax(obs.valid))
     qpos, camera = move_world_to_floor(qpos, camera, floor, anchor)
-    removed = labelled & ~kept
-    added = added_contacts(body, qpos, fps, kept, obs.valid, settings)
-    kept |= added
+    given = added_contacts(body, qpos, fps, kept, obs.valid, settings, contacts & ~kept)
+    kept |= given
+    removed, added = labelled & ~kept, given & ~labelled  # a dropped label given back is neither
     # 3. Again, with the feet in contact on the floor (z = 0 in the new world).
     on_floor_settings = contact_fit_settings(fit, settings, True)
     fitter = KinematicFitter(body, camera, on_floor_settings, fps)
