@@ -32,10 +32,6 @@ WARMUP_SECONDS = 3.0  # held back to calibrate and find the floor when body.cali
 # 2 seeds, 2 steps per frame): batched evaluations 318 -> 218 on sports2d, root-relative 32.1 -> 31.9 mm, global
 # root 47.5 -> 45.5 mm. The online fit keeps 4 (10 cost it 50.3 -> 51.1 mm root-relative).
 START_DAMPING_INCREASE = 10.0
-# The live fit reads the detector's feet the other way round when that reading costs less than 0.7 times the current
-# one at the predicted pose (CausalFootSwaps). Synthetic set (8 clips x 2 seeds), online root-relative error 49.3 ->
-# 36.0 mm (with swap-free detections: 36.0 mm); margins 0.1 / 0.3 / 0.6 gave 36.0 / 36.0 / 36.6 mm.
-FOOT_SWAP_MARGIN = 0.3
 DEPTH_WINDOW = 9  # frames in the causal running median of the person's distance
 
 
@@ -134,7 +130,7 @@ class OnlineFitter:
     calibrate the bone lengths, are fitted (twice with fit.refine_lengths: the lengths are measured again along the
     first fit, as offline), and place the floor (unless it is given); their foot swaps are found as offline. From
     then on every pushed frame is fitted at once, warm-started from the previous two frames with constant velocity,
-    its feet read as detected or swapped, whichever fits the predicted pose (CausalFootSwaps).
+    its feet read as detected or swapped by the clip's model of foot swaps decoded over the past (CausalFootSwaps).
     After warm-up, `body`, `camera`, `floor` and `calibration` are fixed. `foot_swap_frames` lists the frames (stream
     indices) whose feet were fitted the other way round from the detector's labels.
     """
@@ -154,8 +150,7 @@ class OnlineFitter:
         self._frames = 0
         self._depths: deque[float] = deque(maxlen=DEPTH_WINDOW)
         self._past = CausalPast([], [])
-        self._foot_swaps = CausalFootSwaps(FOOT_SWAP_MARGIN)
-        self._seen = False  # whether the last fitted frame showed the person
+        self._foot_swaps = CausalFootSwaps(image_size[1])
         self.foot_swap_frames: list[int] = []
 
     def push(self, keypoints_2d: np.ndarray, landmarks_3d: np.ndarray, valid: bool) -> list[tuple[int, np.ndarray]]:
@@ -167,10 +162,11 @@ class OnlineFitter:
             if sum(v for _, _, v in self._pending) >= self.warmup:
                 return self._start()
             return []
-        q, swapped = self._fit(keypoints_2d, landmarks_3d, valid)
+        swapped = self._foot_swaps.update(keypoints_2d, landmarks_3d, valid) and self.settings.fit.undo_foot_swaps
         if swapped:
             self.foot_swap_frames.append(index)
-        return [(index, q)]
+            keypoints_2d, landmarks_3d = swap_feet(keypoints_2d[None])[0], swap_feet(landmarks_3d[None])[0]
+        return [(index, self._fit(keypoints_2d, landmarks_3d, valid))]
 
     def foot_swaps(self, frames: int) -> np.ndarray:
         """(frames,) bool: the stream's frames whose feet were read swapped (foot_swap_frames)."""
@@ -185,6 +181,7 @@ class OnlineFitter:
         if self.fitter is None:
             return self.push(np.zeros((NUM_LANDMARKS, 3)), np.zeros((NUM_LANDMARKS, 3)), False)
         index, self._frames = self._frames, self._frames + 1
+        self._foot_swaps.skip()
         q = predicted_pose(self.fitter, self._past)
         self._past = CausalPast.of(self.fitter, self._past.poses[-1:] + [q])
         return [(index, q[0])]
@@ -203,6 +200,8 @@ class OnlineFitter:
         self._pending = []
         s = self.settings
         held = Observations(k2, k3, self.fps, self.image_size, valid=valid)
+        for t in range(len(valid)):  # the causal reading's past: its sequence costs end where the clip's decision does
+            self._foot_swaps.update(k2[t], k3[t], bool(valid[t]))
         swaps = find_foot_swaps(held) if s.fit.undo_foot_swaps else np.zeros(len(valid), dtype=bool)
         held = undo_foot_swaps(held, swaps)  # the warm-up is held back: its swaps are found as offline
         k2, k3 = held.keypoints_2d, held.landmarks_3d
@@ -221,18 +220,14 @@ class OnlineFitter:
         fitted = self._fit_held(k2, k3, valid, depth, first)
         if s.fit.refine_lengths:  # as offline, from the held frames' fit; they are fitted again with the result
             targets = make_targets(k2, k3, valid, smooth_depth(depth), self.camera, self.calibration, s.fit)
-            poses = np.array([q for q, _ in fitted])
+            poses = np.array(fitted)
             self.calibration = refine_lengths(self.body, self.camera, np.concatenate(
                 [np.repeat(poses[:1], first, axis=0), poses]), targets, self.calibration, self.calibration.height)
             self.body = build_body_model(self.calibration.lengths, s.body.mass)
             self.fitter = KinematicFitter(self.body, self.camera, s.fit, self.fps, causal=True)
             fitted = self._fit_held(k2, k3, valid, depth, first)
-        qpos = np.array([q for q, _ in fitted])
-        # A warm-up frame's feet are the detector's the other way round when exactly one of the two checks (the
-        # clip's, then the causal one on its result) swapped them.
-        self.foot_swap_frames += [first_index + t for t, (_, again) in enumerate(fitted, start=first)
-                                  if swaps[t] != again]
-        self._foot_swaps.swapped = bool(swaps[np.flatnonzero(valid)[-1]])  # the detector's reading at the end
+        qpos = np.array(fitted)
+        self.foot_swap_frames += [first_index + t for t in np.flatnonzero(swaps)]
         qpos = np.concatenate([np.repeat(qpos[:1], first, axis=0), qpos])  # hold the first pose before it
         if s.camera.floor is None:
             self.floor = estimate_floor(self.body, qpos, self.camera, self.fps, valid,
@@ -243,11 +238,11 @@ class OnlineFitter:
         return list(enumerate(qpos, start=first_index))
 
     def _fit_held(self, k2: np.ndarray, k3: np.ndarray, valid: np.ndarray, depth: np.ndarray,
-                  first: int) -> list[tuple[np.ndarray, bool]]:
-        """The held warm-up frames from `first` on, fitted causally from a cold start: per frame (qpos, swapped).
-        A run of frames after a gap without a person starts cold again, as offline (`fit_streams`): the past of a
-        lone detection before the gap would otherwise carry its depth into the person who then walks in."""
-        self._foot_swaps.swapped = False
+                  first: int) -> list[np.ndarray]:
+        """The held warm-up frames (their foot swaps already undone) from `first` on, fitted causally from a cold
+        start: per frame its qpos. A run of frames after a gap without a person starts cold again, as offline
+        (`fit_streams`): the past of a lone detection before the gap would otherwise carry its depth into the
+        person who then walks in."""
         fitted = []
         for t in range(first, len(valid)):
             if t == first or (valid[t] and not valid[t - 1] and np.isfinite(depth[t])):
@@ -257,8 +252,8 @@ class OnlineFitter:
             fitted.append(self._fit(k2[t], k3[t], valid[t]))
         return fitted
 
-    def _fit(self, keypoints_2d: np.ndarray, landmarks_3d: np.ndarray, valid: bool) -> tuple[np.ndarray, bool]:
-        """One frame fitted from the past: its pose (nq,) and whether its feet were read swapped."""
+    def _fit(self, keypoints_2d: np.ndarray, landmarks_3d: np.ndarray, valid: bool) -> np.ndarray:
+        """One frame (its feet read as they are to be fitted) fitted from the past: its pose (nq,)."""
         s, calibration, fitter = self.settings, self.calibration, self.fitter
         if calibration is None or fitter is None:
             raise RuntimeError("OnlineFitter._fit ran before the warm-up calibrated the body.")  # a bug
@@ -267,24 +262,7 @@ class OnlineFitter:
         if np.isfinite(depth):
             self._depths.append(float(depth))
         depth = np.array([np.median(self._depths)])
-        if valid and not self._seen:
-            # Seen again after frames without the person: the feet's reading starts as detected. Kept through the
-            # gap, a swapped reading was predicted onward and stayed (sports2d: 45 frames read swapped where the
-            # whole clip's decision swaps one).
-            self._foot_swaps.swapped = False
-        self._seen = valid
         q = predicted_pose(fitter, self._past) if self._past.poses else None
-        if s.fit.undo_foot_swaps and valid and q is not None and len(self._past.poses) == 2:
-            # Both readings of the feet, scored at the pose the past predicts; the better one is fitted.
-            both = make_targets(np.concatenate([k2, swap_feet(k2)]), np.concatenate([k3, swap_feet(k3)]),
-                                np.array([True, True]), np.repeat(depth, 2), self.camera, calibration, s.fit)
-            points, jac = fitter.evaluate(q)
-            r, _ = fitter.frame_terms(np.repeat(q, 2, axis=0), np.repeat(points, 2, axis=0),
-                                           np.repeat(jac, 2, axis=0), both)
-            swapped = self._foot_swaps.update(*np.sum(r * r, axis=1))
-            targets = both.frames(slice(int(swapped), int(swapped) + 1))
-        else:
-            swapped = False
-            targets = make_targets(k2, k3, v, depth, self.camera, calibration, s.fit)
+        targets = make_targets(k2, k3, v, depth, self.camera, calibration, s.fit)
         q, self._past = causal_step(fitter, targets, self._past, s.fit.online_iterations, prediction=q)
-        return q[0], swapped
+        return q[0]
