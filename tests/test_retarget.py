@@ -309,6 +309,30 @@ def test_a_foot_held_off_its_reach_stays_out_of_the_floor():
     assert feet[..., 2].min() > -0.002
 
 
+def test_a_source_on_another_level_is_followed_there_not_lifted_onto_the_floor(tmp_path):
+    """The capture's person stands on the floor, then on ground 1.3 m below it (stepped off the box the floor was
+    found on; the source's physics flags those frames and keeps them kinematic). The character stays with the
+    source down there instead of standing on the box's plane, and its feet there are not counted as penetrating
+    the floor."""
+    from physmocap.retarget.stage import follows_gap, retarget_metrics
+    from physmocap.retarget.writers import rig_motion, rig_positions
+
+    body = build_body_model(template_lengths(1.70), 65.0)
+    frames = 40
+    qpos = np.tile(body.rest_qpos, (frames, 1))
+    qpos[20:, 2] -= 1.3
+    solved, _ = solve_feet(body, qpos, np.zeros((frames, 4), bool), 30.0)
+    assert np.allclose(solved[:, 2], qpos[:, 2], atol=0.01)  # lifted, frames 20-39 stood 1.3 m up
+    character = build_character(read_rig(_rigs(tmp_path)["mixamo"]))
+    rig_body = character.body
+    rig_qpos = np.tile(rig_body.rest_qpos, (frames, 1))
+    rig_qpos[20:, 2] -= 1.3
+    points = kin.forward_kinematics(rig_body, rig_qpos).points[:, rig_body.point_index(RESULT_POINTS)]
+    m = retarget_metrics(character, points, rig_qpos, rig_positions(character, rig_motion(character, rig_qpos)),
+                         np.zeros((frames, 4), bool), 30.0, None, follows_gap(np.ones(frames, bool)))
+    assert m["penetration_percent"] == 0.0 and m["another_level_frames"] == 20
+
+
 def test_a_foot_touching_down_heel_after_toe_keeps_its_own_shape():
     """The toe held while the body drifts, then the heel touches down: the heel's spot is placed from the toe's, so
     the two spots lie as far apart as the foot's points do (a foot is rigid), not where the body's offset says."""

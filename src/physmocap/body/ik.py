@@ -17,14 +17,17 @@ CHUNK_FRAMES = 512  # frames solved together: the Jacobians of 14,000 frames at 
 
 
 def solve_points(body: BodyModel, qpos: np.ndarray, point_ids: np.ndarray, goal: np.ndarray, weights: np.ndarray,
-                 floor_ids: np.ndarray, iterations: int, dofs: np.ndarray | None = None) -> np.ndarray:
+                 floor_ids: np.ndarray, iterations: int, dofs: np.ndarray | None = None,
+                 floor_frames: np.ndarray | None = None) -> np.ndarray:
     """(T, nq): qpos (T, nq) moved so that the points point_ids (P,) approach goal (T, P, 3) m, each residual
-    times weights (T, P), the points floor_ids (F,) stay on or above z = 0, and hinges stay within their limits;
-    at most `iterations` Gauss-Newton steps, moving only the degrees of freedom `dofs` (None: all nv). Solved
-    CHUNK_FRAMES at a time, so that memory does not grow with the clip."""
+    times weights (T, P), the points floor_ids (F,) stay on or above z = 0 on the floor_frames (T,) bool (None:
+    all), and hinges stay within their limits; at most `iterations` Gauss-Newton steps, moving only the degrees
+    of freedom `dofs` (None: all nv). Solved CHUNK_FRAMES at a time, so that memory does not grow with the clip."""
+    floor_frames = np.ones(len(qpos), bool) if floor_frames is None else np.asarray(floor_frames, bool)
     if len(qpos) > CHUNK_FRAMES:
         return np.concatenate([solve_points(body, qpos[i:i + CHUNK_FRAMES], point_ids, goal[i:i + CHUNK_FRAMES],
-                                            weights[i:i + CHUNK_FRAMES], floor_ids, iterations, dofs)
+                                            weights[i:i + CHUNK_FRAMES], floor_ids, iterations, dofs,
+                                            floor_frames[i:i + CHUNK_FRAMES])
                                for i in range(0, len(qpos), CHUNK_FRAMES)])
     tab = kin.tables(body)
     hinge_q = tab.qadr[tab.hinge_bodies]
@@ -40,7 +43,7 @@ def solve_points(body: BodyModel, qpos: np.ndarray, point_ids: np.ndarray, goal:
     for iteration in range(iterations + 1):
         pose = kin.forward_kinematics(body, q)
         heights = pose.points[:, floor_ids, 2]
-        below = heights < 0.0  # the wall's active set, found again each iteration
+        below = (heights < 0.0) & floor_frames[:, None]  # the wall's active set, found again each iteration
         r = np.concatenate([(weights[..., None] * (pose.points[:, point_ids] - goal)).reshape(T, -1),
                             FLOOR_WEIGHT * np.where(below, heights, 0.0)], axis=1)
         cost = (r ** 2).sum(axis=1)

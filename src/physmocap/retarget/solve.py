@@ -138,13 +138,23 @@ def _smooth_offsets(offsets: np.ndarray, fps: float) -> np.ndarray:
     return np.stack([np.convolve(padded[:, i], kernel, "valid") for i in range(offsets.shape[1])], axis=1)
 
 
+def on_another_level(body: BodyModel, qpos: np.ndarray) -> np.ndarray:
+    """(T,) bool: frames of qpos (T, nq) whose centre of mass lies below the floor (z = 0): the body stands on
+    another level (the grass below the box the floor was found on), as body.support.unexplained_frames reads it
+    for both physics methods. Such a frame is neither lifted onto the floor nor held above it: lifted, a character
+    stood 1.3 m above its source for 50 frames, and its physics explained the climb back with 113% of its weight."""
+    return kin.center_of_mass(body, kin.forward_kinematics(body, qpos))[:, 2] < 0.0
+
+
 def _ik_goals(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, fps: float, joints: np.ndarray,
               feet: np.ndarray, contact_columns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """solve_feet's starting motion (T, nq) (lifted out of the floor, moved by `follow_planted_feet`), the joints'
     goals (T, J, 3) with the contact points eased onto their spots, their weights (T, J), and the spots (T, 4, 3)."""
     qpos = np.array(qpos, dtype=float)
-    # A frame sunk into the floor is first lifted whole out of it, so that the joints' targets stand on the floor.
-    qpos[:, 2] += np.maximum(0.0, -kin.forward_kinematics(body, qpos).points[:, feet, 2].min(axis=1))
+    # A frame sunk into the floor is first lifted whole out of it, so that the joints' targets stand on the floor;
+    # not a body on another level (`on_another_level`), which the character follows there.
+    sunk = np.maximum(0.0, -kin.forward_kinematics(body, qpos).points[:, feet, 2].min(axis=1))
+    qpos[:, 2] += np.where(on_another_level(body, qpos), 0.0, sunk)
     targets = kin.forward_kinematics(body, qpos).points[:, joints]
     offsets, spots = follow_planted_feet(targets[:, contact_columns], contacts,
                                          STEP_ADJUSTMENT * leg_length(body.lengths))
@@ -168,12 +178,14 @@ def solve_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, fps: flo
     """IK of every frame: joints (JOINT_NAMES) towards their positions in `qpos` (T, nq) (a frame whose lowest
     contact point is below the floor lifted out of it first, then every frame moved by `follow_planted_feet`),
     contact points (CONTACT_POINTS) in contact (T, 4) onto their planted spots, every contact point on or above
-    z = 0, hinges within their limits. Returns the solved qpos (T, nq) and the planted spots (T, 4, 3)."""
+    z = 0 (but on another level: `on_another_level`), hinges within their limits. Returns the solved qpos (T, nq)
+    and the planted spots (T, 4, 3)."""
     joints = body.point_index(JOINT_NAMES)
     feet = body.point_index(CONTACT_POINTS)
     contact_columns = np.array([list(JOINT_NAMES).index(n) for n in CONTACT_POINTS])
     qpos, goal, weights, spots = _ik_goals(body, qpos, contacts, fps, joints, feet, contact_columns)
-    return solve_points(body, qpos, joints, goal, weights, feet, iterations), spots
+    return solve_points(body, qpos, joints, goal, weights, feet, iterations,
+                        floor_frames=~on_another_level(body, qpos)), spots
 
 
 def retarget_qpos(body: BodyModel, source_qpos: np.ndarray, source_lengths, contacts: np.ndarray, fps: float,

@@ -40,7 +40,7 @@ from ..result import RESULT_POINTS, load_result, save_result
 from .character import Character, build_character
 from .mapping import load_character_config
 from .rig import read_rig
-from .solve import Retargeted, retarget_qpos, solve_feet
+from .solve import Retargeted, on_another_level, retarget_qpos, solve_feet
 from .writers import RigMotion, rig_motion, rig_positions, write_rig_bvh, write_rig_glb
 
 if TYPE_CHECKING:
@@ -103,24 +103,28 @@ def retarget_metrics(character: Character, source_points: np.ndarray, qpos: np.n
                      unexplained: np.ndarray | None = None) -> dict:
     """Figures of a retargeted motion (issue 19), all finite or None:
 
-    skate_percent, penetration_percent, floating_percent: Rempe's foot metrics (metrics.foot_contact_errors) of
-        the character's heel and toe points against the source's contacts; contact_frames_kept: share of the
-        source's contact point-frames in which the character's point is within FLOATING_THRESHOLD of the floor
-        and not sliding more than the skate threshold; bone_cosine_body / bone_cosine_rig: mean cosine between
-        the source's bone directions and the body model's / the rig's (limbs, hip and shoulder lines, trunk);
-        bone_length_error_m: the largest change of any rig bone's length over the motion; grf_mean_percent_bw:
-        mean magnitude of the net ground reaction force in the character's body weights (Rempe's measure; None
-        without physics), grf_vertical_mean_percent_bw: the mean of its vertical component, which over a clip
-        equals the weight less what the root's residual force carries, plus the change of vertical momentum
-        (docs/decisions/retarget-grf.md); grf_explained_mean_percent_bw, grf_vertical_explained_mean_percent_bw:
-        the magnitude and the vertical component over the frames the physics explains (unexplained (n,) bool: the
-        frames it flagged and handed back, whose forces, where any are written, carry the character, not the motion
-        handed back; None: all explained); com: mean centre of mass height as a share of the standing height.
+    skate_percent, penetration_percent, floating_percent: Rempe's foot metrics (metrics.foot_contact_errors) of the
+        character's heel and toe points against the source's contacts, over the frames on this floor (not
+        `solve.on_another_level`, whose feet are under it on purpose; another_level_frames counts those);
+        contact_frames_kept: share of the source's contact point-frames in which the character's point is within
+        FLOATING_THRESHOLD of the floor and not sliding more than the skate threshold; bone_cosine_body /
+        bone_cosine_rig: mean cosine between the source's bone directions and the body model's / the rig's (limbs,
+        hip and shoulder lines, trunk); bone_length_error_m: the largest change of any rig bone's length over the
+        motion; grf_mean_percent_bw: mean magnitude of the net ground reaction force in the character's body weights
+        (Rempe's measure; None without physics), grf_vertical_mean_percent_bw: the mean of its vertical component,
+        which over a clip equals the weight less what the root's residual force carries, plus the change of vertical
+        momentum (docs/decisions/retarget-grf.md); grf_explained_mean_percent_bw,
+        grf_vertical_explained_mean_percent_bw: the magnitude and the vertical component over the frames the physics
+        explains (unexplained (n,) bool: the frames it flagged and handed back, whose forces, where any are written,
+        carry the character, not the motion handed back; None: all explained); com: mean centre of mass height as a
+        share of the standing height.
     The rows are the frames with a person; breaks (n,) bool marks those that follow a gap: nothing slides into them."""
     body = character.body
     pose = kin.forward_kinematics(body, qpos)
-    feet = pose.points[:, body.point_index(CONTACT_POINTS)]
-    contacts = np.asarray(contacts, bool)
+    on_floor = np.flatnonzero(~on_another_level(body, qpos))
+    feet = pose.points[on_floor][:, body.point_index(CONTACT_POINTS)]
+    contacts = np.asarray(contacts, bool)[on_floor]
+    breaks = np.asarray(breaks, bool)[on_floor] | (np.diff(on_floor, prepend=-1) > 1) & (np.arange(len(on_floor)) > 0)
     foot = foot_contact_errors(feet, contacts, fps, breaks=breaks)
     heights = feet[..., 2]
     sliding = contact_skating(feet, contacts, fps, breaks=breaks)
@@ -143,6 +147,7 @@ def retarget_metrics(character: Character, source_points: np.ndarray, qpos: np.n
     com = kin.center_of_mass(body, pose)
     return dict(
         frames=int(len(qpos)),  # those measured
+        another_level_frames=int(len(qpos) - len(on_floor)),
         skate_percent=foot["skate_percent"], penetration_percent=foot["penetration_percent"],
         floating_percent=foot["floating_percent"],
         contact_frames_kept=float(kept.sum() / contacts.sum()) if contacts.any() else None,
