@@ -314,6 +314,7 @@ def test_a_source_on_another_level_is_followed_there_not_lifted_onto_the_floor(t
     found on; the source's physics flags those frames and keeps them kinematic). The character stays with the
     source down there instead of standing on the box's plane, and its feet there are not counted as penetrating
     the floor."""
+    from physmocap.retarget.solve import on_another_level
     from physmocap.retarget.stage import follows_gap, retarget_metrics
     from physmocap.retarget.writers import rig_motion, rig_positions
 
@@ -321,15 +322,20 @@ def test_a_source_on_another_level_is_followed_there_not_lifted_onto_the_floor(t
     frames = 40
     qpos = np.tile(body.rest_qpos, (frames, 1))
     qpos[20:, 2] -= 1.3
-    solved, _ = solve_feet(body, qpos, np.zeros((frames, 4), bool), 30.0)
-    assert np.allclose(solved[:, 2], qpos[:, 2], atol=0.01)  # lifted, frames 20-39 stood 1.3 m up
+    other_level = on_another_level(body, qpos)
+    assert not other_level[:20].any() and other_level[20:].all()
+    solved, _ = solve_feet(body, qpos, np.zeros((frames, 4), bool), 30.0, other_level)
+    assert np.allclose(solved[:, 2], qpos[:, 2], atol=0.01)
+    lifted, _ = solve_feet(body, qpos, np.zeros((frames, 4), bool), 30.0)
+    assert lifted[20:, 2].min() > qpos[20:, 2].max() + 1.0  # as every frame sunk into the floor is
     character = build_character(read_rig(_rigs(tmp_path)["mixamo"]))
     rig_body = character.body
     rig_qpos = np.tile(rig_body.rest_qpos, (frames, 1))
     rig_qpos[20:, 2] -= 1.3
     points = kin.forward_kinematics(rig_body, rig_qpos).points[:, rig_body.point_index(RESULT_POINTS)]
     m = retarget_metrics(character, points, rig_qpos, rig_positions(character, rig_motion(character, rig_qpos)),
-                         np.zeros((frames, 4), bool), 30.0, None, follows_gap(np.ones(frames, bool)))
+                         np.zeros((frames, 4), bool), 30.0, None, follows_gap(np.ones(frames, bool)),
+                         other_level=other_level)
     assert m["penetration_percent"] == 0.0 and m["another_level_frames"] == 20
 
 

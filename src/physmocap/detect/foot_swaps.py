@@ -175,15 +175,15 @@ class CausalFootSwaps:
         pairwise = change if self._previous is None or scales is None else \
             change + _jump_cost(np.stack([self._previous, offsets]), scales, self.clip)[0]
         unary = _shank_cost(lengths[None], shank, scale, self.clip)[0] + np.array([0.0, self.swap_cost])
-        self._advance(pairwise, unary)
         self._previous = offsets
-        return bool(np.argmin(self.total))
+        return bool(np.argmin(self._advance(pairwise, unary)))
 
-    def _advance(self, pairwise: np.ndarray, unary: np.ndarray) -> None:
+    def _advance(self, pairwise: np.ndarray, unary: np.ndarray) -> np.ndarray:
         """One Viterbi step: the cheapest sequences extended by a frame of costs unary (2,) through pairwise
-        (2, 2), kept relative to the cheapest (only their difference decides)."""
+        (2, 2), kept relative to the cheapest (only their difference decides); returns them."""
         total = unary if self.total is None else np.min(self.total[:, None] + pairwise, axis=0) + unary
         self.total = total - total.min()
+        return self.total
 
     def skip(self) -> None:
         """A frame that was not observed (live capture dropped it): no motion evidence to the next one."""

@@ -34,6 +34,7 @@ import numpy as np
 from ..body import kinematics as kin
 from ..body.ik import solve_points
 from ..body.model import CONTACT_POINTS, JOINT_NAMES, BodyModel
+from ..body.support import under_the_floor
 from ..contacts.flights import STANDING_SUPPORT, ease_frames, edge_easing, flight_support, valid_runs
 from ..metrics import GRAVITY
 
@@ -139,22 +140,26 @@ def _smooth_offsets(offsets: np.ndarray, fps: float) -> np.ndarray:
 
 
 def on_another_level(body: BodyModel, qpos: np.ndarray) -> np.ndarray:
-    """(T,) bool: frames of qpos (T, nq) whose centre of mass lies below the floor (z = 0): the body stands on
-    another level (the grass below the box the floor was found on), as body.support.unexplained_frames reads it
-    for both physics methods. Such a frame is neither lifted onto the floor nor held above it: lifted, a character
-    stood 1.3 m above its source for 50 frames, and its physics explained the climb back with 113% of its weight."""
-    return kin.center_of_mass(body, kin.forward_kinematics(body, qpos))[:, 2] < 0.0
+    """(T,) bool: frames of the source motion qpos (T, nq) on its own body whose body is under the floor (z = 0;
+    body.support.under_the_floor, as both physics methods read it): it stands on another level (the grass below
+    the box the floor was found on). Judged on the source, whose B.4 feet rest on its floor, not on the scaled
+    character, whose feet may sink by its proportions. The character's frames there are neither lifted onto the
+    floor nor held above it: lifted, a character stood 1.3 m above its source for 50 frames, and its physics
+    explained the climb back with 113% of its weight."""
+    pose = kin.forward_kinematics(body, qpos)
+    return under_the_floor(body.point_names, pose.points, kin.center_of_mass(body, pose))
 
 
 def _ik_goals(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, fps: float, joints: np.ndarray,
-              feet: np.ndarray, contact_columns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+              feet: np.ndarray, contact_columns: np.ndarray,
+              other_level: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """solve_feet's starting motion (T, nq) (lifted out of the floor, moved by `follow_planted_feet`), the joints'
     goals (T, J, 3) with the contact points eased onto their spots, their weights (T, J), and the spots (T, 4, 3)."""
     qpos = np.array(qpos, dtype=float)
     # A frame sunk into the floor is first lifted whole out of it, so that the joints' targets stand on the floor;
-    # not a body on another level (`on_another_level`), which the character follows there.
+    # not a frame on another level, which the character follows there.
     sunk = np.maximum(0.0, -kin.forward_kinematics(body, qpos).points[:, feet, 2].min(axis=1))
-    qpos[:, 2] += np.where(on_another_level(body, qpos), 0.0, sunk)
+    qpos[:, 2] += np.where(other_level, 0.0, sunk)
     targets = kin.forward_kinematics(body, qpos).points[:, joints]
     offsets, spots = follow_planted_feet(targets[:, contact_columns], contacts,
                                          STEP_ADJUSTMENT * leg_length(body.lengths))
@@ -174,30 +179,30 @@ def _ik_goals(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, fps: floa
 
 
 def solve_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, fps: float,
-               iterations: int = IK_ITERATIONS) -> tuple[np.ndarray, np.ndarray]:
+               other_level: np.ndarray | None = None, iterations: int = IK_ITERATIONS) -> tuple[np.ndarray, np.ndarray]:
     """IK of every frame: joints (JOINT_NAMES) towards their positions in `qpos` (T, nq) (a frame whose lowest
     contact point is below the floor lifted out of it first, then every frame moved by `follow_planted_feet`),
     contact points (CONTACT_POINTS) in contact (T, 4) onto their planted spots, every contact point on or above
-    z = 0 (but on another level: `on_another_level`), hinges within their limits. Returns the solved qpos (T, nq)
-    and the planted spots (T, 4, 3)."""
+    z = 0, hinges within their limits; the frames other_level (T,) bool (`on_another_level`; None: none) are
+    neither lifted nor held above the floor. Returns the solved qpos (T, nq) and the planted spots (T, 4, 3)."""
+    other_level = np.zeros(len(qpos), bool) if other_level is None else np.asarray(other_level, bool)
     joints = body.point_index(JOINT_NAMES)
     feet = body.point_index(CONTACT_POINTS)
     contact_columns = np.array([list(JOINT_NAMES).index(n) for n in CONTACT_POINTS])
-    qpos, goal, weights, spots = _ik_goals(body, qpos, contacts, fps, joints, feet, contact_columns)
-    return solve_points(body, qpos, joints, goal, weights, feet, iterations,
-                        floor_frames=~on_another_level(body, qpos)), spots
+    qpos, goal, weights, spots = _ik_goals(body, qpos, contacts, fps, joints, feet, contact_columns, other_level)
+    return solve_points(body, qpos, joints, goal, weights, feet, iterations, floor_frames=~other_level), spots
 
 
 def retarget_qpos(body: BodyModel, source_qpos: np.ndarray, source_lengths, contacts: np.ndarray, fps: float,
-                  valid: np.ndarray | None = None) -> Retargeted:
+                  valid: np.ndarray | None = None, other_level: np.ndarray | None = None) -> Retargeted:
     """The source motion (T, nq) of a skeleton with `source_lengths` (SkeletonLengths) on `body`: uniform scale
     by the leg lengths (flights at full gravity: `flights_at_full_gravity`, over the valid (T,) frames, None:
-    all), the soles brought to the character's, then `solve_feet`."""
+    all), the soles brought to the character's, then `solve_feet` (other_level: see there)."""
     scale = leg_length(body.lengths) / leg_length(source_lengths)
     contacts = np.asarray(contacts, bool)
     lift = body.lengths.ankle_height - scale * source_lengths.ankle_height
     scaled = scaled_qpos(source_qpos, scale, lift)
     valid = np.ones(len(contacts), bool) if valid is None else np.asarray(valid, bool)
     scaled[:, 2] = flights_at_full_gravity(source_qpos[:, 2], contacts, valid, fps, scale) + lift
-    qpos, spots = solve_feet(body, scaled, contacts, fps)
+    qpos, spots = solve_feet(body, scaled, contacts, fps, other_level)
     return Retargeted(qpos, scaled, scale, spots)

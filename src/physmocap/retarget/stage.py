@@ -100,7 +100,7 @@ def follows_gap(frames: np.ndarray) -> np.ndarray:
 
 def retarget_metrics(character: Character, source_points: np.ndarray, qpos: np.ndarray, positions: np.ndarray,
                      contacts: np.ndarray, fps: float, grf: np.ndarray | None, breaks: np.ndarray,
-                     unexplained: np.ndarray | None = None) -> dict:
+                     unexplained: np.ndarray | None = None, other_level: np.ndarray | None = None) -> dict:
     """Figures of a retargeted motion (issue 19), all finite or None:
 
     skate_percent, penetration_percent, floating_percent: Rempe's foot metrics (metrics.foot_contact_errors) of the
@@ -121,7 +121,7 @@ def retarget_metrics(character: Character, source_points: np.ndarray, qpos: np.n
     The rows are the frames with a person; breaks (n,) bool marks those that follow a gap: nothing slides into them."""
     body = character.body
     pose = kin.forward_kinematics(body, qpos)
-    on_floor = np.flatnonzero(~on_another_level(body, qpos))
+    on_floor = np.flatnonzero(np.ones(len(qpos), bool) if other_level is None else ~np.asarray(other_level, bool))
     feet = pose.points[on_floor][:, body.point_index(CONTACT_POINTS)]
     contacts = np.asarray(contacts, bool)[on_floor]
     breaks = np.asarray(breaks, bool)[on_floor] | (np.diff(on_floor, prepend=-1) > 1) & (np.arange(len(on_floor)) > 0)
@@ -190,7 +190,8 @@ class _PhysicsOutcome:
 
 
 def _run_physics(body: BodyModel, retargeted_qpos: np.ndarray, fps: float, contacts: np.ndarray, stationary: np.ndarray,
-                 valid: np.ndarray, physics: str, settings: Settings, notes: list[str]) -> _PhysicsOutcome:
+                 valid: np.ndarray, other_level: np.ndarray, physics: str, settings: Settings,
+                 notes: list[str]) -> _PhysicsOutcome:
     """`physics` on the character's body model over the frames from the first to the last with a person; the
     capture's extrapolation before and after them (no observations) keeps the kinematic motion, without forces,
     as the pipeline's physics does. A note says how many frames fell back."""
@@ -221,7 +222,7 @@ def _run_physics(body: BodyModel, retargeted_qpos: np.ndarray, fps: float, conta
         notes.append(f"physics fell back on {int(outcome.fallback.sum())} frames (kinematic motion kept there)")
     # The tracker's feet can drift a few centimetres off their spots (balance correction, soft contacts); the
     # same IK plants them again on the simulated motion (docs/decisions/retarget-feet-after-physics.md).
-    outcome.qpos, _ = solve_feet(body, simulated, contacts, fps)
+    outcome.qpos, _ = solve_feet(body, simulated, contacts, fps, other_level)
     outcome.contacts, outcome.simulated, outcome.grf = used_contacts, simulated, grf
     return outcome
 
@@ -240,12 +241,12 @@ def _write_rig_files(out_dir: Path, character: Character, rig_moves: RigMotion, 
 
 def _simulated_metrics(character: Character, source_points: np.ndarray, simulated: np.ndarray, grf: np.ndarray,
                        final: np.ndarray, points: np.ndarray, frames: np.ndarray, fps: float,
-                       contacts: np.ndarray) -> dict:
+                       contacts: np.ndarray, other_level: np.ndarray) -> dict:
     """The foot and bone figures of the simulated motion before the feet were planted again, and how far that
     moved the points (metres: mean, 99th percentile of each frame's largest)."""
     before = retarget_metrics(character, source_points[frames], simulated[frames],
                               rig_positions(character, rig_motion(character, simulated[frames])),
-                              contacts[frames], fps, grf[frames], follows_gap(frames))
+                              contacts[frames], fps, grf[frames], follows_gap(frames), other_level=other_level[frames])
     shift = np.linalg.norm(final - kin.forward_kinematics(character.body, simulated).points[:, points],
                            axis=-1)[frames]
     return {"simulated": {k: before[k] for k in ("skate_percent", "penetration_percent", "floating_percent",
@@ -306,12 +307,13 @@ def retarget_result(result_path: str | os.PathLike, character_path: str | os.Pat
     T = len(source["qpos"])
 
     started = time.perf_counter()
-    retargeted = retarget_qpos(body, source["qpos"], source_body.lengths, contacts, fps, valid)
+    other_level = valid & on_another_level(source_body, source["qpos"])
+    retargeted = retarget_qpos(body, source["qpos"], source_body.lengths, contacts, fps, valid, other_level)
     retarget_seconds = time.perf_counter() - started
     notes = list(character.notes)
     started = time.perf_counter()
     outcome = _run_physics(body, retargeted.qpos, fps, contacts, np.asarray(source["stationary"], bool), valid,
-                           physics, settings, notes)
+                           other_level, physics, settings, notes)
     physics_seconds = time.perf_counter() - started
 
     rig_moves = rig_motion(character, outcome.qpos)
@@ -324,7 +326,7 @@ def retarget_result(result_path: str | os.PathLike, character_path: str | os.Pat
     grf = outcome.grf
     metrics = retarget_metrics(character, source["joints_world"][frames], outcome.qpos[frames], positions[frames],
                                contacts[frames], fps, None if grf is None else grf[frames], follows_gap(frames),
-                               outcome.unexplained[frames])
+                               outcome.unexplained[frames], other_level[frames])
     departure = _path_departure(final[frames], source["joints_world"][frames], retargeted.scale)
     metrics.update(retarget_ms_per_frame=1000 * retarget_seconds / T, physics_ms_per_frame=1000 * physics_seconds / T,
                    unexplained_frames=int(outcome.unexplained[frames].sum()),
@@ -334,7 +336,7 @@ def retarget_result(result_path: str | os.PathLike, character_path: str | os.Pat
                        100 * outcome.residual[frames, 2].mean() / (body.mass * GRAVITY)))
     if outcome.simulated is not None and grf is not None:  # the same figures before the feet were planted again
         metrics.update(_simulated_metrics(character, source["joints_world"], outcome.simulated, grf, final, points,
-                                          frames, fps, contacts))
+                                          frames, fps, contacts, other_level))
     masses = {b.name: round(b.mass, 4) for b in body.bodies}
     save_result(files["result"], _character_result(source, character, character_path, physics, retargeted, outcome,
                                                    final, kinematic, positions, masses))
