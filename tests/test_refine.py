@@ -93,6 +93,26 @@ def test_refine_puts_contacts_on_a_refitted_floor_and_drops_outliers(body, camer
     assert np.nanmedian(m.reprojection_error) < np.nanmedian(motion.reprojection_error) + 1.0
 
 
+def test_dropped_labels_are_offered_back_only_on_a_trusted_floor(body, camera, monkeypatch):
+    """False flights get the floor's dropped labels back (`false_flights`' outliers) on a trusted floor only: on one
+    levelled with the posture against its feet, their heights do not tell a wrong label."""
+    import dataclasses
+
+    from physmocap.kinematics import refine as refine_module
+
+    obs = observe(body, one_leg_stance(body, 20), camera)
+    motion = fit_motion(obs, Settings().replace("body", height=body.height, mass=body.mass))
+    offered = []
+    original = refine_module.added_contacts
+    monkeypatch.setattr(refine_module, "added_contacts",
+                        lambda *args: offered.append(args[6] is not None) or original(*args))
+    for trusted in (True, False):
+        floor = dataclasses.replace(motion.floor, trusted=trusted)
+        refine_kinematics(obs, dataclasses.replace(motion, floor=floor), np.ones((20, 4), bool), FitSettings(),
+                          TrajoptSettings())
+    assert offered == [True, False]
+
+
 def test_refine_reports_the_progress_of_both_fits(body, camera, monkeypatch):
     from physmocap.kinematics import fit as fit_module
 

@@ -412,7 +412,9 @@ def refine_kinematics(obs: Observations, motion: KinematicMotion, contacts: np.n
     floor, kept = _contact_floor(soles, contacts, obs.valid, camera, motion.floor, keep_floor, settings)
     anchor = int(np.argmax(obs.valid))
     qpos, camera = move_world_to_floor(qpos, camera, floor, anchor)
-    given = added_contacts(body, qpos, fps, kept, obs.valid, settings, contacts & ~kept)
+    # Labels the floor dropped come back in false flights only on a trusted floor: on one levelled with the posture
+    # against its feet, the feet's heights do not tell a wrong label (they pulled Pose2Sim cam03 15 mm off).
+    given = added_contacts(body, qpos, fps, kept, obs.valid, settings, contacts & ~kept if floor.trusted else None)
     kept |= given
     removed, added = labelled & ~kept, given & ~labelled  # a dropped label given back is neither
     # 3. Again, with the feet in contact on the floor (z = 0 in the new world).
