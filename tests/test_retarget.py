@@ -322,7 +322,7 @@ def test_a_source_on_another_level_is_followed_there_not_lifted_onto_the_floor(t
     frames = 40
     qpos = np.tile(body.rest_qpos, (frames, 1))
     qpos[20:, 2] -= 1.3
-    other_level = on_another_level(body, qpos)
+    other_level = on_another_level(body, qpos, np.zeros((frames, 4), bool))
     assert not other_level[:20].any() and other_level[20:].all()
     solved, _ = solve_feet(body, qpos, np.zeros((frames, 4), bool), 30.0, other_level)
     assert np.allclose(solved[:, 2], qpos[:, 2], atol=0.01)

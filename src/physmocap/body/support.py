@@ -37,32 +37,38 @@ def resting_off_feet(heights: np.ndarray) -> np.ndarray:
     return np.asarray(heights).min(axis=-1) < RESTING_HEIGHT
 
 
-def unexplained_frames(point_names: Sequence[str], points: np.ndarray, com: np.ndarray) -> np.ndarray:
+def unexplained_frames(point_names: Sequence[str], points: np.ndarray, com: np.ndarray,
+                       contacts: np.ndarray | None = None) -> np.ndarray:
     """(T,) bool: frames of an input motion, its body points (T, P, 3) m (point_names order) and centre of mass com
-    (T, 3) m, whose COM lies below the floor (z = 0), whose sole points (CONTACT_POINTS) all lie deeper under it
-    than RESTING_HEIGHT, or whose body rests on the floor off its feet (`resting_off_feet`: a knee, an elbow, the
-    seat). The body stands on its soles in the contact model, so its COM and its lowest sole point are on or above
-    the floor; below it is a detection or floor error (a person leaving the view, a floor at another height, a drop
-    off the floor's edge, whose feet pass under the floor before the COM does). Both physics methods keep the
-    kinematic motion there: optimised, such frames asked for forces of several body weights
-    (intel_highcam_walk_stand at 10 fps: docs/decisions/trajopt-frame-rate.md), and a body sliding on a knee
-    departed 13-14 cm from its input (docs/decisions/physics-limits.md, "Other body parts")."""
+    (T, 3) m, whose body is under the floor (`under_the_floor`, with the contact labels (T, 4)), or rests on the
+    floor off its feet (`resting_off_feet`: a knee, an elbow, the seat). The body stands on its soles in the contact
+    model, so its COM and its lowest sole point are on or above the floor; below it is a detection or floor error (a
+    person leaving the view, a floor at another height, a drop off the floor's edge, whose feet pass under the floor
+    before the COM does). Both physics methods keep the kinematic motion there: optimised, such frames asked for
+    forces of several body weights (intel_highcam_walk_stand at 10 fps: docs/decisions/trajopt-frame-rate.md), and a
+    body sliding on a knee departed 13-14 cm from its input (docs/decisions/physics-limits.md, "Other body
+    parts")."""
     heights = np.asarray(points)[:, resting_points(point_names), 2]
-    return under_the_floor(point_names, points, com) | resting_off_feet(heights)
+    return under_the_floor(point_names, points, com, contacts) | resting_off_feet(heights)
 
 
-def under_the_floor(point_names: Sequence[str], points: np.ndarray, com: np.ndarray) -> np.ndarray:
-    """(T,) bool: the frames of `unexplained_frames` whose body is under the floor: its COM below it, or every sole
-    point (CONTACT_POINTS) deeper than RESTING_HEIGHT under it. Such a body stands on another level."""
+def under_the_floor(point_names: Sequence[str], points: np.ndarray, com: np.ndarray,
+                    contacts: np.ndarray | None = None) -> np.ndarray:
+    """(T,) bool: frames whose body stands on another level: its COM below the floor, or, on a frame with no contact
+    label (contacts (T, 4) bool; None: none), every sole point (CONTACT_POINTS) deeper than RESTING_HEIGHT under it.
+    A foot labelled in contact is held on the floor by the contact model (a fit sunk by its depth error is lifted
+    onto it); unlabelled feet deep under it are lower ground (sports2d's drop off the box, its start fitted 1.2 m too
+    near)."""
     soles = np.asarray(points)[:, [i for i, name in enumerate(point_names) if name in CONTACT_POINTS], 2]
-    return (np.asarray(com)[:, 2] < 0.0) | (soles.min(axis=1) < -RESTING_HEIGHT)
+    labelled = np.zeros(len(soles), bool) if contacts is None else np.asarray(contacts, bool).any(axis=1)
+    return (np.asarray(com)[:, 2] < 0.0) | ((soles.min(axis=1) < -RESTING_HEIGHT) & ~labelled)
 
 
 def observed_unexplained_frames(point_names: Sequence[str], points: np.ndarray, com: np.ndarray,
-                                observed: np.ndarray, method: str) -> np.ndarray:
-    """(T,) bool: `unexplained_frames` among the observed frames (T,) bool, each stretch logged as `method`'s
-    ("physics", "trajopt"), which keeps the kinematic motion there."""
-    unexplained = np.asarray(observed, bool) & unexplained_frames(point_names, points, com)
+                                observed: np.ndarray, method: str, contacts: np.ndarray | None = None) -> np.ndarray:
+    """(T,) bool: `unexplained_frames` (with the contact labels (T, 4)) among the observed frames (T,) bool, each
+    stretch logged as `method`'s ("physics", "trajopt"), which keeps the kinematic motion there."""
+    unexplained = np.asarray(observed, bool) & unexplained_frames(point_names, points, com, contacts)
     if unexplained.any():
         log.warning("%s: on frames %s the input's centre of mass or feet lie below the floor or the body rests on a "
                     "knee, an elbow or the seat, which the feet on the floor cannot explain: the kinematic motion is "

@@ -604,7 +604,7 @@ def offline_unexplainable(body: BodyModel, qpos: np.ndarray, fps: float, contact
     mask = np.ones(len(qpos), bool) if valid is None else np.array(valid, bool)  # a copy: narrowed below
     pose = kin.forward_kinematics(body, qpos)
     com, points = kin.center_of_mass(body, pose), pose.points[:, body.point_index(CONTACT_POINTS)]
-    unexplainable = observed_unexplained_frames(body.point_names, pose.points, com, mask, "physics")
+    unexplainable = observed_unexplained_frames(body.point_names, pose.points, com, mask, "physics", contacts)
     mask &= ~unexplainable
     flags, unheld = held_flights_in_runs(np.asarray(contacts, bool) & mask[:, None], mask, com, points,
                                          np.arange(len(qpos)) / fps, GRAVITY,

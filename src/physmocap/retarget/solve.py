@@ -139,15 +139,15 @@ def _smooth_offsets(offsets: np.ndarray, fps: float) -> np.ndarray:
     return np.stack([np.convolve(padded[:, i], kernel, "valid") for i in range(offsets.shape[1])], axis=1)
 
 
-def on_another_level(body: BodyModel, qpos: np.ndarray) -> np.ndarray:
-    """(T,) bool: frames of the source motion qpos (T, nq) on its own body whose body is under the floor (z = 0;
-    body.support.under_the_floor, as both physics methods read it): it stands on another level (the grass below
-    the box the floor was found on). Judged on the source, whose B.4 feet rest on its floor, not on the scaled
-    character, whose feet may sink by its proportions. The character's frames there are neither lifted onto the
-    floor nor held above it: lifted, a character stood 1.3 m above its source for 50 frames, and its physics
-    explained the climb back with 113% of its weight."""
+def on_another_level(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray) -> np.ndarray:
+    """(T,) bool: frames of the source motion qpos (T, nq) on its own body, with its contacts (T, 4), whose body is
+    under the floor (z = 0; body.support.under_the_floor, as both physics methods read it): it stands on another
+    level (the grass below the box the floor was found on). Judged on the source, whose B.4 feet rest on its floor,
+    not on the scaled character, whose feet may sink by its proportions. The character's frames there are neither
+    lifted onto the floor nor held above it: lifted, a character stood 1.3 m above its source for 50 frames, and its
+    physics explained the climb back with 113% of its weight."""
     pose = kin.forward_kinematics(body, qpos)
-    return under_the_floor(body.point_names, pose.points, kin.center_of_mass(body, pose))
+    return under_the_floor(body.point_names, pose.points, kin.center_of_mass(body, pose), contacts)
 
 
 def _ik_goals(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, fps: float, joints: np.ndarray,

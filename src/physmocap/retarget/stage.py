@@ -307,7 +307,7 @@ def retarget_result(result_path: str | os.PathLike, character_path: str | os.Pat
     T = len(source["qpos"])
 
     started = time.perf_counter()
-    other_level = valid & on_another_level(source_body, source["qpos"])
+    other_level = valid & on_another_level(source_body, source["qpos"], contacts)
     retargeted = retarget_qpos(body, source["qpos"], source_body.lengths, contacts, fps, valid, other_level)
     retarget_seconds = time.perf_counter() - started
     notes = list(character.notes)

@@ -233,7 +233,8 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     observed = np.ones(T, bool) if valid is None else np.asarray(valid, bool)
     pose = kin.forward_kinematics(body, qpos_kin)
     reduced = reduced_motion(body, qpos_kin, fps, pose)
-    unexplained = observed_unexplained_frames(body.point_names, pose.points, reduced.com, observed, "trajopt")
+    unexplained = observed_unexplained_frames(body.point_names, pose.points, reduced.com, observed, "trajopt",
+                                              contacts)
     del pose  # the rotations of every body and frame: not kept through the solve
     valid = observed & ~unexplained
     min_frames = max(1, math.ceil(settings.min_phase_seconds * fps - 1e-9))
