@@ -121,10 +121,11 @@ def retarget_metrics(character: Character, source_points: np.ndarray, qpos: np.n
     The rows are the frames with a person; breaks (n,) bool marks those that follow a gap: nothing slides into them."""
     body = character.body
     pose = kin.forward_kinematics(body, qpos)
-    on_floor = np.flatnonzero(np.ones(len(qpos), bool) if other_level is None else ~np.asarray(other_level, bool))
+    this_floor = np.ones(len(qpos), bool) if other_level is None else ~np.asarray(other_level, bool)
+    on_floor = np.flatnonzero(this_floor)
     feet = pose.points[on_floor][:, body.point_index(CONTACT_POINTS)]
     contacts = np.asarray(contacts, bool)[on_floor]
-    breaks = np.asarray(breaks, bool)[on_floor] | (np.diff(on_floor, prepend=-1) > 1) & (np.arange(len(on_floor)) > 0)
+    breaks = np.asarray(breaks, bool)[on_floor] | follows_gap(this_floor)
     foot = foot_contact_errors(feet, contacts, fps, breaks=breaks)
     heights = feet[..., 2]
     sliding = contact_skating(feet, contacts, fps, breaks=breaks)
