@@ -119,6 +119,23 @@ def test_causal_reading_finds_a_swap_from_the_past_alone_and_reads_a_gap_as_dete
     assert not held.update(walk.keypoints_2d[106], walk.landmarks_3d[106], True)
 
 
+def test_causal_reading_of_a_detector_without_heels_or_toes_stays_as_detected(walk):
+    """An observations file from a detector with the 17 COCO joints has no heel or toe (NaN there): the causal
+    reading never swaps on such feet, and warns of nothing."""
+    import warnings
+
+    from physmocap.landmarks import LANDMARK_INDEX
+
+    k2, k3 = walk.keypoints_2d.copy(), walk.landmarks_3d.copy()
+    for name in ("left_heel", "right_heel", "left_foot_index", "right_foot_index"):
+        k2[:, LANDMARK_INDEX[name]] = np.nan
+        k3[:, LANDMARK_INDEX[name]] = np.nan
+    reading = CausalFootSwaps(walk.image_size[1])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert not any(reading.update(k2[t], k3[t], True) for t in range(walk.num_frames))
+
+
 @pytest.mark.slow
 def test_online_fit_reads_swapped_feet_the_right_way_round(body, walk):
     """Swaps inside the warm-up (found as offline) and after it (causal check against the predicted pose): the
