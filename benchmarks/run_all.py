@@ -34,6 +34,7 @@ BENCHMARKS = {  # name: (script, arguments)
     "multiview_physcap": ("bench_multiview.py", ["--physics", "physcap"]),
     "contacts": ("bench_contacts.py", []),
     "contacts_slow_videos": ("bench_contacts_slow_videos.py", []),  # held-out subjects at 8 and 10 fps, about 1 min
+    "foot_swaps": ("bench_foot_swaps.py", ["--set", "test"]),  # synthetic swaps found, about 1 min
     # One seed per clip (8 cases) and the clip-length timings as medians of 3 (about 10 minutes); the full set
     # (both seeds) is `bench_trajopt.py` run alone.
     "trajopt": ("bench_trajopt.py", ["--seeds", "0", "--repeats", "3"]),
