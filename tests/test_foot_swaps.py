@@ -119,21 +119,32 @@ def test_causal_reading_finds_a_swap_from_the_past_alone_and_reads_a_gap_as_dete
     assert not held.update(walk.keypoints_2d[106], walk.landmarks_3d[106], True)
 
 
-def test_causal_reading_of_a_detector_without_heels_or_toes_stays_as_detected(walk):
-    """An observations file from a detector with the 17 COCO joints has no heel or toe (NaN there): the causal
-    reading never swaps on such feet, and warns of nothing."""
+def test_swaps_of_a_detector_without_heels_or_toes_are_found_on_its_ankles(walk, tmp_path):
+    """An observations file from a detector with the 17 COCO joints has no heel or toe (NaN there, read as unseen
+    points at the origin): those points weigh the same in both readings, so the ankles alone decide, offline
+    and causally, and nothing warns."""
     import warnings
 
     from physmocap.landmarks import LANDMARK_INDEX
 
-    k2, k3 = walk.keypoints_2d.copy(), walk.landmarks_3d.copy()
+    swapped = mirrored(walk, slice(40, 52), FOOT_LANDMARKS)
+    k2, k3 = swapped.keypoints_2d.copy(), swapped.landmarks_3d.copy()
     for name in ("left_heel", "right_heel", "left_foot_index", "right_foot_index"):
         k2[:, LANDMARK_INDEX[name]] = np.nan
         k3[:, LANDMARK_INDEX[name]] = np.nan
-    reading = CausalFootSwaps(walk.image_size[1])
+    path = tmp_path / "coco.npz"
+    np.savez(path, keypoints_2d=k2, landmarks_3d=k3, fps=walk.fps, image_size=np.array(walk.image_size))
+    coco = Observations.load(path)
+    truth = np.zeros(walk.num_frames, bool)
+    truth[40:52] = True
+    reading = CausalFootSwaps(coco.image_size[1])
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert not any(reading.update(k2[t], k3[t], True) for t in range(walk.num_frames))
+        found = find_foot_swaps(coco)
+        causal = np.array([reading.update(coco.keypoints_2d[t], coco.landmarks_3d[t], True)
+                           for t in range(coco.num_frames)])
+    assert np.array_equal(found, truth)
+    assert causal[41:52].all() and causal.sum() <= 13
 
 
 @pytest.mark.slow
