@@ -113,3 +113,15 @@ def test_capture_finds_the_repeats_of_a_doubled_video_and_interpolates_them(doub
     keypoints = result["keypoints_2d"]
     np.testing.assert_allclose(keypoints[inner], 0.5 * (keypoints[np.add(inner, -1)] + keypoints[np.add(inner, 1)]),
                                atol=1e-3)
+
+
+def test_online_capture_marks_the_repeats_as_they_arrive(doubled_video, tmp_path):
+    """Online (detection and the causal fit in live order) the repeats are marked as offline, frame by frame, and
+    reported; their detections stay as detected (the next new picture is still to come)."""
+    summary = run_capture(tmp_path / "run", Settings().replace("physics", method="none").replace(None, online=True),
+                          video=doubled_video, overlay=False)
+    result = load_result(tmp_path / "run" / "result.npz")
+    repeated = result["repeated_picture"]
+    assert not repeated[::2].any()
+    assert repeated[np.arange(1, 2 * PICTURES, 2)].mean() >= 0.9, np.flatnonzero(~repeated[1::2])
+    assert summary.online and summary.repeated_frame_count == int(repeated.sum())

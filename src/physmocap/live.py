@@ -148,7 +148,7 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
         reader.start()
         item = detection_handoff.take()
         while item is not None:
-            index, arrival, kp, wl, reason = item
+            index, arrival, kp, wl, reason, repeated = item
             gap = index - len(loop.reasons)
             for skipped in range(len(loop.reasons), index):  # frames a stage skipped, kept on the grid
                 loop.skip(skipped)
@@ -158,7 +158,7 @@ def stream_capture(source, settings: Settings, *, realtime: bool = False, max_fr
                 item = detection_handoff.take_newer()
                 continue
             # as the observations file keeps them (stages.as_stored)
-            loop.add(index, stored_precision(kp), stored_precision(wl), reason, arrival)
+            loop.add(index, stored_precision(kp), stored_precision(wl), reason, arrival, repeated)
             item = detection_handoff.take()
         detector.join()
         reader.join()
@@ -184,6 +184,7 @@ class _FitLoop:
         self.keypoints: list[np.ndarray] = []
         self.world: list[np.ndarray] = []
         self.reasons: list[str] = []
+        self.repeated: list[bool] = []  # frames showing the last new picture again (detect/repeats.py)
         self.arrivals: dict[int, float] = {}  # perf_counter of each processed frame's arrival
         self.fit_seconds = 0.0
         self.dropped = 0  # frames so far that a stage skipped
@@ -199,10 +200,12 @@ class _FitLoop:
                 if self.on_pose:
                     self.on_pose(index, final, details)
 
-    def add(self, index: int, kp: np.ndarray, wl: np.ndarray, reason: str, arrival: float | None) -> None:
+    def add(self, index: int, kp: np.ndarray, wl: np.ndarray, reason: str, arrival: float | None,
+            repeated: bool = False) -> None:
         self.keypoints.append(kp)
         self.world.append(wl)
         self.reasons.append(reason)
+        self.repeated.append(repeated)
         if arrival is None:
             self.dropped += 1
         else:
@@ -237,7 +240,7 @@ def _live_report(source: str, loop: _FitLoop, detector: _DetectionThread, fps: f
     if fitter.body is None or fitter.calibration is None or fitter.floor is None:  # the warm-up never ended
         raise InputError(f"{source}: no person was found in any frame.")
     T = len(loop.reasons)
-    obs = _observations(loop.keypoints, loop.world, loop.reasons, fps, image_size, source,
+    obs = _observations(loop.keypoints, loop.world, loop.reasons, loop.repeated, fps, image_size, source,
                         detector.seconds / max(detector.detected, 1))
     q = np.stack([after.qpos[i] for i in range(T)])
     motion = KinematicMotion(fitter.body, fitter.calibration, fitter.camera, fitter.floor, q,
@@ -257,14 +260,14 @@ def _live_report(source: str, loop: _FitLoop, detector: _DetectionThread, fps: f
                       dropped_before_fit)
 
 
-def _observations(keypoints: list[np.ndarray], world: list[np.ndarray], reasons: list[str], fps: float,
-                  image_size: tuple[int, int], source: str, seconds_per_frame: float) -> Observations:
+def _observations(keypoints: list[np.ndarray], world: list[np.ndarray], reasons: list[str], repeated: list[bool],
+                  fps: float, image_size: tuple[int, int], source: str, seconds_per_frame: float) -> Observations:
     """The frames' detections gathered into Observations ("" reasons mark valid frames)."""
     why = np.array(reasons, dtype=object)
     empty = np.zeros((0, NUM_LANDMARKS, 3))
     return Observations(np.stack(keypoints) if keypoints else empty, np.stack(world) if world else empty, fps,
-                        image_size, valid=why == "", invalid_reason=why, source=source,
-                        seconds_per_frame=seconds_per_frame)
+                        image_size, valid=why == "", invalid_reason=why, repeated=np.array(repeated, bool),
+                        source=source, seconds_per_frame=seconds_per_frame)
 
 
 class _Handoff:
@@ -376,15 +379,19 @@ class _DetectionThread(threading.Thread):
 
     def run(self) -> None:
         from .detect.mediapipe_pose import PersonFollower
+        from .detect.repeats import RepeatMarker
 
         follower = None
+        repeats = RepeatMarker(self.image_size)
         try:
             follower = PersonFollower(self.image_size, self.fps, person_box=self.settings.detect.person_box,
                                       max_width=self.settings.detect.max_width)
             self.ready.set()
             while not self.stop.is_set() and (item := self.frames.take()) is not None:
                 index, frame, arrival = item
-                self.detections.put((index, arrival, *follower.detect(index, frame)), self.stop)
+                kp, wl, reason = follower.detect(index, frame)
+                repeated = repeats.repeated(frame, kp, reason)
+                self.detections.put((index, arrival, kp, wl, reason, repeated), self.stop)
                 self.detected += 1
         except BaseException as exc:  # handed to the fitting thread, which raises it
             self.failure = exc

@@ -28,7 +28,7 @@ from ..errors import InputError
 from ..io.video import iter_frames, resize_to_width
 from ..landmarks import LANDMARK_INDEX, NUM_LANDMARKS
 from ..motion import Observations
-from .repeats import person_box, picture_unchanged
+from .repeats import RepeatMarker
 
 logger = logging.getLogger(__name__)
 
@@ -372,7 +372,7 @@ class Detections:
         self.keypoints, self.world = _FrameArrays(), _FrameArrays()
         self.reasons: list[str] = []
         self.repeated: list[bool] = []
-        self._last_picture: np.ndarray | None = None  # the last new picture of a valid frame
+        self._repeats: RepeatMarker | None = None  # made with the first frame's follower
 
     @property
     def end(self) -> int:
@@ -388,10 +388,9 @@ class Detections:
             return
         for index, frame in frames:
             kp, wl, reason = follower.detect(index, frame)
-            repeated = (not reason and self._last_picture is not None
-                        and picture_unchanged(self._last_picture, frame, person_box(kp, follower.image_size)))
-            if not repeated:  # one decoded picture is kept, the last new one; the others are dropped
-                self._last_picture = None if reason else frame
+            if self._repeats is None:
+                self._repeats = RepeatMarker(follower.image_size)
+            repeated = self._repeats.repeated(frame, kp, reason)
             del frame
             self.keypoints.append(kp)
             self.world.append(wl)

@@ -52,6 +52,26 @@ def picture_unchanged(previous: np.ndarray, frame: np.ndarray, box: tuple[int, i
     return picture_change(previous, frame, box) < UNCHANGED_LEVEL
 
 
+class RepeatMarker:
+    """Marks, frame by frame, the valid frames that show the last new picture of a valid frame again
+    (`picture_unchanged` inside the person's box); holds that one decoded picture. The comparison is with the last
+    new picture, not the frame before, so that a slow change that builds up over several frames starts a new
+    picture once it reaches UNCHANGED_LEVEL."""
+
+    def __init__(self, image_size: tuple[int, int]):
+        self.image_size = image_size
+        self._last_picture: np.ndarray | None = None
+
+    def repeated(self, frame: np.ndarray, keypoints: np.ndarray, reason: str) -> bool:
+        """True where `frame` (H, W, 3) uint8, whose detection is keypoints (K, 3) px (invalid: reason not ""),
+        repeats the last new picture."""
+        repeated = (not reason and self._last_picture is not None
+                    and picture_unchanged(self._last_picture, frame, person_box(keypoints, self.image_size)))
+        if not repeated:
+            self._last_picture = None if reason else frame
+        return repeated
+
+
 def interpolate_repeated(obs: Observations) -> Observations:
     """`obs` with the keypoints and landmarks of each run of repeated frames (obs.repeated, valid) on the straight
     line, in time, from the new picture before the run to the one after it; held at the picture before where the
