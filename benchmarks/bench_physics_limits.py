@@ -336,8 +336,12 @@ def part_online(clips, seeds, physics_settings=None) -> dict:
     for name in clips:
         for seed in seeds:
             case = build_case(name, seed)
+            truth = case["truth"]
+            feet_down = true_contact_labels(truth).any(axis=1) & case["obs"].valid & ~true_resting_off_feet(truth)
             for calibrated in (False, True):
                 motion, physics = physcap_online(case, calibrated, physics_settings)
+                forces = vertical_force_errors(motion.body, None, physics.grf, case["obs"].fps,
+                                               true_vertical_force(motion.body, truth), feet_down)
                 body, fps = motion.body, case["obs"].fps
                 slide = contact_slide_cm(body, physics.qpos, physics.contacts)
                 kinematic_slide = contact_slide_cm(body, motion.qpos, physics.contacts)
@@ -356,7 +360,7 @@ def part_online(clips, seeds, physics_settings=None) -> dict:
                                  kinematic_global_root_mm=kinematic_scores["global_root_mm"],
                                  kinematic_root_relative_mm=kinematic_scores["mpjpe_root_mm"],
                                  kinematic_skate_percent=kinematic_scores["skate_percent"],
-                                 kinematic_floating_percent=kinematic_scores["floating_percent"]))
+                                 kinematic_floating_percent=kinematic_scores["floating_percent"], **forces))
                 print("online", {k: v for k, v in rows[-1].items() if "slides" not in k},
                       f"median slide {np.median(slide):.2f} cm", flush=True)
     summary = {}
@@ -375,7 +379,8 @@ def part_online(clips, seeds, physics_settings=None) -> dict:
             largest_force_bw=float(max(r["largest_force_bw"] for r in sel)),
             **{key: float(np.mean([r[key] for r in sel])) for key in (
                 "root_relative_mm", "skate_percent", "kinematic_root_relative_mm", "kinematic_skate_percent",
-                "floating_percent", "kinematic_floating_percent", "global_root_mm", "kinematic_global_root_mm")})
+                "floating_percent", "kinematic_floating_percent", "global_root_mm", "kinematic_global_root_mm",
+                "vertical_force_error_bw", "constant_force_error_bw")})
     return dict(rows=[{k: v for k, v in r.items() if "slides" not in k} for r in rows], summary=summary)
 
 

@@ -771,7 +771,9 @@ def test_frames_without_a_person_carry_no_contacts_or_forces(body):
     assert everywhere.grf[~valid].any() and everywhere.contacts[~valid].any()  # what was written before
     assert not result.grf[~valid].any() and not result.residual[~valid].any() and not result.contacts[~valid].any()
     np.testing.assert_array_equal(result.qpos, everywhere.qpos)
-    np.testing.assert_array_equal(result.grf[valid], everywhere.grf[valid])
+    # the forces at a frame's instant read the intervals either side of it: the gap's neighbours read no bend there
+    far = valid & ~np.convolve(~valid, np.ones(5), mode="same").astype(bool)
+    np.testing.assert_array_equal(result.grf[far], everywhere.grf[far])
     np.testing.assert_array_equal(result.unexplained, everywhere.unexplained)
 
 
@@ -978,3 +980,22 @@ def test_a_lone_frames_contacts_are_no_evidence_of_the_floor(body):
             refiner.push(raised, np.full(4, t % 2 == 0 or not alternating))
         offsets.append(refiner.offset)
     assert offsets[0] == 0.0 and abs(offsets[1] + 0.5) < 0.05
+
+
+def test_a_causal_run_writes_each_frames_force_at_its_instant(body):
+    """Online the character moves causally, but its written forces are read once every frame is tracked, from the
+    intervals either side of each frame (forces_at_frames): a whole body bobbing 4 cm at 1.5 Hz gets the vertical
+    force its own path reads by central differences. The interval before each frame alone, as handed out live,
+    followed that path no better than a constant body weight does (0.28 against 0.27 body weights, RMS)."""
+    frames = 75
+    q = standing(body, frames)
+    q[:, 2] += 0.04 * np.sin(2 * np.pi * 1.5 * np.arange(frames) / FPS)
+    motion = run_physcap(body, q, FPS, np.ones((frames, 4), bool), np.zeros(frames, bool), PhysicsSettings())
+    assert not motion.unexplained.any()
+    com = kin.center_of_mass(body, kin.forward_kinematics(body, motion.qpos))[:, 2]
+    weight = body.mass * G
+    path = body.mass * ((com[2:] - 2 * com[1:-1] + com[:-2]) * FPS**2 + G) / weight  # frames 1 .. T-2
+    written = (motion.grf[1:-1, :, 2].sum(axis=1) + motion.residual[1:-1, 2]) / weight
+    inner = slice(4, -4)
+    error = np.sqrt(np.mean((written - path)[inner] ** 2))
+    assert error < 0.6 * np.sqrt(np.mean((1.0 - path[inner]) ** 2)), error

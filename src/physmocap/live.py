@@ -34,7 +34,7 @@ from .contacts.baselines import CAUSAL_SIZE_WINDOW, velocity_2d
 from .contacts.footlock import lock_feet
 from .contacts.networks import NUM_OUTPUTS
 from .contacts.predict import causal_window_start, load_weights, network_probabilities
-from .dynamics.stage import PhysicsMotion, PhysicsStream, onto_refined_floor
+from .dynamics.stage import PhysicsMotion, PhysicsStream, forces_at_frames, onto_refined_floor
 from .errors import InputError
 from .kinematics.online import OnlineFitter
 from .kinematics.stage import KinematicMotion, reprojection_errors
@@ -456,6 +456,7 @@ class _AfterFit:
         self.contacts: dict[int, np.ndarray] = {}  # (4,) bool after foot-lock
         self.stationary: dict[int, bool] = {}
         self.physics_frames: dict[int, tuple] = {}
+        self.seen: dict[int, bool] = {}  # whether each frame showed the person
         self.seconds = 0.0
 
     def push(self, index: int, q: np.ndarray, body, floor, keypoints: list, reasons: list) -> tuple[np.ndarray, dict]:
@@ -476,7 +477,7 @@ class _AfterFit:
         stationary = bool(velocity_2d(np.array([keypoints[i] for i in past]),
                                       np.array([reasons[i] == "" for i in past]), self.fps, causal=True)[1][-1])
         contacts = lock_feet(flags[-1:, :4], body, q[None], self.settings.physics)[0]
-        self.contacts[index], self.stationary[index] = contacts, stationary
+        self.contacts[index], self.stationary[index], self.seen[index] = contacts, stationary, bool(valid[-1])
         details: dict[str, Any] = dict(contacts=contacts, stationary=stationary)
         final = q
         if self.physics_on:
@@ -501,9 +502,15 @@ class _AfterFit:
         if not self.physics_on:
             return None
         frames = [self.physics_frames[i] for i in range(T)]
+        contacts = np.stack([f[1].active for f in frames])
+        # the forces at the frames' instants, as run_physcap writes them (on_pose had each interval's as it came)
+        grf, residual = forces_at_frames(
+            np.stack([f[1].contact_forces for f in frames]), np.stack([f[1].residual for f in frames]),
+            np.array([self.seen[i] and f[1].tracked for i, f in enumerate(frames)], bool), contacts.any(axis=1),
+            [f[1].shares for f in frames],
+            self.stream.tracker.substeps if self.stream is not None else 1)
         return PhysicsMotion(
-            qpos=np.stack([f[0] for f in frames]), grf=np.stack([f[1].contact_forces for f in frames]),
-            residual=np.stack([f[1].residual for f in frames]), contacts=np.stack([f[1].active for f in frames]),
+            qpos=np.stack([f[0] for f in frames]), grf=grf, residual=residual, contacts=contacts,
             corrected=np.array([f[2] for f in frames]), qp_failures=np.array([f[1].qp_failures for f in frames]),
             seconds=self.seconds, floor_plane=None if self.stream is None else self.stream.floor_plane,
             unexplained=np.array([f[1].unexplained_flag for f in frames], bool))

@@ -84,6 +84,7 @@ class FrameOutput:
     # each step's impulse split between the two frames by its closeness to each (PhysCapTracker.split_forces)
     shares: tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None
     unexplained_flag: bool = False  # set by the stage's diagnosis (stage.PhysicsStream)
+    tracked: bool = True  # False: the stream kept the target without tracking it, no force claimed (stage)
 
 
 def tracking_gains(settings: PhysicsSettings, nv: int) -> tuple[np.ndarray, np.ndarray]:
@@ -141,7 +142,7 @@ class PhysCapTracker:
         (settings.contact_settle_time); the stage turns it off for targets it lifts itself (online fits)."""
         self.body, self.settings, self.record = body, settings, record
         self.settle_contacts = settle_contacts
-        self.split_forces = False  # FrameOutput.shares too (offline: the forces at the frames' instants)
+        self.split_forces = False  # FrameOutput.shares too (the forces at the frames' instants: stage.forces_at_frames)
         self.model = copy.copy(body.mujoco_model())  # its own: the foot geoms get the touch margin
         self.data = mujoco.MjData(self.model)
         nv = self.model.nv

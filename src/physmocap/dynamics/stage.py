@@ -96,7 +96,7 @@ class PhysicsStream:
         # flattening them again only raised the feet (docs/decisions/physics-default.md); nor are they planted.
         self._fit_feet = settings.foot_lock != "never" and not refined_input  # a fit's feet on the floor, B.4's not
         self._whole_clip = whole_clip
-        self.tracker.split_forces = whole_clip and self.floor is None  # forces at the frames' instants (offline)
+        self.tracker.split_forces = True  # FrameOutput.shares: the forces at the frames' instants (forces_at_frames)
         self._lift_share = (1.0 - np.exp(-1.0 / (fps * settings.target_lift_time))
                             if settings.target_lift_time is not None and self._fit_feet else 0.0)
         model = self.tracker.model
@@ -221,6 +221,10 @@ class PhysicsStream:
             return pose, frame, corrected
         frame.contact_forces = self.floor.vector_to_kinematic(frame.contact_forces)
         frame.residual[:3] = self.floor.vector_to_kinematic(frame.residual[:3])
+        if frame.shares is not None:
+            start, end = ((self.floor.vector_to_kinematic(forces), np.concatenate(
+                [self.floor.vector_to_kinematic(residual[:3]), residual[3:]])) for forces, residual in frame.shares)
+            frame.shares = (start, end)
         return self.floor.to_kinematic(pose), frame, corrected
 
     def _centre_of_mass_height(self, q: np.ndarray) -> float:
@@ -240,7 +244,7 @@ class PhysicsStream:
             self.restart()
         self.target = q_kin
         frame = FrameOutput(contact_forces=np.zeros((4, 3)), residual=np.zeros(6), active=np.zeros(4, bool),
-                            qp_failures=0, unexplained_flag=True)
+                            qp_failures=0, unexplained_flag=True, tracked=False)
         pose = q_kin.copy()
         return (pose if self.floor is None else self.floor.to_kinematic(pose)), frame, False
 
@@ -426,7 +430,10 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
                 valid: np.ndarray | None = None, refined_input: bool = False,
                 resting_labelled: bool = False, whole_clip: bool = False, floor_trusted: bool = True) -> PhysicsMotion:
     """Track the kinematic motion (T, nq) with the physics character; contacts (T, 4) and stationary (T,)
-    come from the contact stage. Causal: frame t uses frames up to t only, unless whole_clip.
+    come from the contact stage. Causal: frame t's motion uses frames up to t only, unless whole_clip; its forces, once
+    every frame is tracked, are read at its instant from the intervals either side of it (forces_at_frames): the
+    interval before it alone, which a live stream hands out as it goes, lagged the character's motion and was
+    further from the true vertical force than a constant body weight (docs/decisions/physics-force-timing.md).
     refine_floor, floor_trusted: see PhysicsStream.
     valid: (T,) frames with a detected person (default all); the character starts at the first (whole_clip: at the
     first observed step, _first_frame), and the frames before it keep the kinematic pose without forces, flagged
@@ -458,16 +465,15 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     recorded = (qpos_kin.copy(), qpos_kin.copy()) if whole_clip and not refine_floor else None
     stream = PhysicsStream(body, settings, fps, refine_floor, refined_input, resting_labelled, whole_clip,
                            floor_trusted)
-    shares: list = [None] * T  # each pushed frame's FrameOutput.shares
-    pushed = _track(stream, qpos_kin, contacts, stationary, valid, unexplainable, whole_clip, out, recorded,
-                    shares, progress)
+    shares: list = [None] * T  # each tracked frame's FrameOutput.shares
+    tracked = _track(stream, qpos_kin, contacts, stationary, valid, unexplainable, whole_clip, out, recorded,
+                     shares, progress)
     if recorded is not None:
         out.qpos = centred_hand_back(stream.tracker.model, *recorded, unexplained, fps, settings.unexplained_blend)
     gone = np.zeros(T, bool) if valid is None else ~np.asarray(valid, bool)
     out.grf[gone], out.residual[gone], out.contacts[gone] = 0.0, 0.0, False  # tracked through, nothing claimed
-    if whole_clip:
-        out.grf, out.residual = forces_at_frames(out.grf, out.residual, pushed & ~gone, out.contacts.any(axis=1),
-                                                 shares, stream.tracker.substeps)
+    out.grf, out.residual = forces_at_frames(out.grf, out.residual, tracked & ~gone, out.contacts.any(axis=1),
+                                             shares, stream.tracker.substeps)
     if whole_clip and settings.plant_reach:
         out.qpos = plant_held_feet(body, out.qpos, out.contacts, fps, settings.plant_reach, gone | unexplained)
     out.seconds = time.perf_counter() - start
@@ -479,7 +485,8 @@ def _track(stream: PhysicsStream, qpos_kin: np.ndarray, contacts: np.ndarray, st
            valid: np.ndarray | None, unexplainable: np.ndarray, observed_step: bool, out: PhysicsMotion,
            recorded, shares: list, progress) -> np.ndarray:
     """Runs the character (stream) over the frames into out, recorded and shares (as run_physcap's), from
-    _first_frame on; returns the frames it pushed (T,) bool.
+    _first_frame on; returns the frames the character tracked (T,) bool (a frame the stream kept untracked
+    claims no force).
     Frames known unexplainable (T,) keep the kinematic pose with no force claimed, flagged; after them the
     character starts afresh (PhysicsStream.restart), as at the clip's start, at the first frame whose step to the
     next is observed (both valid, both explainable: the frames waiting for it are kept and flagged too). Causally
@@ -492,7 +499,7 @@ def _track(stream: PhysicsStream, qpos_kin: np.ndarray, contacts: np.ndarray, st
     assert flagged is not None, "run_physcap's motion carries its flags"
     flagged[:first] = seen[:first]  # a person shown before the first observed step: kept, no force claimed
     waiting = False  # after an unexplainable stretch, for an observed step
-    pushed = np.zeros(T, bool)
+    tracked = np.zeros(T, bool)
     for t in range(first, T):
         if unexplainable[t]:
             waiting, flagged[t] = True, True
@@ -505,7 +512,7 @@ def _track(stream: PhysicsStream, qpos_kin: np.ndarray, contacts: np.ndarray, st
             elif not observed_step and t > first and seen[t] and not seen[t - 1]:
                 stream.resume(qpos_kin[t])
             out.qpos[t], frame, out.corrected[t] = stream.push(qpos_kin[t], contacts[t], bool(stationary[t]))
-            pushed[t] = True
+            tracked[t] = frame.tracked
             if recorded is not None:
                 recorded[0][t], recorded[1][t] = stream.tracker.qpos, stream.target
             out.grf[t], out.residual[t], out.contacts[t], out.qp_failures[t], flagged[t] = (
@@ -513,12 +520,12 @@ def _track(stream: PhysicsStream, qpos_kin: np.ndarray, contacts: np.ndarray, st
             shares[t] = frame.shares
         if progress:
             progress(t + 1, T)
-    return pushed
+    return tracked
 
 
 def forces_at_frames(grf: np.ndarray, residual: np.ndarray, claimed: np.ndarray, supported: np.ndarray,
                      shares: list, substeps: int) -> tuple[np.ndarray, np.ndarray]:
-    """The forces at each frame's instant (offline), from the character's forces over the interval that ends at
+    """The forces at each frame's instant, from the character's forces over the interval that ends at
     each frame (PhysCapTracker.track averages its `substeps` steps): what m (x'' + g) of the character's own path
     reads at the frame by central differences two frames apart, (v[t+1] - v[t-1]) / 2 dt with the velocities
     themselves centred, v[t] = (x[t+1] - x[t-1]) / 2 dt.
