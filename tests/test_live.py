@@ -157,6 +157,10 @@ def test_dropped_frames_are_flagged_finite_and_tracked_by_the_physics(replayed_d
     batch = run_physcap(report.motion.body, report.motion.qpos, obs.fps, report.contacts, report.stationary,
                         settings.physics, valid=obs.valid)
     assert np.allclose(batch.qpos, report.physics.qpos, atol=1e-9)
+    # and writes the same forces: none on the dropped frames, each other frame's at its instant
+    assert np.allclose(batch.grf, report.physics.grf, atol=1e-6)
+    assert np.allclose(batch.residual, report.physics.residual, atol=1e-6)
+    assert not report.physics.grf[dropped].any() and not report.physics.contacts[dropped].any()
 
 
 def test_live_says_where_it_saves_or_that_nothing_is_saved(replayed_detector, capsys, tmp_path):

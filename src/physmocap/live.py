@@ -34,7 +34,7 @@ from .contacts.baselines import CAUSAL_SIZE_WINDOW, velocity_2d
 from .contacts.footlock import lock_feet
 from .contacts.networks import NUM_OUTPUTS
 from .contacts.predict import causal_window_start, load_weights, network_probabilities
-from .dynamics.stage import PhysicsMotion, PhysicsStream, forces_at_frames, onto_refined_floor
+from .dynamics.stage import PhysicsMotion, PhysicsStream, onto_refined_floor, written_forces
 from .errors import InputError
 from .kinematics.online import OnlineFitter
 from .kinematics.stage import KinematicMotion, reprojection_errors
@@ -502,13 +502,12 @@ class _AfterFit:
         if not self.physics_on:
             return None
         frames = [self.physics_frames[i] for i in range(T)]
-        contacts = np.stack([f[1].active for f in frames])
-        # the forces at the frames' instants, as run_physcap writes them (on_pose had each interval's as it came)
-        grf, residual = forces_at_frames(
+        seen = np.array([self.seen[i] for i in range(T)], bool)
+        # as run_physcap writes them: at the frames' instants (on_pose had each interval's as it came)
+        grf, residual, contacts = written_forces(
             np.stack([f[1].contact_forces for f in frames]), np.stack([f[1].residual for f in frames]),
-            np.array([self.seen[i] and f[1].tracked for i, f in enumerate(frames)], bool), contacts.any(axis=1),
-            [f[1].shares for f in frames],
-            self.stream.tracker.substeps if self.stream is not None else 1)
+            np.stack([f[1].active for f in frames]), seen & np.array([f[1].tracked for f in frames], bool), ~seen,
+            [f[1].shares for f in frames], self.stream.tracker.substeps if self.stream is not None else 1)
         return PhysicsMotion(
             qpos=np.stack([f[0] for f in frames]), grf=grf, residual=residual, contacts=contacts,
             corrected=np.array([f[2] for f in frames]), qp_failures=np.array([f[1].qp_failures for f in frames]),

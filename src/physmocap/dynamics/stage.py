@@ -471,9 +471,8 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     if recorded is not None:
         out.qpos = centred_hand_back(stream.tracker.model, *recorded, unexplained, fps, settings.unexplained_blend)
     gone = np.zeros(T, bool) if valid is None else ~np.asarray(valid, bool)
-    out.grf[gone], out.residual[gone], out.contacts[gone] = 0.0, 0.0, False  # tracked through, nothing claimed
-    out.grf, out.residual = forces_at_frames(out.grf, out.residual, tracked & ~gone, out.contacts.any(axis=1),
-                                             shares, stream.tracker.substeps)
+    out.grf, out.residual, out.contacts = written_forces(out.grf, out.residual, out.contacts, tracked & ~gone, gone,
+                                                         shares, stream.tracker.substeps)
     if whole_clip and settings.plant_reach:
         out.qpos = plant_held_feet(body, out.qpos, out.contacts, fps, settings.plant_reach, gone | unexplained)
     out.seconds = time.perf_counter() - start
@@ -521,6 +520,18 @@ def _track(stream: PhysicsStream, qpos_kin: np.ndarray, contacts: np.ndarray, st
         if progress:
             progress(t + 1, T)
     return tracked
+
+
+def written_forces(grf: np.ndarray, residual: np.ndarray, contacts: np.ndarray, claimed: np.ndarray,
+                   gone: np.ndarray, shares: list, substeps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The contact forces (T, 4, 3) N, root residual (T, 6) and contacts in use (T, 4) that a tracked motion writes,
+    from each frame's (PhysicsStream.push) and their shares: frames without a person (gone, (T,) bool) were tracked
+    through but claim no contact and no force; the others' forces are read at their instants (forces_at_frames)
+    where the frame and its neighbour claim them (claimed, (T,) bool). New arrays."""
+    grf, residual, contacts = grf.copy(), residual.copy(), contacts.copy()
+    grf[gone], residual[gone], contacts[gone] = 0.0, 0.0, False
+    grf, residual = forces_at_frames(grf, residual, claimed, contacts.any(axis=1), shares, substeps)
+    return grf, residual, contacts
 
 
 def forces_at_frames(grf: np.ndarray, residual: np.ndarray, claimed: np.ndarray, supported: np.ndarray,
