@@ -362,7 +362,7 @@ HAND_SECTIONS = ("contacts_more_data", "physics_footage", "physics", "physics2",
                  "physics5", "trajopt6", "refine2", "contacts6", "trajopt_quiet15", "physics6", "contacts7", "trajopt_stall16", "merged16", "physics7", "trajopt_framerate17", "trajopt8", "retarget17", "contacts8", "merged17",
                  "trajopt9", "physics8", "trajopt10", "outputs2", "merged18",
                  "robustness19", "physics9", "contacts9", "robustness20", "trajopt10_real_videos", "physics_support21",
-                 "physics_planted22", "physics_resting23", "retarget_whole_clip24", "retarget_ease26", "repeats26", "frame_rates27", "online_rates28", "b4_com28", "balance29", "contacts29", "physics30", "contacts30", "physics31", "physics32", "physics33", "physics34", "clock35", "limits36", "retarget_flights36", "floor36", "b4_levels36", "levels37", "online_swaps37", "hard_inputs38", "online_forces38")
+                 "physics_planted22", "physics_resting23", "retarget_whole_clip24", "retarget_ease26", "repeats26", "frame_rates27", "online_rates28", "b4_com28", "balance29", "contacts29", "physics30", "contacts30", "physics31", "physics32", "physics33", "physics34", "clock35", "limits36", "retarget_flights36", "floor36", "b4_levels36", "levels37", "online_swaps37", "hard_inputs38", "online_forces38", "bench_refresh38")
 
 
 def compose(seconds: dict[str, float]) -> str:
@@ -378,11 +378,11 @@ def compose(seconds: dict[str, float]) -> str:
         "",
         "## Targets of the issues",
         "",
-        "Issues 2-6, from the stored results: synthetic, physics, multi-view, contacts and trajopt from "
-        "`make bench` at 0fd3d8a on this machine at a load average of 7-10 (trajopt's two timing rows and contact "
-        "inference inflated by the load); the timing benchmarks (kinematics_real, "
-        "physics_speed, scaling) from their quiet-machine runs at 6b89d73 (Intel Xeon), the re-run's load-inflated "
-        "timings being in the section \"make bench again after the house changes\".",
+        "Issues 2-6, from the stored results of every `make bench` benchmark, run again in the thirty-eighth "
+        "session on this machine at a load average of 1-2.5: the accuracy benchmarks (synthetic, ablation, "
+        "multi-view, slow-video contacts, foot swaps) at 5b93a89, the others (contacts, physics speed, scaling, "
+        "trajopt, kinematics and physics on the real videos) at d0e1236; the section \"make bench refreshed\" "
+        "lists the rows whose verdict changed.",
         "",
         *targets_section(),
         "",
