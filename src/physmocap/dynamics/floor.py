@@ -145,3 +145,8 @@ class FloorRefiner:
     def vector_to_kinematic(self, vectors: np.ndarray) -> np.ndarray:
         """(..., 3) forces or directions of the physics frame in the kinematic world."""
         return vectors @ self.rotation
+
+    def wrench_to_kinematic(self, forces: np.ndarray, residual: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Contact forces (4, 3) N and root residual (6,) (force N, torque N m in the pelvis frame) of the physics
+        frame in the kinematic world, new arrays: the forces turn, the pelvis-frame torque does not."""
+        return self.vector_to_kinematic(forces), np.concatenate([self.vector_to_kinematic(residual[:3]), residual[3:]])

@@ -219,12 +219,10 @@ class PhysicsStream:
             pose = self.output_planter.plant(pose, frame.active, bool(frame.unexplained_flag))
         if self.floor is None:
             return pose, frame, corrected
-        frame.contact_forces = self.floor.vector_to_kinematic(frame.contact_forces)
-        frame.residual[:3] = self.floor.vector_to_kinematic(frame.residual[:3])
+        to_kinematic = self.floor.wrench_to_kinematic
+        frame.contact_forces, frame.residual = to_kinematic(frame.contact_forces, frame.residual)
         if frame.shares is not None:
-            start, end = ((self.floor.vector_to_kinematic(forces), np.concatenate(
-                [self.floor.vector_to_kinematic(residual[:3]), residual[3:]])) for forces, residual in frame.shares)
-            frame.shares = (start, end)
+            frame.shares = (to_kinematic(*frame.shares[0]), to_kinematic(*frame.shares[1]))
         return self.floor.to_kinematic(pose), frame, corrected
 
     def _centre_of_mass_height(self, q: np.ndarray) -> float:
