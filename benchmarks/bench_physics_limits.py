@@ -71,6 +71,7 @@ import mujoco
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
+from bench_physics_videos import LIMB_LANDMARKS, aligned_error_mm, aligned_to_mm  # noqa: E402
 from bench_synthetic import CLIPS, FPS, SECONDS, WALKING, first_seconds, model_height  # noqa: E402
 from bench_trajopt import implied_vertical_force, observe  # noqa: E402
 from common import MOCAP, RESULTS, truth_scores  # noqa: E402
@@ -86,6 +87,7 @@ from physmocap.dynamics.stage import run_physcap  # noqa: E402
 from physmocap.evaluation import score_against_truth, to_truth_world, true_contact_labels  # noqa: E402
 from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
 from physmocap.kinematics.stage import fit_motion  # noqa: E402
+from physmocap.landmarks import LANDMARK_INDEX  # noqa: E402
 from physmocap.mocap.bvh_reader import JOINT_NAMES, load_mocap  # noqa: E402
 from physmocap.mocap.synthetic import NoiseModel, make_observations, random_camera, resample  # noqa: E402
 from physmocap.trajopt import run_trajopt  # noqa: E402
@@ -477,6 +479,17 @@ def part_methods(clips, seeds, methods=METHODS, walking=WALKING, overrides=None,
                                          true_contacts))
                 row.update(contact_slide_cm=float(np.median(slides[0])) if slides[0].size else float("nan"),
                            truth_contact_slide_cm=float(np.median(slides[1])) if slides[1].size else float("nan"))
+                # the real videos' aligned error (against the detector's 3D, which the fit was fitted to) beside the
+                # same measure against the true landmarks, on the feet-only frames the method explains, for the method
+                # and its own input (motion.qpos) on the same frames
+                judged = feet_down & (True if flagged is None else ~np.asarray(flagged, bool))
+                true_limbs = truth["landmarks_world"][:, [LANDMARK_INDEX[a] for a, _ in LIMB_LANDMARKS]]
+                for key, points_of in (("", pose.points), ("_input", kin.forward_kinematics(motion.body,
+                                                                                              motion.qpos).points)):
+                    row[f"feet_only_aligned_to_detector{key}_mm"] = aligned_error_mm(
+                        points_of, list(motion.body.point_names), case["obs"], judged)
+                    row[f"feet_only_aligned_to_truth{key}_mm"] = aligned_to_mm(
+                        points_of, list(motion.body.point_names), true_limbs, judged)
                 row.update(method=method, clip=name.split("/")[-1], seed=seed,
                            jitter=metrics.mean_acceleration(pose.points, fps),
                            flagged_percent=0.0 if flagged is None else 100 * float(np.mean(flagged)),

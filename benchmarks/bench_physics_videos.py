@@ -92,16 +92,21 @@ def feet_only_jitter(points: np.ndarray, fps: float, explained: np.ndarray) -> f
 
 
 def aligned_error_mm(points: np.ndarray, names: list[str], observations: Observations, frames: np.ndarray) -> float:
-    """mm: median over `frames` (T,) bool of the per-frame Procrustes-aligned mean distance between the result's
-    points (T, P, 3) and the detector's metric 3D landmarks (LIMB_LANDMARKS; frames where one is unseen left out):
-    the aligned error that a video without 3D truth allows, against a noisy reference that is the same for the
-    physics and its kinematic input."""
+    """mm: `aligned_to_mm` against the detector's metric 3D landmarks (LIMB_LANDMARKS; frames where one is unseen left
+    out): the aligned error that a video without 3D truth allows, against a noisy reference that is the same for the
+    physics and its kinematic input (but which the kinematic fit was fitted to: docs/decisions/physics-planted-feet.md)."""
     landmarks = observations.landmarks_3d[:, [LANDMARK_INDEX[a] for a, _ in LIMB_LANDMARKS]]
     seen = frames & np.isfinite(landmarks).all(axis=(1, 2)) & (np.abs(landmarks).sum(axis=(1, 2)) > 0)
-    if not seen.any():
+    return aligned_to_mm(points, names, landmarks, seen)
+
+
+def aligned_to_mm(points: np.ndarray, names: list[str], reference: np.ndarray, frames: np.ndarray) -> float:
+    """mm: median over `frames` (T,) bool of the per-frame Procrustes-aligned mean distance between the result's
+    points (T, P, 3) named `names` at LIMB_LANDMARKS and `reference` (T, len(LIMB_LANDMARKS), 3) m."""
+    if not frames.any():
         return float("nan")
-    ours = points[seen][:, [names.index(b) for _, b in LIMB_LANDMARKS]]
-    aligned, reference = metrics.align_prediction(ours, landmarks[seen], align="procrustes")
+    ours = points[frames][:, [names.index(b) for _, b in LIMB_LANDMARKS]]
+    aligned, reference = metrics.align_prediction(ours, reference[frames], align="procrustes")
     return 1000 * float(np.median(np.linalg.norm(aligned - reference, axis=-1).mean(axis=1)))
 
 

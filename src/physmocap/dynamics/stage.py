@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+from scipy.signal import filtfilt
 
 from ..body import kinematics as kin
 from ..body.kinematics import rigid_transform_qpos
@@ -172,11 +173,12 @@ class PhysicsStream:
         """The refined floor n . x + d = 0 in the kinematic world, or None when not refining."""
         return None if self.floor is None else self.floor.plane
 
-    def push(self, q_kin: np.ndarray, contacts: np.ndarray,
-             stationary: bool) -> tuple[np.ndarray, FrameOutput, bool]:
+    def push(self, q_kin: np.ndarray, contacts: np.ndarray, stationary: bool,
+             velocity_kin: np.ndarray | None = None) -> tuple[np.ndarray, FrameOutput, bool]:
         """One frame's kinematic pose (nq,), contacts (4,) and stationary flag -> tracked pose, forces, and
         whether the balance correction changed the target (a pose whose centre of mass is below the floor: not
-        tracked, `_not_tracked`)."""
+        tracked, `_not_tracked`). velocity_kin (nv,): the pose's velocity where the caller holds the whole clip
+        (zero_phase_velocities; no floor refined, no targets planted), in place of the causally smoothed one."""
         if self.floor is not None:
             self.floor.push(q_kin, contacts)
             q_kin = self.floor.to_physics(q_kin)
@@ -186,22 +188,29 @@ class PhysicsStream:
             contacts = contacts | self._resting(q_kin)
         if self._lift_share:
             q_kin = self._target_on_floor(q_kin, contacts)
+        drop_before = self._drop or 0.0
         if self._drop_keep:
             q_kin = self._start_on_floor(q_kin)
         released = None
         if self.planter is not None and self._previous is not None:
             q_kin, released = self._plant_feet(q_kin, contacts)
         # Backward differences (as kinematic_derivatives), the velocity smoothed causally from the second one on
-        # (settings.velocity_smoothing); no acceleration before the third frame.
+        # (settings.velocity_smoothing), or given smoothed without lag (velocity_kin) plus the start drop's own;
+        # no acceleration before the third frame.
         velocity, acceleration = np.zeros(self.body.nv), np.zeros(self.body.nv)
         if self._previous is None:
             self.tracker.reset(q_kin, velocity)
         else:
-            mujoco.mj_differentiatePos(self.tracker.model, velocity, 1.0 / self.fps, self._previous, q_kin)
+            if velocity_kin is None:
+                mujoco.mj_differentiatePos(self.tracker.model, velocity, 1.0 / self.fps, self._previous, q_kin)
+            else:
+                velocity[:] = velocity_kin
+                velocity[2] -= ((self._drop or 0.0) - drop_before) * self.fps
             if self._frames == 1:  # the first velocity known: the character, started at rest, takes it
                 self.tracker.qvel[:] = velocity
             if self._frames >= 2:
-                velocity = self._new_share * velocity + (1.0 - self._new_share) * self._velocity
+                if velocity_kin is None:
+                    velocity = self._new_share * velocity + (1.0 - self._new_share) * self._velocity
                 acceleration = (velocity - self._velocity) * self.fps
         self._previous, self._velocity = q_kin, velocity
         self._frames += 1
@@ -464,8 +473,10 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     stream = PhysicsStream(body, settings, fps, refine_floor, refined_input, resting_labelled, whole_clip,
                            floor_trusted)
     shares: list = [None] * T  # each tracked frame's FrameOutput.shares
+    velocities = (zero_phase_velocities(body, qpos_kin, fps, settings.velocity_smoothing)
+                  if refined_input and not refine_floor else None)
     tracked = _track(stream, qpos_kin, contacts, stationary, valid, unexplainable, whole_clip, out, recorded,
-                     shares, progress)
+                     shares, progress, velocities)
     if recorded is not None:
         out.qpos = centred_hand_back(stream.tracker.model, *recorded, unexplained, fps, settings.unexplained_blend)
     gone = np.zeros(T, bool) if valid is None else ~np.asarray(valid, bool)
@@ -478,9 +489,23 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     return out
 
 
+def zero_phase_velocities(body: BodyModel, qpos: np.ndarray, fps: float, smoothing: float) -> np.ndarray:
+    """(T, nv): the backward differences of qpos (T, nq) on the manifold, smoothed forward then backward by an
+    exponential filter: the causal smoothing's noise reduction (smoothing, s; 0: none) without its lag, which took
+    the physics further from the truth than its input (docs/decisions/physcap-tracking.md). Each pass's time
+    constant is smoothing * sqrt(sqrt(2) - 1), so that the two passes cut at the one pass's -3 dB frequency."""
+    velocity, _ = kinematic_derivatives(body, qpos, fps)
+    if not smoothing or len(qpos) < 3:
+        return velocity
+    share = 1.0 - math.exp(-1.0 / (fps * smoothing * math.sqrt(math.sqrt(2.0) - 1.0)))
+    # frame 0 has no backward difference; each pass starts in the steady state of its first velocity
+    velocity[1:] = filtfilt([share], [1.0, share - 1.0], velocity[1:], axis=0, padtype=None)
+    return velocity
+
+
 def _track(stream: PhysicsStream, qpos_kin: np.ndarray, contacts: np.ndarray, stationary: np.ndarray,
            valid: np.ndarray | None, unexplainable: np.ndarray, observed_step: bool, out: PhysicsMotion,
-           recorded, shares: list, progress) -> np.ndarray:
+           recorded, shares: list, progress, velocities: np.ndarray | None = None) -> np.ndarray:
     """Runs the character (stream) over the frames into out, recorded and shares (as run_physcap's), from
     _first_frame on; returns the frames the character tracked (T,) bool (a frame the stream kept untracked
     claims no force).
@@ -508,7 +533,8 @@ def _track(stream: PhysicsStream, qpos_kin: np.ndarray, contacts: np.ndarray, st
                 waiting = False
             elif not observed_step and t > first and seen[t] and not seen[t - 1]:
                 stream.resume(qpos_kin[t])
-            out.qpos[t], frame, out.corrected[t] = stream.push(qpos_kin[t], contacts[t], bool(stationary[t]))
+            out.qpos[t], frame, out.corrected[t] = stream.push(
+                qpos_kin[t], contacts[t], bool(stationary[t]), None if velocities is None else velocities[t])
             tracked[t] = frame.tracked
             if recorded is not None:
                 recorded[0][t], recorded[1][t] = stream.tracker.qpos, stream.target
