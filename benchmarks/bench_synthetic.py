@@ -112,15 +112,18 @@ def evaluate_case(name: str, seed: int, noise: NoiseModel = MEDIAPIPE_NOISE, met
             predicted[online] = predict_contacts(obs, "causal" if online else "centred")[:2]
         motion = fitted[online, floor_given]
         contacts, stationary = predicted[online]
-        if "refined" in method or (method == "physcap on offline" and settings.physics.refine_offline):
+        refined_input = method == "physcap on offline" and settings.physics.refine_offline
+        if "refined" in method or refined_input:
             if "refined" not in fitted:  # as the pipeline: offline PhysCap tracks the B.4-refined kinematics
                 fitted["refined"] = refine_kinematics(obs, motion, contacts, settings.fit, settings.trajopt)
             motion, contacts = fitted["refined"].motion, fitted["refined"].contacts
         qpos, grf, residual = motion.qpos, None, None
         if method.startswith("physcap"):
+            # as the pipeline (stages.run_physics): an estimated online floor is refined as frames arrive, a given
+            # one is kept; offline, the B.4-refined input is tracked as such
             physics = run_physcap(motion.body, motion.qpos, FPS, contacts, stationary, settings.physics,
-                                  refine_floor=online and not floor_given)  # as the pipeline: an estimated
-            # online floor is refined as frames arrive, a given one is kept
+                                  refine_floor=online and not floor_given, valid=motion.valid,
+                                  refined_input=refined_input, floor_trusted=motion.floor.trusted)
             qpos, grf, residual = physics.qpos, physics.grf, physics.residual
             seconds = physics.seconds
             if plots_dir is not None and method == "physcap on online":

@@ -12,7 +12,13 @@ from physmocap.config import PhysicsSettings
 from physmocap.dynamics.balance import BalanceCorrector, inside_support
 from physmocap.dynamics.physcap import PhysCapTracker
 from physmocap.dynamics.qp import DenseQP
-from physmocap.dynamics.stage import PhysicsStream, forces_at_frames, kinematic_derivatives, run_physcap
+from physmocap.dynamics.stage import (
+    PhysicsStream,
+    forces_at_frames,
+    kinematic_derivatives,
+    run_physcap,
+    zero_phase_velocities,
+)
 
 FPS = 25.0
 G = 9.81
@@ -799,6 +805,44 @@ def test_physics_smooths_a_jittery_target_instead_of_passing_the_jitter_on(body)
     full_velocity = run_physcap(body, q, FPS, contacts, np.zeros(len(q), bool),
                                 PhysicsSettings(rotation_velocity_share=1.0))
     assert shake(smoothed.qpos[10:]) < shake(full_velocity.qpos[10:])
+
+
+def test_the_whole_clips_velocity_is_smoothed_without_lag_and_not_across_a_restart(body):
+    """B.4 input (whole clip): the kinematic velocity is smoothed forward and backward, so a sway's velocity peaks
+    where its backward differences peak (the causal filter's peak comes later), a steady velocity is kept as it
+    is, and a jump in an untracked frame does not leak into the runs either side of it."""
+    fps, T = 30.0, 90
+    times = np.arange(T) / fps
+    q = standing(body, T)
+    q[:, 0] = 0.1 * np.sin(2 * np.pi * 1.5 * times)  # m: a 1.5 Hz sideways sway of the root
+    tracked = np.ones(T, bool)
+    backward, _ = kinematic_derivatives(body, q, fps)
+    smoothed = zero_phase_velocities(body, q, fps, 0.03, tracked)
+    share = 1.0 - np.exp(-1.0 / (fps * 0.03))
+    causal = backward.copy()
+    for t in range(2, T):
+        causal[t] = share * backward[t] + (1.0 - share) * causal[t - 1]
+    middle = slice(20, 80)  # three whole periods
+
+    def delay(velocity):  # s: the phase of the sway's velocity, as a delay
+        wave = 2 * np.pi * 1.5 * times[middle]
+        return -np.arctan2(velocity[middle, 0] @ -np.sin(wave), velocity[middle, 0] @ np.cos(wave)) / (2 * np.pi * 1.5)
+
+    assert abs(delay(smoothed) - delay(backward)) < 1e-3
+    assert delay(causal) - delay(backward) > 0.01  # about (1 - share) / share frames
+    assert np.abs(smoothed[middle, 0]).max() > 0.9 * np.abs(backward[middle, 0]).max()
+    steady = standing(body, 30)
+    steady[:, 1] = np.arange(30) * 0.04  # 1.2 m/s forwards
+    np.testing.assert_allclose(zero_phase_velocities(body, steady, fps, 0.03, np.ones(30, bool))[1:, 1], 1.2,
+                               atol=1e-9)
+    jumped = q.copy()
+    jumped[45, 0] += 0.5  # m: one untracked frame far off
+    tracked[45] = False
+    split = zero_phase_velocities(body, jumped, fps, 0.03, tracked)
+    alone = [zero_phase_velocities(body, part, fps, 0.03, np.ones(len(part), bool))
+             for part in (jumped[:45], jumped[46:])]
+    np.testing.assert_allclose(split[1:45], alone[0][1:], atol=1e-12)
+    np.testing.assert_allclose(split[47:], alone[1][1:], atol=1e-12)
 
 
 def test_the_fed_forward_acceleration_brings_the_damped_velocity_onto_the_chord_by_the_frames_end(body):

@@ -93,7 +93,8 @@ class PhysicsSettings(Section):
     kp_root_horizontal: float | None = setting(250.0, "1/s^2", (0.0, 1e4), "horizontal stiffness (ours; None: above)")
     kd_root_horizontal: float | None = setting(32.0, "1/s", (0.0, 1e4), "its damping (None: kd_root_translation)")
     acceleration_feedforward: float = setting(1.0, "", (0.0, 1.0), "eq. (4) feed-forward times x/(e^x-1), x = kd/fps")
-    velocity_smoothing: float = setting(0.03, "s", (0.0, 1.0), "smoothing of eq. (4)'s kinematic velocity; 0: none")
+    velocity_smoothing: float = setting(0.03, "s", (0.0, 1.0), "smoothing of eq. (4)'s kinematic velocity (B.4 input: "
+                                        "both ways, no lag); 0: none")
     rotation_velocity_share: float = setting(0.8, "", (0.0, 1.0), "of the rotational velocity eq. (4) tracks (paper 1)")
     contact_height: float = setting(0.1, "m", (0.0, 1.0), "psi of eq. (5): predicted contacts count only below it")
     target_lift_time: float | None = setting(0.1, "s", (0.001, 10.0), "time constant lifting a target whose "

@@ -18,7 +18,7 @@ from ..body.model import CONTACT_POINTS, BodyModel
 from ..body.support import observed_unexplained_frames, resting_off_feet, resting_points
 from ..camera import floor_in_camera
 from ..config import PhysicsSettings
-from ..contacts.flights import held_flights_in_runs
+from ..contacts.flights import held_flights_in_runs, valid_runs
 from ..kinematics.stage import KinematicMotion
 from ..metrics import GRAVITY
 from .balance import BalanceCorrector
@@ -473,7 +473,8 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     stream = PhysicsStream(body, settings, fps, refine_floor, refined_input, resting_labelled, whole_clip,
                            floor_trusted)
     shares: list = [None] * T  # each tracked frame's FrameOutput.shares
-    velocities = (zero_phase_velocities(body, qpos_kin, fps, settings.velocity_smoothing)
+    seen = np.ones(T, bool) if valid is None else np.asarray(valid, bool)
+    velocities = (zero_phase_velocities(body, qpos_kin, fps, settings.velocity_smoothing, seen & ~unexplainable)
                   if refined_input and not refine_floor else None)
     tracked = _track(stream, qpos_kin, contacts, stationary, valid, unexplainable, whole_clip, out, recorded,
                      shares, progress, velocities)
@@ -489,17 +490,22 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     return out
 
 
-def zero_phase_velocities(body: BodyModel, qpos: np.ndarray, fps: float, smoothing: float) -> np.ndarray:
+def zero_phase_velocities(body: BodyModel, qpos: np.ndarray, fps: float, smoothing: float,
+                          tracked: np.ndarray) -> np.ndarray:
     """(T, nv): the backward differences of qpos (T, nq) on the manifold, smoothed forward then backward by an
-    exponential filter: the causal smoothing's noise reduction (smoothing, s; 0: none) without its lag, which took
-    the physics further from the truth than its input (docs/decisions/physcap-tracking.md). Each pass's time
-    constant is smoothing * sqrt(sqrt(2) - 1), so that the two passes cut at the one pass's -3 dB frequency."""
+    exponential filter within each run of tracked frames (T,) bool, the character's track between restarts: the
+    causal smoothing's noise reduction (smoothing, s; 0: none) without its lag, which took the physics further from
+    the truth than its input (docs/decisions/physcap-tracking.md). Each pass's time constant is smoothing *
+    sqrt(sqrt(2) - 1), so that the two passes cut at about the one pass's -3 dB frequency."""
     velocity, _ = kinematic_derivatives(body, qpos, fps)
-    if not smoothing or len(qpos) < 3:
+    if not smoothing:
         return velocity
     share = 1.0 - math.exp(-1.0 / (fps * smoothing * math.sqrt(math.sqrt(2.0) - 1.0)))
-    # frame 0 has no backward difference; each pass starts in the steady state of its first velocity
-    velocity[1:] = filtfilt([share], [1.0, share - 1.0], velocity[1:], axis=0, padtype=None)
+    for start, stop in valid_runs(tracked):
+        # a run's first frame has no backward difference within it; each pass starts in its first one's steady state
+        if stop - start > 2:
+            velocity[start + 1:stop] = filtfilt([share], [1.0, share - 1.0], velocity[start + 1:stop], axis=0,
+                                                padtype=None)
     return velocity
 
 
