@@ -480,7 +480,7 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
                      shares, progress, velocities)
     if recorded is not None:
         out.qpos = centred_hand_back(stream.tracker.model, *recorded, unexplained, fps, settings.unexplained_blend)
-    gone = np.zeros(T, bool) if valid is None else ~np.asarray(valid, bool)
+    gone = ~seen
     out.grf, out.residual, out.contacts = written_forces(out.grf, out.residual, out.contacts, tracked & ~gone, gone,
                                                          shares, stream.tracker.substeps)
     if whole_clip and settings.plant_reach:
