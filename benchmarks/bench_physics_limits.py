@@ -15,6 +15,11 @@ MediaPipe-like noise, the true intrinsics and height, 8 s at 30 fps, seeds 0 and
              true body rests off its feet (131_01's slide on a knee). Reports the share of them flagged
              (PhysicsMotion.unexplained), and the frames flagged elsewhere.
   diagnosis_10fps  the same at 10 fps (issue 17's parkour videos declared 10 fps).
+  levels     real motion on other levels (CMU stairs, ladders, a playground: LEVEL_CLIPS, subject 13 with --set
+             validation, 14 and 1 otherwise), the ground put at z = 0 (the lowest level the feet stand on), seed 0:
+             each method's error against the truth, beside the plain kinematic fit's, on the frames whose true
+             lowest sole is at least 0.1 m above the ground (another level) and on the others; the share of the
+             raised frames flagged and of the others; the largest force.
   online     PhysCap on the online fit: slide of the contact points in use, per frame (median and 95th
              percentile, cm), and jitter (mean joint acceleration, m/s^2) against its kinematic input.
   online_framerate  the online path at 10, 24, 30, 60 and 120 fps: each clip observed at each rate (seed 0, its
@@ -116,6 +121,12 @@ VALIDATION_CLIPS = ("cmu_raw_cgspeed/02_01.bvh", "cmu_iclone_cc3_retarget/007_01
                     "cmu_iclone_cc3_retarget/002_04.bvh", "cmu_iclone_cc3_retarget/005_11.bvh",
                     "cmu_iclone_cc3_retarget/002_06.bvh")
 VALIDATION_WALKING = ("02_01.bvh", "007_01.bvh")
+# Real motion on other levels (clip, seconds from its start): stairs of three steps, ladders, a playground's climb and
+# seat; left out of the contact networks' data (docs/decisions/contact-training-data.md). Subject 13 for validation.
+LEVEL_CLIPS = {"validation": (("cmu_daz_cgspeed/13_35.bvh", 10.0), ("cmu_daz_cgspeed/13_33.bvh", 12.0)),
+               "test": (("cmu_daz_cgspeed/14_21.bvh", 10.0), ("cmu_daz_cgspeed/14_33.bvh", 11.5),
+                        ("cmu_daz_cgspeed/01_08.bvh", 12.0))}
+RAISED = 0.1  # m: a true lowest sole this far above the ground stands on another level (or hangs)
 
 
 def box_lift(times: np.ndarray) -> np.ndarray:
@@ -127,25 +138,30 @@ def box_lift(times: np.ndarray) -> np.ndarray:
 
 
 def build_case(name: str, seed: int, fps: float = FPS, noise: NoiseModel = MEDIAPIPE_NOISE, box: bool = False,
-               online: bool = True) -> dict:
-    """Observations, truth, the kinematic fits and the contacts of one clip; cached on disk."""
-    key = f"{name.split('/')[0]}_{name.split('/')[-1][:-4]}_{seed}_{fps:g}{'_box' if box else ''}"
+               online: bool = True, seconds: float = SECONDS, ground: bool = False) -> dict:
+    """Observations, truth, the kinematic fits and the contacts of one clip's first `seconds`; cached on disk.
+    ground: z = 0 put at the lowest level the feet stand on (the 2nd percentile of the lowest sole point), for clips
+    on several levels, whose own floor (mocap.bvh_reader) may be any of them."""
+    key = (f"{name.split('/')[0]}_{name.split('/')[-1][:-4]}_{seed}_{fps:g}{'_box' if box else ''}"
+           f"{f'_{seconds:g}s_ground' if ground else ''}")
     path = CACHE / f"{key}.pkl"
     if path.exists():
         try:
             case = pickle.loads(path.read_bytes())
         except (ModuleNotFoundError, AttributeError):  # pickled by an older layout of physmocap: build it again
             path.unlink()
-            return build_case(name, seed, fps, noise, box, online)
+            return build_case(name, seed, fps, noise, box, online, seconds, ground)
         # the physics settings of the code under test, not the defaults pickled with the case's fits
         case["settings"] = dataclasses.replace(case["settings"], physics=PhysicsSettings())
         if not online or "online" in case:
             return case
         return add_online_fits(case, path)
-    clip = first_seconds(resample(load_mocap(MOCAP / name), fps), SECONDS)
+    clip = first_seconds(resample(load_mocap(MOCAP / name), fps), seconds)
     lift = box_lift(np.arange(clip.num_frames) / fps) if box else np.zeros(clip.num_frames)
     positions = clip.positions.copy()
     positions[:, :, 2] += lift[:, None]
+    if ground:
+        positions[:, :, 2] -= np.percentile(true_soles(positions).min(axis=1), 2)
     clip = dataclasses.replace(clip, positions=positions)
     rng = np.random.default_rng(seed)
     K, R, t = random_camera(clip, rng)
@@ -281,6 +297,47 @@ def part_framerate(clips, overrides=None) -> dict:
                              common_times=len(index), ms_per_frame=1000 * physics.seconds / len(physics.qpos)))
             print("framerate", rows[-1], flush=True)
     return dict(rows=rows)
+
+
+def true_soles(positions: np.ndarray) -> np.ndarray:
+    """(T, 4) m: the heights of a clip's sole points (CONTACT_POINTS) in its joint positions (T, J, 3), J as
+    mocap.JOINT_NAMES."""
+    return positions[:, [JOINT_NAMES.index(n) for n in CONTACT_POINTS], 2]
+
+
+def part_levels(clips, seed: int = 0) -> dict:
+    """Each method on real motion on other levels (clips: (name, seconds) pairs), against the truth."""
+    rows = []
+    for name, seconds in clips:
+        case = build_case(name, seed, online=False, seconds=seconds, ground=True)
+        truth = case["truth"]
+        raised = true_soles(truth["joints_world"]).min(axis=1) >= RAISED
+        runs = {"kinematic offline": (case["offline"], case["offline"].qpos, None),
+                "kinematic refined (B.4)": (case["refined"].motion, case["refined"].motion.qpos, None)}
+        motion, physics = physcap_offline(case)
+        runs["physcap on refined"] = (motion, physics.qpos, physics)
+        result = run_trajopt(motion.body, motion.qpos, FPS, case["refined"].contacts, case["settings"].trajopt)
+        runs["trajopt"] = (motion, result.qpos, result)
+        for method, (motion, qpos, solved) in runs.items():
+            points = points_in_truth(motion, qpos, truth)[:, [motion.body.point_names.index(j) for j in JOINT_NAMES]]
+            row = dict(clip=name.split("/")[-1], method=method, frames=len(qpos), raised_frames=int(raised.sum()))
+            for part, frames in (("raised", raised), ("ground", ~raised)):
+                pred, true = points[frames], truth["joints_world"][frames]
+                row[f"{part}_root_relative_mm"] = 1000 * metrics.mpjpe(pred, true, align="root")
+                row[f"{part}_procrustes_mm"] = 1000 * metrics.mpjpe(pred, true, align="procrustes")
+                row[f"{part}_global_root_mm"] = 1000 * float(np.linalg.norm(pred[:, 0] - true[:, 0], axis=-1).mean())
+            if solved is not None:
+                flagged = np.asarray(solved.unexplained if method == "physcap on refined" else solved.qp_failures > 0,
+                                     bool)
+                force = contact_force_bw(solved, motion.body.mass)
+                row.update(raised_flagged_percent=100 * float(flagged[raised].mean()),
+                           ground_flagged_percent=100 * float(flagged[~raised].mean()),
+                           largest_force_bw=float(force.max()),
+                           largest_unflagged_force_bw=float(force[~flagged].max()) if (~flagged).any() else 0.0,
+                           finite=bool(np.isfinite(qpos).all() and np.isfinite(solved.grf).all()))
+            rows.append(row)
+            print("levels", {k: round(v, 1) if isinstance(v, float) else v for k, v in row.items()}, flush=True)
+    return dict(rows=rows, raised_m=RAISED)
 
 
 def true_resting_off_feet(truth: dict) -> np.ndarray:
@@ -853,6 +910,20 @@ def markdown(out: dict) -> str:
                          f"{s['physics_slide_median_cm']:.2f} | {s['flagged_percent']:.1f} | "
                          f"{s['largest_force_bw']:.2f} |")
         lines.append("")
+    if "levels" in out:
+        lines += [f"**Real motion on other levels** (CMU stairs, ladders, a playground; ground at z = 0; raised: the true "
+                  f"lowest sole {out['levels']['raised_m']:g} m or more above it; each cell raised / ground frames)", "",
+                  "| clip | method | raised frames | root-relative mm | Procrustes mm | global root mm | flagged % | "
+                  "largest force BW |", "|---|---|---|---|---|---|---|---|"]
+        for r in out["levels"]["rows"]:
+            cells = [f"{r['raised_' + key]:.1f} / {r['ground_' + key]:.1f}" for key in (
+                "root_relative_mm", "procrustes_mm", "global_root_mm")]
+            flagged = (f"{r['raised_flagged_percent']:.0f} / {r['ground_flagged_percent']:.0f}"
+                       if "largest_force_bw" in r else "")
+            force = f"{r['largest_force_bw']:.2f}" if "largest_force_bw" in r else ""
+            lines.append(f"| {r['clip']} | {r['method']} | {r['raised_frames']} of {r['frames']} | {' | '.join(cells)} "
+                         f"| {flagged} | {force} |")
+        lines.append("")
     for part in ("diagnosis", "diagnosis_10fps"):
         if part not in out:
             continue
@@ -977,7 +1048,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--parts", nargs="+", default=["framerate", "diagnosis", "diagnosis_10fps", "online", "methods"])
     parser.add_argument("--quick", action="store_true", help="three clips (two for framerate), one seed")
     parser.add_argument("--set", choices=("test", "validation"), default="test",
-                        help="clips of parts methods and framerate: the test set or the validation clips "
+                        help="clips of parts methods, framerate and levels: the test set or the validation clips "
                              "(training subjects; settings are chosen there)")
     parser.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS),
                         help="the rows of part methods")
@@ -1009,6 +1080,8 @@ def main(argv=None) -> dict:
             out[part] = part_diagnosis(walking, seeds)
         elif part == "diagnosis_10fps":
             out[part] = part_diagnosis(walking, seeds, 10.0)
+        elif part == "levels":
+            out[part] = part_levels(LEVEL_CLIPS[args.set])
         elif part == "online":
             out[part] = part_online(clips, seeds, dataclasses.replace(PhysicsSettings(),
                                                                       **settings_overrides(args.physics)))

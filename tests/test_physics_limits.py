@@ -245,6 +245,51 @@ def test_a_drop_off_the_floors_edge_is_flagged_once_the_feet_pass_under_the_floo
     assert (held == (com[:, 2] < 0.0)).all()
 
 
+def test_a_foot_on_lower_ground_while_the_other_stands_on_the_floor_is_another_level(body):
+    """A stair climber: one foot labelled on the floor (a step), the other unlabelled and 0.2 m under it (the step
+    below, where its labels were the floor's outliers). That foot carries weight the floor cannot give: the frames
+    are flagged and no force is claimed there, where the foot on the floor was left to carry the body alone."""
+    from physmocap.body.support import RESTING_HEIGHT, under_the_floor
+
+    fps, T = 30.0, 30
+    q = np.repeat(body.rest_qpos[None], T, axis=0)
+    pose = kin.forward_kinematics(body, q)
+    com = kin.center_of_mass(body, pose)
+    points = pose.points.copy()
+    left = body.point_index(("left_heel", "left_toe"))
+    points[10:20][:, left, 2] -= 0.2 + (points[10:20][:, left, 2]).min()  # the left foot on the step below
+    contacts = np.zeros((T, 4), bool)
+    contacts[:, 2:] = True  # the right foot labelled on the floor throughout
+    flagged = under_the_floor(body.point_names, points, com, contacts)
+    assert flagged[10:20].all() and not flagged[:10].any() and not flagged[20:].any()
+    contacts[10:20, 0] = True  # labelled, the foot is the contact model's to hold
+    assert not under_the_floor(body.point_names, points, com, contacts).any()
+    shallow = pose.points.copy()  # a foot a little under the floor, as a fit leaves one, is not another level
+    shallow[:, left, 2] -= (shallow[:, left, 2]).min() + 0.5 * RESTING_HEIGHT
+    assert not under_the_floor(body.point_names, shallow, com, np.zeros((T, 4), bool)).any()
+    # The physics keeps the kinematic motion there and claims no force.
+    lowered = q.copy()
+    lowered[10:20, 2] -= 0.2  # the body on the step below; only the right foot labelled, lifted onto the floor
+    only_right = np.zeros((T, 4), bool)
+    only_right[:, 2:] = True
+    physics = run_physcap(body, lowered, fps, only_right, np.zeros(T, bool), PhysicsSettings(), refined_input=True)
+    assert physics.unexplained[10:20].all() and not physics.grf[10:20].any()
+
+
+def test_no_restart_for_a_stretch_too_short_to_judge_between_two_unexplainable_ones(body):
+    """Standing, with two stretches under the floor (another level) two frames apart: the character does not
+    restart for those two frames, which the diagnosis (unexplained_time) could not judge; they keep the kinematic
+    motion, flagged, with no force. After the second stretch it restarts and carries the body again."""
+    fps, T = 30.0, 80
+    q = np.repeat(body.rest_qpos[None], T, axis=0)
+    q[20:30, 2] -= 1.5
+    q[32:46, 2] -= 1.5
+    physics = run_physcap(body, q, fps, np.ones((T, 4), bool), np.ones(T, bool), PhysicsSettings(),
+                          refined_input=True)
+    assert physics.unexplained[20:46].all() and not physics.grf[20:46].any()
+    assert not physics.unexplained[60:].any() and physics.grf[60:].any()
+
+
 def test_offline_the_hand_back_is_centred_on_the_flagged_stretch(body):
     """Frames 10-12 flagged at 10 fps with a 0.2 s blend: handed over fully there, half-way one frame either side,
     untouched two frames away (the causal stream only starts at frame 10)."""

@@ -10,6 +10,7 @@ from scipy.spatial.transform import Rotation
 from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
 from physmocap.body.rotations import quat_exp, quat_multiply
+from physmocap.body.support import STEP_HEIGHT
 from physmocap.camera import Camera, Floor
 from physmocap.config import FitSettings, Settings, TrajoptSettings
 from physmocap.kinematics.fit import MARKERS
@@ -335,6 +336,9 @@ def test_points_resting_on_the_floor_are_added_as_contacts(body):
     sunk = q.copy()  # under the floor is not in the air either
     sunk[:, 2] -= 0.05
     assert resting_points(body, sunk, FPS, unlabelled, valid, settings).all()
+    lower = q.copy()  # a step down (STEP_HEIGHT): another level, not this floor
+    lower[:, 2] -= STEP_HEIGHT + 0.05
+    assert not resting_points(body, lower, FPS, unlabelled, valid, settings).any()
     # Resting for fewer frames than a phase lasts is not a contact.
     brief = lifted.copy()
     brief[10] = q[10]
@@ -358,6 +362,11 @@ def test_false_flights_get_the_points_near_the_floor_back(body):
     raised = q.copy()
     raised[:, 2] += 2 * near
     assert not false_flights(body, raised, FPS, labelled, valid, near).any()
+    # Nor does standing on lower ground (a step down, every point far under the floor): B.4 held such points on
+    # the floor and lifted a stair climber's body 35 cm there.
+    lowered = q.copy()
+    lowered[:, 2] -= STEP_HEIGHT + 0.05
+    assert not false_flights(body, lowered, FPS, labelled, valid, near).any()
     # A real flight: the body falls freely over the run (and the frames around it, a jump's last push and first
     # landing frames), so its labels stand.
     t = np.arange(frames) / FPS - 14.5 / FPS
@@ -388,6 +397,10 @@ def test_a_false_flight_made_by_dropping_outlying_labels_gets_those_labels_back(
     jump = q.copy()
     jump[20:, 2] += 0.5 * 9.81 * ((7 / FPS) ** 2 - t[20:] ** 2)  # falling freely from frame 20 on
     assert not false_flights(body, jump, FPS, kept, valid, near, outliers).any()
+    # Labels farther up than a step stand on something else (a box): not given back, nor pulled onto the floor.
+    boxed = on_floor(body, np.repeat(body.rest_qpos[None], frames, axis=0))
+    boxed[:, 2] += STEP_HEIGHT + 0.05
+    assert not false_flights(body, boxed, FPS, kept, valid, near, outliers).any()
 
 
 def test_no_contact_is_added_where_the_body_stands_on_another_level(body):

@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 from conftest import DEMO_VIDEO
 from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
-from physmocap.body.support import unexplained_frames
+from physmocap.body.support import STEP_HEIGHT, unexplained_frames
 from physmocap.config import TrajoptSettings
 from physmocap.contacts.flights import flight_support, support_held_flights
 from physmocap.errors import InputError
@@ -207,8 +207,8 @@ def test_flight_the_motion_does_not_fall_through_keeps_a_support():
 
 
 def test_flight_support_is_a_point_that_stays_put():
-    """A point that travels along the floor through the flight is no support: the next candidate holds the body
-    up, and with none left the flight is returned as unexplained, its flags unchanged."""
+    """A point that travels along the floor through the flight, or climbs off it, is no support: the next candidate
+    holds the body up, and with none left the flight is returned as unexplained, its flags unchanged."""
     fps, frames = 24.0, 48
     times = np.arange(frames) / fps
     points = np.zeros((frames, 4, 3))
@@ -224,6 +224,14 @@ def test_flight_support_is_a_point_that_stays_put():
     points[20:27, 3, 1] += np.linspace(0.0, 0.2, 7)  # and the right toe
     out, changed, unsupported = support_held_flights(flags, com, points, times, G, 0.5, drift=0.05)
     assert changed == [] and [(a, b) for a, b, _ in unsupported] == [(20, 27)] and np.array_equal(out, flags)
+    # Nor is a point that climbs off the floor (a toe on a ladder's rungs) more than a step's height.
+    points[20:27, 2:, :2] = points[19, 2:, :2]
+    points[20:27, 2, 2] = np.linspace(0.0, STEP_HEIGHT + 0.1, 7)
+    out, changed, unsupported = support_held_flights(flags, com, points, times, G, 0.5, drift=0.05)
+    assert unsupported == [] and [(a, b, p) for a, b, p, _ in changed] == [(20, 27, 3)]
+    points[20:27, 3, 2] = points[20:27, 2, 2]
+    out, changed, unsupported = support_held_flights(flags, com, points, times, G, 0.5, drift=0.05)
+    assert changed == [] and [(a, b) for a, b, _ in unsupported] == [(20, 27)]
 
 
 @pytest.mark.slow

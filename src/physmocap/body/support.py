@@ -23,6 +23,10 @@ RESTING_POINTS: tuple[str, ...] = ("pelvis", "spine", "neck", "head", "left_shou
 # m: such a point this close to the floor (or below it) rests on it: a kneeling knee's joint centre sits about this
 # high (docs/decisions/physics-limits.md, "Other body parts")
 RESTING_HEIGHT = 0.05
+# m: a foot this far above or below the floor stands on another level: a stair's riser is 0.15-0.2 m, while fits sink
+# unlabelled feet up to 0.09 m under the floor on six of the seven real videos (docs/decisions/refine-short-runs.md,
+# "Lower ground")
+STEP_HEIGHT = 0.15
 
 
 def resting_points(point_names: Sequence[str]) -> list[int]:
@@ -54,14 +58,18 @@ def unexplained_frames(point_names: Sequence[str], points: np.ndarray, com: np.n
 
 def under_the_floor(point_names: Sequence[str], points: np.ndarray, com: np.ndarray,
                     contacts: np.ndarray | None = None) -> np.ndarray:
-    """(T,) bool: frames whose body stands on another level: its COM below the floor, or, on a frame with no contact
-    label (contacts (T, 4) bool; None: none), every sole point (CONTACT_POINTS) deeper than RESTING_HEIGHT under it.
-    A foot labelled in contact is held on the floor by the contact model (a fit sunk by its depth error is lifted
-    onto it); unlabelled feet deep under it are lower ground (sports2d's drop off the box, its start fitted 1.2 m too
-    near)."""
-    soles = np.asarray(points)[:, [i for i, name in enumerate(point_names) if name in CONTACT_POINTS], 2]
-    labelled = np.zeros(len(soles), bool) if contacts is None else np.asarray(contacts, bool).any(axis=1)
-    return (np.asarray(com)[:, 2] < 0.0) | ((soles.min(axis=1) < -RESTING_HEIGHT) & ~labelled)
+    """(T,) bool: frames whose body stands, wholly or partly, on another level: its COM below the floor, or a foot
+    with no contact label (contacts (T, 4) bool, CONTACT_POINTS order; None: none) whose lowest sole point lies
+    deeper than RESTING_HEIGHT under it. A foot labelled in contact is held on the floor by the contact model (a
+    fit sunk by its depth error is lifted onto it); an unlabelled foot deep under it stands on lower ground: both
+    feet there (sports2d's drop off the box, its start fitted 1.2 m too near), or one, a stair climber's, whose
+    weight the other foot on the floor was left to carry alone (the character leant 15 cm off its input,
+    docs/decisions/physics-limits.md, "A foot on another level")."""
+    index = [point_names.index(name) for name in CONTACT_POINTS]
+    soles = np.asarray(points)[:, index, 2].reshape(len(points), 2, 2)  # (T, foot, heel / toe)
+    labelled = np.zeros(soles.shape, bool) if contacts is None else np.asarray(contacts, bool).reshape(soles.shape)
+    deep_free_foot = (soles.min(axis=2) < -RESTING_HEIGHT) & ~labelled.any(axis=2)
+    return (np.asarray(com)[:, 2] < 0.0) | deep_free_foot.any(axis=1)
 
 
 def observed_unexplained_frames(point_names: Sequence[str], points: np.ndarray, com: np.ndarray,

@@ -10,6 +10,7 @@ import logging
 import numpy as np
 
 from ..body.model import CONTACT_POINTS
+from ..body.support import STEP_HEIGHT
 
 log = logging.getLogger("physmocap")
 
@@ -99,9 +100,10 @@ def support_held_flights(flags: np.ndarray, com: np.ndarray, points: np.ndarray,
     support: a flight whose COM (T, 3) needs more than `max_support` body weights (`flight_support`) is the
     labels' error (the body is held up), and physics would have to launch and land it with forces the motion
     never shows. The support is the point, of those in contact on the frame before or after the flight, nearest
-    below the COM on average (points (T, P, 3); a support far to one side would turn the body) whose input stays
-    within `drift` m (a number, or one per point (P,)) of its median position along the floor over the flight (a
-    held contact does not travel; 0: no limit);
+    below the COM on average (points (T, P, 3), world on the floor z = 0; a support far to one side would turn the
+    body) whose input stays within `drift` m (a number, or one per point (P,)) of its median position along the
+    floor over the flight (a held contact does not travel; 0: no limit) and within STEP_HEIGHT of the floor (a toe
+    climbing a ladder's rungs held nothing on the floor);
     its contact continues through the flight. Returns the flags, (start, stop, point, support) of each
     relabelled flight, [start, stop) the frames put in contact, and (start, stop, support) of each flight that
     no point could hold up (every candidate travels): the contact model cannot explain it."""
@@ -126,6 +128,8 @@ def support_held_flights(flags: np.ndarray, com: np.ndarray, points: np.ndarray,
             p = points[a:b, point, :2]
             limit = np.broadcast_to(drift, (flags.shape[1],))[point]
             if limit > 0 and np.linalg.norm(p - np.median(p, axis=0), axis=1).max() > limit:
+                continue
+            if np.abs(points[a:b, point, 2]).max() > STEP_HEIGHT:
                 continue
             flags[a:b, point] = True
             changed.append((a, b, int(point), support))

@@ -517,11 +517,17 @@ def _track(stream: PhysicsStream, qpos_kin: np.ndarray, contacts: np.ndarray, st
     claims no force).
     Frames known unexplainable (T,) keep the kinematic pose with no force claimed, flagged; after them the
     character starts afresh (PhysicsStream.restart), as at the clip's start, at the first frame whose step to the
-    next is observed (both valid, both explainable: the frames waiting for it are kept and flagged too). Causally
+    next is observed (both valid, both explainable) and that begins a run of such frames at least
+    settings.unexplained_time long, which the diagnosis can judge (the frames waiting for it are kept and flagged
+    too: a character restarted for two frames between two such stretches claimed 3.4 body weights). Causally
     (not observed_step), a person seen again after frames without one may restart it (PhysicsStream.resume)."""
     T = len(qpos_kin)
     seen = np.ones(T, bool) if valid is None else np.asarray(valid, bool)
     eligible = seen & ~unexplainable
+    runway = np.zeros(T + 1, int)  # eligible frames from each frame on, itself included
+    for t in range(T - 1, -1, -1):
+        runway[t] = runway[t + 1] + 1 if eligible[t] else 0
+    shortest = max(2, math.ceil(stream.settings.unexplained_time * stream.fps - 1e-9))
     first = _first_frame(valid, observed_step)
     flagged = out.unexplained
     assert flagged is not None, "run_physcap's motion carries its flags"
@@ -531,7 +537,7 @@ def _track(stream: PhysicsStream, qpos_kin: np.ndarray, contacts: np.ndarray, st
     for t in range(first, T):
         if unexplainable[t]:
             waiting, flagged[t] = True, True
-        elif waiting and not (eligible[t] and t + 1 < T and eligible[t + 1]):
+        elif waiting and runway[t] < shortest:
             flagged[t] = True
         else:
             if waiting:

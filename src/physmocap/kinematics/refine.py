@@ -24,6 +24,7 @@ import numpy as np
 from ..body import kinematics as kin
 from ..body.model import CONTACT_POINTS
 from ..body.rotations import unwrap_rotation_vectors
+from ..body.support import STEP_HEIGHT
 from ..camera import WORLD_UP, Camera, Floor, tangent_basis
 from ..config import FitSettings, TrajoptSettings
 from ..detect.foot_swaps import find_foot_swaps, undo_foot_swaps
@@ -117,12 +118,15 @@ def false_flights(body, qpos: np.ndarray, fps: float, contacts: np.ndarray, vali
     the body on a ballistic arc it never flew; the measure of contacts.flights.flight_support, whose curvature
     over all the frames reads a short run's flight where the velocities at its two ends, smoothed by the fit,
     did not: docs/decisions/refine-short-runs.md). Runs of fewer than 3 frames with their neighbours are left
-    alone. The points within `near_floor` of the floor (z = 0) in those frames are marked in contact; farther
-    points are the floor's outliers, as for the labelled contacts (measured: a lowest point 13 cm up marked in
-    contact put a jump's flight on the floor), except the labelled ones that the floor dropped as its `outliers`
-    (T, 4): where dropping them made the flight, the labels and the centre of mass agree that the body stands and
-    only the fitted feet's height does not, which the next fit mends (a 12 fps video's last 5 frames, the feet
-    planted in the picture and fitted 7-10 cm up, were otherwise handed back kinematic and flagged)."""
+    alone. The points within `near_floor` of the floor (z = 0) in those frames are marked in contact (but not
+    points deeper than STEP_HEIGHT under it: lower ground, where a stair climber's feet stood); farther points are
+    the floor's outliers, as for the labelled contacts (measured: a lowest point 13 cm up marked in contact put a
+    jump's flight on the floor), except the labelled ones within STEP_HEIGHT of the floor that the floor dropped
+    as its `outliers` (T, 4): where dropping them made the flight, the labels and the centre of mass agree that the
+    body stands and only the fitted feet's height does not, which the next fit mends (a 12 fps video's last 5
+    frames, the feet planted in the picture and fitted 7-10 cm up, were otherwise handed back kinematic and
+    flagged). Labels farther up stand on something else: given back, a walk over a 0.3 m box was pulled down onto
+    the floor, and the physics explained it."""
     pose = kin.forward_kinematics(body, qpos)
     com_height = kin.center_of_mass(body, pose)[:, 2]
     heights = pose.points[:, body.point_index(CONTACT_POINTS), 2]
@@ -136,9 +140,9 @@ def false_flights(body, qpos: np.ndarray, fps: float, contacts: np.ndarray, vali
             continue
         fall = -2.0 * np.polyfit(np.arange(hi - lo) / fps, com_height[lo:hi], 2)[0] / gravity
         if fall < 0.5:
-            added[a:b] = heights[a:b] < near_floor
+            added[a:b] = (heights[a:b] < near_floor) & (heights[a:b] > -STEP_HEIGHT)
             if outliers is not None:
-                added[a:b] |= outliers[a:b]
+                added[a:b] |= outliers[a:b] & (np.abs(heights[a:b]) < STEP_HEIGHT)
     return added
 
 
@@ -165,12 +169,14 @@ def slipping_contacts(body, qpos: np.ndarray, fps: float, contacts: np.ndarray,
 def resting_points(body, qpos: np.ndarray, fps: float, contacts: np.ndarray, valid: np.ndarray,
                    settings: TrajoptSettings) -> np.ndarray:
     """(T, 4) flags to add for points labelled in the air that rest on the floor in the kinematic motion qpos
-    (world on its floor): below `rest_height` (a point under the floor is not in the air either) and slower than
+    (world on its floor): below `rest_height` (a point under the floor is not in the air either, unless deeper than
+    STEP_HEIGHT: lower ground) and slower than
     `rest_speed`, for at least
     `min_phase_seconds` (ours: a missed contact leaves the body on fewer supports than it stands on, and the
     optimiser moves it far from the observations to balance it there)."""
     height, speed = floor_motion(body, qpos, fps, settings.contact_slip_interval)
-    resting = (height < settings.rest_height) & (speed < settings.rest_speed) & valid[:, None]
+    resting = ((height < settings.rest_height) & (height > -STEP_HEIGHT) & (speed < settings.rest_speed)
+               & valid[:, None])
     min_frames = max(1, math.ceil(settings.min_phase_seconds * fps - 1e-9))
     resting = np.stack([clean_runs(resting[:, i], min_frames) for i in range(4)], axis=1)
     return resting & ~contacts
