@@ -910,12 +910,15 @@ def markdown(out: dict) -> str:
                          f"{s['physics_slide_median_cm']:.2f} | {s['flagged_percent']:.1f} | "
                          f"{s['largest_force_bw']:.2f} |")
         lines.append("")
-    if "levels" in out:
-        lines += [f"**Real motion on other levels** (CMU stairs, ladders, a playground; ground at z = 0; raised: the true "
-                  f"lowest sole {out['levels']['raised_m']:g} m or more above it; each cell raised / ground frames)", "",
+    for part in ("levels_validation", "levels"):
+        if part not in out:
+            continue
+        lines += [f"**Real motion on other levels{', validation' if 'validation' in part else ''}** (CMU stairs, "
+                  "ladders, a playground; ground at z = 0; raised: the true lowest sole "
+                  f"{out[part]['raised_m']:g} m or more above it; each cell raised / ground frames)", "",
                   "| clip | method | raised frames | root-relative mm | Procrustes mm | global root mm | flagged % | "
                   "largest force BW |", "|---|---|---|---|---|---|---|---|"]
-        for r in out["levels"]["rows"]:
+        for r in out[part]["rows"]:
             cells = [f"{r['raised_' + key]:.1f} / {r['ground_' + key]:.1f}" for key in (
                 "root_relative_mm", "procrustes_mm", "global_root_mm")]
             flagged = (f"{r['raised_flagged_percent']:.0f} / {r['ground_flagged_percent']:.0f}"
@@ -1080,7 +1083,8 @@ def main(argv=None) -> dict:
             out[part] = part_diagnosis(walking, seeds)
         elif part == "diagnosis_10fps":
             out[part] = part_diagnosis(walking, seeds, 10.0)
-        elif part == "levels":
+        elif part == "levels":  # kept beside the other set's (both in the markdown)
+            part = "levels_validation" if args.set == "validation" else "levels"
             out[part] = part_levels(LEVEL_CLIPS[args.set])
         elif part == "online":
             out[part] = part_online(clips, seeds, dataclasses.replace(PhysicsSettings(),

@@ -64,7 +64,7 @@ def under_the_floor(point_names: Sequence[str], points: np.ndarray, com: np.ndar
     fit sunk by its depth error is lifted onto it); an unlabelled foot deep under it stands on lower ground: both
     feet there (sports2d's drop off the box, its start fitted 1.2 m too near), or one, a stair climber's, whose
     weight the other foot on the floor was left to carry alone (the character leant 15 cm off its input,
-    docs/decisions/physics-limits.md, "A foot on another level")."""
+    docs/decisions/physics-limits.md, "A foot on another level, a point that climbs")."""
     index = [point_names.index(name) for name in CONTACT_POINTS]
     soles = np.asarray(points)[:, index, 2].reshape(len(points), 2, 2)  # (T, foot, heel / toe)
     labelled = np.zeros(soles.shape, bool) if contacts is None else np.asarray(contacts, bool).reshape(soles.shape)
