@@ -15,6 +15,8 @@ MediaPipe-like noise, the true intrinsics and height, 8 s at 30 fps, seeds 0 and
              true body rests off its feet (131_01's slide on a knee). Reports the share of them flagged
              (PhysicsMotion.unexplained), and the frames flagged elsewhere.
   diagnosis_10fps  the same at 10 fps (issue 17's parkour videos declared 10 fps).
+  seated     the same on CMU clips seated on stools (SEATED_CLIPS), split into seated frames (the true pelvis
+             under SEATED of its standing height above the soles) and the others, with the mean contact force.
   levels     real motion on other levels (CMU stairs, ladders, a playground: LEVEL_CLIPS, subject 13 with --set
              validation, 14 and 1 otherwise), the ground put at z = 0 (the lowest level the feet stand on), seed 0:
              each method's error against the truth, beside the plain kinematic fit's, on the frames whose true
@@ -127,6 +129,10 @@ LEVEL_CLIPS = {"validation": (("cmu_daz_cgspeed/13_35.bvh", 10.0), ("cmu_daz_cgs
                "test": (("cmu_daz_cgspeed/14_21.bvh", 10.0), ("cmu_daz_cgspeed/14_33.bvh", 11.5),
                         ("cmu_daz_cgspeed/01_08.bvh", 12.0))}
 RAISED = 0.1  # m: a true lowest sole this far above the ground stands on another level (or hangs)
+# Seated on stools (the seat carries the weight the feet do not; subject 13 for validation)
+SEATED_CLIPS = {"validation": (("cmu_daz_cgspeed/13_01.bvh", 12.0),),
+                "test": (("cmu_daz_cgspeed/14_27.bvh", 12.0), ("cmu_daz_cgspeed/14_30.bvh", 12.0))}
+SEATED = 0.85  # share of the standing pelvis height over the soles under which a frame is seated
 
 
 def box_lift(times: np.ndarray) -> np.ndarray:
@@ -305,13 +311,27 @@ def true_soles(positions: np.ndarray) -> np.ndarray:
     return positions[:, [JOINT_NAMES.index(n) for n in CONTACT_POINTS], 2]
 
 
-def part_levels(clips, seed: int = 0) -> dict:
-    """Each method on real motion on other levels (clips: (name, seconds) pairs), against the truth."""
+def raised_frames(truth: dict) -> np.ndarray:
+    """(T,) bool: frames whose true lowest sole is RAISED or more above the ground (another level, or hanging)."""
+    return true_soles(truth["joints_world"]).min(axis=1) >= RAISED
+
+
+def seated_frames(truth: dict) -> np.ndarray:
+    """(T,) bool: frames whose true pelvis is less than SEATED of its standing height (the clip's 90th percentile)
+    above the lowest sole: sitting or squatting, the weight on a seat or over bent legs."""
+    joints = truth["joints_world"]
+    above = joints[:, JOINT_NAMES.index("pelvis"), 2] - true_soles(joints).min(axis=1)
+    return above < SEATED * np.percentile(above, 90)
+
+
+def part_levels(clips, seed: int = 0, held=raised_frames, groups=("raised", "ground")) -> dict:
+    """Each method on real motion (clips: (name, seconds) pairs) against the truth, on the frames `held` (truth ->
+    (T,) bool) picks and on the others (their keys' prefixes: `groups`)."""
     rows = []
     for name, seconds in clips:
         case = build_case(name, seed, online=False, seconds=seconds, ground=True)
         truth = case["truth"]
-        raised = true_soles(truth["joints_world"]).min(axis=1) >= RAISED
+        picked = held(truth)
         runs = {"kinematic offline": (case["offline"], case["offline"].qpos, None),
                 "kinematic refined (B.4)": (case["refined"].motion, case["refined"].motion.qpos, None)}
         motion, physics = physcap_offline(case)
@@ -320,8 +340,9 @@ def part_levels(clips, seed: int = 0) -> dict:
         runs["trajopt"] = (motion, result.qpos, result)
         for method, (motion, qpos, solved) in runs.items():
             points = points_in_truth(motion, qpos, truth)[:, [motion.body.point_names.index(j) for j in JOINT_NAMES]]
-            row = dict(clip=name.split("/")[-1], method=method, frames=len(qpos), raised_frames=int(raised.sum()))
-            for part, frames in (("raised", raised), ("ground", ~raised)):
+            row = dict(clip=name.split("/")[-1], method=method, frames=len(qpos))
+            row[f"{groups[0]}_frames"] = int(picked.sum())
+            for part, frames in zip(groups, (picked, ~picked), strict=True):
                 pred, true = points[frames], truth["joints_world"][frames]
                 row[f"{part}_root_relative_mm"] = 1000 * metrics.mpjpe(pred, true, align="root")
                 row[f"{part}_procrustes_mm"] = 1000 * metrics.mpjpe(pred, true, align="procrustes")
@@ -330,14 +351,16 @@ def part_levels(clips, seed: int = 0) -> dict:
                 flagged = np.asarray(solved.unexplained if method == "physcap on refined" else solved.qp_failures > 0,
                                      bool)
                 force = contact_force_bw(solved, motion.body.mass)
-                row.update(raised_flagged_percent=100 * float(flagged[raised].mean()),
-                           ground_flagged_percent=100 * float(flagged[~raised].mean()),
-                           largest_force_bw=float(force.max()),
+                row[f"{groups[0]}_flagged_percent"] = 100 * float(flagged[picked].mean())
+                row[f"{groups[1]}_flagged_percent"] = 100 * float(flagged[~picked].mean())
+                row.update(largest_force_bw=float(force.max()),
                            largest_unflagged_force_bw=float(force[~flagged].max()) if (~flagged).any() else 0.0,
+                           mean_force_bw={part: float(force[frames & ~flagged].mean()) if (frames & ~flagged).any()
+                                          else None for part, frames in zip(groups, (picked, ~picked), strict=True)},
                            finite=bool(np.isfinite(qpos).all() and np.isfinite(solved.grf).all()))
             rows.append(row)
             print("levels", {k: round(v, 1) if isinstance(v, float) else v for k, v in row.items()}, flush=True)
-    return dict(rows=rows, raised_m=RAISED)
+    return dict(rows=rows, raised_m=RAISED, seated_share=SEATED, groups=list(groups))
 
 
 def true_resting_off_feet(truth: dict) -> np.ndarray:
@@ -910,6 +933,22 @@ def markdown(out: dict) -> str:
                          f"{s['physics_slide_median_cm']:.2f} | {s['flagged_percent']:.1f} | "
                          f"{s['largest_force_bw']:.2f} |")
         lines.append("")
+    for part in ("seated_validation", "seated"):
+        if part not in out:
+            continue
+        lines += [f"**Seated on stools{', validation' if 'validation' in part else ''}** (CMU; seated: the true pelvis "
+                  f"under {out[part]['seated_share']:g} of its standing height above the soles; each cell seated / "
+                  "standing frames)", "", "| clip | method | seated frames | root-relative mm | Procrustes mm | "
+                  "global root mm | flagged % | mean contact force, unflagged, BW |", "|---|---|---|---|---|---|---|---|"]
+        for r in out[part]["rows"]:
+            cells = [f"{r['seated_' + key]:.1f} / {r['standing_' + key]:.1f}" for key in (
+                "root_relative_mm", "procrustes_mm", "global_root_mm")]
+            solved = "largest_force_bw" in r
+            flagged = f"{r['seated_flagged_percent']:.0f} / {r['standing_flagged_percent']:.0f}" if solved else ""
+            force = " / ".join("-" if v is None else f"{v:.2f}" for v in r["mean_force_bw"].values()) if solved else ""
+            lines.append(f"| {r['clip']} | {r['method']} | {r['seated_frames']} of {r['frames']} | {' | '.join(cells)} "
+                         f"| {flagged} | {force} |")
+        lines.append("")
     for part in ("levels_validation", "levels"):
         if part not in out:
             continue
@@ -1086,6 +1125,9 @@ def main(argv=None) -> dict:
         elif part == "levels":  # kept beside the other set's (both in the markdown)
             part = "levels_validation" if args.set == "validation" else "levels"
             out[part] = part_levels(LEVEL_CLIPS[args.set])
+        elif part == "seated":
+            part = "seated_validation" if args.set == "validation" else "seated"
+            out[part] = part_levels(SEATED_CLIPS[args.set], held=seated_frames, groups=("seated", "standing"))
         elif part == "online":
             out[part] = part_online(clips, seeds, dataclasses.replace(PhysicsSettings(),
                                                                       **settings_overrides(args.physics)))

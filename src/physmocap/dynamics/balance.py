@@ -18,6 +18,9 @@ from ..camera import WORLD_UP
 SMALL_LEAN = np.radians(2.0)  # below this the tilt is done and the legs are straightened instead
 RELAXED = 1e-3  # rad of tilt, share of the bend: a relaxing correction below this is dropped (invisible)
 FOOT_BREADTH = 0.055  # of the standing height (Drillis & Contini 1966): the sole's width about its heel-toe line
+# rad: a knee bent more than this is a posture (seated, squatting), not a standing fit's error; seated on stools
+# the correction stood the body up (docs/decisions/physics-balance.md, "Seated")
+STANDING_BEND = math.radians(45.0)
 
 
 def support_distance(point: np.ndarray, support: np.ndarray) -> float:
@@ -94,7 +97,7 @@ class BalanceCorrector:
 
     def correct(self, q_kin: np.ndarray, stationary: bool, contacts: np.ndarray) -> tuple[np.ndarray, bool]:
         """The corrected pose for this frame and whether a correction applied."""
-        if not stationary or not contacts.reshape(2, 2).any(axis=1).all():
+        if not stationary or not contacts.reshape(2, 2).any(axis=1).all() or self._seated(q_kin):
             # Moving, on one foot (as often a slow step as a balance) or in the air: what was accumulated relaxes
             # about the last support. Dropped in one frame, it stepped the target by up to 19 cm at the head
             # (docs/decisions/physics-balance.md).
@@ -126,6 +129,11 @@ class BalanceCorrector:
             if support_distance(straighter[:2], support) >= support_distance(com[:2], support):
                 self.straighten = bend
         return q, True
+
+    def _seated(self, q_kin: np.ndarray) -> bool:
+        """Whether a knee of the pose (nq,) bends more than STANDING_BEND: a posture (seated, squatting) whose centre
+        of mass a seat may hold, not a standing fit's lean (PhysCap 4.3.1 corrects standing poses)."""
+        return max(abs(float(q_kin[knee])) for knee, _ in self.legs) > STANDING_BEND
 
     def _relaxed(self, q_kin: np.ndarray, spine: np.ndarray, support: np.ndarray) -> tuple[np.ndarray, bool]:
         """correct's return for a frame that needs no new correction: the accumulated one shrunk at the rate it grew
