@@ -903,6 +903,21 @@ def _speed_table(sp: dict, title: str, cell) -> list[str]:
     return lines + [""]
 
 
+def split_table_rows(rows: list[dict], groups: tuple[str, str], last) -> list[str]:
+    """Markdown rows of parts levels and seated: per clip and method, each measure on the `groups[0]` / `groups[1]`
+    frames, the frames flagged, and last(row) for a physics method (empty cells for a kinematic one)."""
+    a, b = groups
+    lines = []
+    for r in rows:
+        cells = [f"{r[f'{a}_{key}']:.1f} / {r[f'{b}_{key}']:.1f}" for key in (
+            "root_relative_mm", "procrustes_mm", "global_root_mm")]
+        solved = "largest_force_bw" in r
+        flagged = f"{r[f'{a}_flagged_percent']:.0f} / {r[f'{b}_flagged_percent']:.0f}" if solved else ""
+        lines.append(f"| {r['clip']} | {r['method']} | {r[f'{a}_frames']} of {r['frames']} | {' | '.join(cells)} | "
+                     f"{flagged} | {last(r) if solved else ''} |")
+    return lines
+
+
 def markdown(out: dict) -> str:
     lines = []
     if "framerate" in out:
@@ -940,15 +955,8 @@ def markdown(out: dict) -> str:
                   f"under {out[part]['seated_share']:g} of its standing height above the soles; each cell seated / "
                   "standing frames)", "", "| clip | method | seated frames | root-relative mm | Procrustes mm | "
                   "global root mm | flagged % | mean contact force, unflagged, BW |", "|---|---|---|---|---|---|---|---|"]
-        for r in out[part]["rows"]:
-            cells = [f"{r['seated_' + key]:.1f} / {r['standing_' + key]:.1f}" for key in (
-                "root_relative_mm", "procrustes_mm", "global_root_mm")]
-            solved = "largest_force_bw" in r
-            flagged = f"{r['seated_flagged_percent']:.0f} / {r['standing_flagged_percent']:.0f}" if solved else ""
-            force = " / ".join("-" if v is None else f"{v:.2f}" for v in r["mean_force_bw"].values()) if solved else ""
-            lines.append(f"| {r['clip']} | {r['method']} | {r['seated_frames']} of {r['frames']} | {' | '.join(cells)} "
-                         f"| {flagged} | {force} |")
-        lines.append("")
+        lines += split_table_rows(out[part]["rows"], ("seated", "standing"), lambda r: " / ".join(
+            "-" if v is None else f"{v:.2f}" for v in r["mean_force_bw"].values())) + [""]
     for part in ("levels_validation", "levels"):
         if part not in out:
             continue
@@ -957,15 +965,8 @@ def markdown(out: dict) -> str:
                   f"{out[part]['raised_m']:g} m or more above it; each cell raised / ground frames)", "",
                   "| clip | method | raised frames | root-relative mm | Procrustes mm | global root mm | flagged % | "
                   "largest force BW |", "|---|---|---|---|---|---|---|---|"]
-        for r in out[part]["rows"]:
-            cells = [f"{r['raised_' + key]:.1f} / {r['ground_' + key]:.1f}" for key in (
-                "root_relative_mm", "procrustes_mm", "global_root_mm")]
-            flagged = (f"{r['raised_flagged_percent']:.0f} / {r['ground_flagged_percent']:.0f}"
-                       if "largest_force_bw" in r else "")
-            force = f"{r['largest_force_bw']:.2f}" if "largest_force_bw" in r else ""
-            lines.append(f"| {r['clip']} | {r['method']} | {r['raised_frames']} of {r['frames']} | {' | '.join(cells)} "
-                         f"| {flagged} | {force} |")
-        lines.append("")
+        lines += split_table_rows(out[part]["rows"], ("raised", "ground"),
+                                  lambda r: f"{r['largest_force_bw']:.2f}") + [""]
     for part in ("diagnosis", "diagnosis_10fps"):
         if part not in out:
             continue
