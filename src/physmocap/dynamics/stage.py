@@ -524,9 +524,9 @@ def _track(stream: PhysicsStream, qpos_kin: np.ndarray, contacts: np.ndarray, st
     T = len(qpos_kin)
     seen = np.ones(T, bool) if valid is None else np.asarray(valid, bool)
     eligible = seen & ~unexplainable
-    runway = np.zeros(T + 1, int)  # eligible frames from each frame on, itself included
-    for t in range(T - 1, -1, -1):
-        runway[t] = runway[t + 1] + 1 if eligible[t] else 0
+    runway = np.zeros(T, int)  # eligible frames from each frame on, itself included
+    for start, stop in valid_runs(eligible):
+        runway[start:stop] = np.arange(stop - start, 0, -1)
     shortest = max(2, math.ceil(stream.settings.unexplained_time * stream.fps - 1e-9))
     first = _first_frame(valid, observed_step)
     flagged = out.unexplained
