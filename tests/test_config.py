@@ -89,6 +89,18 @@ def test_a_settings_file_out_of_range_is_named_with_the_key(tmp_path):
     assert (settings.online, settings.overlay_width, settings.fit.weight_depth) == (True, 640, 0.5)
 
 
+def test_whole_numbers_in_a_settings_file_are_read_as_the_floats_declared(tmp_path):
+    from physmocap.body.model import build_body_model, template_lengths
+    from physmocap.dynamics.physcap import PhysCapTracker
+
+    path = tmp_path / "settings.toml"
+    path.write_text("[physics]\nkp_joint = 3000\nkd_joint = 110\niterations = 4\n[camera]\nfloor = [0, -1, 0, 2]\n")
+    settings = load_settings(path)
+    assert type(settings.physics.kp_joint) is float and type(settings.physics.iterations) is int
+    assert all(type(x) is float for x in settings.camera.floor)
+    PhysCapTracker(build_body_model(template_lengths()), settings.physics, 30.0)  # integer gains had raised
+
+
 def test_an_unknown_setting_names_the_nearest_known_one(tmp_path):
     path = tmp_path / "settings.toml"
     path.write_text("[physics]\ncorrection_rate = 0.1\n")  # renamed to correction_time (seconds)

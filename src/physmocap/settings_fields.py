@@ -113,7 +113,8 @@ def _check_value(key: str, value, metadata) -> None:
     elif metadata["limits"] is not None and not (metadata["also"] is not None and value == metadata["also"]):
         low, high = metadata["limits"]
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
-            raise SettingsError(f"{key} = {value} is out of range: expected {allowed(metadata)}.")
+            shown = number(value) if isinstance(value, float) else value
+            raise SettingsError(f"{key} = {shown} is out of range: expected {allowed(metadata)}.")
     if metadata["check"] is not None:
         metadata["check"](key, value)
 
@@ -185,16 +186,29 @@ def nearest(name: str, known: Iterable[str], prefix: str = "") -> str:
     return f" (did you mean {prefix}{match[0]}?)" if match else ""
 
 
+def _as_declared(value, hint):
+    """A value of the field's type (_has_type) as the field holds it: a whole number where a number is asked as a
+    float (`kp_joint = 3000`), which numpy would otherwise keep as an integer array."""
+    arms = typing.get_args(hint) if isinstance(hint, types.UnionType) else (hint,)
+    if isinstance(value, tuple) and typing.get_origin(arms[0]) is tuple:
+        items = typing.get_args(arms[0])
+        items = (items[0],) * len(value) if len(items) == 2 and items[1] is Ellipsis else items
+        return tuple(_as_declared(v, t) for v, t in zip(value, items, strict=True))
+    if float in arms and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    return value
+
+
 def _typed(path: Path, owner: type, values: dict) -> dict:
-    """`values` for fields of the dataclass `owner` (lists as tuples); SettingsError naming the file and the first
-    value of the wrong type."""
+    """`values` for fields of the dataclass `owner` (lists as tuples, whole numbers as floats where a float is
+    declared); SettingsError naming the file and the first value of the wrong type."""
     hints = _hints(owner)
     values = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
     for name, item in values.items():
         if not _has_type(item, hints[name]):
             raise SettingsError(f"{path}: setting {owner().key(name)} must be {_type_name(hints[name])}, "
                                 f"got {item!r}.")
-    return values
+    return {name: _as_declared(item, hints[name]) for name, item in values.items()}
 
 
 def load_toml(root: type, path: Path):

@@ -89,7 +89,7 @@ class FrameOutput:
 
 def tracking_gains(settings: PhysicsSettings, nv: int) -> tuple[np.ndarray, np.ndarray]:
     """(nv,) kp in 1/s^2 and (nv,) kd in 1/s of eq. (4) per DOF: root translation, root rotation, joints."""
-    kp, kd = np.full(nv, settings.kp_joint), np.full(nv, settings.kd_joint)
+    kp, kd = np.full(nv, settings.kp_joint, dtype=float), np.full(nv, settings.kd_joint, dtype=float)
     kp[:3], kd[:3] = settings.kp_root_translation, settings.kd_root_translation
     # The root's horizontal position: the fit's noise there, tracked stiffly, became frame-to-frame horizontal
     # contact forces (docs/decisions/physics-grf-chatter.md); its height stays stiff for take-offs and landings.
