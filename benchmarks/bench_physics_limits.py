@@ -50,7 +50,7 @@ MediaPipe-like noise, the true intrinsics and height, 8 s at 30 fps, seeds 0 and
         [--set validation] [--methods ROW ...] [--physics NAME=VALUE ...]
 
 --set validation runs parts methods, framerate and online on the validation clips (CMU training subjects 2, 5, 7),
-where settings are chosen; --physics tries PhysicsSettings values there (e.g. contact_settle_time=0.1).
+where settings are chosen; --physics tries PhysicsSettings values in every part (e.g. contact_settle_time=0.1).
 
 Writes benchmarks/results/physics_limits.json and .md. Fits are cached under the system's temporary folder
 (physmocap_bench_physics_limits/DIGEST, a digest of the sources and data outside dynamics/) so that parts can be rerun
@@ -116,6 +116,7 @@ CACHE = Path(tempfile.gettempdir()) / "physmocap_bench_physics_limits" / inputs_
 GRAVITY = 9.81
 BOX = dict(start=3.0, end=5.5, ramp=0.5, height=0.3)  # s, s, s, m
 RATES = (10.0, 24.0, 30.0, 60.0, 120.0)
+PHYSICS = PhysicsSettings()  # every case's physics settings: the defaults with main's --physics overrides
 SOURCE_FPS = 120.0  # the motion capture's force read at this rate (source_vertical_force)  # issue 17 asks for 8 to 120 fps; 60 is the reference
 # Validation clips (CMU training subjects 2, 5 and 7; the test set holds 6 and 131), on which settings are chosen:
 # walks on both skeletons, jump and balance, dance steps, bend and scoop.
@@ -157,8 +158,8 @@ def build_case(name: str, seed: int, fps: float = FPS, noise: NoiseModel = MEDIA
         except (ModuleNotFoundError, AttributeError):  # pickled by an older layout of physmocap: build it again
             path.unlink()
             return build_case(name, seed, fps, noise, box, online, seconds, ground)
-        # the physics settings of the code under test, not the defaults pickled with the case's fits
-        case["settings"] = dataclasses.replace(case["settings"], physics=PhysicsSettings())
+        # the physics settings of the code under test (and --physics), not the defaults pickled with the case's fits
+        case["settings"] = dataclasses.replace(case["settings"], physics=PHYSICS)
         if not online or "online" in case:
             return case
         return add_online_fits(case, path)
@@ -173,7 +174,7 @@ def build_case(name: str, seed: int, fps: float = FPS, noise: NoiseModel = MEDIA
     K, R, t = random_camera(clip, rng)
     obs, truth = make_observations(clip, K, R, t, rng, noise)
     settings = Settings().replace("body", height=model_height(truth["landmarks_world"]))
-    case = dict(name=key, obs=obs, truth=truth, lift=lift, settings=settings)
+    case = dict(name=key, obs=obs, truth=truth, lift=lift, settings=settings.replace(None, physics=PHYSICS))
     offline = fit_motion(obs, settings)
     contacts, stationary, _ = predict_contacts(obs, "centred")
     refined = refine_kinematics(obs, offline, contacts, settings.fit, settings.trajopt)
@@ -197,16 +198,16 @@ def add_online_fits(case: dict, path: Path) -> dict:
     return case
 
 
-def physcap_offline(case: dict, physics=None):
+def physcap_offline(case: dict):
     """PhysCap on the B.4-refined kinematics, as offline capture runs it."""
     refined = case["refined"]
     return refined.motion, run_physcap(refined.motion.body, refined.motion.qpos, case["obs"].fps, refined.contacts,
-                                       case["stationary"], physics or case["settings"].physics, refined_input=True)
+                                       case["stationary"], case["settings"].physics, refined_input=True)
 
 
-def physcap_online(case: dict, calibrated: bool = False, physics=None):
+def physcap_online(case: dict, calibrated: bool = False):
     motion = case["online_calibrated" if calibrated else "online"]
-    physics = physics or case["settings"].physics
+    physics = case["settings"].physics
     return motion, run_physcap(motion.body, motion.qpos, case["obs"].fps, case["causal"], case["causal_stationary"],
                                physics, refine_floor=not calibrated)
 
@@ -261,7 +262,7 @@ def against_reference(run: dict, reference: dict) -> tuple[list[int], list[int],
             np.linalg.norm((a - a[:, :1]) - (b - b[:, :1]), axis=-1).mean(axis=1))
 
 
-def part_framerate(clips, overrides=None) -> dict:
+def part_framerate(clips) -> dict:
     """The 60 fps offline case's B.4-refined kinematic motion resampled to each rate (the same motion), PhysCap at
     each rate as offline capture runs it (refined_input); joints against the 60 fps run at common times."""
     rows = []
@@ -273,8 +274,7 @@ def part_framerate(clips, overrides=None) -> dict:
         for fps in RATES:
             qpos, source = resample_motion(body, motion.qpos, 60.0, fps)
             physics = run_physcap(body, qpos, fps, refined.contacts[source], case["stationary"][source],
-                                  dataclasses.replace(case["settings"].physics, **(overrides or {})),
-                                  refined_input=True)
+                                  case["settings"].physics, refined_input=True)
             points = kin.forward_kinematics(body, physics.qpos).points
             to_input = np.linalg.norm(points - kin.forward_kinematics(body, qpos).points, axis=-1).mean(axis=1)
             explained = ~physics.unexplained if physics.unexplained is not None else np.ones(len(qpos), bool)
@@ -413,7 +413,7 @@ def contact_slide_cm(body, qpos: np.ndarray, contacts: np.ndarray) -> np.ndarray
     return held_slides_cm(kin.forward_kinematics(body, qpos).points[:, body.point_index(CONTACT_POINTS)], contacts)
 
 
-def part_online(clips, seeds, physics_settings=None) -> dict:
+def part_online(clips, seeds) -> dict:
     rows = []
     for name in clips:
         for seed in seeds:
@@ -421,7 +421,7 @@ def part_online(clips, seeds, physics_settings=None) -> dict:
             truth = case["truth"]
             feet_down = true_contact_labels(truth).any(axis=1) & case["obs"].valid & ~true_resting_off_feet(truth)
             for calibrated in (False, True):
-                motion, physics = physcap_online(case, calibrated, physics_settings)
+                motion, physics = physcap_online(case, calibrated)
                 forces = vertical_force_errors(motion.body, None, physics.grf, case["obs"].fps,
                                                true_vertical_force(motion.body, truth), feet_down)
                 body, fps = motion.body, case["obs"].fps
@@ -510,8 +510,8 @@ def part_online_framerate(clips) -> dict:
 METHODS = ("kinematic offline", "kinematic refined (B.4)", "physcap on refined", "trajopt")
 
 
-def part_methods(clips, seeds, methods=METHODS, walking=WALKING, overrides=None, fps: float = FPS) -> dict:
-    """The methods' metrics on the clips filmed at `fps`; overrides: PhysicsSettings fields for the PhysCap row."""
+def part_methods(clips, seeds, methods=METHODS, walking=WALKING, fps: float = FPS) -> dict:
+    """The methods' metrics on the clips filmed at `fps`."""
     rows = []
     for name in clips:
         for seed in seeds:
@@ -530,8 +530,7 @@ def part_methods(clips, seeds, methods=METHODS, walking=WALKING, overrides=None,
                     motion, qpos = case["refined"].motion, case["refined"].motion.qpos
                     seconds = case["offline"].seconds + case["refined"].seconds
                 elif method == "physcap on refined":
-                    motion, physics = physcap_offline(
-                        case, dataclasses.replace(case["settings"].physics, **(overrides or {})))
+                    motion, physics = physcap_offline(case)
                     qpos, grf, residual, flagged = physics.qpos, physics.grf, physics.residual, physics.unexplained
                     seconds = case["offline"].seconds + case["refined"].seconds + physics.seconds
                 else:
@@ -1113,12 +1112,13 @@ def main(argv=None) -> dict:
     walking = [c for c in clips if c.split("/")[-1] in walks]
     path = Path(args.json)
     out = json.loads(path.read_text()) if path.exists() else {}
+    global PHYSICS
+    PHYSICS = dataclasses.replace(PhysicsSettings(), **settings_overrides(args.physics))
     for part in args.parts:
         start = time.perf_counter()
         if part == "framerate":
             # validation: the jump, dance and bend clips too, where the diagnosis flags frames (the walks flag none)
-            out[part] = part_framerate(all_clips if args.set == "validation" else all_clips[:2],
-                                       settings_overrides(args.physics))
+            out[part] = part_framerate(all_clips if args.set == "validation" else all_clips[:2])
         elif part == "diagnosis":
             out[part] = part_diagnosis(walking, seeds)
         elif part == "diagnosis_10fps":
@@ -1130,14 +1130,13 @@ def main(argv=None) -> dict:
             part = "seated_validation" if args.set == "validation" else "seated"
             out[part] = part_levels(SEATED_CLIPS[args.set], held=seated_frames, groups=("seated", "standing"))
         elif part == "online":
-            out[part] = part_online(clips, seeds, dataclasses.replace(PhysicsSettings(),
-                                                                      **settings_overrides(args.physics)))
+            out[part] = part_online(clips, seeds)
         elif part == "online_framerate":
             out[part] = part_online_framerate(clips)
         elif part == "methods":
-            out[part] = part_methods(clips, seeds, args.methods, walks, settings_overrides(args.physics))
+            out[part] = part_methods(clips, seeds, args.methods, walks)
         elif part == "methods_10fps":  # the whole capture of videos filmed at 10 fps (issue 17's low-rate footage)
-            out[part] = part_methods(clips, seeds, args.methods, walks, settings_overrides(args.physics), 10.0)
+            out[part] = part_methods(clips, seeds, args.methods, walks, 10.0)
         elif part == "speed":
             out[part] = part_speed(args.against)
         elif part == "stability":

@@ -896,6 +896,22 @@ def test_the_derivative_term_tracks_a_share_of_the_rotational_velocity_and_all_o
     np.testing.assert_allclose(desired[6:], settings.kd_joint * (share * qd_kin[6:] - qvel[6:]), atol=1e-9)
 
 
+def test_offline_on_b4_input_the_joints_track_with_their_own_stiffer_gains(body):
+    settings = PhysicsSettings()
+    assert PhysicsStream(body, settings, FPS).tracker.kp[6] == settings.kp_joint  # online: a noisy fit's gains
+    offline = PhysicsStream(body, settings, FPS, refined_input=True).tracker
+    assert (offline.kp[6], offline.kd[6]) == (settings.kp_joint_refined, settings.kd_joint_refined)
+    frames = 60
+    q = squat(body, frames, FPS, period=0.8)
+    errors = []
+    for gains in (settings, PhysicsSettings(kp_joint_refined=None, kd_joint_refined=None)):
+        motion = run_physcap(body, q, FPS, np.ones((frames, 4), bool), np.zeros(frames, bool), gains,
+                             refined_input=True)
+        knee = body.qpos_address[body.joint_index["left_knee"]]  # a hinge: one coordinate, radians
+        errors.append(np.abs(motion.qpos[10:, knee] - q[10:, knee]).mean())
+    assert errors[0] < 0.9 * errors[1]  # lag of the velocity share, (1 - share) kd / kp: 3/4 of the online gains'
+
+
 def test_a_root_shaken_sideways_by_fit_noise_gets_smaller_horizontal_forces_than_the_stiff_root_gave(body):
     """kp_root_horizontal: a target whose root jumps 1 cm sideways from frame to frame (a fit's noise) is followed
     less, so the horizontal contact forces that would carry the shake are smaller than with the stiff root's gains

@@ -86,6 +86,9 @@ class PhysicsSettings(Section):
                                     "reported; online, a person seen again farther off restarts the character")
     kp_joint: float = setting(1200.0, "1/s^2", (0.0, 1e4), "joint stiffness; the paper's 300 lagged the motion")
     kd_joint: float = setting(70.0, "1/s", (0.0, 1e4), "joint damping (paper 20; both critically damped)")
+    kp_joint_refined: float | None = setting(2000.0, "1/s^2", (0.0, 1e4), "joint stiffness offline, on B.4's "
+                                             "smooth whole-clip refinement, which kp_joint lags (None: kp_joint)")
+    kd_joint_refined: float | None = setting(89.4, "1/s", (0.0, 1e4), "its damping (None: kd_joint)")
     kp_root_rotation: float = setting(1200.0, "1/s^2", (0.0, 1e4), "stiffness of the root's orientation (paper 340)")
     kd_root_rotation: float = setting(70.0, "1/s", (0.0, 1e4), "damping of the root's orientation (paper 30)")
     kp_root_translation: float = setting(1000.0, "1/s^2", (0.0, 1e4), "stiffness of the root's position")

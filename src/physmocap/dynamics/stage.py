@@ -70,6 +70,15 @@ class PhysicsMotion:
         return cls(**values)
 
 
+def refined_gains(settings: PhysicsSettings) -> PhysicsSettings:
+    """The settings with the joint gains for B.4 input (kp_joint_refined, kd_joint_refined where set): the per-frame
+    fits' gains are soft against their noise, and lag a smooth target (docs/decisions/physcap-tracking.md)."""
+    return dataclasses.replace(settings, kp_joint=settings.kp_joint if settings.kp_joint_refined is None
+                               else settings.kp_joint_refined,
+                               kd_joint=settings.kd_joint if settings.kd_joint_refined is None
+                               else settings.kd_joint_refined)
+
+
 class PhysicsStream:
     """The physics stage one frame at a time (live capture, and `run_physcap` frame by frame): estimates the
     kinematic velocities causally, lifts targets whose feet sink out of the floor, corrects balance, and tracks.
@@ -88,7 +97,8 @@ class PhysicsStream:
                       if refine_floor and settings.floor_refit_interval is not None else None)
         # Held contacts are settled onto B.4's feet; targets this stream lifts itself (online fits) are not: there
         # it doubled the held contacts' p95 slide on the estimated floor (docs/decisions/physics-default.md).
-        self.tracker = PhysCapTracker(body, settings, fps, settle_contacts=refined_input)
+        self.tracker = PhysCapTracker(body, refined_gains(settings) if refined_input else settings, fps,
+                                      settle_contacts=refined_input)
         self.target = body.rest_qpos.copy()  # the last frame's target (nq,): its kinematic pose after 4.3.1
         # share of the newest backward difference in the smoothed velocity (1: no smoothing)
         smoothing = settings.velocity_smoothing
