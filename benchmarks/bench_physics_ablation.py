@@ -61,6 +61,7 @@ DEPARTURES = (  # label, {field: the paper's value (or the nearest setting where
     ("+ flat feet in the targets", {"flatten_feet": False}),  # a fitted foot keeps its tilt
     ("+ stationary flag checked by root speed", {"stationary_max_speed": None}),  # the network's flag alone
     ("+ share of the rotational velocity", {"rotation_velocity_share": 1.0}),  # eq. (4): all of qd_kin
+    ("+ stiffer joints on B.4 input", {"kp_joint_refined": None, "kd_joint_refined": None}),  # the joints' (offline)
     ("+ online floor refinement", {"floor_refit_interval": None}),  # the warm-up's floor kept (online)
     ("+ held feet planted in the output (defaults)", {"plant_reach": None}),  # the simulated pose as it comes
 )
@@ -122,7 +123,8 @@ def case_rows(name: str, seed: int, online: bool, noise: NoiseModel) -> dict[str
 def physics_rows(motion, contacts, stationary, score, online: bool) -> dict[str, dict]:
     rows = {}
     for label, physics in LADDER:  # as the pipeline: the online floor is refined (unless the rung turns it off)
-        out = run_physcap(motion.body, motion.qpos, FPS, contacts, stationary, physics, refine_floor=online)
+        out = run_physcap(motion.body, motion.qpos, FPS, contacts, stationary, physics, refine_floor=online,
+                          valid=motion.valid, refined_input=not online and physics.refine_offline)
         rows[label] = score(out.qpos, out.grf, out.residual)
         rows[label]["fallback_frames"] = float((out.qp_failures > 0).sum())
     return rows
