@@ -113,8 +113,7 @@ def _check_value(key: str, value, metadata) -> None:
     elif metadata["limits"] is not None and not (metadata["also"] is not None and value == metadata["also"]):
         low, high = metadata["limits"]
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
-            shown = number(value) if isinstance(value, float) else value
-            raise SettingsError(f"{key} = {shown} is out of range: expected {allowed(metadata)}.")
+            raise SettingsError(f"{key} = {value} is out of range: expected {allowed(metadata)}.")
     if metadata["check"] is not None:
         metadata["check"](key, value)
 
@@ -200,15 +199,27 @@ def _as_declared(value, hint):
 
 
 def _typed(path: Path, owner: type, values: dict) -> dict:
-    """`values` for fields of the dataclass `owner` (lists as tuples, whole numbers as floats where a float is
-    declared); SettingsError naming the file and the first value of the wrong type."""
+    """`values` for fields of the dataclass `owner` (lists as tuples); SettingsError naming the file and the first
+    value of the wrong type."""
     hints = _hints(owner)
     values = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
     for name, item in values.items():
         if not _has_type(item, hints[name]):
             raise SettingsError(f"{path}: setting {owner().key(name)} must be {_type_name(hints[name])}, "
                                 f"got {item!r}.")
-    return {name: _as_declared(item, hints[name]) for name, item in values.items()}
+    return values
+
+
+def _as_declared_section(section):
+    """The checked settings with every value as its field declares it (_as_declared), sub-settings too."""
+    owner: type = type(section)  # as `type`: mypy takes a dataclass class object for unhashable
+    hints = _hints(owner)
+    values = {}
+    for f in dataclasses.fields(section):
+        value = getattr(section, f.name)
+        values[f.name] = (_as_declared_section(value) if isinstance(value, Section)
+                          else _as_declared(value, hints[f.name]))
+    return dataclasses.replace(section, **values)
 
 
 def load_toml(root: type, path: Path):
@@ -232,6 +243,7 @@ def load_toml(root: type, path: Path):
             raise InputError(f"{path}: unknown setting '{key}'{nearest(key, sorted(top_level | sections))}.")
     settings = settings.replace(None, **_typed(path, root, {k: v for k, v in data.items() if not isinstance(v, dict)}))
     try:
-        return settings.check()
+        settings.check()  # on the values as written, which its messages quote
     except SettingsError as exc:
         raise SettingsError(f"{path}: {exc}") from None
+    return _as_declared_section(settings)
