@@ -40,13 +40,13 @@ from common import MOCAP, RESULTS, VIDEOS, machine_description  # noqa: E402
 from physmocap.body import kinematics as kin  # noqa: E402
 from physmocap.body.model import CONTACT_POINTS, SkeletonLengths, build_body_model, template_lengths  # noqa: E402
 from physmocap.config import Settings  # noqa: E402
-from physmocap.contacts.flights import valid_runs  # noqa: E402
 from physmocap.export import body_from_result  # noqa: E402
 from physmocap.io.bvh_export import write_bvh  # noqa: E402
 from physmocap.io.glb import write_glb  # noqa: E402
 from physmocap.metrics import GRAVITY, foot_contact_errors, mean_acceleration  # noqa: E402
 from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
 from physmocap.mocap.synthetic import make_observations, random_camera, resample  # noqa: E402
+from physmocap.motion import valid_runs  # noqa: E402
 from physmocap.pipeline import run_capture  # noqa: E402
 from physmocap.result import load_result  # noqa: E402
 from physmocap.retarget import retarget_result, solve  # noqa: E402

@@ -427,3 +427,28 @@ def test_a_start_hovering_above_the_floor_begins_on_it_instead_of_falling(body):
             assert largest > 2.0 and soles[0].min() > 0.05  # the fall this guards against
         else:
             assert largest < bound and np.abs(soles[:10].min(axis=1)).max() < 0.005
+
+
+def test_a_body_seated_for_a_second_is_flagged_and_a_brief_squat_is_not(body):
+    """Thighs level with the knees bent square, for 1.5 s (seated on a stool) and for 0.4 s (a squat to scoop):
+    a seat carries a seated body, which the contact model has no point for (the feet claimed the whole weight on
+    CMU's stool clips). The seated stretch is flagged and claims no force; the brief one is the feet's."""
+    from physmocap.body.support import SEATED_TIME, seated_frames
+
+    fps = 30.0
+    spans = [(False, 30), (True, 45), (False, 30), (True, 12), (False, 20)]
+    sitting = np.concatenate([np.full(n, s) for s, n in spans])
+    step = np.zeros((len(sitting), body.nv))
+    for side in ("left", "right"):
+        step[sitting, body.dof_address[body.joint_index[f"{side}_hip"]] + 1] = -np.pi / 2
+        step[sitting, body.dof_address[body.joint_index[f"{side}_knee"]]] = np.pi / 2
+    q = kin.integrate(body, np.repeat(body.rest_qpos[None], len(sitting), axis=0), step)
+    q[:, 2] -= kin.forward_kinematics(body, q).points[:, body.point_index(CONTACT_POINTS), 2].min(axis=1)
+    points = kin.forward_kinematics(body, q).points
+    seated = seated_frames(body.point_names, points, fps, np.ones(len(q), bool))
+    assert seated[30:75].all() and seated.sum() == 45 and 12 < SEATED_TIME * fps
+    assert not seated_frames(body.point_names, points, fps, np.arange(len(q)) != 50)[30:75].any()  # a gap splits it
+    contacts = np.ones((len(q), 4), bool)
+    physics = run_physcap(body, q, fps, contacts, np.ones(len(q), bool), PhysicsSettings(), refined_input=True)
+    assert physics.unexplained[30:75].all() and not physics.grf[30:75].any()
+    assert not physics.unexplained[110:117].any()  # the brief squat, away from its blends

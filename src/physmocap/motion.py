@@ -16,6 +16,12 @@ from .io.atomic import read_npz, save_npz
 from .landmarks import NUM_LANDMARKS
 
 
+def valid_runs(valid: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) of every run of valid frames."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], valid.astype(int), [0]])))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
+
+
 def frame_ranges(frames) -> list[str]:
     """Sorted frame indices as ranges: [3, 4, 5, 9] -> ['3-5', '9']."""
     frames = [int(f) for f in frames]

@@ -10,7 +10,7 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from ..motion import frame_ranges
+from ..motion import frame_ranges, valid_runs
 from .model import CONTACT_POINTS
 
 log = logging.getLogger("physmocap")
@@ -27,6 +27,12 @@ RESTING_HEIGHT = 0.05
 # unlabelled feet up to 0.09 m under the floor on six of the seven real videos (docs/decisions/refine-short-runs.md,
 # "Lower ground")
 STEP_HEIGHT = 0.15
+# degrees: both thighs nearer level than this, for SEATED_TIME, sit on a seat: the seated thighs of CMU's stool clips
+# lie 10-34 degrees from level (10th-90th percentile), standing, walking and jumping ones at least 31
+# (docs/decisions/physics-limits.md, "A seat")
+SEATED_THIGH = 30.0
+# s: squatting to scoop (CMU 002_06) levels the thighs for 0.3-0.6 s at a time; a seated person stays
+SEATED_TIME = 1.0
 
 
 def resting_points(point_names: Sequence[str]) -> list[int]:
@@ -56,6 +62,23 @@ def unexplained_frames(point_names: Sequence[str], points: np.ndarray, com: np.n
     return under_the_floor(point_names, points, com, contacts) | resting_off_feet(heights)
 
 
+def seated_frames(point_names: Sequence[str], points: np.ndarray, fps: float, observed: np.ndarray) -> np.ndarray:
+    """(T,) bool: observed frames (T,) bool of runs at least SEATED_TIME long (fps frames/s) in which both thighs of
+    the body points (T, P, 3) m (point_names order; z up) lie within SEATED_THIGH of level: a seat, which the contact
+    model has no point for, carries the body (the feet alone then claimed the whole weight, 0.97-1.01 body weights
+    on CMU's stool clips)."""
+    elevations = []
+    for side in ("left", "right"):
+        thigh = points[:, point_names.index(f"{side}_hip")] - points[:, point_names.index(f"{side}_knee")]
+        elevations.append(np.degrees(np.arctan2(np.abs(thigh[:, 2]), np.linalg.norm(thigh[:, :2], axis=1))))
+    level = (np.maximum(*elevations) < SEATED_THIGH) & np.asarray(observed, bool)
+    seated = np.zeros(len(points), bool)
+    for start, stop in valid_runs(level):
+        if stop - start >= SEATED_TIME * fps - 1e-9:
+            seated[start:stop] = True
+    return seated
+
+
 def under_the_floor(point_names: Sequence[str], points: np.ndarray, com: np.ndarray,
                     contacts: np.ndarray | None = None) -> np.ndarray:
     """(T,) bool: frames whose body stands, wholly or partly, on another level: its COM below the floor, or a foot
@@ -72,16 +95,22 @@ def under_the_floor(point_names: Sequence[str], points: np.ndarray, com: np.ndar
     return (np.asarray(com)[:, 2] < 0.0) | deep_free_foot.any(axis=1)
 
 
-def observed_unexplained_frames(point_names: Sequence[str], points: np.ndarray, com: np.ndarray,
+def observed_unexplained_frames(point_names: Sequence[str], points: np.ndarray, com: np.ndarray, fps: float,
                                 observed: np.ndarray, method: str, contacts: np.ndarray | None = None) -> np.ndarray:
-    """(T,) bool: `unexplained_frames` (with the contact labels (T, 4)) among the observed frames (T,) bool, each
-    stretch logged as `method`'s ("physics", "trajopt"), which keeps the kinematic motion there."""
+    """(T,) bool: `unexplained_frames` (with the contact labels (T, 4)) and `seated_frames` (the whole clip at fps
+    frames/s) among the observed frames (T,) bool, each stretch logged as `method`'s ("physics", "trajopt"), which
+    keeps the kinematic motion there."""
     unexplained = np.asarray(observed, bool) & unexplained_frames(point_names, points, com, contacts)
     if unexplained.any():
         log.warning("%s: on frames %s the input's centre of mass or feet lie below the floor or the body rests on a "
                     "knee, an elbow or the seat, which the feet on the floor cannot explain: the kinematic motion is "
                     "kept there.", method, ", ".join(frame_ranges(np.flatnonzero(unexplained))))
-    return unexplained
+    seated = seated_frames(point_names, points, fps, observed) & ~unexplained
+    if seated.any():
+        log.warning("%s: on frames %s the body sits (both thighs within %g degrees of level for %g s or more), and "
+                    "the feet on the floor cannot carry what a seat does: the kinematic motion is kept there.",
+                    method, ", ".join(frame_ranges(np.flatnonzero(seated))), SEATED_THIGH, SEATED_TIME)
+    return unexplained | seated
 
 
 def convex_hull_2d(points: Iterable[Iterable[float]]) -> list[tuple[float, float]]:

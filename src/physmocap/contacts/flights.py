@@ -11,6 +11,7 @@ import numpy as np
 
 from ..body.model import CONTACT_POINTS
 from ..body.support import STEP_HEIGHT
+from ..motion import valid_runs
 
 log = logging.getLogger("physmocap")
 
@@ -30,12 +31,6 @@ def runs(flags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     starts = np.concatenate([[0], change])
     ends = np.concatenate([change, [len(flags)]])
     return starts, ends - starts
-
-
-def valid_runs(valid: np.ndarray) -> list[tuple[int, int]]:
-    """[start, stop) of every run of valid frames."""
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], valid.astype(int), [0]])))
-    return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
 
 
 def ease_frames(fps: float) -> int:

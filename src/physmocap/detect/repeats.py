@@ -14,8 +14,7 @@ import dataclasses
 import cv2
 import numpy as np
 
-from ..contacts.flights import valid_runs
-from ..motion import Observations
+from ..motion import Observations, valid_runs
 
 UNCHANGED_LEVEL = 0.5
 """Mean absolute change of the person's box, in 8-bit levels per channel, below which a frame repeats the last new

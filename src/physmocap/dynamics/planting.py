@@ -21,7 +21,8 @@ import numpy as np
 from ..body import kinematics as kin
 from ..body.ik import solve_points
 from ..body.model import CONTACT_POINTS, BodyModel
-from ..contacts.flights import EASE_TIME, edge_easing, valid_runs
+from ..contacts.flights import EASE_TIME, edge_easing
+from ..motion import valid_runs
 
 LEG_JOINTS = ("hip", "knee", "ankle")  # the joints bent to move a foot, per side
 LEG_POINTS = ("left_knee", "left_ankle", "left_heel", "left_toe", "right_knee", "right_ankle", "right_heel",

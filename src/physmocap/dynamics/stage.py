@@ -18,9 +18,10 @@ from ..body.model import CONTACT_POINTS, BodyModel
 from ..body.support import observed_unexplained_frames, resting_off_feet, resting_points
 from ..camera import floor_in_camera
 from ..config import PhysicsSettings
-from ..contacts.flights import held_flights_in_runs, valid_runs
+from ..contacts.flights import held_flights_in_runs
 from ..kinematics.stage import KinematicMotion
 from ..metrics import GRAVITY
+from ..motion import valid_runs
 from .balance import BalanceCorrector
 from .floor import FloorRefiner, floor_frame
 from .physcap import FrameOutput, PhysCapTracker, frame_share_weights, within_bound
@@ -668,7 +669,7 @@ def offline_unexplainable(body: BodyModel, qpos: np.ndarray, fps: float, contact
     mask = np.ones(len(qpos), bool) if valid is None else np.array(valid, bool)  # a copy: narrowed below
     pose = kin.forward_kinematics(body, qpos)
     com, points = kin.center_of_mass(body, pose), pose.points[:, body.point_index(CONTACT_POINTS)]
-    unexplainable = observed_unexplained_frames(body.point_names, pose.points, com, mask, "physics", contacts)
+    unexplainable = observed_unexplained_frames(body.point_names, pose.points, com, fps, mask, "physics", contacts)
     mask &= ~unexplainable
     flags, unheld = held_flights_in_runs(np.asarray(contacts, bool) & mask[:, None], mask, com, points,
                                          np.arange(len(qpos)) / fps, GRAVITY,

@@ -9,8 +9,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ..contacts.flights import flight_parabola, runs, valid_runs
+from ..contacts.flights import flight_parabola, runs
 from ..metrics import FLOATING_THRESHOLD, GRAVITY
+from ..motion import valid_runs
 
 MIN_FLIGHT_FRAMES = 3  # a parabola is fitted to these and the take-off and landing frames around them; stances too
 MIN_RISE = 0.03  # m: the arc's top above both its ends (a fitted centre of mass is steady to about 1 cm)

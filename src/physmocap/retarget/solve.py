@@ -35,8 +35,9 @@ from ..body import kinematics as kin
 from ..body.ik import solve_points
 from ..body.model import CONTACT_POINTS, JOINT_NAMES, BodyModel
 from ..body.support import under_the_floor
-from ..contacts.flights import STANDING_SUPPORT, ease_frames, edge_easing, flight_support, valid_runs
+from ..contacts.flights import STANDING_SUPPORT, ease_frames, edge_easing, flight_support
 from ..metrics import GRAVITY
+from ..motion import valid_runs
 
 POSE_WEIGHT = 1.0  # each joint's pull towards the scaled source pose (residual in metres)
 CONTACT_WEIGHT = 30.0  # a contact point's pull to its planted spot; much stronger than the pose, so feet stay put

@@ -34,9 +34,9 @@ from ..body import kinematics as kin
 from ..body.model import BodyModel
 from ..body.support import observed_unexplained_frames
 from ..config import TrajoptSettings
-from ..contacts.flights import held_flights_in_runs, valid_runs
+from ..contacts.flights import held_flights_in_runs
 from ..cores import may_use_two_cores, usable_cores
-from ..motion import frame_ranges
+from ..motion import frame_ranges, valid_runs
 from .formulation import Window, WindowStart
 from .ik import ik_targets, solve_ik
 from .phases import clean_flags, contact_phases, split_drifting
@@ -233,7 +233,7 @@ def run_trajopt(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     observed = np.ones(T, bool) if valid is None else np.asarray(valid, bool)
     pose = kin.forward_kinematics(body, qpos_kin)
     reduced = reduced_motion(body, qpos_kin, fps, pose)
-    unexplained = observed_unexplained_frames(body.point_names, pose.points, reduced.com, observed, "trajopt",
+    unexplained = observed_unexplained_frames(body.point_names, pose.points, reduced.com, fps, observed, "trajopt",
                                               contacts)
     del pose  # the rotations of every body and frame: not kept through the solve
     valid = observed & ~unexplained
