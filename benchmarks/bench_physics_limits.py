@@ -16,7 +16,8 @@ MediaPipe-like noise, the true intrinsics and height, 8 s at 30 fps, seeds 0 and
              (PhysicsMotion.unexplained), and the frames flagged elsewhere.
   diagnosis_10fps  the same at 10 fps (issue 17's parkour videos declared 10 fps).
   seated     the same on CMU clips seated on stools (SEATED_CLIPS), split into seated frames (the true pelvis
-             under SEATED of its standing height above the soles) and the others, with the mean contact force.
+             under SEATED of its standing height above the soles) and the others, with the mean contact force;
+             the online fit and PhysCap on it (estimated floor) too.
   levels     real motion on other levels (CMU stairs, ladders, a playground: LEVEL_CLIPS, subject 13 with --set
              validation, 14 and 1 otherwise), the ground put at z = 0 (the lowest level the feet stand on), seed 0:
              each method's error against the truth, beside the plain kinematic fit's, on the frames whose true
@@ -324,12 +325,13 @@ def seated_frames(truth: dict) -> np.ndarray:
     return above < SEATED * np.percentile(above, 90)
 
 
-def part_levels(clips, seed: int = 0, held=raised_frames, groups=("raised", "ground")) -> dict:
+def part_levels(clips, seed: int = 0, held=raised_frames, groups=("raised", "ground"), online: bool = False) -> dict:
     """Each method on real motion (clips: (name, seconds) pairs) against the truth, on the frames `held` (truth ->
-    (T,) bool) picks and on the others (their keys' prefixes: `groups`)."""
+    (T,) bool) picks and on the others (their keys' prefixes: `groups`); online: the online fit and PhysCap on it
+    (estimated floor) too."""
     rows = []
     for name, seconds in clips:
-        case = build_case(name, seed, online=False, seconds=seconds, ground=True)
+        case = build_case(name, seed, online=online, seconds=seconds, ground=True)
         truth = case["truth"]
         picked = held(truth)
         runs = {"kinematic offline": (case["offline"], case["offline"].qpos, None),
@@ -338,6 +340,10 @@ def part_levels(clips, seed: int = 0, held=raised_frames, groups=("raised", "gro
         runs["physcap on refined"] = (motion, physics.qpos, physics)
         result = run_trajopt(motion.body, motion.qpos, FPS, case["refined"].contacts, case["settings"].trajopt)
         runs["trajopt"] = (motion, result.qpos, result)
+        if online:
+            runs["kinematic online"] = (case["online"], case["online"].qpos, None)
+            online_motion, online_physics = physcap_online(case)
+            runs["physcap on online"] = (online_motion, online_physics.qpos, online_physics)
         for method, (motion, qpos, solved) in runs.items():
             points = points_in_truth(motion, qpos, truth)[:, [motion.body.point_names.index(j) for j in JOINT_NAMES]]
             row = dict(clip=name.split("/")[-1], method=method, frames=len(qpos))
@@ -348,7 +354,7 @@ def part_levels(clips, seed: int = 0, held=raised_frames, groups=("raised", "gro
                 row[f"{part}_procrustes_mm"] = 1000 * metrics.mpjpe(pred, true, align="procrustes")
                 row[f"{part}_global_root_mm"] = 1000 * float(np.linalg.norm(pred[:, 0] - true[:, 0], axis=-1).mean())
             if solved is not None:
-                flagged = np.asarray(solved.unexplained if method == "physcap on refined" else solved.qp_failures > 0,
+                flagged = np.asarray(solved.unexplained if method.startswith("physcap") else solved.qp_failures > 0,
                                      bool)
                 force = contact_force_bw(solved, motion.body.mass)
                 row[f"{groups[0]}_flagged_percent"] = 100 * float(flagged[picked].mean())
@@ -1128,7 +1134,8 @@ def main(argv=None) -> dict:
             out[part] = part_levels(LEVEL_CLIPS[args.set])
         elif part == "seated":
             part = "seated_validation" if args.set == "validation" else "seated"
-            out[part] = part_levels(SEATED_CLIPS[args.set], held=seated_frames, groups=("seated", "standing"))
+            out[part] = part_levels(SEATED_CLIPS[args.set], held=seated_frames, groups=("seated", "standing"),
+                                    online=True)
         elif part == "online":
             out[part] = part_online(clips, seeds)
         elif part == "online_framerate":

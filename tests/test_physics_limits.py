@@ -452,3 +452,33 @@ def test_a_body_seated_for_a_second_is_flagged_and_a_brief_squat_is_not(body):
     physics = run_physcap(body, q, fps, contacts, np.ones(len(q), bool), PhysicsSettings(), refined_input=True)
     assert physics.unexplained[30:75].all() and not physics.grf[30:75].any()
     assert not physics.unexplained[110:117].any()  # the brief squat, away from its blends
+
+
+def test_online_a_body_seated_for_a_second_is_flagged_from_then_on(body):
+    """Causally the stream cannot know a seated stretch's length before it has lasted: it flags the seated frames
+    from SEATED_TIME on, and the brief squat never."""
+    from physmocap.body.support import SEATED_TIME
+
+    fps = 30.0
+    spans = [(False, 30), (True, 45), (False, 30), (True, 12), (False, 20)]
+    sitting = np.concatenate([np.full(n, s) for s, n in spans])
+    step = np.zeros((len(sitting), body.nv))
+    for side in ("left", "right"):
+        step[sitting, body.dof_address[body.joint_index[f"{side}_hip"]] + 1] = -np.pi / 2
+        step[sitting, body.dof_address[body.joint_index[f"{side}_knee"]]] = np.pi / 2
+    q = kin.integrate(body, np.repeat(body.rest_qpos[None], len(sitting), axis=0), step)
+    q[:, 2] -= kin.forward_kinematics(body, q).points[:, body.point_index(CONTACT_POINTS), 2].min(axis=1)
+    physics = run_physcap(body, q, fps, np.ones((len(q), 4), bool), np.zeros(len(q), bool), PhysicsSettings())
+    after = 30 + int(np.ceil(SEATED_TIME * fps)) - 1  # the seated stretch's first SEATED_TIME, this frame included
+    # (the test's sit and stand are one-frame jumps, which the other checks flag for a few frames after each)
+    assert physics.unexplained[after:75].all() and not physics.unexplained[40:after].any()
+    assert not physics.unexplained[110:117].any()  # the brief squat
+
+
+def test_the_streams_float_thigh_test_agrees_with_the_array_one():
+    from physmocap.body.support import thighs_level, thighs_level_now
+
+    rng = np.random.default_rng(3)
+    points = rng.normal(size=(500, 4, 3))
+    assert [thighs_level_now(*p.tolist()) for p in points] == thighs_level(points).tolist()
+    assert thighs_level(points).any() and not thighs_level(points).all()

@@ -6,6 +6,7 @@ methods' diagnoses."""
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Iterable, Sequence
 
 import numpy as np
@@ -33,6 +34,7 @@ STEP_HEIGHT = 0.15
 SEATED_THIGH = 30.0
 # s: squatting to scoop (CMU 002_06) levels the thighs for 0.3-0.6 s at a time; a seated person stays
 SEATED_TIME = 1.0
+THIGH_POINTS: tuple[str, ...] = ("left_hip", "left_knee", "right_hip", "right_knee")
 
 
 def resting_points(point_names: Sequence[str]) -> list[int]:
@@ -62,16 +64,31 @@ def unexplained_frames(point_names: Sequence[str], points: np.ndarray, com: np.n
     return under_the_floor(point_names, points, com, contacts) | resting_off_feet(heights)
 
 
+def thighs_level(thigh_points: np.ndarray) -> np.ndarray:
+    """(...,) bool: the THIGH_POINTS' positions (..., 4, 3) m, z up -> whether both thighs lie within SEATED_THIGH
+    of level (their elevation either way: rise^2 < tan^2 x run^2, as `thighs_level_now` in floats)."""
+    thighs = thigh_points[..., [0, 2], :] - thigh_points[..., [1, 3], :]  # hip minus knee, left and right
+    run = thighs[..., 0] ** 2 + thighs[..., 1] ** 2
+    return (thighs[..., 2] ** 2 < math.tan(math.radians(SEATED_THIGH)) ** 2 * run).all(axis=-1)
+
+
+def thighs_level_now(left_hip, left_knee, right_hip, right_knee) -> bool:
+    """`thighs_level` of one frame in plain floats (each point three floats, m): the physics stream asks it every
+    frame, where numpy's cost per call outweighs the arithmetic."""
+    slope = math.tan(math.radians(SEATED_THIGH)) ** 2
+    for (hx, hy, hz), (kx, ky, kz) in ((left_hip, left_knee), (right_hip, right_knee)):
+        if (hz - kz) ** 2 >= slope * ((hx - kx) ** 2 + (hy - ky) ** 2):
+            return False
+    return True
+
+
 def seated_frames(point_names: Sequence[str], points: np.ndarray, fps: float, observed: np.ndarray) -> np.ndarray:
     """(T,) bool: observed frames (T,) bool of runs at least SEATED_TIME long (fps frames/s) in which both thighs of
     the body points (T, P, 3) m (point_names order; z up) lie within SEATED_THIGH of level: a seat, which the contact
     model has no point for, carries the body (the feet alone then claimed the whole weight, 0.97-1.01 body weights
     on CMU's stool clips)."""
-    elevations = []
-    for side in ("left", "right"):
-        thigh = points[:, point_names.index(f"{side}_hip")] - points[:, point_names.index(f"{side}_knee")]
-        elevations.append(np.degrees(np.arctan2(np.abs(thigh[:, 2]), np.linalg.norm(thigh[:, :2], axis=1))))
-    level = (np.maximum(*elevations) < SEATED_THIGH) & np.asarray(observed, bool)
+    thigh_points = points[:, [list(point_names).index(name) for name in THIGH_POINTS]]
+    level = thighs_level(thigh_points) & np.asarray(observed, bool)
     seated = np.zeros(len(points), bool)
     for start, stop in valid_runs(level):
         if stop - start >= SEATED_TIME * fps - 1e-9:

@@ -15,7 +15,14 @@ from scipy.signal import filtfilt
 from ..body import kinematics as kin
 from ..body.kinematics import rigid_transform_qpos
 from ..body.model import CONTACT_POINTS, BodyModel
-from ..body.support import observed_unexplained_frames, resting_off_feet, resting_points
+from ..body.support import (
+    SEATED_TIME,
+    THIGH_POINTS,
+    observed_unexplained_frames,
+    resting_off_feet,
+    resting_points,
+    thighs_level_now,
+)
 from ..camera import floor_in_camera
 from ..config import PhysicsSettings
 from ..contacts.flights import held_flights_in_runs
@@ -122,6 +129,8 @@ class PhysicsStream:
         self._blend_step = np.zeros(body.nv)
         self._deviation_data = mujoco.MjData(model)
         self._resting_sites = np.array([model.site(body.point_names[i]).id for i in resting_points(body.point_names)])
+        self._thigh_sites = np.array([model.site(name).id for name in THIGH_POINTS])
+        self._seated_frames = SEATED_TIME * fps - 1e-9  # level thighs for this many frames: seated (seated_frames)
         self._drop_keep = (math.exp(-1.0 / (fps * settings.start_drop_time))
                            if settings.start_drop_time is not None else 0.0)
         self._rests = (settings.rest_height is not None and settings.foot_lock == "auto" and not refined_input
@@ -147,6 +156,7 @@ class PhysicsStream:
         # unexplained_time, and the kinematic motion's share in the output (0: physics, 1: kinematic)
         self._unexplained = np.zeros(3)
         self._kinematic_share = 0.0
+        self._level_frames = 0  # frames up to the last one whose target's thighs were level (support.thighs_level)
         # The start's drop onto the floor (m; None before the first frame), its share kept a frame (start_drop_time)
         self._drop: float | None = None
         # Online fits' held feet are planted where the character holds them, and the output's stand still,
@@ -285,7 +295,8 @@ class PhysicsStream:
         """Bounds the frame's forces (settings.max_force) and judges whether the contact model explains the
         frame: the upward root force the kinematic motion needs and no contact on the floor can give
         (FrameOutput.unexplained[2]: something else holds the body up) averaged over unexplained_time above
-        unexplained_force, the target resting on a knee, an elbow or the seat (body.support.resting_off_feet), a
+        unexplained_force, the target resting on a knee, an elbow or the seat (body.support.resting_off_feet) or
+        seated (its thighs level for SEATED_TIME up to this frame: body.support.seated_frames, causally), a
         diverged step or failed QP, a force over the bound, or the character farther than stray_distance from its
         target. Sets frame.unexplained_flag and
         returns the pose to hand out (nq,): the character's, blended towards the frame's kinematic target over
@@ -305,10 +316,14 @@ class PhysicsStream:
         finite = all(map(math.isfinite, frame.unexplained.tolist()))
         unexplained = frame.unexplained[:3] if finite else np.zeros(3)
         self._unexplained += self._unexplained_share * (unexplained - self._unexplained)
+        target_points = self.tracker.target_data.site_xpos
+        level = thighs_level_now(*target_points[self._thigh_sites].tolist())
+        self._level_frames = self._level_frames + 1 if level else 0
         flagged = (out_of_bounds or frame.diverged or frame.qp_failures > 0
                    or (s.unexplained_force is not None
                        and self._unexplained[2] > s.unexplained_force * self._weight)
-                   or bool(resting_off_feet(self.tracker.target_data.site_xpos[self._resting_sites, 2]))
+                   or bool(resting_off_feet(target_points[self._resting_sites, 2]))
+                   or self._level_frames >= self._seated_frames
                    or self._deviation() > s.stray_distance)
         frame.unexplained_flag = flagged
         # An explained frame reports the forces its motion needed (PhysCapTracker.track): what the contact
