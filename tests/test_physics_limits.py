@@ -429,13 +429,9 @@ def test_a_start_hovering_above_the_floor_begins_on_it_instead_of_falling(body):
             assert largest < bound and np.abs(soles[:10].min(axis=1)).max() < 0.005
 
 
-def test_a_body_seated_for_a_second_is_flagged_and_a_brief_squat_is_not(body):
-    """Thighs level with the knees bent square, for 1.5 s (seated on a stool) and for 0.4 s (a squat to scoop):
-    a seat carries a seated body, which the contact model has no point for (the feet claimed the whole weight on
-    CMU's stool clips). The seated stretch is flagged and claims no force; the brief one is the feet's."""
-    from physmocap.body.support import SEATED_TIME, seated_frames
-
-    fps = 30.0
+def seated_then_squatting(body):
+    """(137, nq) poses at 30 fps, feet on the floor: standing 1 s, seated 1.5 s (thighs level, knees bent square),
+    standing 1 s, the same posture 0.4 s (a squat to scoop), standing."""
     spans = [(False, 30), (True, 45), (False, 30), (True, 12), (False, 20)]
     sitting = np.concatenate([np.full(n, s) for s, n in spans])
     step = np.zeros((len(sitting), body.nv))
@@ -444,6 +440,17 @@ def test_a_body_seated_for_a_second_is_flagged_and_a_brief_squat_is_not(body):
         step[sitting, body.dof_address[body.joint_index[f"{side}_knee"]]] = np.pi / 2
     q = kin.integrate(body, np.repeat(body.rest_qpos[None], len(sitting), axis=0), step)
     q[:, 2] -= kin.forward_kinematics(body, q).points[:, body.point_index(CONTACT_POINTS), 2].min(axis=1)
+    return q
+
+
+def test_a_body_seated_for_a_second_is_flagged_and_a_brief_squat_is_not(body):
+    """Thighs level with the knees bent square, for 1.5 s (seated on a stool) and for 0.4 s (a squat to scoop):
+    a seat carries a seated body, which the contact model has no point for (the feet claimed the whole weight on
+    CMU's stool clips). The seated stretch is flagged and claims no force; the brief one is the feet's."""
+    from physmocap.body.support import SEATED_TIME, seated_frames
+
+    fps = 30.0
+    q = seated_then_squatting(body)
     points = kin.forward_kinematics(body, q).points
     seated = seated_frames(body.point_names, points, fps, np.ones(len(q), bool))
     assert seated[30:75].all() and seated.sum() == 45 and 12 < SEATED_TIME * fps
@@ -460,14 +467,7 @@ def test_online_a_body_seated_for_a_second_is_flagged_from_then_on(body):
     from physmocap.body.support import SEATED_TIME
 
     fps = 30.0
-    spans = [(False, 30), (True, 45), (False, 30), (True, 12), (False, 20)]
-    sitting = np.concatenate([np.full(n, s) for s, n in spans])
-    step = np.zeros((len(sitting), body.nv))
-    for side in ("left", "right"):
-        step[sitting, body.dof_address[body.joint_index[f"{side}_hip"]] + 1] = -np.pi / 2
-        step[sitting, body.dof_address[body.joint_index[f"{side}_knee"]]] = np.pi / 2
-    q = kin.integrate(body, np.repeat(body.rest_qpos[None], len(sitting), axis=0), step)
-    q[:, 2] -= kin.forward_kinematics(body, q).points[:, body.point_index(CONTACT_POINTS), 2].min(axis=1)
+    q = seated_then_squatting(body)
     physics = run_physcap(body, q, fps, np.ones((len(q), 4), bool), np.zeros(len(q), bool), PhysicsSettings())
     after = 30 + int(np.ceil(SEATED_TIME * fps)) - 1  # the seated stretch's first SEATED_TIME, this frame included
     # (the test's sit and stand are one-frame jumps, which the other checks flag for a few frames after each)
