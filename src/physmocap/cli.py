@@ -590,7 +590,8 @@ def _note_physics_floor_height(summary) -> None:
     if summary.physics_unexplained_frame_count:
         print(f"note: physics: {summary.physics_unexplained_frame_count} frames "
               f"({_first_ranges(summary.physics_unexplained_frames)}) could not be explained by the feet on the "
-              "floor (hands, a knee, a raised floor or a jump off an object?); the kinematic motion is kept there"
+              "floor (hands, a knee, a seat, a raised floor or a jump off an object?); the kinematic motion is kept "
+              "there"
               + (", blended at its edges" if summary.physics == "physcap" else "")
               + " (result.npz physics_unexplained)")
     if summary.floor and not summary.floor.get("trusted", True):

@@ -93,7 +93,8 @@ class RunSummary:
     removed_stale_outputs: list[str] = field(default_factory=list)  # an earlier run's outputs this run did not write
 
     physics_unexplained_frames: list[str] = field(default_factory=list)  # frames the feet on the floor cannot
-    # explain (hands, a knee or a raised floor carrying weight, a jump off an object, a diverged step): kinematics kept
+    # explain (hands, a knee, a seat or a raised floor carrying weight, a jump off an object, a diverged step):
+    # kinematics kept
     physics_unexplained_frame_count: int = 0
     body_height_m: float = float("nan")  # the standing height the skeleton was scaled to
     body_height_source: str = "given"  # "given" (settings, the 1.70 m default included) or "estimated"
