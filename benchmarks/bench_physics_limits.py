@@ -208,9 +208,8 @@ def physcap_offline(case: dict):
 
 def physcap_online(case: dict, calibrated: bool = False):
     motion = case["online_calibrated" if calibrated else "online"]
-    physics = case["settings"].physics
     return motion, run_physcap(motion.body, motion.qpos, case["obs"].fps, case["causal"], case["causal_stationary"],
-                               physics, refine_floor=not calibrated)
+                               case["settings"].physics, refine_floor=not calibrated)
 
 
 def points_in_truth(motion, qpos: np.ndarray, truth: dict) -> np.ndarray:

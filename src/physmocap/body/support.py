@@ -35,6 +35,7 @@ SEATED_THIGH = 30.0
 # s: squatting to scoop (CMU 002_06) levels the thighs for 0.3-0.6 s at a time; a seated person stays
 SEATED_TIME = 1.0
 THIGH_POINTS: tuple[str, ...] = ("left_hip", "left_knee", "right_hip", "right_knee")
+_LEVEL_SLOPE_SQUARED = math.tan(math.radians(SEATED_THIGH)) ** 2  # a level thigh's rise^2 / run^2 stays under this
 
 
 def resting_points(point_names: Sequence[str]) -> list[int]:
@@ -69,15 +70,14 @@ def thighs_level(thigh_points: np.ndarray) -> np.ndarray:
     of level (their elevation either way: rise^2 < tan^2 x run^2, as `thighs_level_now` in floats)."""
     thighs = thigh_points[..., [0, 2], :] - thigh_points[..., [1, 3], :]  # hip minus knee, left and right
     run = thighs[..., 0] ** 2 + thighs[..., 1] ** 2
-    return (thighs[..., 2] ** 2 < math.tan(math.radians(SEATED_THIGH)) ** 2 * run).all(axis=-1)
+    return (thighs[..., 2] ** 2 < _LEVEL_SLOPE_SQUARED * run).all(axis=-1)
 
 
 def thighs_level_now(left_hip, left_knee, right_hip, right_knee) -> bool:
     """`thighs_level` of one frame in plain floats (each point three floats, m): the physics stream asks it every
     frame, where numpy's cost per call outweighs the arithmetic."""
-    slope = math.tan(math.radians(SEATED_THIGH)) ** 2
     for (hx, hy, hz), (kx, ky, kz) in ((left_hip, left_knee), (right_hip, right_knee)):
-        if (hz - kz) ** 2 >= slope * ((hx - kx) ** 2 + (hy - ky) ** 2):
+        if (hz - kz) ** 2 >= _LEVEL_SLOPE_SQUARED * ((hx - kx) ** 2 + (hy - ky) ** 2):
             return False
     return True
 

@@ -97,7 +97,7 @@ class BalanceCorrector:
 
     def correct(self, q_kin: np.ndarray, stationary: bool, contacts: np.ndarray) -> tuple[np.ndarray, bool]:
         """The corrected pose for this frame and whether a correction applied."""
-        if not stationary or not contacts.reshape(2, 2).any(axis=1).all() or self._seated(q_kin):
+        if not stationary or not contacts.reshape(2, 2).any(axis=1).all() or self._not_standing(q_kin):
             # Moving, on one foot (as often a slow step as a balance) or in the air: what was accumulated relaxes
             # about the last support. Dropped in one frame, it stepped the target by up to 19 cm at the head
             # (docs/decisions/physics-balance.md).
@@ -130,7 +130,7 @@ class BalanceCorrector:
                 self.straighten = bend
         return q, True
 
-    def _seated(self, q_kin: np.ndarray) -> bool:
+    def _not_standing(self, q_kin: np.ndarray) -> bool:
         """Whether a knee of the pose (nq,) bends more than STANDING_BEND: a posture (seated, squatting) whose centre
         of mass a seat may hold, not a standing fit's lean (PhysCap 4.3.1 corrects standing poses)."""
         return max(abs(float(q_kin[knee])) for knee, _ in self.legs) > STANDING_BEND

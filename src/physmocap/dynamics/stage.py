@@ -130,7 +130,7 @@ class PhysicsStream:
         self._deviation_data = mujoco.MjData(model)
         self._resting_sites = np.array([model.site(body.point_names[i]).id for i in resting_points(body.point_names)])
         self._thigh_sites = np.array([model.site(name).id for name in THIGH_POINTS])
-        self._seated_frames = SEATED_TIME * fps - 1e-9  # level thighs for this many frames: seated (seated_frames)
+        self._frames_to_sit = SEATED_TIME * fps - 1e-9  # this many frames with level thighs: seated (seated_frames)
         self._drop_keep = (math.exp(-1.0 / (fps * settings.start_drop_time))
                            if settings.start_drop_time is not None else 0.0)
         self._rests = (settings.rest_height is not None and settings.foot_lock == "auto" and not refined_input
@@ -323,7 +323,7 @@ class PhysicsStream:
                    or (s.unexplained_force is not None
                        and self._unexplained[2] > s.unexplained_force * self._weight)
                    or bool(resting_off_feet(target_points[self._resting_sites, 2]))
-                   or self._level_frames >= self._seated_frames
+                   or self._level_frames >= self._frames_to_sit
                    or self._deviation() > s.stray_distance)
         frame.unexplained_flag = flagged
         # An explained frame reports the forces its motion needed (PhysCapTracker.track): what the contact
