@@ -186,12 +186,15 @@ def added_contacts(body, qpos: np.ndarray, fps: float, contacts: np.ndarray, val
                    settings: TrajoptSettings, outliers: np.ndarray | None = None) -> np.ndarray:
     """(T, 4) flags B.4 adds to the contacts (T, 4) kept on its floor, for the motion qpos (T, nq) on that floor
     (z = 0) at `fps`: the points of false flights (`false_flights`, with the labelled `outliers` (T, 4) that the
-    floor dropped) and, with settings.rest_height, the points
-    resting on the floor (`resting_points`). Only on valid (T,) frames whose centre of mass lies above the floor:
-    a body under it stands on another level (the ground beside the box the floor was found on), and contacts
-    added there pulled it up to the floor, 80 px out of the picture (docs/decisions/refine-short-runs.md)."""
+    floor dropped) that do not slide faster than settings.contact_slip_speed, which drops such a label, and, with
+    settings.rest_height, the points resting on the floor (`resting_points`). Only on valid (T,) frames whose
+    centre of mass lies above the floor: a body under it stands on another level (the ground beside the box the
+    floor was found on), and contacts added there pulled it up to the floor, 80 px out of the picture
+    (docs/decisions/refine-short-runs.md)."""
     on_this_floor = np.asarray(valid, bool) & (kin.center_of_mass(body, kin.forward_kinematics(body, qpos))[:, 2] > 0.0)
     added = false_flights(body, qpos, fps, contacts, on_this_floor, settings.floor_outlier_distance, outliers)
+    if settings.contact_slip_speed > 0:  # a run's low swinging foot (docs/decisions/refine-short-runs.md)
+        added &= ~slipping_contacts(body, qpos, fps, added, settings)
     if added.any():
         log.info("trajopt: %d frame(s) labelled all in the air while the body does not fall: contacts added.",
                  int(added.any(axis=1).sum()))
