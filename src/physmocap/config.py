@@ -202,8 +202,8 @@ class TrajoptSettings(Section):
     tolerance: float = setting(1e-6, "", (1e-10, 1.0), "IPOPT tol (looser: the COM wiggles, standing forces err)")
     max_iterations: int = setting(1000, "", (1, 100000), "IPOPT iterations per window, its stages and restart together")
     max_seconds: float = setting(120.0, "s", (0.1, 1e5), "CPU-time limit of one IPOPT run (not wall: load-proof)")
-    reject_departure: float | None = setting(0.3, "m", (0.01, 10.0), "windows whose COM ends farther from the "
-                                             "input on average are not used (ours; None: all kept)")
+    reject_departure: float | None = setting(0.3, "m", (0.01, 10.0), "windows whose COM strays farther from the "
+                                             "input on any kept frame are not used (ours; None: all kept)")
     window_seconds: float = setting(4.0, "s", (0.5, 600.0), "long clips are solved in windows this long (ours)")
     window_overlap: float = setting(1.0, "s", (0.0, 300.0), "a window looks beyond what it keeps; <= window_seconds/2")
     parallel_windows: bool = setting(False, help="solve windows two at a time (docs/decisions/trajopt-long-clips.md)")
