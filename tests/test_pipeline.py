@@ -106,7 +106,7 @@ def test_motion_containers_round_trip_through_arrays(demo_folder):
     assert back.seconds == 1.5 and np.array_equal(back.floor_plane, physics.floor_plane)
     assert PhysicsMotion.from_arrays({**physics.to_arrays(), "floor_plane": np.full(4, np.nan)}).floor_plane is None
     window = WindowReport(0, T - 1, T, True, "dynamics", [], 10, 5, 0.1, 1.0, com_departure=0.01,
-                          feet_departure=0.02)
+                          feet_departure=0.02, com_departure_max=0.03)
     trajopt = TrajoptMotion(motion.qpos, np.zeros((T, 4, 3)), np.zeros((T, 6)), np.ones((T, 4), bool),
                             np.ones(T, bool), np.zeros(T, bool), np.zeros(T, int), np.zeros((T, 3)),
                             np.zeros((T, 3)), np.zeros((T, 3)), np.zeros((T, 4, 3)), [window], 2.0)
