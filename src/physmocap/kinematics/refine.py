@@ -193,7 +193,7 @@ def added_contacts(body, qpos: np.ndarray, fps: float, contacts: np.ndarray, val
     (docs/decisions/refine-short-runs.md)."""
     on_this_floor = np.asarray(valid, bool) & (kin.center_of_mass(body, kin.forward_kinematics(body, qpos))[:, 2] > 0.0)
     added = false_flights(body, qpos, fps, contacts, on_this_floor, settings.floor_outlier_distance, outliers)
-    if settings.contact_slip_speed > 0:  # a run's low swinging foot (docs/decisions/refine-short-runs.md)
+    if settings.contact_slip_speed > 0 and added.any():  # a run's low swinging foot (refine-short-runs.md)
         added &= ~slipping_contacts(body, qpos, fps, added, settings)
     if added.any():
         log.info("trajopt: %d frame(s) labelled all in the air while the body does not fall: contacts added.",
