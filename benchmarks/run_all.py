@@ -26,6 +26,7 @@ from common import REPO, RESULTS, git_revision, machine_description  # noqa: E40
 BENCHMARKS = {  # name: (script, arguments)
     "kinematics_real": ("bench_kinematics.py", []),
     "synthetic": ("bench_synthetic.py", []),
+    "synthetic_runs": ("bench_synthetic.py", ["--set", "runs"]),  # held-out runs (a known limit), about 1 min
     "physics_speed": ("bench_physics.py", []),
     "physics_ablation": ("bench_physics_ablation.py", []),
     "physics_real": ("bench_physics_real.py", []),  # after kinematics_real: it reads its cached detections
