@@ -22,6 +22,14 @@ def valid_runs(valid: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
 
 
+def long_runs(flags: np.ndarray, min_frames: int) -> np.ndarray:
+    """(T,) bool: flags (T,) without the runs of True shorter than min_frames."""
+    out = np.zeros(len(flags), bool)
+    for start, stop in valid_runs(np.asarray(flags, bool)):
+        out[start:stop] = stop - start >= min_frames
+    return out
+
+
 def frame_ranges(frames) -> list[str]:
     """Sorted frame indices as ranges: [3, 4, 5, 9] -> ['3-5', '9']."""
     frames = [int(f) for f in frames]

@@ -11,7 +11,7 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from ..motion import frame_ranges, valid_runs
+from ..motion import frame_ranges, long_runs
 from .model import CONTACT_POINTS
 
 log = logging.getLogger("physmocap")
@@ -82,18 +82,18 @@ def thighs_level_now(left_hip, left_knee, right_hip, right_knee) -> bool:
     return True
 
 
+def seated_run_frames(fps: float) -> int:
+    """The fewest frames at fps (frames/s) of level thighs that make a seated run: SEATED_TIME's worth."""
+    return math.ceil(SEATED_TIME * fps - 1e-9)
+
+
 def seated_frames(point_names: Sequence[str], points: np.ndarray, fps: float, observed: np.ndarray) -> np.ndarray:
     """(T,) bool: observed frames (T,) bool of runs at least SEATED_TIME long (fps frames/s) in which both thighs of
     the body points (T, P, 3) m (point_names order; z up) lie within SEATED_THIGH of level: a seat, which the contact
     model has no point for, carries the body (the feet alone then claimed the whole weight, 0.97-1.01 body weights
     on CMU's stool clips)."""
     thigh_points = points[:, [list(point_names).index(name) for name in THIGH_POINTS]]
-    level = thighs_level(thigh_points) & np.asarray(observed, bool)
-    seated = np.zeros(len(points), bool)
-    for start, stop in valid_runs(level):
-        if stop - start >= SEATED_TIME * fps - 1e-9:
-            seated[start:stop] = True
-    return seated
+    return long_runs(thighs_level(thigh_points) & np.asarray(observed, bool), seated_run_frames(fps))
 
 
 def under_the_floor(point_names: Sequence[str], points: np.ndarray, com: np.ndarray,

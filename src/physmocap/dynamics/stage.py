@@ -16,11 +16,11 @@ from ..body import kinematics as kin
 from ..body.kinematics import rigid_transform_qpos
 from ..body.model import CONTACT_POINTS, BodyModel
 from ..body.support import (
-    SEATED_TIME,
     THIGH_POINTS,
     observed_unexplained_frames,
     resting_off_feet,
     resting_points,
+    seated_run_frames,
     thighs_level_now,
 )
 from ..camera import floor_in_camera
@@ -130,7 +130,7 @@ class PhysicsStream:
         self._deviation_data = mujoco.MjData(model)
         self._resting_sites = np.array([model.site(body.point_names[i]).id for i in resting_points(body.point_names)])
         self._thigh_sites = np.array([model.site(name).id for name in THIGH_POINTS])
-        self._frames_to_sit = SEATED_TIME * fps - 1e-9  # this many frames with level thighs: seated (seated_frames)
+        self._frames_to_sit = seated_run_frames(fps)  # this many frames with level thighs: seated (seated_frames)
         self._drop_keep = (math.exp(-1.0 / (fps * settings.start_drop_time))
                            if settings.start_drop_time is not None else 0.0)
         self._rests = (settings.rest_height is not None and settings.foot_lock == "auto" and not refined_input

@@ -28,7 +28,7 @@ from ..body.support import STEP_HEIGHT
 from ..camera import WORLD_UP, Camera, Floor, tangent_basis
 from ..config import FitSettings, TrajoptSettings
 from ..detect.foot_swaps import find_foot_swaps, undo_foot_swaps
-from ..motion import Observations
+from ..motion import Observations, long_runs
 from .fit import KinematicFitter
 from .floor import move_world_to_floor
 from .stage import KinematicMotion, hold_outside_valid, reprojection_errors
@@ -178,7 +178,7 @@ def resting_points(body, qpos: np.ndarray, fps: float, contacts: np.ndarray, val
     resting = ((height < settings.rest_height) & (height > -STEP_HEIGHT) & (speed < settings.rest_speed)
                & valid[:, None])
     min_frames = max(1, math.ceil(settings.min_phase_seconds * fps - 1e-9))
-    resting = np.stack([clean_runs(resting[:, i], min_frames) for i in range(4)], axis=1)
+    resting = np.stack([long_runs(resting[:, i], min_frames) for i in range(4)], axis=1)
     return resting & ~contacts
 
 
@@ -201,15 +201,6 @@ def added_contacts(body, qpos: np.ndarray, fps: float, contacts: np.ndarray, val
     if settings.rest_height > 0:
         added |= resting_points(body, qpos, fps, contacts | added, on_this_floor, settings)
     return added
-
-
-def clean_runs(flags: np.ndarray, min_frames: int) -> np.ndarray:
-    """flags without the runs of True shorter than min_frames."""
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], flags.astype(int), [0]])))
-    out = np.zeros_like(flags, dtype=bool)
-    for a, b in zip(edges[::2], edges[1::2], strict=True):
-        out[a:b] = b - a >= min_frames
-    return out
 
 
 def contact_fit_settings(fit: FitSettings, settings: TrajoptSettings, floor: bool) -> FitSettings:
