@@ -48,6 +48,7 @@ from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
 from physmocap.kinematics.stage import fit_motion  # noqa: E402
 from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
 from physmocap.mocap.synthetic import NoiseModel, make_observations, random_camera, resample  # noqa: E402
+from physmocap.presets import PRESETS, apply_preset  # noqa: E402
 from physmocap.result import build_result  # noqa: E402
 from physmocap.viz.plots import write_plots  # noqa: E402
 
@@ -97,15 +98,16 @@ def first_seconds(clip, seconds, start: float = 0.0):
 
 def evaluate_case(name: str, seed: int, noise: NoiseModel = MEDIAPIPE_NOISE, methods=METHODS,
                   height_error: float = 0.0, plots_dir: Path | None = None, start: float = 0.0,
-                  seconds: float = SECONDS) -> list[dict]:
-    """One clip (from `start` s, at most `seconds` s) seen by one random camera, scored for each method; with
-    `plots_dir`, the plots of the run report (forces against body weight, contacts, foot heights) of the
-    physics-on-online method go there."""
+                  seconds: float = SECONDS, preset: str | None = None) -> list[dict]:
+    """One clip (from `start` s, at most `seconds` s) seen by one random camera, scored for each method, with the
+    defaults or a preset's settings (physmocap.presets); with `plots_dir`, the plots of the run report (forces
+    against body weight, contacts, foot heights) of the physics-on-online method go there."""
     clip = first_seconds(resample(load_mocap(MOCAP / name), FPS), seconds, start)
     rng = np.random.default_rng(seed)
     K, R, t = random_camera(clip, rng)
     obs, truth = make_observations(clip, K, R, t, rng, noise)
-    settings = Settings().replace("body", height=model_height(truth["landmarks_world"]) * (1 + height_error))
+    settings = (apply_preset(Settings(), preset) if preset else Settings()).replace(
+        "body", height=model_height(truth["landmarks_world"]) * (1 + height_error))
     rows, fitted, predicted = [], {}, {}
     calibrated = settings.replace("camera", floor=tuple(float(v) for v in truth["floor"]))
     for method in methods:
@@ -183,7 +185,8 @@ def run_clips(args) -> dict:
     rows = []
     for name in args.clip:
         for seed in args.seeds or (0, 1):
-            for row in evaluate_case(name, seed, methods=methods, start=args.start, seconds=args.seconds):
+            for row in evaluate_case(name, seed, methods=methods, start=args.start, seconds=args.seconds,
+                                     preset=args.preset):
                 row["start_seconds"] = args.start
                 rows.append(row)
                 print_row(row)
@@ -216,26 +219,30 @@ def main(argv=None) -> dict:
     parser.add_argument("--seeds", type=int, nargs="+", help="with --clip: the cameras' seeds (default 0 1)")
     parser.add_argument("--offline-only", action="store_true",
                         help="with --clip: only " + ", ".join(OFFLINE_METHODS))
+    parser.add_argument("--preset", choices=tuple(PRESETS),
+                        help="the preset's settings instead of the defaults; a set's default --json becomes "
+                             "synthetic_SET_PRESET.json")
     args = parser.parse_args(argv)
     if args.clip:
         return run_clips(args)
     clip_set = CLIP_SETS[args.set]
     clips = clip_set[:3] if args.quick else clip_set
-    json_path = Path(args.json or RESULTS / ("synthetic.json" if args.set == "issue3"
-                                             else f"synthetic_{args.set}.json"))
+    stem = "synthetic" if args.set == "issue3" else f"synthetic_{args.set}"
+    json_path = Path(args.json or RESULTS / (stem + (f"_{args.preset}" if args.preset else "") + ".json"))
     seeds = (0,) if args.quick else (0, 1)
     if args.plots_only:
         for name in clips:
-            evaluate_case(name, 0, methods=("physcap on online",), plots_dir=RESULTS / "plots")
+            evaluate_case(name, 0, methods=("physcap on online",), plots_dir=RESULTS / "plots", preset=args.preset)
         return {}
     rows = []
     for name in clips:
         for seed in seeds:
-            for row in evaluate_case(name, seed, plots_dir=RESULTS / "plots" if seed == 0 else None):
+            plots = RESULTS / "plots" if seed == 0 and not args.preset else None  # the plots show the defaults
+            for row in evaluate_case(name, seed, plots_dir=plots, preset=args.preset):
                 rows.append(row)
                 print_row(row)
     out = dict(summary=summarise(rows), rows=rows, fps=FPS, seconds=SECONDS, clips=list(clips), seeds=list(seeds),
-               noise=dataclasses.asdict(MEDIAPIPE_NOISE))
+               noise=dataclasses.asdict(MEDIAPIPE_NOISE), preset=args.preset)
     if args.set == "issue3":  # the height and foot-swap ablations, on the set where they were always taken
         out["height_error_global_root_mm"] = {
             f"{err:+.0%}": evaluate_case(CLIPS[3], 0, methods=("kinematic offline",), height_error=err)[0][

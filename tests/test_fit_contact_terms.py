@@ -83,8 +83,25 @@ def test_velocity_and_angle_signal_jacobians_match_finite_differences(body, came
         qp, qm = fitter.integrate(q, step), fitter.integrate(q, -step)
         plus = fitter.temporal_signals(*fitter.evaluate(qp), qp)
         minus = fitter.temporal_signals(*fitter.evaluate(qm), qm)
-        for (_, J, _), (vp, _, _), (vm, _, _) in zip(signals, plus, minus, strict=True):
+        for (_, J, _, _), (vp, _, _, _), (vm, _, _, _) in zip(signals, plus, minus, strict=True):
             assert np.allclose((vp - vm) / (2 * eps), J[..., k], atol=1e-6), k
+
+
+def test_angle_speed_huber_weighs_only_the_fast_joints(body, camera):
+    """Above angle_speed_huber a joint's angle-velocity residual is scaled by sqrt(huber / speed) (Huber's linear
+    pull), below it by 1; an online fitter keeps the plain quadratic term."""
+    q = np.repeat(body.rest_qpos[None], 3, axis=0)
+    tab = kin.tables(body)
+    hinge = tab.qadr[tab.hinge_bodies][0]
+    q[1, hinge], q[2, hinge] = 0.05, 0.45  # 1.5 then 12 rad/s at 30 fps
+    settings = FitSettings(weight_angle_velocity=0.1, angle_speed_huber=3.0)
+    fitter = KinematicFitter(body, camera, settings, 30.0)
+    weights = fitter.temporal_signals(*fitter.evaluate(q), q)[-1][3]
+    column = weights.shape[1] - len(tab.hinge_bodies)
+    assert weights[0, column] == 1.0 and np.isclose(weights[1, column], np.sqrt(3.0 / 12.0))
+    assert np.all(np.delete(weights, column, axis=1) == 1.0)  # the other joints stand still
+    causal = KinematicFitter(body, camera, settings, 30.0, causal=True)
+    assert causal.temporal_signals(*causal.evaluate(q), q)[-1][3] is None
 
 
 def test_angle_signal_is_the_joint_angles(body, camera):

@@ -71,6 +71,7 @@ class FitSettings(Section):
     weight_floor: float = setting(0.0, "", (0.0, 1000.0), "Rempe's E_floor (B7): heel/toe height in contact (10)")
     weight_velocity: float = setting(0.0, "", (0.0, 1000.0), "Rempe's E_vel (B2): joint velocity (paper 0.1)")
     weight_angle_velocity: float = setting(0.0, "", (0.0, 1000.0), "Rempe's E_ang (B3): joint angle change (0.1)")
+    angle_speed_huber: float = setting(0.0, "rad/s", (0.0, 100.0), "E_ang pulls linearly on joints faster (0: off)")
     weight_com_acceleration: float = setting(0.0, "", (0.0, 1000.0), "acceleration of the centre of mass (ours)")
 
 

@@ -35,11 +35,12 @@ PRESETS: dict[str, Preset] = {
         "is PhysCap's, whose test clips are mostly walking.",
     ),
     "running": Preset(
-        {"fit": {"weight_smooth": 0.03, "weight_depth": 0.01},
+        {"fit": {"weight_smooth": 0.03, "weight_depth": 0.01, "angle_speed_huber": 2.0},
          "physics": {"contact_height": 0.05, "balance_correction": False}},
-        "Limbs accelerate hard, so a third of the smoothing keeps the swing peaks; stances are short and the feet "
-        "pass close to the floor in flight, so a lower contact height keeps flight frames free of contacts; a "
-        "runner is never stationary, so balance correction is off.",
+        "Limbs accelerate hard, so a third of the smoothing keeps the swing peaks, and the refinement's joint-angle "
+        "velocity term pulls only linearly on joints turning faster than 2 rad/s, so it does not shrink the legs' "
+        "swing; stances are short and the feet pass close to the floor in flight, so a lower contact height keeps "
+        "flight frames free of contacts; a runner is never stationary, so balance correction is off.",
     ),
     "jumping": Preset(
         {"fit": {"weight_smooth": 0.02, "weight_depth": 0.01},

@@ -72,6 +72,8 @@ LM_TOLERANCE = 1e-3  # a Levenberg-Marquardt fit stops after a step that lowers 
 # a frame): the assembly's memory is bounded by this, not by the clip. See docs/decisions/fit-memory.md.
 ASSEMBLY_FRAMES = 256
 TEMPORAL_REACH = 2  # frames after a frame that its temporal residuals reach (the acceleration's three frames)
+# A temporal term: values (T, n), Jacobians (T, n, nv), coefficients of the difference, pair weights (T - 1, n) or None
+Signal = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]
 
 
 @dataclass
@@ -167,6 +169,7 @@ class KinematicFitter:
         # that 30 fps frames get from their coarse steps (docs/decisions/fit-frame-rate.md, "The online fit above 30
         # fps").
         rate = fps / 30.0
+        self.fps, self.causal = fps, causal
         if causal and rate > 1.0:
             self.accel_scale, self.velocity_scale, self.data_damping = rate, float(np.sqrt(rate)), rate - 1.0
         else:
@@ -284,11 +287,11 @@ class KinematicFitter:
         norm = np.linalg.norm(residuals, axis=-1)
         return np.sqrt(np.minimum(1.0, threshold / np.maximum(norm, 1e-12)))
 
-    def temporal_signals(self, points, jac, qpos=None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-        """The quantities whose finite differences are penalised: (values (T, n), Jacobians (T, n, nv),
-        coefficients of the difference). Acceleration of joint positions and velocity of their depth; when their
-        weights are set, velocity of the pelvis-relative joints (B2) and of the joint angles (B3, needs qpos
-        (T, nq))."""
+    def temporal_signals(self, points, jac, qpos=None) -> list[Signal]:
+        """The quantities whose finite differences are penalised (Signal: values, Jacobians, coefficients of the
+        difference, pair weights). Acceleration of joint positions and velocity of their depth; when their weights
+        are set, velocity of the pelvis-relative joints (B2) and of the joint angles (B3, needs qpos (T, nq), with
+        `_angle_pair_weights`)."""
         jp, jj = points[:, self.joint_points], jac[:, self.joint_points]
         T, nv = len(points), self.body.nv
         s = self.settings
@@ -296,21 +299,22 @@ class KinematicFitter:
         wd = np.sqrt(s.weight_depth) * self.velocity_scale
         axis = self.camera.R[2]
         velocity = np.array([-1.0, 1.0])
-        signals = [
-            (ws * jp.reshape(T, -1), ws * jj.reshape(T, -1, nv), np.array([1.0, -2.0, 1.0])),
-            (wd * (jp @ axis), wd * (axis @ jj), velocity),
+        signals: list[Signal] = [
+            (ws * jp.reshape(T, -1), ws * jj.reshape(T, -1, nv), np.array([1.0, -2.0, 1.0]), None),
+            (wd * (jp @ axis), wd * (axis @ jj), velocity, None),
         ]
         if s.weight_velocity > 0:
             wv = np.sqrt(s.weight_velocity) * self.velocity_scale
             pelvis, pelvis_jac = points[:, self.pelvis_point, None], jac[:, self.pelvis_point, None]
-            signals.append((wv * (jp - pelvis).reshape(T, -1), wv * (jj - pelvis_jac).reshape(T, -1, nv), velocity))
+            signals.append((wv * (jp - pelvis).reshape(T, -1), wv * (jj - pelvis_jac).reshape(T, -1, nv), velocity,
+                            None))
         if s.weight_angle_velocity > 0:
             if qpos is None:
                 raise ValueError("the joint-angle velocity term needs the poses (qpos)")
             signals.append(self._angle_signal(qpos, np.sqrt(s.weight_angle_velocity) * self.velocity_scale))
         return signals
 
-    def _angle_signal(self, qpos: np.ndarray, weight: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _angle_signal(self, qpos: np.ndarray, weight: float) -> Signal:
         """Joint angles (T, 3 n_ball + n_hinge): the ball joints' rotation vectors from rest (the root excluded:
         its yaw wraps round) and the hinge angles; the derivative of log(q exp(d)) along a local step d is the
         inverse right Jacobian of SO(3). The vectors jump by up to 2 pi where a joint passes a half turn, which
@@ -327,7 +331,22 @@ class KinematicFitter:
         cols = (self.ball_vadr[:, None, None] + np.arange(3)[None, None, :]).repeat(3, axis=1)
         jacobians[:, rows, cols] = blocks
         jacobians[:, 3 * n_ball + np.arange(len(self.hinge_vadr)), self.hinge_vadr] = 1.0
-        return weight * values, weight * jacobians, np.array([-1.0, 1.0])
+        return weight * values, weight * jacobians, np.array([-1.0, 1.0]), self._angle_pair_weights(values, n_ball)
+
+    def _angle_pair_weights(self, angles: np.ndarray, n_ball: int) -> np.ndarray | None:
+        """Huber weights (T - 1, n) of the joint-angle velocity term's pairs of frames, from the angles (T, n):
+        rotation vectors of n_ball ball joints, then hinge angles. A joint turning faster than
+        settings.angle_speed_huber (rad/s) counts with weight huber / speed (a square root, as the weights scale
+        residuals), so that the term stills noise but shrinks a run's fast legs only linearly. None where off
+        or causal (an online fit holds no pair weights)."""
+        threshold = self.settings.angle_speed_huber
+        if threshold <= 0 or self.causal or len(angles) < 2:
+            return None
+        speed = np.abs(np.diff(angles, axis=0)) * self.fps  # (T - 1, n) rad/s
+        T1 = len(speed)
+        ball = np.linalg.norm(speed[:, :3 * n_ball].reshape(T1, n_ball, 3), axis=-1)
+        per_joint = np.concatenate([np.repeat(ball, 3, axis=1), speed[:, 3 * n_ball:]], axis=1)
+        return np.sqrt(np.minimum(1.0, threshold / np.maximum(per_joint, 1e-12)))
 
     def contact_signals(self, points, jac, targets: FitTargets):
         """Contact velocity (Rempe B6) as a weighted temporal signal: (values (T, 12), Jacobians (T, 12, nv),
@@ -397,7 +416,7 @@ class KinematicFitter:
         F = end - first
         window_targets = targets.frames(window)
         # A signal of weight 0 (the IK's smoothness and depth) adds zeros to g and H: left out.
-        signals = [(v, j, c, None) for v, j, c in self.temporal_signals(points, jac, qpos[window])
+        signals = [(v, j, c, w) for v, j, c, w in self.temporal_signals(points, jac, qpos[window])
                    if v.any() or j.any()]
         for values, jacobians, coeffs, pair_weights in (signals + self.contact_signals(points, jac, window_targets)
                                                         + self.com_signals(points, jac, window_targets)):
@@ -597,7 +616,7 @@ class KinematicFitter:
             g += self.data_damping * (Jt @ moved[..., None])[..., 0]
             cost += self.data_damping * np.einsum("km,km->k", moved, moved)
         signals = self.temporal_signals(points, jac, qpos)
-        for (values, jacobians, coeffs), past in zip(signals, history or [None] * len(signals), strict=True):
+        for (values, jacobians, coeffs, _), past in zip(signals, history or [None] * len(signals), strict=True):
             if past is None or past.shape[1] < len(coeffs) - 1:
                 continue
             rho = coeffs[-1] * values + np.einsum("j,kjn->kn", coeffs[:-1], past[:, 1 - len(coeffs):])
@@ -606,7 +625,7 @@ class KinematicFitter:
             H += Jct @ Jc
             g += (Jct @ rho[..., None])[..., 0]
             cost += np.einsum("kn,kn->k", rho, rho)
-        return cost, g, H, [values for values, _, _ in signals]
+        return cost, g, H, [values for values, _, _, _ in signals]
 
     def fit_frames(self, qpos_init: np.ndarray, targets: FitTargets, history, iterations: int,
                    tolerance: float = LM_TOLERANCE, damping_increase: float = 4.0,
@@ -665,7 +684,7 @@ class KinematicFitter:
         """The temporal signals' values at fitted frames (for a causal fit's history). The contact velocity term
         is offline only: the online fit does not use it."""
         points, jac = self.evaluate(qpos)
-        return [values for values, _, _ in self.temporal_signals(points, jac, qpos)]
+        return [values for values, _, _, _ in self.temporal_signals(points, jac, qpos)]
 
 
 def _soft_excess(excess: np.ndarray, band: float) -> tuple[np.ndarray, np.ndarray]:
