@@ -43,11 +43,12 @@ PRESETS: dict[str, Preset] = {
         "flight frames free of contacts; a runner is never stationary, so balance correction is off.",
     ),
     "jumping": Preset(
-        {"fit": {"weight_smooth": 0.02, "weight_depth": 0.01},
+        {"fit": {"weight_smooth": 0.02, "weight_depth": 0.01, "angle_speed_huber": 2.0},
          "physics": {"contact_height": 0.05, "balance_correction": False}},
         "Take-off and landing are real impulses that acceleration smoothing would spread out, so it is the "
-        "weakest; flight must have no contact at all (low contact height); crouches before a jump are "
-        "deliberately off-balance, so balance correction stays off.",
+        "weakest, and the legs' fast extension is not shrunk (as running); flight must have no contact at all "
+        "(low contact height); crouches before a jump are deliberately off-balance, so balance correction stays "
+        "off.",
     ),
     "dancing": Preset(
         {"fit": {"weight_smooth": 0.05, "weight_depth": 0.02},
