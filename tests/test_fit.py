@@ -188,6 +188,29 @@ def test_fit_recovers_a_known_motion_from_its_projections(body, camera, online):
     assert np.allclose(soles[..., 2].min(axis=1), true_soles[..., 2].min(axis=1), atol=0.03)
 
 
+def test_angle_speed_huber_shrinks_fast_legs_less(body, camera):
+    """Rempe's joint-angle velocity term pulls every joint towards standing still; on legs swinging at up to
+    7.5 rad/s (noise-free observations) it shrinks the swing. With angle_speed_huber it pulls linearly above
+    2 rad/s, and the fit comes nearer the truth (docs/decisions/b4-angle-velocity.md)."""
+    T = 60
+    phase = 2 * np.pi * 1.5 * np.arange(T) / 30.0
+    step = np.zeros((T, body.nv))
+    for side, sign in (("left", 1.0), ("right", -1.0)):
+        step[:, body.dof_address[body.joint_index[f"{side}_hip"]] + 1] = 0.6 * sign * np.sin(phase)
+        step[:, body.dof_address[body.joint_index[f"{side}_knee"]]] = 0.9 + 0.8 * np.sin(phase + sign)
+    truth = kin.integrate(body, np.repeat(body.rest_qpos[None], T, axis=0), step)
+    obs = observe(body, truth, camera)
+    true = camera.to_camera(kin.forward_kinematics(body, truth).points[:, :20])
+    errors = {}
+    for huber in (0.0, 2.0):
+        settings = Settings().replace("body", height=body.height, mass=body.mass).replace(
+            "fit", weight_angle_velocity=0.1, angle_speed_huber=huber)
+        motion = fit_motion(obs, settings)
+        fitted = motion.camera.to_camera(kin.forward_kinematics(motion.body, motion.qpos).points[:, :20])
+        errors[huber] = np.linalg.norm((fitted - fitted[:, :1]) - (true - true[:, :1]), axis=-1).mean()
+    assert errors[2.0] < 0.8 * errors[0.0]
+
+
 @pytest.mark.slow
 def test_robust_weights_resist_gross_detector_errors(body, camera):
     """A detector that throws one ankle 40 cm off for a few frames should not drag the fitted leg along."""
