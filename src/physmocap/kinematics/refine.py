@@ -28,7 +28,7 @@ from ..body.support import STEP_HEIGHT
 from ..camera import WORLD_UP, Camera, Floor, tangent_basis
 from ..config import FitSettings, TrajoptSettings
 from ..detect.foot_swaps import find_foot_swaps, undo_foot_swaps
-from ..motion import Observations, long_runs
+from ..motion import Observations, long_runs, valid_runs
 from .fit import KinematicFitter
 from .floor import move_world_to_floor
 from .stage import KinematicMotion, hold_outside_valid, reprojection_errors
@@ -132,9 +132,8 @@ def false_flights(body, qpos: np.ndarray, fps: float, contacts: np.ndarray, vali
     heights = pose.points[:, body.point_index(CONTACT_POINTS), 2]
     added = np.zeros_like(contacts, dtype=bool)
     airborne = ~contacts.any(axis=1) & valid
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], airborne.astype(int), [0]])))
     T = len(qpos)
-    for a, b in zip(edges[::2], edges[1::2], strict=True):
+    for a, b in valid_runs(airborne):
         lo, hi = max(a - 1, 0), min(b + 1, T)
         if hi - lo < 3:
             continue
