@@ -41,6 +41,11 @@ settings) are cached in --cache. What is measured, and how:
   landmark_drift_sd = sqrt(varying^2 - white^2) over x and y. Depth: per frame the least-squares factor
   between the landmarks' and the triangulation's z (hip-centred): depth_scale_sd is the RMS of (factor - 1),
   depth_scale_seconds the 1/e time of its autocorrelation.
+- Correlation along the body (keypoint_drift_length, landmark_drift_length): the time-varying parts of two
+  landmarks' errors (gross errors left out as above; pooled over views, frames and the image's x and y) correlate
+  the more the nearer the landmarks are along the skeleton (`skeleton_distances` of the triangulated points, in
+  person heights). The length is the least-squares fit of exp(-distance / length) to the correlations of every
+  pair; in 3D the hips are left out, which hip-centring makes mirror each other.
 """
 
 from __future__ import annotations
@@ -53,10 +58,11 @@ from pathlib import Path
 
 import physmocap  # noqa: F401 - single-threaded BLAS
 import numpy as np
+from scipy.optimize import minimize_scalar
 
 from physmocap.contacts.real_videos import REAL_VIDEOS, cached_detection, load_real_labels
 from physmocap.landmarks import LANDMARK_INDEX, LANDMARK_NAMES, NUM_LANDMARKS
-from physmocap.mocap.synthetic import NoiseModel
+from physmocap.mocap.synthetic import NoiseModel, skeleton_distances
 from physmocap.motion import Observations
 
 REPO = Path(__file__).resolve().parents[1]
@@ -207,9 +213,12 @@ def multiview_errors(views: list[Observations]) -> dict[str, object]:
     norms = np.linalg.norm(residuals_2d, axis=-1)
     total_2d_per_landmark = np.median(norms, axis=(0, 1)) / RAYLEIGH_MEDIAN
     gross = norms > GROSS_ERROR
-    static_2d, varying_2d = split_static(np.where(gross[..., None], np.nan, residuals_2d))
+    kept_2d = np.where(gross[..., None], np.nan, residuals_2d)
+    static_2d, varying_2d = split_static(kept_2d)
     total_3d_xy = robust_sd(errors_3d[..., :2])
-    static_3d, varying_3d = split_static(np.where(np.abs(errors_3d) > 3 * total_3d_xy, np.nan, errors_3d))
+    kept_3d = np.where(np.abs(errors_3d) > 3 * total_3d_xy, np.nan, errors_3d)
+    static_3d, varying_3d = split_static(kept_3d)
+    distances = skeleton_distances(points, stature)
     return dict(
         stature_m=float(stature),
         total_2d=float(np.median(total_2d_per_landmark)),
@@ -217,18 +226,37 @@ def multiview_errors(views: list[Observations]) -> dict[str, object]:
         gross_2d_fraction=float(np.mean(gross)),
         static_2d=robust_sd(static_2d),
         varying_2d=robust_sd(varying_2d),
+        drift_length_2d=correlation_length((kept_2d - static_2d)[..., :2], distances),
         varying_seconds_2d=autocorrelation_seconds(varying_2d.transpose(1, 0, 2, 3).reshape(len(points), -1), fps),
         total_3d_xy=total_3d_xy,
         total_3d_z=robust_sd(errors_3d[..., 2]),
         static_3d_xy=robust_sd(static_3d[..., :2]),
         varying_3d_xy=robust_sd(varying_3d[..., :2]),
         varying_3d_z=robust_sd(varying_3d[..., 2]),
+        drift_length_3d=correlation_length((kept_3d - static_3d)[..., :2], distances, ("left_hip", "right_hip")),
         varying_seconds_3d=autocorrelation_seconds(varying_3d.transpose(1, 0, 2, 3).reshape(len(points), -1), fps),
         depth_factor_median=float(np.median(depth_factors)),
         depth_scale_sd=robust_sd(depth_factors - np.median(depth_factors, axis=1, keepdims=True)),
         depth_scale_seconds=autocorrelation_seconds(np.clip(depth_factors.T, 0.0, 2.0), fps),
         median_reprojection_px=float(np.median(norms) / np.sqrt(8.0 / 5.0)),
     )
+
+
+def correlation_length(varying: np.ndarray, distances: np.ndarray, left_out: tuple[str, ...] = ()) -> float:
+    """Person heights: the length L for which exp(-distance / L) fits (least squares) the correlations between
+    landmarks' errors `varying` (V, T, K, C, nan where left out) over the pairs of landmarks `distances` (K, K)
+    apart (landmarks named in `left_out` excluded)."""
+    samples = varying.transpose(2, 0, 1, 3).reshape(varying.shape[2], -1)
+    kept = [k for k, name in enumerate(LANDMARK_NAMES) if name not in left_out]
+    pairs = [(i, j) for n, i in enumerate(kept) for j in kept[n + 1:]]
+    correlation, distance = [], []
+    for i, j in pairs:
+        both = np.isfinite(samples[i]) & np.isfinite(samples[j])
+        correlation.append(np.corrcoef(samples[i, both], samples[j, both])[0, 1])
+        distance.append(distances[i, j])
+    correlation, distance = np.array(correlation), np.array(distance)
+    misfit = lambda length: float(np.mean((correlation - np.exp(-distance / length)) ** 2))  # noqa: E731
+    return float(minimize_scalar(misfit, bounds=(1e-3, 1.0), method="bounded").x)
 
 
 def split_static(errors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -304,9 +332,11 @@ def measure(cache_dir: Path) -> tuple[NoiseModel, dict[str, object]]:
         keypoint_sd=round(white_2d, 4),
         keypoint_drift_sd=round(float(np.sqrt(max(multiview["varying_2d"] ** 2 - white_2d**2, 0.0))), 4),
         keypoint_drift_seconds=round(multiview["varying_seconds_2d"], 3),
+        keypoint_drift_length=round(multiview["drift_length_2d"], 3),
         landmark_sd=round(white_3d_xy, 4),
         landmark_drift_sd=round(float(np.sqrt(max(multiview["varying_3d_xy"] ** 2 - white_3d_xy**2, 0.0))), 4),
         landmark_drift_seconds=round(multiview["varying_seconds_3d"], 3),
+        landmark_drift_length=round(multiview["drift_length_3d"], 3),
         depth_scale_sd=round(multiview["depth_scale_sd"], 3),
         depth_scale_seconds=round(multiview["depth_scale_seconds"], 3),
         confidence_mean=round(float(visible.mean()), 3),

@@ -28,6 +28,7 @@ from physmocap.mocap.synthetic import (
     project,
     random_camera,
     resample,
+    skeleton_distances,
     write_synthetic_case,
 )
 from physmocap.motion import Observations
@@ -223,6 +224,32 @@ def test_landmarks_3d_are_hip_relative_in_camera_axes(raw_walk: MocapClip) -> No
     assert 0.5 < np.median(pixel_errors) < 10.0
     confidence = noisy.keypoints_2d[..., 2]
     assert np.median(confidence) > 0.8 and 0.0 < np.mean(confidence < 0.5) < 0.2
+
+
+def test_drifts_correlate_along_the_skeleton_by_their_length(raw_walk: MocapClip) -> None:
+    """keypoint_drift_length and landmark_drift_length: a foot's landmarks drift together (heel and ankle about
+    0.065 person heights apart: exp(-0.065 / 0.166) = 0.68), the two ankles (about a person height apart along
+    the legs) independently, and every landmark keeps its drift's SD. At length 0 neighbours drift independently."""
+    K, R, t = random_camera(raw_walk, np.random.default_rng(7))
+    truth_2d, _ = make_observations(raw_walk, K, R, t, np.random.default_rng(8), NO_NOISE)
+    distances = skeleton_distances(landmarks_from_clip(raw_walk), standing_height(raw_walk))
+    ankle, heel, other = LANDMARK_INDEX["left_ankle"], LANDMARK_INDEX["left_heel"], LANDMARK_INDEX["right_ankle"]
+    assert distances[ankle, heel] == pytest.approx(distances[heel, ankle]) and 0.03 < distances[ankle, heel] < 0.09
+    assert distances[ankle, other] > 0.9
+
+    def correlations(length: float) -> tuple[float, float, np.ndarray]:
+        noise = NoiseModel(**{**NO_NOISE.__dict__, "landmark_drift_sd": 0.02,
+                                  "landmark_drift_seconds": 0.05, "landmark_drift_length": length})
+        noisy, _ = make_observations(raw_walk, K, R, t, np.random.default_rng(9), noise)
+        error = (noisy.landmarks_3d - truth_2d.landmarks_3d)[..., :2]
+        pair = lambda i, j: float(np.corrcoef(error[:, i].ravel(), error[:, j].ravel())[0, 1])  # noqa: E731
+        return pair(ankle, heel), pair(ankle, other), error.std(axis=(0, 2))
+
+    near, far, sd = correlations(0.166)
+    assert near == pytest.approx(np.exp(-distances[ankle, heel] / 0.166), abs=0.15) and abs(far) < 0.25
+    np.testing.assert_allclose(np.median(sd), 0.02, rtol=0.25)
+    near, far, sd = correlations(0.0)
+    assert abs(near) < 0.25 and abs(far) < 0.25
 
 
 def test_face_and_hands_are_placed_on_the_right_side(cc3_walk: MocapClip) -> None:

@@ -15,3 +15,20 @@ LANDMARK_INDEX: dict[str, int] = {name: i for i, name in enumerate(LANDMARK_NAME
 MIRRORED: tuple[int, ...] = tuple(
     LANDMARK_INDEX[n.replace("left", "@").replace("right", "left").replace("@", "right")] for n in LANDMARK_NAMES
 )
+
+
+def _sides(pairs: tuple[tuple[str, str], ...]) -> tuple[tuple[str, str], ...]:
+    return tuple((a.format(side), b.format(side)) for side in ("left", "right") for a, b in pairs)
+
+
+# The landmarks as a graph along the body (limb chains, the face and the trunk's four corners), for distances
+# measured along the skeleton: the detector's errors correlate along it (contacts/noise.py).
+LANDMARK_EDGES: tuple[tuple[str, str], ...] = (
+    ("nose", "mouth_left"), ("nose", "mouth_right"), ("mouth_left", "mouth_right"),
+    ("left_shoulder", "right_shoulder"), ("left_hip", "right_hip"),
+) + _sides((
+    ("nose", "{}_eye_inner"), ("{}_eye_inner", "{}_eye"), ("{}_eye", "{}_eye_outer"), ("{}_eye_outer", "{}_ear"),
+    ("{}_shoulder", "mouth_{}"), ("{}_shoulder", "{}_elbow"), ("{}_elbow", "{}_wrist"), ("{}_wrist", "{}_pinky"),
+    ("{}_wrist", "{}_index"), ("{}_wrist", "{}_thumb"), ("{}_shoulder", "{}_hip"), ("{}_hip", "{}_knee"),
+    ("{}_knee", "{}_ankle"), ("{}_ankle", "{}_heel"), ("{}_ankle", "{}_foot_index"), ("{}_heel", "{}_foot_index"),
+))

@@ -4,7 +4,7 @@ labelled automatically, split by CMU subject.
 Every sequence is one clip of `../shared/data/mocap` (or a segment of a long one), played forwards or backwards
 at its own speed, with its own body proportions (`vary_proportions`), frame rate (resampled, 12-60 fps), static
 camera (Rempe A.1 via `random_camera`, random focal length, landscape or portrait image), left/right mirroring,
-and MediaPipe-like errors (`noise.MEDIAPIPE_NOISE`). The labels come from the played motion at its own frame
+and MediaPipe-like errors (`noise.TRAINING_NOISE`). The labels come from the played motion at its own frame
 rate, before the body and the camera change (`labels.motion_labels`), and are carried to each resampled frame
 from the nearest original frame, so they do not depend on the rendering.
 
@@ -28,7 +28,7 @@ from ..mocap.bvh_reader import JOINT_INDEX, MocapClip, cmu_subject, load_mocap
 from ..mocap.synthetic import NoiseModel, make_observations, random_camera, resample
 from .features import mirror_keypoints
 from .labels import CONTACT_SITE_INDICES, LabelSettings, hard_frames, motion_labels, point_speed
-from .noise import MEDIAPIPE_NOISE
+from .noise import TRAINING_NOISE
 
 TEST_SUBJECTS: tuple[str, ...] = ("6", "9", "94", "131")
 """CMU subjects held out for testing: basketball and walks (6), runs (9), Indian dance (94, the acRNN clips),
@@ -103,7 +103,7 @@ class SyntheticSettings:
     upper_body_scale_range: tuple[float, float] = (0.9, 1.1)
     arm_scale_range: tuple[float, float] = (0.9, 1.1)
     portrait_probability: float = 0.3
-    noise: NoiseModel = field(default=MEDIAPIPE_NOISE)
+    noise: NoiseModel = field(default=TRAINING_NOISE)
     foot_keypoints: str = "mediapipe"
     labels: LabelSettings = field(default_factory=LabelSettings)
 

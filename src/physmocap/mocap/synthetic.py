@@ -14,13 +14,14 @@ from pathlib import Path
 
 import numpy as np
 from scipy.signal import lfilter
+from scipy.sparse.csgraph import shortest_path
 from scipy.spatial.transform import Rotation, Slerp
 
 from ..body.rotations import unit_vectors
 from ..camera import floor_in_camera
 from ..errors import InputError
 from ..io.atomic import save_npz
-from ..landmarks import LANDMARK_INDEX, LANDMARK_NAMES, NUM_LANDMARKS
+from ..landmarks import LANDMARK_EDGES, LANDMARK_INDEX, LANDMARK_NAMES, NUM_LANDMARKS
 from ..motion import Observations
 from .bvh_reader import JOINT_NAMES, MocapClip, body_scale, standing_height
 
@@ -223,12 +224,16 @@ class NoiseModel:
     2D errors are in units of the person's image height (focal length x standing height / depth of the pelvis),
     so that they scale with resolution and distance as a detector that crops the person does; 3D errors are in
     metres. "Drift" terms are Ornstein-Uhlenbeck processes: Gaussian with the given SD, correlated over the given
-    time scale, independent per landmark and coordinate.
+    time scale, independent per coordinate; across landmarks independent, or correlated along the skeleton.
 
     keypoint_sd: white 2D noise (0.004 is 1.6 px for a person 400 px tall).
     keypoint_drift_sd, keypoint_drift_seconds: slowly varying 2D offset per keypoint.
+    keypoint_drift_length: person heights along the skeleton (`skeleton_distances`) over which two keypoints'
+        drifts correlate by exp(-distance / length), as a detector's errors move a limb's landmarks together
+        (0 for independent drifts; range 0-1).
     landmark_sd: white 3D noise of landmarks_3d, metres.
     landmark_drift_sd, landmark_drift_seconds: slowly varying 3D offset per landmark, metres.
+    landmark_drift_length: the same correlation length for the 3D drift, person heights.
     depth_scale_sd, depth_scale_seconds: slowly varying relative error of the depth (camera z) of landmarks_3d,
         one per frame for the whole body (monocular depth is the least certain).
     confidence_mean, confidence_sd: confidence of a seen keypoint, Gaussian, clipped to [0, 1].
@@ -246,9 +251,11 @@ class NoiseModel:
     keypoint_sd: float = 0.004
     keypoint_drift_sd: float = 0.006
     keypoint_drift_seconds: float = 0.5
+    keypoint_drift_length: float = 0.0
     landmark_sd: float = 0.01
     landmark_drift_sd: float = 0.02
     landmark_drift_seconds: float = 1.0
+    landmark_drift_length: float = 0.0
     depth_scale_sd: float = 0.1
     depth_scale_seconds: float = 2.0
     confidence_mean: float = 0.92
@@ -269,6 +276,29 @@ def _drift(rng: np.random.Generator, shape: tuple[int, ...], sd: float, seconds:
     start = decay * sd * rng.standard_normal(shape[1:])
     innovations = sd * np.sqrt(1.0 - decay**2) * rng.standard_normal(shape)
     return lfilter([1.0], [1.0, -decay], innovations, axis=0, zi=start[None])[0]
+
+
+def skeleton_distances(landmarks: np.ndarray, height: float) -> np.ndarray:
+    """(33, 33) distances between the landmarks along the body's graph (`LANDMARK_EDGES`), in units of `height`
+    (m): the shortest path over edges as long as their median length in `landmarks` (T, 33, 3) m."""
+    lengths = np.zeros((NUM_LANDMARKS, NUM_LANDMARKS))
+    for a, b in LANDMARK_EDGES:
+        i, j = LANDMARK_INDEX[a], LANDMARK_INDEX[b]
+        lengths[i, j] = lengths[j, i] = max(float(np.nanmedian(np.linalg.norm(landmarks[:, i] - landmarks[:, j],
+                                                                              axis=-1))), 1e-6)
+    return shortest_path(lengths, directed=False) / height
+
+
+def _along_skeleton(drift: np.ndarray, distances: np.ndarray, length: float) -> np.ndarray:
+    """Drifts (T, 33, C), independent per landmark, mixed so that two landmarks `distances` (33, 33) apart
+    correlate by exp(-distance / length) and each keeps its SD (a symmetric square root of that correlation; its
+    negative eigenvalues, where the graph's loops make it indefinite, dropped and the rows renormalised)."""
+    if length <= 0.0:
+        return drift
+    values, vectors = np.linalg.eigh(np.exp(-distances / length))
+    root = (vectors * np.sqrt(np.clip(values, 0.0, None))) @ vectors.T
+    root /= np.linalg.norm(root, axis=1, keepdims=True)
+    return np.einsum("kj,tjc->tkc", root, drift)
 
 
 def _episodes(
@@ -316,8 +346,9 @@ def make_observations(
         seen[foot_swapped, right] = landmarks[foot_swapped, left]
 
     # The 2D errors are drawn before the 3D ones: the order of the draws makes a seed's data.
-    keypoints = _noisy_keypoints(clip, seen, K, R, t, rng, noise, scale, dropout)
-    relative = _noisy_landmarks(seen, R, rng, noise, scale, dropout, fps)
+    distances = skeleton_distances(landmarks, standing_height(clip))
+    keypoints = _noisy_keypoints(clip, seen, K, R, t, rng, noise, scale, dropout, distances)
+    relative = _noisy_landmarks(seen, R, rng, noise, scale, dropout, fps, distances)
     observations = Observations(keypoints_2d=keypoints, landmarks_3d=relative, fps=fps, image_size=image_size,
                                 camera_K=K, source=f"synthetic:{clip.name}")
     truth = {
@@ -338,16 +369,19 @@ def make_observations(
 
 
 def _noisy_keypoints(clip: MocapClip, seen: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
-                     rng: np.random.Generator, noise: NoiseModel, scale: np.ndarray, dropout: np.ndarray) -> np.ndarray:
+                     rng: np.random.Generator, noise: NoiseModel, scale: np.ndarray, dropout: np.ndarray,
+                     distances: np.ndarray) -> np.ndarray:
     """(T, 33, 3) the landmarks `seen` (T, 33, 3, world) projected, with `noise`'s 2D errors (in units of the
-    person's height in pixels, times the landmark's `scale`), and a confidence per keypoint."""
+    person's height in pixels, times the landmark's `scale`; drifts correlated over `distances` (33, 33), person
+    heights), and a confidence per keypoint."""
     shape_2d = seen.shape[:2] + (2,)
     pixels, _ = project(seen, K, R, t)
     _, pelvis_depth = project(clip.joint("pelvis"), K, R, t)
     person_pixels = (K[1, 1] * standing_height(clip) / pelvis_depth)[:, None, None]
     error_2d = (
         noise.keypoint_sd * rng.standard_normal(shape_2d)
-        + _drift(rng, shape_2d, noise.keypoint_drift_sd, noise.keypoint_drift_seconds, clip.fps)
+        + _along_skeleton(_drift(rng, shape_2d, noise.keypoint_drift_sd, noise.keypoint_drift_seconds, clip.fps),
+                          distances, noise.keypoint_drift_length)
         + dropout[..., None] * noise.dropout_keypoint_sd * rng.standard_normal(shape_2d)
     )
     pixels = pixels + person_pixels * scale[:, None] * error_2d
@@ -357,16 +391,17 @@ def _noisy_keypoints(clip: MocapClip, seen: np.ndarray, K: np.ndarray, R: np.nda
 
 
 def _noisy_landmarks(seen: np.ndarray, R: np.ndarray, rng: np.random.Generator, noise: NoiseModel,
-                     scale: np.ndarray, dropout: np.ndarray, fps: float) -> np.ndarray:
+                     scale: np.ndarray, dropout: np.ndarray, fps: float, distances: np.ndarray) -> np.ndarray:
     """(T, 33, 3) the landmarks `seen` (T, 33, 3, world) minus the hips' midpoint in camera axes, with `noise`'s
-    depth scale drift and 3D errors (metres, times the landmark's `scale`)."""
+    depth scale drift and 3D errors (metres, times the landmark's `scale`; drifts correlated over `distances`)."""
     num_frames, shape_3d = len(seen), seen.shape
     hips = 0.5 * (seen[:, LANDMARK_INDEX["left_hip"]] + seen[:, LANDMARK_INDEX["right_hip"]])
     relative = (seen - hips[:, None]) @ R.T
     relative[..., 2] *= 1.0 + _drift(rng, (num_frames, 1), noise.depth_scale_sd, noise.depth_scale_seconds, fps)
     error_3d = (
         noise.landmark_sd * rng.standard_normal(shape_3d)
-        + _drift(rng, shape_3d, noise.landmark_drift_sd, noise.landmark_drift_seconds, fps)
+        + _along_skeleton(_drift(rng, shape_3d, noise.landmark_drift_sd, noise.landmark_drift_seconds, fps),
+                          distances, noise.landmark_drift_length)
         + dropout[..., None] * noise.dropout_landmark_sd * rng.standard_normal(shape_3d)
     )
     return relative + scale[:, None] * error_3d
