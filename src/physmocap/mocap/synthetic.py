@@ -289,11 +289,12 @@ def skeleton_distances(landmarks: np.ndarray, height: float) -> np.ndarray:
     return shortest_path(lengths, directed=False) / height
 
 
-def _along_skeleton(drift: np.ndarray, distances: np.ndarray, length: float) -> np.ndarray:
+def _along_skeleton(drift: np.ndarray, distances: np.ndarray | None, length: float) -> np.ndarray:
     """Drifts (T, 33, C), independent per landmark, mixed so that two landmarks `distances` (33, 33) apart
     correlate by exp(-distance / length) and each keeps its SD (a symmetric square root of that correlation; its
-    negative eigenvalues, where the graph's loops make it indefinite, dropped and the rows renormalised)."""
-    if length <= 0.0:
+    negative eigenvalues, where the graph's loops make it indefinite, dropped and the rows renormalised). Length 0
+    keeps them independent; distances is None only when no drift of the noise model is correlated."""
+    if length <= 0.0 or distances is None:
         return drift
     values, vectors = np.linalg.eigh(np.exp(-distances / length))
     root = (vectors * np.sqrt(np.clip(values, 0.0, None))) @ vectors.T
@@ -346,7 +347,8 @@ def make_observations(
         seen[foot_swapped, right] = landmarks[foot_swapped, left]
 
     # The 2D errors are drawn before the 3D ones: the order of the draws makes a seed's data.
-    distances = skeleton_distances(landmarks, standing_height(clip))
+    correlated = noise.keypoint_drift_length > 0.0 or noise.landmark_drift_length > 0.0
+    distances = skeleton_distances(landmarks, standing_height(clip)) if correlated else None
     keypoints = _noisy_keypoints(clip, seen, K, R, t, rng, noise, scale, dropout, distances)
     relative = _noisy_landmarks(seen, R, rng, noise, scale, dropout, fps, distances)
     observations = Observations(keypoints_2d=keypoints, landmarks_3d=relative, fps=fps, image_size=image_size,
@@ -370,7 +372,7 @@ def make_observations(
 
 def _noisy_keypoints(clip: MocapClip, seen: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
                      rng: np.random.Generator, noise: NoiseModel, scale: np.ndarray, dropout: np.ndarray,
-                     distances: np.ndarray) -> np.ndarray:
+                     distances: np.ndarray | None) -> np.ndarray:
     """(T, 33, 3) the landmarks `seen` (T, 33, 3, world) projected, with `noise`'s 2D errors (in units of the
     person's height in pixels, times the landmark's `scale`; drifts correlated over `distances` (33, 33), person
     heights), and a confidence per keypoint."""
@@ -391,7 +393,7 @@ def _noisy_keypoints(clip: MocapClip, seen: np.ndarray, K: np.ndarray, R: np.nda
 
 
 def _noisy_landmarks(seen: np.ndarray, R: np.ndarray, rng: np.random.Generator, noise: NoiseModel,
-                     scale: np.ndarray, dropout: np.ndarray, fps: float, distances: np.ndarray) -> np.ndarray:
+                     scale: np.ndarray, dropout: np.ndarray, fps: float, distances: np.ndarray | None) -> np.ndarray:
     """(T, 33, 3) the landmarks `seen` (T, 33, 3, world) minus the hips' midpoint in camera axes, with `noise`'s
     depth scale drift and 3D errors (metres, times the landmark's `scale`; drifts correlated over `distances`)."""
     num_frames, shape_3d = len(seen), seen.shape
