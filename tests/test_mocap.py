@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -231,17 +232,16 @@ def test_drifts_correlate_along_the_skeleton_by_their_length(raw_walk: MocapClip
     0.065 person heights apart: exp(-0.065 / 0.166) = 0.68), the two ankles (about a person height apart along
     the legs) independently, and every landmark keeps its drift's SD. At length 0 neighbours drift independently."""
     K, R, t = random_camera(raw_walk, np.random.default_rng(7))
-    truth_2d, _ = make_observations(raw_walk, K, R, t, np.random.default_rng(8), NO_NOISE)
+    clean, _ = make_observations(raw_walk, K, R, t, np.random.default_rng(8), NO_NOISE)
     distances = skeleton_distances(landmarks_from_clip(raw_walk), standing_height(raw_walk))
     ankle, heel, other = LANDMARK_INDEX["left_ankle"], LANDMARK_INDEX["left_heel"], LANDMARK_INDEX["right_ankle"]
     assert distances[ankle, heel] == pytest.approx(distances[heel, ankle]) and 0.03 < distances[ankle, heel] < 0.09
     assert distances[ankle, other] > 0.9
 
     def correlations(length: float) -> tuple[float, float, np.ndarray]:
-        noise = NoiseModel(**{**NO_NOISE.__dict__, "landmark_drift_sd": 0.02,
-                                  "landmark_drift_seconds": 0.05, "landmark_drift_length": length})
+        noise = replace(NO_NOISE, landmark_drift_sd=0.02, landmark_drift_seconds=0.05, landmark_drift_length=length)
         noisy, _ = make_observations(raw_walk, K, R, t, np.random.default_rng(9), noise)
-        error = (noisy.landmarks_3d - truth_2d.landmarks_3d)[..., :2]
+        error = (noisy.landmarks_3d - clean.landmarks_3d)[..., :2]
         pair = lambda i, j: float(np.corrcoef(error[:, i].ravel(), error[:, j].ravel())[0, 1])  # noqa: E731
         return pair(ankle, heel), pair(ankle, other), error.std(axis=(0, 2))
 
