@@ -826,9 +826,11 @@ def part_planting_long(minutes: float = 10.0) -> dict:
     fps = case["obs"].fps
     loops = int(np.ceil(minutes * 60 * fps / len(physics.qpos)))
     qpos, contacts = np.tile(physics.qpos, (loops, 1)), np.tile(physics.contacts, (loops, 1))
+    reference = np.tile(motion.qpos, (loops, 1))
     tracemalloc.start()
     start = time.process_time()
-    plant_held_feet(motion.body, qpos, contacts, fps, PhysicsSettings().plant_reach, np.zeros(len(qpos), bool))
+    plant_held_feet(motion.body, qpos, contacts, fps, PhysicsSettings().plant_reach, np.zeros(len(qpos), bool),
+                    reference)
     seconds = time.process_time() - start
     peak = tracemalloc.get_traced_memory()[1] / 2 ** 20
     tracemalloc.stop()

@@ -1,7 +1,8 @@
 """The physics' held feet planted on their spots (dynamics/planting.py). Offline (`leashed_spots`,
 `plant_held_feet`): a contact that drifts within the reach stands still, one that drifts farther slides only by the
-excess, frames without a planted or easing point and frozen frames are left exactly as they were, and a point eases
-onto and off its spot without a jump. Online (`OutputPlanter`): the same causally, the body following its feet."""
+excess, frames without a planted or easing point and frozen frames are left exactly as they were, a point eases
+onto and off its spot without a jump, and the spot is where the kinematic input stood the foot relative to the
+pelvis. Online (`OutputPlanter`): the same causally, the body following its feet."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import numpy as np
 from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
 from physmocap.contacts.flights import ease_frames, edge_easing
-from physmocap.dynamics.planting import OutputPlanter, leashed_spots, plant_held_feet
+from physmocap.dynamics.planting import LegMover, OutputPlanter, leashed_spots, plant_held_feet
 
 FPS = 30.0
 
@@ -58,7 +59,7 @@ def foot_points(body, qpos: np.ndarray) -> np.ndarray:
 
 def test_a_drift_within_reach_is_planted_and_far_frames_are_untouched():
     body, qpos, contacts = gliding_stance(50, 0.02)  # 2 cm/s: 2 cm over the 30 held frames
-    planted = plant_held_feet(body, qpos, contacts, FPS, 0.03, np.zeros(50, bool))
+    planted = plant_held_feet(body, qpos, contacts, FPS, 0.03, np.zeros(50, bool), qpos)
     points = foot_points(body, planted)[10:40]
     assert np.abs(points - points[0]).max() < 1e-3  # every held point stands still
     assert np.array_equal(planted[:6], qpos[:6]) and np.array_equal(planted[44:], qpos[44:])  # beyond the ease
@@ -68,7 +69,7 @@ def test_a_drift_within_reach_is_planted_and_far_frames_are_untouched():
 def test_a_long_drift_slides_by_the_excess_and_eases_without_a_jump():
     body, qpos, contacts = gliding_stance(60, 0.3)  # 30 cm/s: 12 cm over the 40 held frames
     before = foot_points(body, qpos)
-    planted = plant_held_feet(body, qpos, contacts, FPS, 0.02, np.zeros(60, bool))
+    planted = plant_held_feet(body, qpos, contacts, FPS, 0.02, np.zeros(60, bool), qpos)
     after = foot_points(body, planted)
     assert np.abs(after[10:50, :, :2] - before[10:50, :, :2]).max() < 0.02 + 2e-3  # within the reach (+ IK)
     step = np.linalg.norm(np.diff(after[..., :2], axis=0), axis=-1)
@@ -81,9 +82,27 @@ def test_frozen_frames_are_left_as_they_were():
     body, qpos, contacts = gliding_stance(50, 0.3)
     frozen = np.zeros(50, bool)
     frozen[20:30] = True
-    planted = plant_held_feet(body, qpos, contacts, FPS, 0.02, frozen)
+    planted = plant_held_feet(body, qpos, contacts, FPS, 0.02, frozen, qpos)
     assert np.array_equal(planted[20:30], qpos[20:30])
     assert not np.array_equal(planted[12:18], qpos[12:18])  # the contacts beside them are planted
+
+
+def test_a_foot_is_planted_where_the_input_stood_it_relative_to_the_pelvis():
+    """The output's left foot landed 4 cm ahead of its input's (the tracker's overshoot): it is planted back on the
+    input's spot. A whole output 3 cm ahead of its input (pelvis and feet) keeps its feet where they are."""
+    body, reference, contacts = gliding_stance(50, 0.0)
+    mover = LegMover(body.mujoco_model())
+    mover.contact_points(reference[0])
+    ahead = mover.moved(reference[0], [[0.04, 0.0], [0.04, 0.0], [0.0, 0.0], [0.0, 0.0]])
+    overshot = np.tile(ahead, (50, 1))
+    assert np.abs(foot_points(body, overshot)[25, :2, 0] - foot_points(body, reference)[25, :2, 0] - 0.04).max() < 2e-3
+    planted = plant_held_feet(body, overshot, contacts, FPS, 0.02, np.zeros(50, bool), reference)
+    on_spot = foot_points(body, planted)[10:40, :, :2] - foot_points(body, reference)[10:40, :, :2]
+    assert np.abs(on_spot).max() < 2e-3
+    shifted = reference.copy()
+    shifted[:, 0] += 0.03
+    kept = plant_held_feet(body, shifted, contacts, FPS, 0.02, np.zeros(50, bool), reference)
+    assert np.abs(foot_points(body, kept) - foot_points(body, shifted)).max() < 1e-6
 
 
 def test_online_output_planter_holds_causally_and_lets_go_smoothly():

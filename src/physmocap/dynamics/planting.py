@@ -7,8 +7,8 @@ constraint then lets it slide at slide_speed). Causal: each frame uses the chara
 held up to then.
 
 Offline (`plant_held_feet`; docs/decisions/physics-planted-feet.md): after the tracker, knowing the whole clip,
-each held contact point of its output is put on one spot, as Rempe's final inverse kinematics stands the body on
-the optimised contacts.
+each held contact point of its output is put on one spot, where its kinematic input stood the foot, as Rempe's final
+inverse kinematics stands the body on the optimised contacts.
 """
 
 from __future__ import annotations
@@ -218,23 +218,32 @@ def leashed_spots(points: np.ndarray, reach: float) -> np.ndarray:
 
 
 def plant_held_feet(body: BodyModel, qpos: np.ndarray, contacts: np.ndarray, fps: float, reach: float,
-                    frozen: np.ndarray) -> np.ndarray:
+                    frozen: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """(T, nq): the offline physics' motion qpos (T, nq) with each contact point held (contacts (T, 4), the
-    physics' own) moved along the floor onto its leashed spot (`leashed_spots`, reach m; its height stays the
-    simulated one, which already rests on the floor or rolls off it), easing on and off over EASE_TIME; the legs
-    bent for it (hip, knee, ankle; knees and ankles pulled to their simulated places, body/ik.py), the frames
-    `frozen` (T,) bool (no person, or handed back to the kinematics) left as they are. The tracker lets a held
-    point slip at slide_speed (eq. 9) and the output crept along the floor (docs/decisions/physics-planted-feet.md);
-    knowing the whole clip, each contact can stand still. The forces stay the simulation's."""
+    physics' own) moved along the floor onto its spot, easing on and off over EASE_TIME; the legs bent for it (hip,
+    knee, ankle; knees and ankles pulled to their simulated places, body/ik.py), the frames `frozen` (T,) bool (no
+    person, or handed back to the kinematics) left as they are. The tracker lets a held point slip at slide_speed
+    (eq. 9) and the output crept along the floor (docs/decisions/physics-planted-feet.md); knowing the whole clip,
+    each contact can stand still. A contact's spot is the leashed spot (`leashed_spots`, reach m) of its simulated
+    path, moved by the median over the contact of how far `reference` (T, nq), the kinematic motion the physics
+    tracked, puts the point from the pelvis beyond where qpos does (along the floor): the foot stands where the
+    input put it relative to the body, not where the tracker's landing overshot, and still only where the physics
+    holds it (docs/decisions/physics-planted-feet.md). Its height stays the simulated one, which already rests on
+    the floor or rolls off it. The forces stay the simulation's."""
     frozen = np.asarray(frozen, bool)
     held = np.asarray(contacts, bool) & ~frozen[:, None]
     feet, legs = body.point_index(CONTACT_POINTS), body.point_index(LEG_POINTS)
     simulated = kin.forward_kinematics(body, qpos).points
+    kinematic = kin.forward_kinematics(body, reference).points
+    pelvis = body.point_index(("pelvis",))[0]
     points = simulated[:, feet]
+    # (T, 4, 2) m: each contact point relative to the pelvis along the floor, the input's minus the output's
+    misplaced = ((kinematic[:, feet, :2] - kinematic[:, pelvis, None, :2])
+                 - (points[..., :2] - simulated[:, pelvis, None, :2]))
     shifts = np.zeros_like(points)
     for k in range(len(CONTACT_POINTS)):
         for start, end in valid_runs(held[:, k]):
-            spots = leashed_spots(points[start:end, k, :2], reach)
+            spots = leashed_spots(points[start:end, k, :2], reach) + np.median(misplaced[start:end, k], axis=0)
             shifts[start:end, k, :2] = spots - points[start:end, k, :2]
     # Beside a contact a point eases by a share of the shift at its edge.
     blend, edges = edge_easing(held, fps)
