@@ -510,8 +510,10 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     out.grf, out.residual, out.contacts = written_forces(out.grf, out.residual, out.contacts, tracked & ~gone, gone,
                                                          shares, stream.tracker.substeps)
     if whole_clip and settings.plant_reach:
+        # the feet stand where the poses the character tracked (the balance correction's included) put them
+        tracked_targets = qpos_kin if recorded is None else recorded[1]
         out.qpos = plant_held_feet(body, out.qpos, out.contacts, fps, settings.plant_reach, gone | unexplained,
-                                   qpos_kin)
+                                   tracked_targets)
     out.seconds = time.perf_counter() - start
     out.floor_plane = stream.floor_plane
     return out
