@@ -24,6 +24,7 @@ import numpy as np
 from ..body.model import CONTACT_POINTS, BodyModel
 from ..config import PhysicsSettings
 from ..contacts.flights import STANDING_SUPPORT
+from .ballistic import TakeOffPath
 from .qp import DenseQP
 
 INF = 1e20  # daqp's "no bound"
@@ -408,9 +409,14 @@ class PhysCapTracker:
 
     # ---- one video frame ----------------------------------------------------------------------------------
     def track(self, q_kin: np.ndarray, qd_kin: np.ndarray, qdd_kin: np.ndarray,
-              predicted_contacts: np.ndarray, released: list[bool] | None = None) -> FrameOutput:
+              predicted_contacts: np.ndarray, released: list[bool] | None = None,
+              take_off: TakeOffPath | None = None) -> FrameOutput:
         """Advance the character by one frame towards the kinematic pose (steps ii-v, n times). released: the
-        frame's released contacts from release_contacts (None: judged here against the target's points)."""
+        frame's released contacts from release_contacts (None: judged here against the target's points). take_off:
+        the centre of mass's vertical path through an interval that ends at a flight's first frame
+        (ballistic.TakeOffPath): its offsets from the chord move the root's height target, velocity and fed-forward
+        acceleration step by step, its switch times the contacts' release, and until then held points may rise
+        above their target's (the settle would pull the pushing feet back to the chord's)."""
         s, n = self.settings, self.substeps
         forces_sum, residual_sum, root_forces_sum = np.zeros((4, 3)), np.zeros(6), np.zeros(6)
         later_sum = np.zeros(6)  # the steps' root wrenches, step i weighted by i (split_forces)
@@ -432,14 +438,25 @@ class PhysCapTracker:
         feedforward, target_damping = self.feedforward * qdd_kin, self.kd_target * qd_kin
         contact_height, touch = s.contact_height, s.foot_lock != "never"  # never: a floor that does not push back
         flags: tuple[bool, ...] = (False, False, False, False)
+        switch = 0.5 if take_off is None else take_off.switch
+        if take_off is not None:
+            feedforward, target_damping = feedforward.copy(), target_damping.copy()
+            kd_vertical = float(self.kd_target[2])
+            # the path's height and velocity offsets from the centre of mass's chord, on the root's chord
+            root_chord = float(self._target_step[2]) / (n * self.dt)
         for i in range(n):
             target[:] = self._previous_target
             mujoco.mj_integratePos(self.model, target, self._target_step, (i + 1) / n)
+            if take_off is not None:
+                height, velocity, acceleration = take_off.offsets((i + 1) / n)
+                target[2] += height
+                target_damping[2] = kd_vertical * (root_chord + velocity)
+                feedforward[2] = acceleration
             heights, touching = self._step_state()
             if released is None:  # judged once per frame against the frame's target (per step it split walks)
                 released = self._released_contacts(target_sites, later_contacts)
             supporting = self._supporting
-            predicted = earlier_contacts if (i + 0.5) / n < 0.5 else later_contacts
+            predicted = earlier_contacts if (i + 0.5) / n < switch else later_contacts
             # eq. (5): predicted, within contact_height and not released (or the last support); or touching the floor
             flags = tuple([(predicted[j] and heights[j] < contact_height and (not released[j] or supporting[j]))
                            or (touch and touching[j]) for j in range(4)])
@@ -448,7 +465,8 @@ class PhysCapTracker:
             fraction = (i + 1) / n
             qdd, torque, pose_ok = self.pose_accelerations(
                 qdd_des, self.bias, forces, flags, heights, released,
-                [height + fraction * step for height, step in zip(previous_heights, height_step, strict=True)])
+                [height + fraction * step for height, step in zip(previous_heights, height_step, strict=True)]
+                if take_off is None or (i + 0.5) / n >= switch else [INF, INF, INF, INF])
             failures += (not grf_ok) + (not pose_ok)
             if self.record:
                 records.append(SubstepRecord(self.qpos.copy(), self.qvel.copy(), qdd, torque, forces,

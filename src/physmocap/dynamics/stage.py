@@ -30,6 +30,7 @@ from ..kinematics.stage import KinematicMotion
 from ..metrics import GRAVITY
 from ..motion import valid_runs
 from .balance import BalanceCorrector
+from .ballistic import TakeOffPath, take_off_paths
 from .floor import FloorRefiner, floor_frame
 from .physcap import FrameOutput, PhysCapTracker, frame_share_weights, within_bound
 from .planting import FootPlanter, OutputPlanter, plant_held_feet
@@ -195,11 +196,14 @@ class PhysicsStream:
         return None if self.floor is None else self.floor.plane
 
     def push(self, q_kin: np.ndarray, contacts: np.ndarray, stationary: bool,
-             velocity_kin: np.ndarray | None = None) -> tuple[np.ndarray, FrameOutput, bool]:
+             velocity_kin: np.ndarray | None = None,
+             take_off: TakeOffPath | None = None) -> tuple[np.ndarray, FrameOutput, bool]:
         """One frame's kinematic pose (nq,), contacts (4,) and stationary flag -> tracked pose, forces, and
         whether the balance correction changed the target (a pose whose centre of mass is below the floor: not
         tracked, `_not_tracked`). velocity_kin (nv,): the pose's velocity where the caller holds the whole clip
-        (zero_phase_velocities; no floor refined, no targets planted), in place of the causally smoothed one."""
+        (zero_phase_velocities; no floor refined, no targets planted), in place of the causally smoothed one; take_off:
+        where the caller holds the whole clip, the path of an interval that ends at a flight's first frame
+        (PhysCapTracker.track)."""
         if self.floor is not None:
             self.floor.push(q_kin, contacts)
             q_kin = self.floor.to_physics(q_kin)
@@ -242,7 +246,7 @@ class PhysicsStream:
         if self.settings.balance_correction:
             target, corrected = self.balance.correct(q_kin, stationary, contacts)
         self.target = target
-        frame = self.tracker.track(target, velocity, acceleration, contacts, released)
+        frame = self.tracker.track(target, velocity, acceleration, contacts, released, take_off)
         self._held = frame.active
         pose = self._diagnose(frame, target, velocity)
         if self.output_planter is not None:
@@ -484,7 +488,8 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     known before tracking (offline_unexplainable: kept kinematic, no force claimed, the character restarted after
     them); the hand-back to the kinematic motion is centred on each flagged stretch (centred_hand_back), and the
     held feet are planted on their spots over the whole clip (planting.plant_held_feet, settings.plant_reach), not
-    by the causal OutputPlanter."""
+    by the causal OutputPlanter; and each interval that ends at a flight's first frame pushes onto the flight's
+    parabola (ballistic.take_off_paths) instead of aiming at the chord (without a refined floor)."""
     start = time.perf_counter()
     T = len(qpos_kin)
     whole_clip = whole_clip or refined_input
@@ -502,8 +507,10 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     seen = np.ones(T, bool) if valid is None else np.asarray(valid, bool)
     velocities = (zero_phase_velocities(body, qpos_kin, fps, settings.velocity_smoothing, seen & ~unexplainable)
                   if refined_input and not refine_floor else None)
+    take_offs = (take_off_paths(kin.center_of_mass(body, kin.forward_kinematics(body, qpos_kin))[:, 2], contacts,
+                                seen & ~unexplainable, fps, GRAVITY) if whole_clip and not refine_floor else {})
     tracked = _track(stream, qpos_kin, contacts, stationary, valid, unexplainable, whole_clip, out, recorded,
-                     shares, progress, velocities)
+                     shares, progress, velocities, take_offs)
     if recorded is not None:
         out.qpos = centred_hand_back(stream.tracker.model, *recorded, unexplained, fps, settings.unexplained_blend)
     gone = ~seen
@@ -540,7 +547,8 @@ def zero_phase_velocities(body: BodyModel, qpos: np.ndarray, fps: float, smoothi
 
 def _track(stream: PhysicsStream, qpos_kin: np.ndarray, contacts: np.ndarray, stationary: np.ndarray,
            valid: np.ndarray | None, unexplainable: np.ndarray, observed_step: bool, out: PhysicsMotion,
-           recorded, shares: list, progress, velocities: np.ndarray | None = None) -> np.ndarray:
+           recorded, shares: list, progress, velocities: np.ndarray | None = None,
+           take_offs: dict[int, TakeOffPath] | None = None) -> np.ndarray:
     """Runs the character (stream) over the frames into out, recorded and shares (as run_physcap's), from
     _first_frame on; returns the frames the character tracked (T,) bool (a frame the stream kept untracked
     claims no force).
@@ -575,7 +583,8 @@ def _track(stream: PhysicsStream, qpos_kin: np.ndarray, contacts: np.ndarray, st
             elif not observed_step and t > first and seen[t] and not seen[t - 1]:
                 stream.resume(qpos_kin[t])
             out.qpos[t], frame, out.corrected[t] = stream.push(
-                qpos_kin[t], contacts[t], bool(stationary[t]), None if velocities is None else velocities[t])
+                qpos_kin[t], contacts[t], bool(stationary[t]), None if velocities is None else velocities[t],
+                take_offs.get(t) if take_offs and t > first and tracked[t - 1] else None)
             tracked[t] = frame.tracked
             if recorded is not None:
                 recorded[0][t], recorded[1][t] = stream.tracker.qpos, stream.target
