@@ -44,12 +44,12 @@ class TakeOffPath:
         rise = self.flight_height - self.height
         return z + v * s + 0.5 * a * s * s - (self.height + share * rise), v + a * s - rise / self.interval, a
 
-    def from_state(self, height: float, velocity: float) -> TakeOffPath | None:
+    def from_state(self, height: float, velocity: float, max_push: float = np.inf) -> TakeOffPath | None:
         """The path onto the same parabola from another start: a centre of mass at `height` (m) rising at `velocity`
-        (m/s) at the interval's start, as the character is; None where no push within the interval meets it."""
+        (m/s) at the interval's start; None where no push within the interval meets it (push_onto_parabola)."""
         g, h = self.gravity, self.interval
         arc_height = self.flight_height - self.flight_velocity * h - 0.5 * g * h * h
-        push = push_onto_parabola(height, velocity, arc_height, self.flight_velocity + g * h, h, g)
+        push = push_onto_parabola(height, velocity, arc_height, self.flight_velocity + g * h, h, g, max_push)
         return None if push is None else dataclasses.replace(self, switch=push[0] / h, height=height,
                                                               velocity=velocity, push=push[1])
 
@@ -62,30 +62,31 @@ def flight_velocity(heights: np.ndarray, interval: float, gravity: float) -> flo
 
 
 def push_onto_parabola(height: float, velocity: float, arc_height: float, arc_velocity: float, interval: float,
-                       gravity: float) -> tuple[float, float] | None:
+                       gravity: float, max_push: float = np.inf) -> tuple[float, float] | None:
     """A constant-acceleration push from a contact frame's height (m) and vertical velocity (m/s) onto a flight's
     parabola under gravity (m/s^2), given by its height and velocity extrapolated to the contact frame's instant
     (m, m/s). Returns (its duration s, within (0, interval), and its acceleration m/s^2), or None where the
-    parabola cannot be met within the interval or only by a push that does not bear on the floor (the labels and
-    the motion disagree: the chord is kept). Meeting it at s in height and velocity:
-    height + s (velocity + v_arc(s)) / 2 = z_arc(s), with z_arc(s) = arc_height + arc_velocity s - g s^2 / 2,
-    is linear in s."""
+    parabola cannot be met within the interval, or only by a push that does not bear on the floor or accelerates
+    the body faster than max_push m/s^2 (the labels and the motion disagree: the chord is kept). Meeting it at s
+    in height and velocity, height + s (velocity + v_arc(s)) / 2 = z_arc(s) with z_arc(s) = arc_height +
+    arc_velocity s - g s^2 / 2, is linear in s."""
     if arc_velocity <= velocity:
         return None
     duration = 2.0 * (height - arc_height) / (arc_velocity - velocity)
     if not 0.0 < duration < interval:
         return None
     push = (arc_velocity - gravity * duration - velocity) / duration
-    return (duration, push) if push > -gravity else None
+    return (duration, push) if -gravity < push <= max_push else None
 
 
 def take_off_paths(heights: np.ndarray, contacts: np.ndarray, usable: np.ndarray, fps: float,
-                   gravity: float) -> dict[int, TakeOffPath]:
+                   gravity: float, max_force: float = np.inf) -> dict[int, TakeOffPath]:
     """The TakeOffPath of each flight's take-off interval, keyed by the flight's first frame. heights (T,) m: the
     targets' centre of mass; contacts (T, 4) bool: the labels the tracker takes (a flight: frames with none); usable
     (T,) bool: the frames the character tracks. A flight gets a path where it lasts at least two frames (its
     parabola's velocity, fitted under gravity m/s^2, needs two) and its last two contact frames are usable (the
-    velocity at the last, a centred difference: a backward one lags the push by half a frame)."""
+    velocity at the last, a centred difference: a backward one lags the push by half a frame), and where the push
+    needs no more than max_force body weights (the bound the physics holds every force to)."""
     interval, paths = 1.0 / fps, {}
     airborne = ~np.asarray(contacts, bool).any(axis=1) & usable
     for first, stop in valid_runs(airborne):
@@ -95,7 +96,7 @@ def take_off_paths(heights: np.ndarray, contacts: np.ndarray, usable: np.ndarray
         velocity = float(heights[first] - heights[before - 1]) / (2.0 * interval)
         flight = TakeOffPath(1.0, float(heights[before]), velocity, 0.0, float(heights[first]),
                              flight_velocity(heights[first:stop], interval, gravity), interval, gravity)
-        path = flight.from_state(flight.height, velocity)
+        path = flight.from_state(flight.height, velocity, (max_force - 1.0) * gravity)
         if path is not None:
             paths[first] = path
     return paths

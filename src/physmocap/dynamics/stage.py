@@ -508,7 +508,8 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     velocities = (zero_phase_velocities(body, qpos_kin, fps, settings.velocity_smoothing, seen & ~unexplainable)
                   if refined_input and not refine_floor else None)
     take_offs = (take_off_paths(kin.center_of_mass(body, kin.forward_kinematics(body, qpos_kin))[:, 2], contacts,
-                                seen & ~unexplainable, fps, GRAVITY) if whole_clip and not refine_floor else {})
+                                seen & ~unexplainable, fps, GRAVITY, settings.max_force)
+                 if whole_clip and not refine_floor else {})
     tracked = _track(stream, qpos_kin, contacts, stationary, valid, unexplainable, whole_clip, out, recorded,
                      shares, progress, velocities, take_offs)
     if recorded is not None:
