@@ -16,7 +16,8 @@ frame of the retargeting (IK) and of the physics.
     .venv/bin/python benchmarks/bench_retarget.py [--quick] [--trajopt] [--source-physics physcap|none] [--work DIR]
         [--set test|validation|every] [--step-adjustment LEG_LENGTHS]
 
-Writes benchmarks/results/retarget.json and retarget.md (retarget_SET.* with another --set).
+Writes benchmarks/results/retarget.json and retarget.md (retarget_SET.* with another --set; with --quick,
+retarget[_SET]_quick.*, so that a quick look leaves the stored full tables alone).
 """
 
 from __future__ import annotations
@@ -271,7 +272,7 @@ def main(argv=None) -> dict:
         solve.STEP_ADJUSTMENT = args.step_adjustment
     data = run(args.work, args.quick, args.trajopt, args.source_physics, args.set)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    stem = "retarget" if args.set == "test" else f"retarget_{args.set}"
+    stem = ("retarget" if args.set == "test" else f"retarget_{args.set}") + ("_quick" if args.quick else "")
     (RESULTS / f"{stem}.json").write_text(json.dumps(data, indent=1))
     (RESULTS / f"{stem}.md").write_text(markdown(data))
     print(markdown(data))
