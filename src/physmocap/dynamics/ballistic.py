@@ -2,7 +2,7 @@
 
 Between two frames the tracker aims at the chord of their poses. Across a take-off that chord is far slower than the
 jump: at 10 fps a standing jump's chord rises at 2.4 m/s where the flight needs 3.5 m/s at the switch of contacts, so
-the character left the floor too slowly and its apex was 10 cm low (docs/decisions/physics-frame-rate.md). With the
+the character left the floor too slowly and its apex was 13 cm low (docs/decisions/physics-frame-rate.md). With the
 whole clip known, the interval before a flight's first frame is a push at constant acceleration from the last
 contact frame's height and velocity onto the flight's parabola, which gravity and the flight's frames fix. Meeting
 the parabola in height and in velocity gives both the push and the instant the contacts switch.
@@ -10,7 +10,6 @@ the parabola in height and in velocity gives both the push and the instant the c
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,15 +43,6 @@ class TakeOffPath:
         rise = self.flight_height - self.height
         return z + v * s + 0.5 * a * s * s - (self.height + share * rise), v + a * s - rise / self.interval, a
 
-    def from_state(self, height: float, velocity: float, max_push: float = np.inf) -> TakeOffPath | None:
-        """The path onto the same parabola from another start: a centre of mass at `height` (m) rising at `velocity`
-        (m/s) at the interval's start; None where no push within the interval meets it (push_onto_parabola)."""
-        g, h = self.gravity, self.interval
-        arc_height = self.flight_height - self.flight_velocity * h - 0.5 * g * h * h
-        push = push_onto_parabola(height, velocity, arc_height, self.flight_velocity + g * h, h, g, max_push)
-        return None if push is None else dataclasses.replace(self, switch=push[0] / h, height=height,
-                                                              velocity=velocity, push=push[1])
-
 
 def flight_velocity(heights: np.ndarray, interval: float, gravity: float) -> float:
     """m/s: the vertical velocity at the first of a flight's frame heights (F,) m (F >= 2, `interval` s apart) of
@@ -79,6 +69,18 @@ def push_onto_parabola(height: float, velocity: float, arc_height: float, arc_ve
     return (duration, push) if -gravity < push <= max_push else None
 
 
+def path_onto_parabola(height: float, velocity: float, flight_height: float, flight_velocity: float, interval: float,
+                       gravity: float, max_push: float = np.inf) -> TakeOffPath | None:
+    """The TakeOffPath from a contact frame's centre of mass `height` (m) rising at `velocity` (m/s) onto the
+    parabola through the next frame's `flight_height` (m) at `flight_velocity` (m/s), `interval` s later; None
+    where no push meets it (push_onto_parabola)."""
+    arc_height = flight_height - flight_velocity * interval - 0.5 * gravity * interval * interval
+    push = push_onto_parabola(height, velocity, arc_height, flight_velocity + gravity * interval, interval, gravity,
+                              max_push)
+    return None if push is None else TakeOffPath(push[0] / interval, height, velocity, push[1], flight_height,
+                                                 flight_velocity, interval, gravity)
+
+
 def take_off_paths(heights: np.ndarray, contacts: np.ndarray, usable: np.ndarray, fps: float,
                    gravity: float, max_force: float = np.inf) -> dict[int, TakeOffPath]:
     """The TakeOffPath of each flight's take-off interval, keyed by the flight's first frame. heights (T,) m: the
@@ -94,9 +96,9 @@ def take_off_paths(heights: np.ndarray, contacts: np.ndarray, usable: np.ndarray
         if stop - first < 2 or before < 1 or not usable[before - 1:first].all():
             continue
         velocity = float(heights[first] - heights[before - 1]) / (2.0 * interval)
-        flight = TakeOffPath(1.0, float(heights[before]), velocity, 0.0, float(heights[first]),
-                             flight_velocity(heights[first:stop], interval, gravity), interval, gravity)
-        path = flight.from_state(flight.height, velocity, (max_force - 1.0) * gravity)
+        path = path_onto_parabola(float(heights[before]), velocity, float(heights[first]),
+                                  flight_velocity(heights[first:stop], interval, gravity), interval, gravity,
+                                  (max_force - 1.0) * gravity)
         if path is not None:
             paths[first] = path
     return paths
