@@ -51,7 +51,7 @@ def test_a_take_off_path_meets_the_flights_parabola_in_height_and_velocity():
     assert path.switch == pytest.approx(share, abs=0.15)
 
 
-def test_flights_too_short_that_do_not_rise_or_that_need_too_large_a_push_get_no_take_off_path():
+def test_flights_too_short_that_do_not_rise_need_too_large_a_push_or_are_not_finite_get_no_take_off_path():
     heights, contacts, _, _ = take_off_heights(10.0)
     first = int(np.flatnonzero(~contacts.any(axis=1))[0])
     one_frame = contacts.copy()
@@ -64,6 +64,9 @@ def test_flights_too_short_that_do_not_rise_or_that_need_too_large_a_push_get_no
     assert take_off_paths(heights, contacts, unusable, 10.0, G) == {}
     # the 12 m/s^2 push (2.2 body weights) is beyond a bound of 1.5 body weights
     assert take_off_paths(heights, contacts, np.ones(len(heights), bool), 10.0, G, max_force=1.5) == {}
+    broken = heights.copy()
+    broken[first + 1] = np.nan  # a non-finite target (the tracker restarts there): no path from it
+    assert take_off_paths(broken, contacts, np.ones(len(heights), bool), 10.0, G) == {}
 
 
 def test_the_flight_velocity_is_the_least_squares_parabola_through_the_first_frame():
