@@ -507,9 +507,11 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     seen = np.ones(T, bool) if valid is None else np.asarray(valid, bool)
     velocities = (zero_phase_velocities(body, qpos_kin, fps, settings.velocity_smoothing, seen & ~unexplainable)
                   if refined_input and not refine_floor else None)
+    usable = seen & ~unexplainable
+    flights = whole_clip and not refine_floor and bool((usable & ~contacts.any(axis=1)).any())
     take_offs = (take_off_paths(kin.center_of_mass(body, kin.forward_kinematics(body, qpos_kin))[:, 2], contacts,
-                                seen & ~unexplainable, fps, GRAVITY, settings.max_force)
-                 if whole_clip and not refine_floor else {})
+                                usable, fps, GRAVITY, settings.max_force)
+                 if flights else {})  # a forward-kinematics pass, spared where the labels hold no flight
     tracked = _track(stream, qpos_kin, contacts, stationary, valid, unexplainable, whole_clip, out, recorded,
                      shares, progress, velocities, take_offs)
     if recorded is not None:
