@@ -142,7 +142,10 @@ class PhysicsSettings(Section):
     unexplained_force: float | None = setting(0.5, "body weights", (0.05, 10.0), "upward root force no floor "
                                               "contact gives that flags a frame (None: not checked)")
     unexplained_time: float = setting(0.2, "s", (0.01, 2.0), "averaging time of that force and of the needed support")
-    unexplained_blend: float = setting(0.2, "s", (0.0, 2.0), "output passes to the kinematic motion and back over it")
+    unexplained_blend: float = setting(0.2, "s", (0.0, 2.0), "output passes to the kinematic motion and back over it "
+                                       "(online and live, from the first flagged frame on)")
+    unexplained_blend_offline: float = setting(0.4, "s", (0.0, 2.0), "the same with the whole clip, on either side "
+                                               "of each flagged stretch (physics-limits.md)")
     start_drop_time: float | None = setting(0.5, "s", (0.01, 10.0), "a target starting with its feet above the floor "
                                             "(under contact_height) is lowered onto it, fading so (None: off)")
 

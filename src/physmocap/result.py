@@ -69,7 +69,8 @@ def build_result(obs: Observations, motion: KinematicMotion, stage_seconds: dict
         # frames the physics' contact model could not explain (hands or a raised floor carrying the body, the body
         # resting on a knee, an elbow or the seat, a force over PhysicsSettings.max_force, a failed solver; for
         # trajopt an input COM below the floor): the final
-        # motion there is the kinematic one (PhysCap blends in and out over PhysicsSettings.unexplained_blend)
+        # motion there is the kinematic one (PhysCap blends in and out over PhysicsSettings.unexplained_blend_offline,
+        # online over unexplained_blend)
         physics_unexplained=np.zeros(T, bool) if unexplained is None else np.asarray(unexplained, bool),
         balance_corrected=np.zeros(T, bool) if physics is None else physics.corrected,
         camera_K=motion.camera.K,

@@ -59,8 +59,9 @@ class PhysicsMotion:
     seconds: float
     floor_plane: np.ndarray | None = None
     unexplained: np.ndarray | None = None  # (T,) bool: frames the contact model could not explain, handed back
-    # as the kinematic motion (blended in and out over settings.unexplained_blend: offline centred on each flagged
-    # stretch's edges, causally from its first frame on); None: not diagnosed
+    # as the kinematic motion (blended in and out: with the whole clip centred on each flagged stretch's edges over
+    # settings.unexplained_blend_offline, causally from its first frame on over unexplained_blend); None: not
+    # diagnosed
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         """Every field as named arrays for an .npz file (no floor_plane: nan); `from_arrays` rebuilds it."""
@@ -304,7 +305,8 @@ class PhysicsStream:
         diverged step or failed QP, a force over the bound, or the character farther than stray_distance from its
         target. Sets frame.unexplained_flag and
         returns the pose to hand out (nq,): the character's, blended towards the frame's kinematic target over
-        unexplained_blend while frames are flagged; a character fully handed over restarts from the target."""
+        unexplained_blend while frames are flagged; a character fully handed over restarts from the target (with
+        the whole clip too: there centred_hand_back then blends the output over unexplained_blend_offline)."""
         s = self.settings
         bound = s.max_force * self._weight
         out_of_bounds = False
@@ -515,7 +517,8 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
     tracked = _track(stream, qpos_kin, contacts, stationary, valid, unexplainable, whole_clip, out, recorded,
                      shares, progress, velocities, take_offs)
     if recorded is not None:
-        out.qpos = centred_hand_back(stream.tracker.model, *recorded, unexplained, fps, settings.unexplained_blend)
+        out.qpos = centred_hand_back(stream.tracker.model, *recorded, unexplained, fps,
+                                     settings.unexplained_blend_offline)
     gone = ~seen
     out.grf, out.residual, out.contacts = written_forces(out.grf, out.residual, out.contacts, tracked & ~gone, gone,
                                                          shares, stream.tracker.substeps)

@@ -51,7 +51,8 @@ log = logging.getLogger("physmocap")
 DEPARTURE_COM, DEPARTURE_FEET = 0.10, 0.15  # m
 MIN_FRAMES = 3  # a run of valid frames shorter than this keeps the kinematic motion
 # The final motion passes from the physics' to frames kept kinematic (unexplained, not converged) and back over
-# this, as PhysCap's default physics.unexplained_blend: no jump at a flagged segment (issue 17)
+# this: no jump at a flagged segment (issue 17). PhysCap's own offline blend, physics.unexplained_blend_offline,
+# was measured longer on its validation clips (docs/decisions/physics-limits.md); this one was not measured again.
 BLEND_SECONDS = 0.2  # s
 PARALLEL_WORKERS = 2  # windows solved at a time with settings.parallel_windows (the even, then the odd ones)
 
