@@ -456,7 +456,8 @@ class PhysCapTracker:
             if released is None:  # judged once per frame against the frame's target (per step it split walks)
                 released = self._released_contacts(target_sites, later_contacts)
             supporting = self._supporting
-            predicted = earlier_contacts if (i + 0.5) / n < switch else later_contacts
+            before_switch = (i + 0.5) / n < switch  # the step's middle: the last frame's contacts still
+            predicted = earlier_contacts if before_switch else later_contacts
             # eq. (5): predicted, within contact_height and not released (or the last support); or touching the floor
             flags = tuple([(predicted[j] and heights[j] < contact_height and (not released[j] or supporting[j]))
                            or (touch and touching[j]) for j in range(4)])
@@ -466,7 +467,7 @@ class PhysCapTracker:
             qdd, torque, pose_ok = self.pose_accelerations(
                 qdd_des, self.bias, forces, flags, heights, released,
                 [height + fraction * step for height, step in zip(previous_heights, height_step, strict=True)]
-                if take_off is None or (i + 0.5) / n >= switch else [INF, INF, INF, INF])
+                if take_off is None or not before_switch else [INF, INF, INF, INF])
             failures += (not grf_ok) + (not pose_ok)
             if self.record:
                 records.append(SubstepRecord(self.qpos.copy(), self.qvel.copy(), qdd, torque, forces,

@@ -507,9 +507,9 @@ def run_physcap(body: BodyModel, qpos_kin: np.ndarray, fps: float, contacts: np.
                            floor_trusted)
     shares: list = [None] * T  # each tracked frame's FrameOutput.shares
     seen = np.ones(T, bool) if valid is None else np.asarray(valid, bool)
-    velocities = (zero_phase_velocities(body, qpos_kin, fps, settings.velocity_smoothing, seen & ~unexplainable)
+    usable = seen & ~unexplainable  # the frames the character may track
+    velocities = (zero_phase_velocities(body, qpos_kin, fps, settings.velocity_smoothing, usable)
                   if refined_input and not refine_floor else None)
-    usable = seen & ~unexplainable
     flights = whole_clip and not refine_floor and bool((usable & ~contacts.any(axis=1)).any())
     take_offs = (take_off_paths(kin.center_of_mass(body, kin.forward_kinematics(body, qpos_kin))[:, 2], contacts,
                                 usable, fps, GRAVITY, settings.max_force)
