@@ -464,7 +464,8 @@ def compose(seconds: dict[str, float]) -> str:
         "float or sink (as in 05_13, 05_18, acrnn_martial_05), no motion that follows it can meet the foot targets. "
         "005_05's dancer stands on a heel 1-5 cm under the floor with the toe 8-12 cm up (frames 164-198), which the "
         "physics cannot follow; 001_01's forward jumps fall at about 11.5 m/s² in the data (a parabola fitted to the "
-        "centre of mass over each flight), and the physics, falling at g, lands about a frame after them.",
+        "centre of mass over each flight; the CC3 retargets move as under 1.19 g, "
+        "docs/decisions/mocap-cc3-gravity.md), and the physics, falling at g, lands about a frame after them.",
         "",
         *synthetic_variety_section(),
         "",
