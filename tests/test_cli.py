@@ -175,6 +175,7 @@ def test_unreadable_observations_file(tmp_path):
     (["--floor", "0,0,0,1"], ["floor"]),
     (["--person-box", "10,10,5,5"], ["person_box"]),
     (["--fps", "0"], ["camera.fps", "1 .. 1000 fps"]),
+    (["--character-map", "map.toml"], ["map.toml", "--character RIG"]),  # a map with no character to map
 ])
 def test_nonsense_settings(tmp_path, args, words):
     proc = physmocap_in_process("capture", DEMO_VIDEO, "-o", tmp_path / "o", *args)

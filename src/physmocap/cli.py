@@ -395,6 +395,8 @@ def cmd_capture(args) -> int:
     if args.video is not None:
         probe_video(args.video)  # fail fast, before any folder is made
     name = (args.video or args.observations).stem
+    if args.character_map is not None and args.character is None:
+        raise InputError(f"{args.character_map}: --character-map describes a character; give it with --character RIG.")
     if args.character is not None:
         _check_character(args.character, args.character_map)  # fail fast, before the capture
     out = check_output_folder(args.output or Path("runs") / name)
