@@ -166,6 +166,10 @@ def test_unreadable_observations_file(tmp_path):
     wrong = tmp_path / "wrong.npz"
     np.savez(wrong, keypoints_2d=np.zeros((4, 17, 3)))
     assert_clean_failure(physmocap("capture", "--observations", wrong, "-o", tmp_path / "o"), "wrong.npz")
+    text = tmp_path / "text.npz"  # written by other code, with text where a number belongs
+    np.savez(text, keypoints_2d=np.zeros((4, 33, 3)), landmarks_3d=np.zeros((4, 33, 3)), fps="thirty",
+             image_size=[640, 480])
+    assert_clean_failure(physmocap("capture", "--observations", text, "-o", tmp_path / "o"), "text.npz", "fps")
 
 
 @pytest.mark.parametrize("args, words", [
@@ -274,6 +278,26 @@ def test_export_command_writes_each_format_and_rejects_bad_input(demo_run, tmp_p
     proc = physmocap("export", out / "result.npz", "--to", "bvh", "--units", "furlongs", "-o", tmp_path / "x")
     assert_clean_failure(proc, "units")
     assert_clean_failure(physmocap("export", tmp_path / "none.npz", "--to", "glb"), "none.npz")
+
+
+@pytest.mark.parametrize("key, change", [
+    ("fps", lambda r: np.array("thirty")),
+    ("joints_world", lambda r: r["joints_world"].astype(str)),
+    ("joints_world", lambda r: np.full_like(r["joints_world"], np.nan)),
+    ("qpos", lambda r: r["qpos"][:5]),
+    ("grf", lambda r: r["grf"][:, :2]),
+    ("body_mass", lambda r: np.array(-70.0)),
+    ("body_lengths", lambda r: np.array("{not json")),
+])
+def test_a_result_file_edited_by_other_code_is_refused_in_one_sentence(demo_run, tmp_path, key, change):
+    result = dict(np.load(demo_run[0] / "result.npz", allow_pickle=False))
+    result[key] = change(result)
+    edited = tmp_path / "edited.npz"
+    np.savez(edited, **result)
+    for command in (["export", edited, "--to", "bvh", "-o", tmp_path / "x"], ["evaluate", edited]):
+        proc = physmocap_in_process(*command)
+        assert proc.returncode == 2, proc.stderr  # bad input, not an internal error
+        assert_clean_failure(proc, "edited.npz", key)
 
 
 def test_trajectory_optimisation_physics(demo_run, tmp_path):

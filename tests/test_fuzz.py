@@ -29,7 +29,8 @@ confidences = st.sampled_from(["template", "uniform", "uniform", "zero", "low"])
 breakages = st.sampled_from([None] * 8 + [
     "landmarks_32", "flat", "3d_mismatch", "missing_fps", "missing_3d", "scalar_size", "zero_fps", "nan_fps",
     "inf_fps", "negative_size", "camera_K_zeros", "camera_K_nan", "camera_K_negative", "coordinates_1e9",
-    "coordinates_negative", "confidence_above_one", "confidence_negative", "valid_wrong_length"])
+    "coordinates_negative", "confidence_above_one", "confidence_negative", "valid_wrong_length", "text_fps",
+    "empty_fps", "text_keypoints", "nan_size", "text_seconds_per_frame"])
 
 
 @st.composite
@@ -68,6 +69,10 @@ def observations_files(draw):
         "confidence_above_one": lambda: {"keypoints_2d": np.concatenate([k2[..., :2], 1 + k2[..., 2:]], axis=-1)},
         "confidence_negative": lambda: {"keypoints_2d": np.concatenate([k2[..., :2], -k2[..., 2:]], axis=-1)},
         "valid_wrong_length": lambda: {"valid": np.ones(T + 1, bool)},
+        # written by other code: text where numbers belong
+        "text_fps": lambda: {"fps": "abc"}, "empty_fps": lambda: {"fps": np.zeros(0)},
+        "text_keypoints": lambda: {"keypoints_2d": k2.astype(str)}, "nan_size": lambda: {"image_size": [np.nan, 480]},
+        "text_seconds_per_frame": lambda: {"seconds_per_frame": "fast"},
     }
     if broken in ("missing_fps", "missing_3d"):
         del arrays["fps" if broken == "missing_fps" else "landmarks_3d"]

@@ -30,7 +30,9 @@ EXPORT_FORMATS: tuple[str, ...] = ("bvh", "glb", "opensim")
 
 def body_from_result(result: dict[str, np.ndarray]) -> BodyModel:
     """The run's body model, rebuilt exactly from result["body_lengths"] (JSON) and result["body_mass"] (kg)."""
-    lengths = SkeletonLengths(**json.loads(str(result["body_lengths"])))
+    if "body_lengths" not in result:
+        raise InputError("the result file lacks body_lengths, which exporting needs: capture it again.")
+    lengths = SkeletonLengths(**json.loads(str(result["body_lengths"])))  # checked by load_result
     return build_body_model(lengths, float(result["body_mass"]))
 
 

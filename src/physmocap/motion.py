@@ -16,6 +16,15 @@ from .io.atomic import read_npz, save_npz
 from .landmarks import NUM_LANDMARKS
 
 
+def _numbers(path: Path, key: str, value) -> np.ndarray:
+    """value as a float64 array, or InputError naming the file and the key (a file written by other code may hold
+    text or objects there)."""
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{path}: {key} must hold numbers, got {np.asarray(value).dtype} values.") from None
+
+
 def valid_runs(valid: np.ndarray) -> list[tuple[int, int]]:
     """[start, stop) of every run of valid frames."""
     edges = np.flatnonzero(np.diff(np.concatenate([[0], valid.astype(int), [0]])))
@@ -120,22 +129,23 @@ class Observations:
         for key in ("keypoints_2d", "landmarks_3d", "fps", "image_size"):
             if key not in contents:
                 raise InputError(f"{path}: observations file has no '{key}' array.")
-        k2, k3 = contents["keypoints_2d"], contents["landmarks_3d"]
+        k2, k3 = (_numbers(path, key, contents[key]) for key in ("keypoints_2d", "landmarks_3d"))
         if k2.ndim != 3 or k2.shape[1:] != (NUM_LANDMARKS, 3):
             raise InputError(f"{path}: keypoints_2d has shape {k2.shape}, expected (T, {NUM_LANDMARKS}, 3).")
         if k3.shape != k2.shape:
             raise InputError(f"{path}: landmarks_3d has shape {k3.shape}, expected {k2.shape} like keypoints_2d.")
         if len(k2) == 0:
             raise InputError(f"{path}: observations file holds no frames.")
-        fps = float(np.asarray(contents["fps"]).reshape(-1)[0])
+        fps_values = _numbers(path, "fps", contents["fps"]).reshape(-1)
+        fps = float(fps_values[0]) if fps_values.size else float("nan")
         if not np.isfinite(fps) or fps <= 0:
             raise InputError(f"{path}: fps is {fps}, expected a positive number.")
-        size = np.asarray(contents["image_size"]).reshape(-1)
-        if size.shape != (2,) or np.any(size <= 0):
+        size = _numbers(path, "image_size", contents["image_size"]).reshape(-1)
+        if size.shape != (2,) or not np.all(np.isfinite(size) & (size > 0)):
             raise InputError(f"{path}: image_size is {size.tolist()}, expected (width, height) in pixels.")
-        K = contents.get("camera_K")
-        if K is not None and np.asarray(K).shape != (3, 3):
-            raise InputError(f"{path}: camera_K has shape {np.asarray(K).shape}, expected (3, 3).")
+        K = None if contents.get("camera_K") is None else _numbers(path, "camera_K", contents["camera_K"])
+        if K is not None and (K.shape != (3, 3) or not np.isfinite(K).all()):
+            raise InputError(f"{path}: camera_K is {K.tolist()}, expected a finite (3, 3) matrix.")
         valid = contents.get("valid")
         if valid is not None and valid.shape != (len(k2),):
             raise InputError(f"{path}: valid has shape {valid.shape}, expected ({len(k2)},).")
@@ -152,15 +162,18 @@ class Observations:
         if repeated is not None and repeated.shape != (len(k2),):
             raise InputError(f"{path}: repeated has shape {repeated.shape}, expected one flag for each of the "
                              f"{len(k2)} frames.")
+        spf = _numbers(path, "seconds_per_frame", contents.get("seconds_per_frame", 0.0)).reshape(-1)
+        if not np.all(np.isfinite(spf) & (spf >= 0)):
+            raise InputError(f"{path}: seconds_per_frame is {spf.tolist()}, expected a number of seconds >= 0.")
         return cls(
             keypoints_2d=k2,
             landmarks_3d=k3,
             fps=fps,
             image_size=(int(size[0]), int(size[1])),
-            camera_K=None if K is None else np.asarray(K, dtype=np.float64),
+            camera_K=K,
             valid=np.asarray(valid, dtype=bool),
             invalid_reason=np.zeros(0, dtype=object) if reason is None else reason.astype(object),
             repeated=np.zeros(0, dtype=bool) if repeated is None else np.asarray(repeated, dtype=bool),
             source=str(contents.get("source", path)),
-            seconds_per_frame=float(contents.get("seconds_per_frame", 0.0)),
+            seconds_per_frame=float(next(iter(spf), 0.0)),
         )

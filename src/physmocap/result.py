@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 from pathlib import Path
@@ -10,7 +11,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .body import kinematics as kin
-from .body.model import CONTACT_POINTS, JOINT_NAMES, LANDMARK_POINTS
+from .body.model import (
+    CONTACT_POINTS,
+    JOINT_NAMES,
+    LANDMARK_POINTS,
+    SkeletonLengths,
+    build_body_model,
+    template_lengths,
+)
 from .dynamics.stage import PhysicsMotion
 from .errors import InputError
 from .io.atomic import read_npz, save_npz
@@ -121,11 +129,69 @@ def save_result(path: str | os.PathLike, result: dict[str, np.ndarray]) -> None:
     save_npz(path, **out)
 
 
+# The numeric arrays a reader relies on, by shape: T frames, J points (joint_names), Q = the body's qpos width;
+# () a scalar. Optional keys are checked where present.
+RESULT_SHAPES: dict[str, tuple] = {
+    "fps": (), "body_mass": (), "body_height": (), "joints_world": ("T", "J", 3),
+    "joints_world_kinematic": ("T", "J", 3), "qpos": ("T", "Q"), "qpos_kinematic": ("T", "Q"),
+    "contacts": ("T", 4), "contacts_predicted": ("T", 4),
+    "stationary": ("T",), "grf": ("T", 4, 3), "residual_root_force": ("T", 6), "camera_K": (3, 3),
+    "camera_R": (3, 3), "camera_t": (3,), "floor": (4,), "keypoints_2d": ("T", 33, 3), "valid": ("T",),
+    "physics_unexplained": ("T",), "physics_fallback": ("T",), "physics_deviation": ("T",),
+    "balance_corrected": ("T",), "repeated_picture": ("T",), "reprojection_error": ("T",),
+    "reprojection_error_final": ("T",), "reprojection_measured": ("T",), "person_height_px": ("T",),
+}
+POSITIVE_SCALARS = ("fps", "body_mass", "body_height")
+
+
+def _check_lengths(path: Path, text: np.ndarray) -> None:
+    """body_lengths: a JSON object of every SkeletonLengths field, in finite metres (export rebuilds the body)."""
+    fields = set(SkeletonLengths.__dataclass_fields__)
+    try:
+        lengths = json.loads(str(text))
+    except ValueError:
+        lengths = None
+    if not (isinstance(lengths, dict) and set(lengths) == fields
+            and all(isinstance(v, (int, float)) and np.isfinite(v) for v in lengths.values())):
+        raise InputError(f"{path}: body_lengths must be a JSON object of the skeleton's {len(fields)} lengths in "
+                         "metres, as a capture writes it.")
+
+
+@functools.cache
+def _qpos_width() -> int:
+    """Every body has the template's joints, so one qpos width (the body's lengths move no coordinate)."""
+    return build_body_model(template_lengths()).nq
+
+
 def load_result(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    """Read a result file; InputError naming the file if it is missing, unreadable or incomplete."""
+    """Read a result file; InputError naming the file if it is missing, unreadable, incomplete, or holds an array
+    of another shape or type than RESULT_SHAPES, or a value that is not finite (every writer writes finite ones)."""
     path = Path(path)
     result = read_npz(path, "result")
     missing = [k for k in REQUIRED_KEYS if k not in result]
     if missing:
         raise InputError(f"{path}: result file lacks {', '.join(missing)}.")
+    names = result["joint_names"]
+    sizes = {"T": len(np.atleast_1d(result["joints_world"])), "J": len(np.atleast_1d(names)),
+             "Q": _qpos_width()}
+    if names.ndim != 1 or names.dtype.kind not in "US":
+        raise InputError(f"{path}: joint_names must be a list of names, got {names.dtype} values of shape "
+                         f"{names.shape}.")
+    for key, pattern in RESULT_SHAPES.items():
+        if key not in result:
+            continue
+        value = result[key]
+        expected = tuple(sizes.get(dim, dim) for dim in pattern)
+        if value.dtype.kind not in "biuf" or value.shape != expected:
+            shown = ", ".join(str(d) for d in pattern) + ("," if len(pattern) == 1 else "")
+            dims = ", ".join(f"{d} = {sizes[d]}" for d in pattern if isinstance(d, str))
+            raise InputError(f"{path}: {key} is {value.dtype} of shape {value.shape}, expected numbers of shape "
+                             f"({shown})" + (f" with {dims}." if dims else "."))
+        if not np.isfinite(value).all():
+            raise InputError(f"{path}: {key} holds values that are not finite.")
+    if "body_lengths" in result:
+        _check_lengths(path, result["body_lengths"])
+    bad = [key for key in POSITIVE_SCALARS if not float(result[key]) > 0]
+    if bad or sizes["T"] == 0:
+        raise InputError(f"{path}: " + (f"{', '.join(bad)} must be positive." if bad else "result holds no frames."))
     return result
