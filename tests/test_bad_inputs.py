@@ -376,3 +376,19 @@ def test_a_write_failure_during_the_run_is_exit_4(tmp_path, monkeypatch):
 def test_live_without_an_output_folder_says_nothing_is_saved(tmp_path):
     code, _, err = run_cli("live", _one_frame_video(tmp_path, 3), "--as-fast-as-possible")
     assert code == 0 and "nothing will be saved" in err and "Traceback" not in err
+
+
+def test_an_online_start_on_a_frame_too_little_seen_for_depth_is_placed_by_the_next(tmp_path):
+    """The online warm-up's first frame shows one point: its depth (the skeleton's spread against the picture's)
+    cannot be measured, the next frame's can. The start takes the next frame's depth (it took the unmeasured one,
+    and every pose came out NaN)."""
+    arrays = observation_arrays(6)
+    arrays["keypoints_2d"][0, :, 2] = 0.0
+    arrays["keypoints_2d"][0, 23, 2] = 0.9  # the left hip alone
+    np.savez(tmp_path / "obs.npz", **arrays)
+    code, _, err = run_cli("capture", "--observations", tmp_path / "obs.npz", "-o", tmp_path / "run", "--online",
+                           "--physics", "none", "--no-overlay")
+    assert_clean(code, err, tmp_path / "run", expected=(0,))
+    from physmocap.result import load_result
+
+    assert np.isfinite(load_result(tmp_path / "run" / "result.npz")["qpos"]).all()

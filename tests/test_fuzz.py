@@ -1,5 +1,6 @@
-"""Property-based tests (hypothesis): generated observations files and settings files run through the command line
-in-process always end with a documented exit code, no traceback on stderr and nothing half-written in -o.
+"""Property-based tests (hypothesis): generated observations files, settings files and edited result files run
+through the command line in-process always end with a documented exit code, no traceback on stderr and nothing
+half-written in -o.
 
 CI runs the default profile (100 examples per test, well under a minute); `pytest tests/test_fuzz.py
 --hypothesis-profile=long` runs thousands (see BENCHMARKS.md, "Bad inputs (issue 22)")."""
@@ -188,3 +189,48 @@ def test_any_settings_file_ends_in_a_documented_exit(good_observations, text):
         event(f"exit {code}")
         assert_clean(code, err, out)
         assert code != 1, _crash_log(out)
+
+
+@pytest.fixture(scope="module")
+def good_result(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("fuzz_result")
+    np.savez(folder / "obs.npz", **observation_arrays(6))
+    code, _, err = run_cli("capture", "--observations", folder / "obs.npz", "-o", folder / "run", *FAST)
+    assert code == 0, err
+    return folder / "run" / "result.npz"
+
+
+RIG = Path(__file__).parent / "data" / "rig_cc3_iclone.bvh"
+MUTATIONS = {  # how another program might have changed one array of a result file
+    "text": lambda a: a.astype(str), "nan": lambda a: np.full(a.shape, np.nan),
+    "inf": lambda a: np.full(a.shape, np.inf),
+    "one_frame_less": lambda a: a[:-1], "scalar": lambda a: np.array(1.0), "empty": lambda a: np.zeros(0),
+    "negative": lambda a: -np.abs(a.astype(float)) - 1, "flattened": lambda a: a.reshape(-1),
+    "extra_axis": lambda a: a[..., None], "zeros": lambda a: np.zeros(a.shape), "huge": lambda a: a * 1e12 + 1e12,
+}
+
+
+@settings(suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(st.data())
+def test_any_edited_result_file_ends_in_a_documented_exit(good_result, data):
+    arrays = dict(np.load(good_result, allow_pickle=False))
+    key = data.draw(st.sampled_from(sorted(arrays)))
+    mutation = data.draw(st.sampled_from(sorted(MUTATIONS) + ["deleted"]))
+    command = data.draw(st.sampled_from([["export", "--to", "bvh"], ["export", "--to", "glb"],
+                                         ["export", "--to", "opensim"], ["evaluate"],
+                                         ["retarget", "--character", RIG]]))
+    if mutation == "deleted":
+        del arrays[key]
+    else:
+        try:
+            arrays[key] = MUTATIONS[mutation](arrays[key])
+        except (TypeError, ValueError, IndexError):  # e.g. a text array made negative: nothing to try
+            return
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "result.npz"
+        np.savez(path, **arrays)
+        out = Path(tmp) / "out"
+        code, _, err = run_cli(command[0], path, *command[1:], *(["-o", out] if command[0] != "evaluate" else []))
+        event(f"exit {code}")
+        assert_clean(code, err)
+        assert code != 1, (key, mutation, err, _crash_log(out), _crash_log(Path(tmp)))

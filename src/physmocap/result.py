@@ -142,9 +142,10 @@ RESULT_SHAPES: dict[str, tuple] = {
     "reprojection_error_final": ("T",), "reprojection_measured": ("T",), "person_height_px": ("T",),
 }
 POSITIVE_SCALARS = ("fps", "body_mass", "body_height")
+UNIT_TOLERANCE = 1e-3  # of qpos's quaternions, camera_R, the floor's normal, body_height; a capture's are within 1e-12
 
 
-def _check_lengths(path: Path, text: np.ndarray) -> None:
+def _checked_lengths(path: Path, text: np.ndarray) -> SkeletonLengths:
     """body_lengths: a JSON object of every SkeletonLengths field, in finite metres (export rebuilds the body)."""
     fields = set(SkeletonLengths.__dataclass_fields__)
     try:
@@ -155,12 +156,17 @@ def _check_lengths(path: Path, text: np.ndarray) -> None:
             and all(isinstance(v, (int, float)) and np.isfinite(v) for v in lengths.values())):
         raise InputError(f"{path}: body_lengths must be a JSON object of the skeleton's {len(fields)} lengths in "
                          "metres, as a capture writes it.")
+    return SkeletonLengths(**lengths)
 
 
 @functools.cache
-def _qpos_width() -> int:
-    """Every body has the template's joints, so one qpos width (the body's lengths move no coordinate)."""
-    return build_body_model(template_lengths()).nq
+def _qpos_layout() -> tuple[int, tuple[int, ...]]:
+    """(qpos width, first index of each quaternion in qpos): every body has the template's joints, so one layout
+    (the body's lengths move no coordinate)."""
+    body = build_body_model(template_lengths())
+    starts = tuple(int(a) + (3 if b.joint_type == "free" else 0)
+                   for a, b in zip(body.qpos_address, body.bodies, strict=True) if b.joint_type in ("free", "ball"))
+    return body.nq, starts
 
 
 def load_result(path: str | os.PathLike) -> dict[str, np.ndarray]:
@@ -173,7 +179,7 @@ def load_result(path: str | os.PathLike) -> dict[str, np.ndarray]:
         raise InputError(f"{path}: result file lacks {', '.join(missing)}.")
     names = result["joint_names"]
     sizes = {"T": len(np.atleast_1d(result["joints_world"])), "J": len(np.atleast_1d(names)),
-             "Q": _qpos_width()}
+             "Q": _qpos_layout()[0]}
     if names.ndim != 1 or names.dtype.kind not in "US":
         raise InputError(f"{path}: joint_names must be a list of names, got {names.dtype} values of shape "
                          f"{names.shape}.")
@@ -189,9 +195,28 @@ def load_result(path: str | os.PathLike) -> dict[str, np.ndarray]:
                              f"({shown})" + (f" with {dims}." if dims else "."))
         if not np.isfinite(value).all():
             raise InputError(f"{path}: {key} holds values that are not finite.")
-    if "body_lengths" in result:
-        _check_lengths(path, result["body_lengths"])
     bad = [key for key in POSITIVE_SCALARS if not float(result[key]) > 0]
     if bad or sizes["T"] == 0:
         raise InputError(f"{path}: " + (f"{', '.join(bad)} must be positive." if bad else "result holds no frames."))
+    _check_geometry(path, result)
     return result
+
+
+def _check_geometry(path: Path, result: dict[str, np.ndarray]) -> None:
+    """What a capture writes beyond shapes: unit quaternions in qpos, a rotation in camera_R, a unit floor normal,
+    and body_lengths (JSON) whose standing height is body_height."""
+    for key in ("qpos", "qpos_kinematic"):
+        if key in result:
+            norms = np.linalg.norm(np.stack([result[key][:, i:i + 4] for i in _qpos_layout()[1]], axis=1), axis=-1)
+            if np.any(np.abs(norms - 1.0) > UNIT_TOLERANCE):
+                raise InputError(f"{path}: {key} holds rotations that are not unit quaternions.")
+    R = result["camera_R"]
+    if np.abs(R @ R.T - np.eye(3)).max() > UNIT_TOLERANCE or np.linalg.det(R) < 0:
+        raise InputError(f"{path}: camera_R is not a rotation.")
+    if abs(np.linalg.norm(result["floor"][:3]) - 1.0) > UNIT_TOLERANCE:
+        raise InputError(f"{path}: floor's normal (its first three numbers) is not a unit vector.")
+    if "body_lengths" in result:
+        height = _checked_lengths(path, result["body_lengths"]).standing_height
+        if abs(height - float(result["body_height"])) > UNIT_TOLERANCE * height:
+            raise InputError(f"{path}: body_height {float(result['body_height']):g} m is not the standing height of "
+                             f"body_lengths ({height:g} m).")

@@ -49,7 +49,7 @@ def edge_easing(held: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
     weights, edges = held.astype(float), np.where(held, np.arange(len(held))[:, None], -1)
     for k in range(held.shape[1]):
         for start, end in valid_runs(held[:, k]):
-            for d in range(1, frames + 1):
+            for d in range(1, min(frames, len(held)) + 1):  # no frame lies further away
                 weight = 1.0 - d / (frames + 1)
                 for t, edge in ((start - d, start), (end - 1 + d, end - 1)):
                     if 0 <= t < len(held) and not held[t, k] and weight > weights[t, k]:

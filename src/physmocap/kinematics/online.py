@@ -16,6 +16,7 @@ from ..body.model import BodyModel, build_body_model
 from ..camera import Camera, Floor, world_from_floor
 from ..config import Settings
 from ..detect.foot_swaps import CausalFootSwaps, find_foot_swaps, swap_feet, undo_foot_swaps
+from ..errors import ReconstructionError
 from ..landmarks import NUM_LANDMARKS
 from ..motion import Observations
 from .calibration import Calibration, calibrate, resolve_height
@@ -210,6 +211,9 @@ class OnlineFitter:
         self.body = build_body_model(self.calibration.lengths, s.body.mass)
         first = int(np.argmax(valid))
         depth = raw_depth(k2, k3, valid, self.camera.focal, self.calibration, s.fit.min_confidence)
+        if not np.isfinite(depth).any():  # as offline (stage._fit_offline): nothing to place in depth
+            raise ReconstructionError("no frame of the warm-up shows enough of the person with enough confidence to "
+                                      "place them in depth.")
         if s.camera.floor is not None:  # the world is known: fit in it directly
             self.floor = Floor.from_plane(s.camera.floor)
             targets = make_targets(k2[first:first + 1], k3[first:first + 1], valid[first:first + 1],
@@ -248,7 +252,9 @@ class OnlineFitter:
             if t == first or (valid[t] and not valid[t - 1] and np.isfinite(depth[t])):
                 self._past = CausalPast([], [])
                 self._depths.clear()
-                self._depths.append(float(depth[t]))
+                # the start's depth, or the next the held frames measure (_start made sure there is one)
+                later = depth[t:][np.isfinite(depth[t:])]
+                self._depths.append(float(later[0] if len(later) else depth[np.isfinite(depth)][-1]))
             fitted.append(self._fit(k2[t], k3[t], valid[t]))
         return fitted
 
