@@ -15,6 +15,7 @@ from .body.model import (
     CONTACT_POINTS,
     JOINT_NAMES,
     LANDMARK_POINTS,
+    BodyModel,
     SkeletonLengths,
     build_body_model,
     template_lengths,
@@ -24,6 +25,7 @@ from .errors import InputError
 from .io.atomic import read_npz, save_npz
 from .io.finite import finite_result
 from .kinematics.stage import KinematicMotion, reprojection_errors
+from .landmarks import NUM_LANDMARKS
 from .motion import Observations
 
 if TYPE_CHECKING:
@@ -136,7 +138,7 @@ RESULT_SHAPES: dict[str, tuple] = {
     "joints_world_kinematic": ("T", "J", 3), "qpos": ("T", "Q"), "qpos_kinematic": ("T", "Q"),
     "contacts": ("T", 4), "contacts_predicted": ("T", 4),
     "stationary": ("T",), "grf": ("T", 4, 3), "residual_root_force": ("T", 6), "camera_K": (3, 3),
-    "camera_R": (3, 3), "camera_t": (3,), "floor": (4,), "keypoints_2d": ("T", 33, 3), "valid": ("T",),
+    "camera_R": (3, 3), "camera_t": (3,), "floor": (4,), "keypoints_2d": ("T", NUM_LANDMARKS, 3), "valid": ("T",),
     "physics_unexplained": ("T",), "physics_fallback": ("T",), "physics_deviation": ("T",),
     "balance_corrected": ("T",), "repeated_picture": ("T",), "reprojection_error": ("T",),
     "reprojection_error_final": ("T",), "reprojection_measured": ("T",), "person_height_px": ("T",),
@@ -160,13 +162,9 @@ def _checked_lengths(path: Path, text: np.ndarray) -> SkeletonLengths:
 
 
 @functools.cache
-def _qpos_layout() -> tuple[int, tuple[int, ...]]:
-    """(qpos width, first index of each quaternion in qpos): every body has the template's joints, so one layout
-    (the body's lengths move no coordinate)."""
-    body = build_body_model(template_lengths())
-    starts = tuple(int(a) + (3 if b.joint_type == "free" else 0)
-                   for a, b in zip(body.qpos_address, body.bodies, strict=True) if b.joint_type in ("free", "ball"))
-    return body.nq, starts
+def _template_body() -> BodyModel:
+    """The qpos layout of every result: each body has the template's joints (its lengths move no coordinate)."""
+    return build_body_model(template_lengths())
 
 
 def load_result(path: str | os.PathLike) -> dict[str, np.ndarray]:
@@ -179,7 +177,7 @@ def load_result(path: str | os.PathLike) -> dict[str, np.ndarray]:
         raise InputError(f"{path}: result file lacks {', '.join(missing)}.")
     names = result["joint_names"]
     sizes = {"T": len(np.atleast_1d(result["joints_world"])), "J": len(np.atleast_1d(names)),
-             "Q": _qpos_layout()[0]}
+             "Q": _template_body().nq}
     if names.ndim != 1 or names.dtype.kind not in "US":
         raise InputError(f"{path}: joint_names must be a list of names, got {names.dtype} values of shape "
                          f"{names.shape}.")
@@ -207,7 +205,8 @@ def _check_geometry(path: Path, result: dict[str, np.ndarray]) -> None:
     and body_lengths (JSON) whose standing height is body_height."""
     for key in ("qpos", "qpos_kinematic"):
         if key in result:
-            norms = np.linalg.norm(np.stack([result[key][:, i:i + 4] for i in _qpos_layout()[1]], axis=1), axis=-1)
+            quaternions = result[key][:, _template_body().quaternion_addresses[:, None] + np.arange(4)]
+            norms = np.linalg.norm(quaternions, axis=-1)
             if np.any(np.abs(norms - 1.0) > UNIT_TOLERANCE):
                 raise InputError(f"{path}: {key} holds rotations that are not unit quaternions.")
     R = result["camera_R"]

@@ -182,12 +182,17 @@ class BodyModel:
         return out
 
     @cached_property
+    def quaternion_addresses(self) -> np.ndarray:
+        """(n,) the index in qpos of each quaternion's w: the root's (after its position), then each ball joint's."""
+        return np.array([address + (3 if b.joint_type == "free" else 0)
+                         for address, b in zip(self.qpos_address, self.bodies, strict=True)
+                         if b.joint_type in ("free", "ball")], dtype=int)
+
+    @cached_property
     def rest_qpos(self) -> np.ndarray:
         """(nq,) the T-pose with the soles on the floor."""
         q = np.zeros(self.nq)
-        for i, b in enumerate(self.bodies):
-            if b.joint_type in ("free", "ball"):
-                q[self.qpos_address[i] + (3 if b.joint_type == "free" else 0)] = 1.0
+        q[self.quaternion_addresses] = 1.0
         L = self.lengths
         q[2] = L.ankle_height + L.shank + L.thigh
         return q

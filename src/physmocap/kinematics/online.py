@@ -252,9 +252,9 @@ class OnlineFitter:
             if t == first or (valid[t] and not valid[t - 1] and np.isfinite(depth[t])):
                 self._past = CausalPast([], [])
                 self._depths.clear()
-                # the start's depth, or the next the held frames measure (_start made sure there is one)
-                later = depth[t:][np.isfinite(depth[t:])]
-                self._depths.append(float(later[0] if len(later) else depth[np.isfinite(depth)][-1]))
+                # the start's depth, or the next the held frames measure (_start made sure there is one, and
+                # raw_depth measures none before the first valid frame)
+                self._depths.append(float(depth[t:][np.isfinite(depth[t:])][0]))
             fitted.append(self._fit(k2[t], k3[t], valid[t]))
         return fitted
 
