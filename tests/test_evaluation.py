@@ -64,3 +64,25 @@ def test_evaluate_command_writes_json_and_rejects_a_bad_truth(case, tmp_path, ca
     with pytest.raises(InputError):
         evaluate(folder / "result.npz", tmp_path / "bad.npz")
     assert main(["evaluate", str(folder / "result.npz"), "--truth", str(tmp_path / "bad.npz")]) == 2
+
+
+@pytest.mark.parametrize("key, change, words", [
+    ("joint_names", lambda a: a[::-1][:5], "joint_names must list each"),
+    ("joint_names", lambda a: np.arange(len(a)), "joint_names must list each"),
+    ("joints_world", lambda a: a.astype(str), "joints_world must be numbers of shape"),
+    ("joints_world", lambda a: np.where(a > 1.0, np.nan, a), "joints_world holds a value that is not a finite"),
+    ("joints_world", lambda a: a[:-1], "the truth has 39 frames and the run"),
+    ("camera_R", lambda a: 2 * a, "camera_R is not a rotation"),
+    ("camera_R", lambda a: a.reshape(-1), "camera_R must be numbers of shape"),
+    ("camera_t", lambda a: np.full(3, np.inf), "camera_t holds a value"),
+    ("fps", lambda a: np.float64(0.0), "fps must be positive"),
+])
+def test_a_truth_file_from_other_code_is_refused_in_one_sentence(case, tmp_path, capsys, key, change, words):
+    """Truth files written by other programs: each breakage of what scoring reads ends in exit 2 and a sentence
+    naming the file and the key, not in a traceback or in NaN scores."""
+    folder, truth = case
+    broken = dict(truth, **{key: change(np.asarray(truth[key]))})
+    np.savez(tmp_path / "truth.npz", **broken)
+    assert main(["evaluate", str(folder / "result.npz"), "--truth", str(tmp_path / "truth.npz")]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and words in err and "truth.npz" in err

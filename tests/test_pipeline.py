@@ -7,6 +7,7 @@ import json
 import logging
 import os
 import shutil
+from pathlib import Path
 
 import av
 import numpy as np
@@ -16,6 +17,7 @@ from conftest import DEMO_VIDEO
 from physmocap import stages
 from physmocap.config import Settings
 from physmocap.errors import OutputLocationError
+from physmocap.evaluation import evaluate, write_evaluation
 from physmocap.motion import Observations
 from physmocap.pipeline import run_capture
 from physmocap.result import load_result
@@ -254,6 +256,26 @@ def test_partial_files_and_stale_outputs_are_removed(demo_folder, tmp_path):
     assert "overlay.mp4" not in (out / "report.html").read_text()
     assert json.loads((out / "summary.json").read_text())["files"] == summary.files
     assert summary.overlay_parts == 0
+
+
+def _strict_json(path: Path):
+    def refuse(token):
+        raise AssertionError(f"{path.name} holds {token}, which strict JSON parsers reject")
+    return json.loads(path.read_text(), parse_constant=refuse)
+
+
+def test_every_json_file_of_a_run_is_strict_json(demo_folder, tmp_path):
+    """The demo has no jump, so its video clock has no fall to measure: null, not NaN (summary.json), and so on
+    for the metrics no frame defines (metrics.json, evaluate's file)."""
+    out = tmp_path / "run"
+    shutil.copytree(demo_folder, out)
+    run_capture(out, KINEMATICS_ONLY, video=DEMO_VIDEO, overlay=False)
+    write_evaluation(out / "evaluation.json", evaluate(out / "result.npz"))
+    files = sorted(out.glob("*.json"))
+    assert {p.name for p in files} >= {"summary.json", "metrics.json", "evaluation.json"}
+    for path in files:
+        _strict_json(path)
+    assert _strict_json(out / "summary.json")["video_clock"]["fall"] is None
 
 
 @pytest.mark.parametrize("parts", [1, 2])

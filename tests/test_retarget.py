@@ -189,6 +189,9 @@ def test_unmapped_bones_are_listed_in_one_sentence_and_a_toml_map_fixes_them(tmp
     ('[mass.fractions]\nhead = 0.7\narms = 0.5\n', "mass.fractions"),
     ('[mass.fractions]\nbelly = 0.2\n', "belly"),
     ('units_to_metres = "cm"\n', "units_to_metres"),
+    ('units_to_metres = inf\n', "units_to_metres"),
+    ('units_to_metres = true\n', "units_to_metres"),
+    ('[mass]\ntotal = true\n', "mass.total"),
     ('[bones\n', "not a valid TOML"),
 ])
 def test_bad_character_maps_fail_with_one_sentence(tmp_path, text, words):
@@ -218,6 +221,65 @@ def test_unreadable_characters_fail_cleanly(tmp_path):
     lying.write_text(text.split("MOTION")[0] + "MOTION\nFrames: 0\nFrame Time: 0.03\n")
     with pytest.raises(InputError, match="does not stand"):
         build_character(read_rig(lying))
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda t: t.replace("OFFSET 0 -42 0", "OFFSET 0 nan 0", 1), "OFFSET of .* is not finite"),
+    (lambda t: t.replace("JOINT RightShoulder", "JOINT LeftShoulder", 1), "two joints are named LeftShoulder"),
+    (lambda t: t.rstrip()[:-1] + "inf\n", "not a finite number"),
+    (lambda t: t.replace("Frame Time: 0.0333333", "Frame Time: 1e400"), "Frame Time is inf"),
+    (lambda t: t.replace("OFFSET 0 -6 12", "OFFSET 0 -1e7 12", 1), "stands .* tall"),
+    (lambda t: t.replace("OFFSET 9 0 0", "OFFSET 1e30 0 0", 1), "hand_length measures"),
+])
+def test_characters_with_numbers_out_of_range_fail_in_one_sentence(tmp_path, edit, words):
+    """Numbers another program may write (NaN, infinity, an overflowing or absurd length) stop at the reader or at
+    the character's proportions, before the body model sees an infinite mass."""
+    path = convention_rig(tmp_path / "c.bvh", "cmu")
+    text = path.read_text()
+    path.write_text(edit(text))
+    assert path.read_text() != text
+    with pytest.raises(InputError, match=words):
+        build_character(read_rig(path))
+
+
+def _glb_edited(path: Path, edit) -> Path:
+    """A skinned GLB of the template body whose JSON chunk `edit` changes in place, written back byte for byte
+    otherwise (pygltflib would refuse to save some of these documents)."""
+    body = build_body_model(template_lengths(1.7), 70.0)
+    write_glb(path, body, body.rest_qpos[None], 30.0)
+    data = path.read_bytes()
+    size = int.from_bytes(data[12:16], "little")
+    document = json.loads(data[20:20 + size])
+    edit(document)
+    text = json.dumps(document).encode()
+    text += b" " * (-len(text) % 4)
+    binary = data[20 + size:]
+    body_bytes = len(text).to_bytes(4, "little") + b"JSON" + text + binary
+    path.write_bytes(b"glTF" + (2).to_bytes(4, "little") + (12 + len(body_bytes)).to_bytes(4, "little") + body_bytes)
+    return path
+
+
+def _first_child(document: dict) -> tuple[int, int]:
+    parent = next(i for i, n in enumerate(document["nodes"]) if n.get("children"))
+    return parent, document["nodes"][parent]["children"][0]
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda d: d["nodes"][_first_child(d)[1]].setdefault("children", []).append(_first_child(d)[0]), "cycle"),
+    (lambda d: d["nodes"][0].setdefault("children", []).append(_first_child(d)[1]), "two parents"),
+    (lambda d: d["bufferViews"][0].update(byteLength=10**9), "buffer view 0 does not lie inside"),
+    (lambda d: d["accessors"][0].update(bufferView=999), "accessor 0 names buffer view 999"),
+    (lambda d: d["nodes"][d["skins"][0]["joints"][1]].update(translation=[0.0, float("nan"), 0.0]), "not finite"),
+    (lambda d: d["skins"][0]["joints"].append(d["skins"][0]["joints"][0]), "twice"),
+    (lambda d: d["accessors"][d["skins"][0]["inverseBindMatrices"]].update(type="MAT5"), "malformed glTF"),
+])
+def test_gltf_characters_that_break_the_format_fail_in_one_sentence(tmp_path, edit, words):
+    """Documents another program may write that break glTF's rules: a node hierarchy with a cycle (which would
+    loop forever) or two parents, views outside the buffer, indices that do not exist, numbers that are not
+    finite. The writer, which copies every view into character.glb, relies on the same checks."""
+    path = _glb_edited(tmp_path / "c.glb", edit)
+    with pytest.raises(InputError, match=words):
+        build_character(read_rig(path))
 
 
 # ---- the character's body model ----------------------------------------------------------------------------------

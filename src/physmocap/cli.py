@@ -505,9 +505,9 @@ def cmd_batch(args) -> int:
 
 
 def cmd_live(args) -> int:
-    import json
     import time
 
+    from .io.finite import json_text
     from .live import stream_capture
 
     settings = settings_from_args(args)
@@ -537,7 +537,7 @@ def cmd_live(args) -> int:
                     latency_ms=round(details["latency_s"] * 1000, 1))
         if "grf" in details:
             line["grf_total_n"] = details["grf"].sum(axis=0).round(2).tolist()
-        stream.write(json.dumps(line) + "\n")
+        stream.write(json_text(line) + "\n")
         stream.flush()
 
     try:

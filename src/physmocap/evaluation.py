@@ -2,8 +2,9 @@
 pose, smoothness, floor and force metric of both papers against it. Backs `physmocap evaluate` and the
 synthetic benchmark.
 
-A truth file holds at least joint_names (J,), joints_world (T, J, 3) in its own world (Z up, floor z = 0),
-camera_R (3, 3) and camera_t (3,) of the camera that filmed it (world -> camera) and fps; `write_synthetic_case`
+A truth file holds at least joint_names (J,) (TRUTH_JOINTS among them), joints_world (T, J, 3) in its own world
+(Z up, floor z = 0, metres, finite), camera_R (3, 3) and camera_t (3,) of the camera that filmed it (world ->
+camera) and fps; `write_synthetic_case`
 in physmocap.mocap.synthetic writes such files. The run's points are brought into the truth's world through
 both cameras (run world -> camera -> truth world), so each side may choose its world freely; floor metrics then
 use the true floor and the true contacts (Rempe 3.2 labels of the true sole points).
@@ -11,7 +12,6 @@ use the true floor and the true contacts (Rempe 3.2 labels of the true sole poin
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
@@ -21,6 +21,7 @@ from . import metrics
 from .body.model import CONTACT_POINTS
 from .errors import InputError
 from .io.atomic import read_npz
+from .io.finite import json_text
 
 # Joints whose definitions agree between the body model, MediaPipe and motion capture skeletons (pelvis, spine,
 # neck and head are placed differently by each and are left out of pose errors).
@@ -91,6 +92,42 @@ def truth_grf_statistics(com: np.ndarray, truth: dict, body_mass: float, grf: np
     return metrics.grf_statistics(net, body_mass, contacts)
 
 
+TRUTH_JOINTS = tuple(dict.fromkeys(EVAL_JOINTS + CONTACT_POINTS))  # the truth's joints that a score reads
+
+
+def load_truth(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """A truth file (module docstring) checked for what scoring reads; InputError naming the file and the key
+    otherwise (a missing array, names without TRUTH_JOINTS, a shape, a number that is not finite, a camera_R
+    that is not a rotation, fps not positive)."""
+    truth = read_npz(path, "truth")
+    for key in ("joint_names", "joints_world", "camera_R", "camera_t", "fps"):
+        if key not in truth:
+            raise InputError(f"{path}: truth file has no '{key}' array.")
+    names = truth["joint_names"]
+    listed = [str(n) for n in names.reshape(-1)] if names.dtype.kind in "US" else []
+    missing = [j for j in TRUTH_JOINTS if listed.count(j) != 1]
+    if names.ndim != 1 or missing:
+        raise InputError(f"{path}: joint_names must list each of {', '.join(TRUTH_JOINTS)} once (first wrong: "
+                         f"{missing[0] if missing else 'its shape'}).")
+    expected = {"joints_world": f"(T, {len(names)}, 3)", "camera_R": "(3, 3)", "camera_t": "(3,)", "fps": "()"}
+    for key, shape in expected.items():
+        value = truth[key]
+        size_ok = (value.shape == (3, 3) if key == "camera_R" else value.shape == (3,) if key == "camera_t"
+                   else value.size == 1 if key == "fps" else value.ndim == 3 and value.shape[1:] == (len(names), 3)
+                   and len(value) > 0)
+        if value.dtype.kind not in "fiu" or not size_ok:
+            raise InputError(f"{path}: {key} must be numbers of shape {shape}, got {value.dtype} {value.shape}.")
+        if not np.isfinite(value).all():
+            raise InputError(f"{path}: {key} holds a value that is not a finite number.")
+        truth[key] = value.astype(float).reshape(() if key == "fps" else value.shape)
+    R = truth["camera_R"]
+    if np.abs(R @ R.T - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
+        raise InputError(f"{path}: camera_R is not a rotation.")
+    if truth["fps"] <= 0:
+        raise InputError(f"{path}: fps must be positive, got {float(truth['fps']):g}.")
+    return truth
+
+
 def to_truth_world(points: np.ndarray, R_run: np.ndarray, t_run: np.ndarray, truth: dict) -> np.ndarray:
     """(..., 3) points of the run's world -> the truth's world, through the camera both share."""
     camera = points @ np.asarray(R_run).T + t_run
@@ -110,10 +147,10 @@ def evaluate(result_path: str | os.PathLike, truth_path: str | os.PathLike | Non
                          for m in run_metrics(result)}}
     if truth_path is None:
         return out
-    truth = read_npz(truth_path, "truth")
-    for key in ("joint_names", "joints_world", "camera_R", "camera_t", "fps"):
-        if key not in truth:
-            raise InputError(f"{truth_path}: truth file has no '{key}' array.")
+    truth = load_truth(truth_path)
+    if len(truth["joints_world"]) != len(result["joints_world"]):
+        raise InputError(f"{truth_path}: the truth has {len(truth['joints_world'])} frames and the run {result_path} "
+                         f"{len(result['joints_world'])}; they must match.")
     body = body_from_result(result)
     names = list(result["joint_names"])
     physics = str(result.get("physics", "none")) != "none"
@@ -133,4 +170,4 @@ def evaluate(result_path: str | os.PathLike, truth_path: str | os.PathLike | Non
 def write_evaluation(path: str | os.PathLike, evaluation: dict) -> None:
     from .io.atomic import write_text
 
-    write_text(Path(path), json.dumps(evaluation, indent=2, default=float))
+    write_text(Path(path), json_text(evaluation, indent=2))

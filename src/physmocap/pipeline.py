@@ -19,7 +19,6 @@ at a time holds the folder (run_folder.py), and outputs an earlier run wrote but
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import os
 import time
@@ -34,6 +33,7 @@ from .contacts.footlock import lock_feet
 from .detect.repeats import interpolate_repeated
 from .errors import InputError
 from .io.atomic import write_text
+from .io.finite import json_text
 from .kinematics.calibration import height_line
 from .kinematics.clock import ClockCheck, check_clock
 from .kinematics.stage import KinematicMotion
@@ -104,7 +104,7 @@ class RunSummary:
     video_clock: dict = field(default_factory=dict)  # the jumps against the frame rate (kinematics.clock.ClockCheck)
 
     def to_json(self) -> str:
-        return json.dumps(asdict(self), indent=2)
+        return json_text(asdict(self), indent=2)
 
 
 def run_capture(out_dir: str | os.PathLike, settings: Settings, *, video: str | os.PathLike | None = None,

@@ -25,6 +25,7 @@ import physmocap  # noqa: F401 - single-threaded BLAS before numpy loads
 from ..config import Settings
 from ..cores import BATCH_WORKER_VARIABLE
 from ..errors import PhysmocapError
+from ..io.finite import json_text
 
 RUN_RECORD = "batch.json"
 ERROR_FILE = "error.txt"
@@ -128,7 +129,7 @@ def capture_one(task: BatchTask) -> dict:
     record = done_record(task, summary, time.perf_counter() - started)
     from ..io.atomic import write_text
 
-    write_text(run_dir / RUN_RECORD, json.dumps({"key": task.key, "record": record}, indent=1))
+    write_text(run_dir / RUN_RECORD, json_text({"key": task.key, "record": record}, indent=1))
     return record
 
 

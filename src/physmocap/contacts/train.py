@@ -21,7 +21,6 @@ docs/decisions/contact-training.md.
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 import subprocess
 import time
@@ -36,6 +35,7 @@ from torch import nn
 from .. import metrics
 from ..errors import InputError
 from ..io.atomic import atomic_path, write_text
+from ..io.finite import json_text
 from ..mocap.bvh_reader import MocapClip
 from .dataset import (
     TEST_SUBJECTS,
@@ -401,7 +401,7 @@ def train_contacts(
         "settings": asdict(settings),
         **results,
     }
-    write_text(out_dir / METADATA_FILE, json.dumps(metadata, indent=1, default=str))
+    write_text(out_dir / METADATA_FILE, json_text(metadata, indent=1))
     return metadata
 
 

@@ -1,10 +1,13 @@
 """Only finite numbers reach a file: every writer passes its per-frame arrays through `finite_frames`, which
 holds a frame with any non-finite value at the last finite frame (the first finite one before it) and says, as
-a logging warning naming the file, which frames it blanked."""
+a logging warning naming the file, which frames it blanked; every JSON file is written by `json_text`, where a
+measure that is not defined (NaN) reads null."""
 
 from __future__ import annotations
 
+import json
 import logging
+import math
 
 import numpy as np
 
@@ -66,3 +69,24 @@ def _rest_pose(result: dict[str, np.ndarray]) -> np.ndarray | None:
     from ..export import body_from_result
 
     return body_from_result(result).rest_qpos
+
+
+def _json_finite(value):
+    """`value` with every float that is not finite (numpy scalars and arrays included) as None."""
+    if isinstance(value, dict):
+        return {k: _json_finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_finite(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _json_finite(value.tolist())
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def json_text(value, indent: int | None = None, sort_keys: bool = False) -> str:
+    """Strict JSON of `value` (what every JSON file of a run holds): NaN and infinities as null, never as the
+    NaN / Infinity tokens that browsers' and jq's parsers reject; other objects by str()."""
+    return json.dumps(_json_finite(value), indent=indent, sort_keys=sort_keys, allow_nan=False, default=str)

@@ -103,14 +103,19 @@ def parse_bvh(text: str, source: str = "<string>") -> BvhData:
         values = np.array(motion_text[time_match.end() :].split(), dtype=np.float64)
     except (ValueError, IndexError) as exc:
         raise InputError(f"{source}: malformed BVH ({exc}).") from None
-    if frame_time <= 0:
+    if not frame_time > 0 or not np.isfinite(frame_time):
         raise InputError(f"{source}: Frame Time is {frame_time}, expected a positive number of seconds.")
     if values.size != num_frames * num_channels:
         raise InputError(
             f"{source}: the MOTION section holds {values.size} numbers, expected {num_frames} frames x "
             f"{num_channels} channels."
         )
-    return BvhData(tuple(joints), frame_time, values.reshape(num_frames, num_channels))
+    motion = values.reshape(num_frames, num_channels)
+    if not np.isfinite(motion).all():
+        frame, channel = np.argwhere(~np.isfinite(motion))[0]
+        raise InputError(f"{source}: the MOTION section holds a value that is not a finite number (frame {frame}, "
+                         f"channel {channel}).")
+    return BvhData(tuple(joints), frame_time, motion)
 
 
 def _parse_hierarchy(tokens: list[str]) -> tuple[list[BvhJoint], int]:
@@ -134,6 +139,10 @@ def _parse_hierarchy(tokens: list[str]) -> tuple[list[BvhJoint], int]:
             if tokens[position + 1] != "OFFSET":
                 raise ValueError(f"expected OFFSET in {name}")
             offset = np.array([float(v) for v in tokens[position + 2 : position + 5]])
+            if not np.isfinite(offset).all():
+                raise ValueError(f"the OFFSET of {name} is not finite")
+            if any(joint.name == name for joint in joints):
+                raise ValueError(f"two joints are named {name}")
             position += 5
             channels: tuple[str, ...] = ()
             if token != "End" and tokens[position] == "CHANNELS":

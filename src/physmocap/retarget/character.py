@@ -121,6 +121,7 @@ def build_character(rig: Rig, config: CharacterConfig | None = None, default_mas
     origin = np.array([hips_mid[0], hips_mid[1], lowest])
     rest = rotated - origin
     lengths, foot_tips, hand_tips = _measure(rig, bones, rest, A, units, origin, notes)
+    _check_proportions(rig, lengths)
     height = lengths.standing_height
     mass = config.mass
     if mass is None:
@@ -129,6 +130,23 @@ def build_character(rig: Rig, config: CharacterConfig | None = None, default_mas
     segment = _segments(rig, bones, body)
     alignment = _alignment(bones, rest, foot_tips, hand_tips, body)
     return Character(rig, bones, A, float(units), origin, rest, segment, alignment, body, tuple(notes))
+
+
+CHARACTER_HEIGHTS = (0.1, 20.0)  # m: the standing heights a character may have (a mouse to a giant)
+
+
+def _check_proportions(rig: Rig, lengths: SkeletonLengths) -> None:
+    """InputError unless the character stands CHARACTER_HEIGHTS tall and no length of its body exceeds its height
+    (an OFFSET or unit out of range would otherwise reach the body model as an infinite mass or inertia)."""
+    height = lengths.standing_height
+    low, high = CHARACTER_HEIGHTS
+    if not low <= height <= high:
+        raise InputError(f"{rig.path}: the character stands {height:.3g} m tall, outside {low:g}-{high:g} m; check its "
+                         "OFFSETs or set units_to_metres in a TOML map given with --character-map.")
+    for name, value in vars(lengths).items():
+        if not abs(value) <= height:
+            raise InputError(f"{rig.path}: the character's {name} measures {value:.3g} m, more than its height of "
+                             f"{height:.3g} m; check the rig's rest pose.")
 
 
 def _upright(rig: Rig, bones: dict[str, int]) -> bool:

@@ -84,6 +84,11 @@ MASS_GROUPS = ("head", "trunk", "arms", "legs")
 MAPPABLE = ROLES + ("pelvis", "spine", "neck")
 
 
+def _is_number(value) -> bool:
+    """An int or float of TOML; not a boolean (which Python counts as an int)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
 def load_character_config(path: str | os.PathLike | None) -> CharacterConfig:
     """Read the TOML map; InputError naming the file and the bad key."""
     if path is None:
@@ -103,16 +108,16 @@ def load_character_config(path: str | os.PathLike | None) -> CharacterConfig:
     if bad:
         raise InputError(f"{path}: [mass.fractions] key {bad[0]} is not one of {', '.join(MASS_GROUPS)}.")
     total = mass.get("total")
-    if total is not None and not (isinstance(total, (int, float)) and 1.0 <= total <= 2000.0):
+    if total is not None and not (_is_number(total) and 1.0 <= total <= 2000.0):
         raise InputError(f"{path}: mass.total must be a number of kg between 1 and 2000, got {total!r}.")
     shares = list(fractions.values())
-    in_range = all(isinstance(v, (int, float)) and 0.0 < v < 1.0 for v in shares)
+    in_range = all(_is_number(v) and 0.0 < v < 1.0 for v in shares)
     all_given = len(shares) == len(MASS_GROUPS)
     if not in_range or (all_given and abs(sum(shares) - 1.0) > 1e-6) or (not all_given and sum(shares) >= 1.0):
         raise InputError(f"{path}: mass.fractions must lie between 0 and 1 and add up to at most 1 (exactly 1 "
                          "when all four groups are given).")
     units = data.get("units_to_metres")
-    if units is not None and not (isinstance(units, (int, float)) and units > 0):
+    if units is not None and not (_is_number(units) and 0 < units < float("inf")):
         raise InputError(f"{path}: units_to_metres must be a positive number, got {units!r}.")
     return CharacterConfig({k: str(v) for k, v in bones.items()}, None if units is None else float(units),
                            None if total is None else float(total), {k: float(v) for k, v in fractions.items()},

@@ -175,18 +175,69 @@ def load_gltf(path: str | os.PathLike):
             gltf.convert_buffers(pygltflib.BufferFormat.BINARYBLOB)
     except Exception as exc:  # pygltflib raises whatever its JSON and struct parsing raise
         raise InputError(f"{path}: not a readable glTF/GLB file ({type(exc).__name__}: {exc}).") from None
+    _check_views(gltf, path)
     return gltf
+
+
+def _is_index(value, size: int) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and 0 <= value < size
+
+
+def _check_views(gltf, path: Path) -> None:
+    """InputError unless every buffer view lies inside its buffer and every accessor names a view that exists
+    (the reader reads them, and the writer copies every view when it adds the animation)."""
+    blob_size = len(gltf.binary_blob() or b"")
+    for i, view in enumerate(gltf.bufferViews):
+        offset, length = view.byteOffset or 0, view.byteLength
+        if not (_is_index(view.buffer, len(gltf.buffers)) and _is_index(offset, blob_size + 1)
+                and _is_index(length, blob_size + 1) and offset + length <= blob_size):
+            raise InputError(f"{path}: buffer view {i} does not lie inside its buffer ({blob_size} bytes).")
+    for i, accessor in enumerate(gltf.accessors):
+        if accessor.bufferView is not None and not _is_index(accessor.bufferView, len(gltf.bufferViews)):
+            raise InputError(f"{path}: accessor {i} names buffer view {accessor.bufferView}, which does not exist.")
 
 
 def read_gltf_rig(path: str | os.PathLike) -> Rig:
     """The first skin of a glTF/GLB file as a rig: its joints' rest TRS, the nodes above them, and the rest
-    vertices of the meshes it skins (each vertex by its most weighted joint)."""
+    vertices of the meshes it skins (each vertex by its most weighted joint). InputError naming the file for a
+    document that breaks the glTF rules it relies on (indices out of range, short buffers, a node hierarchy that
+    is not a forest, numbers that are not finite)."""
     gltf = load_gltf(path)
     if not gltf.skins:
         raise InputError(f"{path}: the glTF file has no skin (a rigged character is needed).")
+    try:
+        rig = _skin_rig(gltf, path)
+    except InputError:
+        raise
+    except (IndexError, KeyError, TypeError, ValueError, AttributeError) as exc:  # what indexing a broken one raises
+        raise InputError(f"{path}: a malformed glTF file ({type(exc).__name__}: {exc}).") from None
+    return rig
+
+
+def _node_parents(gltf, path) -> dict[int, int]:
+    """Each node's parent; InputError unless the nodes form trees (glTF 2.0, 3.5.3: one parent at most, no cycle)."""
+    node_parent: dict[int, int] = {}
+    for i, node in enumerate(gltf.nodes):
+        for child in node.children or []:
+            if not 0 <= child < len(gltf.nodes) or child in node_parent:
+                raise InputError(f"{path}: node {i} lists child {child}, which is out of range or has two parents.")
+            node_parent[child] = i
+    for start in node_parent:
+        seen, node = {start}, node_parent.get(start)
+        while node is not None:
+            if node in seen:
+                raise InputError(f"{path}: the node hierarchy has a cycle through node {node}.")
+            seen.add(node)
+            node = node_parent.get(node)
+    return node_parent
+
+
+def _skin_rig(gltf, path) -> Rig:
     skin = gltf.skins[0]
     joints = list(skin.joints)
-    node_parent = {c: i for i, n in enumerate(gltf.nodes) for c in (n.children or [])}
+    if len(set(joints)) != len(joints):
+        raise InputError(f"{path}: the skin lists a joint node twice.")
+    node_parent = _node_parents(gltf, path)
     joint_set = set(joints)
 
     def joint_parent(node: int) -> int:
@@ -223,6 +274,9 @@ def read_gltf_rig(path: str | os.PathLike) -> Rig:
     rig = Rig(names, parents, rest_local, base, np.zeros(len(ordered), bool), tuple(() for _ in ordered), 1.0,
               "gltf", str(path), tuple(ordered), _rest_vertices(gltf, skin, ordered, rest_local, parents, base),
               _vrm_humanoid(gltf, index))
+    arrays = (rig.rest_local, rig.base) + (() if rig.vertices is None else (rig.vertices,))
+    if not all(np.isfinite(a).all() for a in arrays):
+        raise InputError(f"{path}: the skeleton's rest transforms or vertices hold numbers that are not finite.")
     scales = [np.cbrt(abs(np.linalg.det(m[:3, :3]))) for m in rig.rest_world()]
     frames = [m[:3, :3] / s for m, s in zip(rig.rest_world(), scales, strict=True)]
     if any(not np.allclose(f @ f.T, np.eye(3), atol=1e-4) for f in frames):

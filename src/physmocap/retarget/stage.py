@@ -28,6 +28,7 @@ from ..config import Settings
 from ..errors import InputError
 from ..export import body_from_result
 from ..io.atomic import write_text
+from ..io.finite import json_text
 from ..metrics import (
     FLOATING_THRESHOLD,
     GRAVITY,
@@ -69,8 +70,8 @@ class RetargetReport:
     notes: list[str] = field(default_factory=list)
 
     def to_json(self) -> str:
-        return json.dumps(dict(files=self.files, metrics=self.metrics, character=self.character, notes=self.notes),
-                          indent=2)
+        return json_text(dict(files=self.files, metrics=self.metrics, character=self.character, notes=self.notes),
+                         indent=2)
 
 
 def _directions(points: np.ndarray, names: list[str], bones) -> np.ndarray:

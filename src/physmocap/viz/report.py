@@ -23,7 +23,7 @@ from ..body.kinematics import center_of_mass, forward_kinematics
 from ..body.model import CONTACT_POINTS, JOINT_NAMES, BodyModel
 from ..export import body_from_result
 from ..io.atomic import write_text
-from ..io.finite import finite_result
+from ..io.finite import finite_result, json_text
 from ..landmarks import LANDMARK_INDEX
 from .plots import write_plots
 from .viewer import com_over_support, support_polygons
@@ -258,9 +258,7 @@ def write_report_parts(run_dir: str | os.PathLike, result: dict[str, np.ndarray]
     plots = write_plots(result, run_dir / "plots")
     rows = run_metrics(result)
     metrics_path = run_dir / "metrics.json"
-    finite = {r.key: {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(r).items()}
-              for r in rows}
-    write_text(metrics_path, json.dumps(finite, indent=1, allow_nan=False))
+    write_text(metrics_path, json_text({r.key: asdict(r) for r in rows}, indent=1))
     return ReportParts(plots, rows, str(metrics_path))
 
 
