@@ -7,6 +7,8 @@ CI runs the default profile (100 examples per test, well under a minute); `pytes
 
 from __future__ import annotations
 
+import json
+import re
 import tempfile
 from pathlib import Path
 
@@ -14,6 +16,8 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, event, given, settings, strategies as st
 
+from physmocap.body.model import build_body_model, template_lengths
+from physmocap.io.glb import write_glb
 from test_bad_inputs import assert_clean, observation_arrays, run_cli
 
 pytestmark = pytest.mark.slow  # hundreds of generated inputs through the command line
@@ -234,3 +238,96 @@ def test_any_edited_result_file_ends_in_a_documented_exit(good_result, data):
         event(f"exit {code}")
         assert_clean(code, err)
         assert code != 1, (key, mutation, err, _crash_log(out), _crash_log(Path(tmp)))
+
+
+NUMBER = re.compile(r"-?\d+(?:\.\d+)?(?:e-?\d+)?")
+ODD_NUMBERS = ["nan", "inf", "-inf", "1e308", "-1e308", "0", "1e-300", "1e30", "x", ""]
+
+
+def _glb_parts(data: bytes) -> tuple[dict, bytes]:
+    size = int.from_bytes(data[12:16], "little")
+    return json.loads(data[20:20 + size]), data[20 + size:]
+
+
+def _glb_bytes(document: dict, rest: bytes) -> bytes:
+    text = json.dumps(document).encode()
+    text += b" " * (-len(text) % 4)
+    chunks = len(text).to_bytes(4, "little") + b"JSON" + text + rest
+    return b"glTF" + (2).to_bytes(4, "little") + (12 + len(chunks)).to_bytes(4, "little") + chunks
+
+
+def _leaves(value, path=()):
+    """(path, value) of every number in a JSON document."""
+    if isinstance(value, dict):
+        for key, item in value.items():
+            yield from _leaves(item, path + (key,))
+    elif isinstance(value, list):
+        for i, item in enumerate(value):
+            yield from _leaves(item, path + (i,))
+    elif isinstance(value, (int, float)) and not isinstance(value, bool):
+        yield path, value
+
+
+@pytest.fixture(scope="module")
+def good_glb(tmp_path_factory):
+    body = build_body_model(template_lengths(1.7), 70.0)
+    path = tmp_path_factory.mktemp("fuzz_glb") / "character.glb"
+    write_glb(path, body, body.rest_qpos[None], 30.0)
+    return path
+
+
+@settings(suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(st.data())
+def test_any_edited_character_ends_in_a_documented_exit(good_result, good_glb, data):
+    """A BVH rig with one number changed (NaN, infinity, an overflowing or absurd value, text), a channel count
+    changed, a joint renamed to another's name or the file cut short; or a GLB whose JSON has one number changed,
+    one key deleted or a node made its own ancestor: `retarget` runs or refuses in one sentence."""
+    if data.draw(st.booleans()):
+        name, text = "character.bvh", RIG.read_text()
+        kind = data.draw(st.sampled_from(["number", "number", "channels", "same_name", "cut"]))
+        if kind == "number":
+            match = data.draw(st.sampled_from(list(NUMBER.finditer(text[:text.index("MOTION") + 400]))))
+            text = text[:match.start()] + data.draw(st.sampled_from(ODD_NUMBERS)) + text[match.end():]
+        elif kind == "channels":
+            counts = list(re.finditer(r"CHANNELS (\d+)", text))
+            match = data.draw(st.sampled_from(counts))
+            text = text[:match.start(1)] + data.draw(st.sampled_from(["0", "1", "7", "-3"])) + text[match.end(1):]
+        elif kind == "same_name":
+            names = re.findall(r"JOINT (\S+)\n", text)
+            a, b = data.draw(st.permutations(names))[:2]
+            text = text.replace(f"JOINT {a}\n", f"JOINT {b}\n", 1)
+        else:
+            text = text[:data.draw(st.integers(0, len(text) - 1))]
+        content = text.encode()
+    else:
+        name = "character.glb"
+        document, rest = _glb_parts(good_glb.read_bytes())
+        kind = data.draw(st.sampled_from(["number", "number", "number", "delete", "cycle"]))
+        if kind == "number":
+            path, _ = data.draw(st.sampled_from(list(_leaves(document))))
+        elif kind == "delete":
+            path = data.draw(st.sampled_from([p[:cut] for p, _ in _leaves(document) for cut in (1, 2, 3)
+                                              if len(p) >= cut]))
+        *parents, last = path if kind != "cycle" else (None,)
+        if kind != "cycle":
+            holder = document
+            for key in parents:
+                holder = holder[key]
+        if kind == "number":
+            holder[last] = data.draw(st.sampled_from([float("nan"), float("inf"), -1, 0, 1e308, 10**9, 2.5]))
+        elif kind == "delete":
+            del holder[last]
+        else:
+            child = data.draw(st.sampled_from([n for node in document["nodes"] for n in node.get("children", [])]))
+            document["nodes"][child].setdefault("children", []).append(
+                next(i for i, node in enumerate(document["nodes"]) if child in node.get("children", [])))
+        content = _glb_bytes(document, rest)
+    event(f"{name} {kind}")
+    with tempfile.TemporaryDirectory() as tmp:
+        character = Path(tmp) / name
+        character.write_bytes(content)
+        out = Path(tmp) / "out"
+        code, _, err = run_cli("retarget", good_result, "--character", character, "-o", out, "--physics", "none")
+        event(f"exit {code}")
+        assert_clean(code, err)
+        assert code != 1, (kind, err, _crash_log(out), _crash_log(Path(tmp)))
