@@ -9,6 +9,7 @@ import contextlib
 import io
 import os
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -109,6 +110,18 @@ def _damaged_cache(tmp_path, name, damage):
     return obs
 
 
+def _symlink_loop(tmp_path) -> Path:
+    """A link that points at another that points back (resolving it fails)."""
+    (tmp_path / "loop_a").symlink_to(tmp_path / "loop_b")
+    (tmp_path / "loop_b").symlink_to(tmp_path / "loop_a")
+    return tmp_path / "loop_a"
+
+
+def _text(path, text):
+    path.write_text(text)
+    return path
+
+
 def _file(tmp_path, name="in_the_way"):
     path = tmp_path / name
     path.write_text("a file")
@@ -136,6 +149,14 @@ CASES = [
      {4}, ["/proc/physmocap"]),
     ("-o under /proc (export)", lambda p: ["export", _result(p), "--to", "glb", "-o", "/proc/physmocap"], {4}, []),
     ("detect -o under /proc", lambda p: ["detect", DEMO_VIDEO, "-o", "/proc/physmocap.npz"], {4}, []),
+    ("-o inside a symlink loop (capture)",
+     lambda p: ["capture", "--observations", save_obs(p / "o.npz"), "-o", _symlink_loop(p) / "run"], {4}, ["loop"]),
+    ("-o inside a symlink loop (batch)",
+     lambda p: ["batch", save_obs(p / "o.npz"), "-o", _symlink_loop(p) / "runs"], {4}, ["loop"]),
+    ("a video name longer than any file system allows",
+     lambda p: ["capture", p / ("v" * 5000 + ".mp4"), "-o", p / "out"], {2}, ["vvv", "too long"]),
+    ("a batch list with a NUL character", lambda p: ["batch", _text(p / "l.txt", "a.mp4\nb\0.mp4\n"), "-o",
+                                                     p / "out"], {2}, ["l.txt", "NUL"]),
     # root writes into a folder without write permission anyway: then the run succeeds (exit 0)
     ("-o folder without write permission",
      lambda p: ["capture", "--observations", save_obs(p / "o.npz"), "-o", _read_only_folder(p) / "run",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import logging
 import math
 import os
@@ -736,16 +737,28 @@ def _user_error(exc: BaseException, outputs: list[Path]) -> PhysmocapError | Non
     """The user-facing error `exc` stands for, or None when it is a bug."""
     if isinstance(exc, PhysmocapError):
         return exc
+    loop = re.fullmatch(r"Symlink loop from '(.*)'", str(exc)) if type(exc) is RuntimeError else None
+    if loop:  # Path.resolve's way of saying ELOOP before Python 3.13
+        exc = OSError(errno.ELOOP, os.strerror(errno.ELOOP), loop.group(1))
     if isinstance(exc, OSError):
-        where = Path(exc.filename).resolve() if isinstance(exc.filename, (str, Path)) else None
+        where = _resolved(exc.filename) if isinstance(exc.filename, (str, Path)) else None
         for folder in outputs:
             if where is not None and (where == folder or folder in where.parents):
                 return output_error(exc, folder)
-        if where is not None and isinstance(exc, (PermissionError, IsADirectoryError)):
+        unreachable = exc.errno in (errno.ENAMETOOLONG, errno.ELOOP)  # a path no file can have
+        if where is not None and (isinstance(exc, (PermissionError, IsADirectoryError)) or unreachable):
             return InputError(f"{exc.filename}: cannot be read ({exc.strerror}).")
     if isinstance(exc, MemoryError):
         return InputError("the input is too large for this machine's memory (try a shorter clip).")
     return None
+
+
+def _resolved(path) -> Path:
+    """`path` resolved, or only made absolute where it cannot be (a symlink loop; the handler must not fail)."""
+    try:
+        return Path(path).resolve()
+    except (OSError, RuntimeError):
+        return Path(os.path.abspath(path))
 
 
 def _output_locations(args) -> list[Path]:
@@ -757,7 +770,7 @@ def _output_locations(args) -> list[Path]:
         output = Path("runs") / (args.video or args.observations or Path("run")).stem
     if output is None:
         return []
-    output = Path(output).resolve()
+    output = _resolved(output)
     return [output] if args.command in ("capture", "live", "export", "train-contacts", "batch", "retarget") \
         else [output.parent]
 

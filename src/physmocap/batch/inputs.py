@@ -80,7 +80,10 @@ def _read_list(path: Path) -> list[str]:
         raise InputError(f"{path}: no such list file.") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: not a readable text file listing inputs ({exc}).") from None
-    return [line.strip() for line in text.splitlines() if line.strip() and not line.strip().startswith("#")]
+    lines = [line.strip() for line in text.splitlines() if line.strip() and not line.strip().startswith("#")]
+    if any("\0" in line for line in lines):
+        raise InputError(f"{path}: a line holds a NUL character, which no path can; not a list of inputs.")
+    return lines
 
 
 def unique_names(paths: list[Path]) -> list[str]:
