@@ -272,6 +272,7 @@ def _first_child(document: dict) -> tuple[int, int]:
     (lambda d: d["nodes"][d["skins"][0]["joints"][1]].update(translation=[0.0, float("nan"), 0.0]), "not finite"),
     (lambda d: d["skins"][0]["joints"].append(d["skins"][0]["joints"][0]), "twice"),
     (lambda d: d["accessors"][d["skins"][0]["inverseBindMatrices"]].update(type="MAT5"), "malformed glTF"),
+    (lambda d: d["materials"][0]["pbrMetallicRoughness"].update(metallicFactor=float("nan")), "not JSON compliant"),
 ])
 def test_gltf_characters_that_break_the_format_fail_in_one_sentence(tmp_path, edit, words):
     """Documents another program may write that break glTF's rules: a node hierarchy with a cycle (which would

@@ -173,7 +173,7 @@ def load_gltf(path: str | os.PathLike):
             raise ValueError("empty file")
         if path.suffix.lower() == ".gltf":
             gltf.convert_buffers(pygltflib.BufferFormat.BINARYBLOB)
-        gltf.to_json()  # glTF's JSON is RFC 8259's: NaN or Infinity anywhere would stop the writer, so stop here
+        gltf.to_json(allow_nan=False)  # RFC 8259 JSON: a NaN anywhere would stop the writer, so stop here
     except Exception as exc:  # pygltflib raises whatever its JSON and struct parsing raise
         raise InputError(f"{path}: not a readable glTF/GLB file ({type(exc).__name__}: {exc}).") from None
     _check_views(gltf, path)
