@@ -269,6 +269,7 @@ def _first_child(document: dict) -> tuple[int, int]:
     (lambda d: d["nodes"][0].setdefault("children", []).append(_first_child(d)[1]), "two parents"),
     (lambda d: d["bufferViews"][0].update(byteLength=10**9), "buffer view 0 does not lie inside"),
     (lambda d: d["accessors"][0].update(bufferView=999), "accessor 0 names buffer view 999"),
+    (lambda d: d["accessors"][0].update(count=1e308), "accessor 0 has a count"),
     (lambda d: d["nodes"][d["skins"][0]["joints"][1]].update(translation=[0.0, float("nan"), 0.0]), "JSON compliant"),
     (lambda d: [d["nodes"][j].update(scale=[1e200] * 3) for j in d["skins"][0]["joints"][:3]], "not finite"),
     (lambda d: d["skins"][0]["joints"].append(d["skins"][0]["joints"][0]), "twice"),

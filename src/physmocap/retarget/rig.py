@@ -196,6 +196,8 @@ def _check_views(gltf, path: Path) -> None:
     for i, accessor in enumerate(gltf.accessors):
         if accessor.bufferView is not None and not _is_index(accessor.bufferView, len(gltf.bufferViews)):
             raise InputError(f"{path}: accessor {i} names buffer view {accessor.bufferView}, which does not exist.")
+        if not (_is_index(accessor.count, blob_size + 1) and _is_index(accessor.byteOffset or 0, blob_size + 1)):
+            raise InputError(f"{path}: accessor {i} has a count or offset its buffer cannot hold.")
 
 
 def read_gltf_rig(path: str | os.PathLike) -> Rig:
@@ -210,7 +212,7 @@ def read_gltf_rig(path: str | os.PathLike) -> Rig:
         rig = _skin_rig(gltf, path)
     except InputError:
         raise
-    except (IndexError, KeyError, TypeError, ValueError, AttributeError) as exc:  # what indexing a broken one raises
+    except (IndexError, KeyError, TypeError, ValueError, AttributeError, OverflowError) as exc:  # indexing a broken one
         raise InputError(f"{path}: a malformed glTF file ({type(exc).__name__}: {exc}).") from None
     return rig
 
