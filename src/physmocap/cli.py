@@ -192,7 +192,10 @@ def _add_evaluate_command(sub: argparse._SubParsersAction) -> None:
                         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     ev.add_argument("result", type=Path, help="a result.npz")
     ev.add_argument("--truth", type=Path, default=None,
-                    help="truth .npz (joint_names, joints_world, camera_R, camera_t, fps), e.g. a synthetic case")
+                    help="truth .npz, e.g. a synthetic case: joint_names (J,) with the shoulders, elbows, wrists, "
+                         "hips, knees, ankles, heels and toes by the body model's names (left_knee, ...); "
+                         "joints_world (T, J, 3) in metres, Z up, floor z = 0, the run's T frames; camera_R (3, 3) "
+                         "and camera_t (3,) of the camera (world -> camera); fps")
     ev.add_argument("-o", "--output", type=Path, default=None,
                     help="evaluation JSON to write (default: evaluation.json beside the result)")
 
