@@ -192,6 +192,12 @@ def test_unmapped_bones_are_listed_in_one_sentence_and_a_toml_map_fixes_them(tmp
     ('units_to_metres = inf\n', "units_to_metres"),
     ('units_to_metres = true\n', "units_to_metres"),
     ('[mass]\ntotal = true\n', "mass.total"),
+    ('bones = 3\n', "bones must be a table"),
+    ('mass = 70\n', "mass must be a table"),
+    ('[mass]\nfractions = 0.3\n', "mass.fractions must be a table"),
+    ('[mass.fractions]\nhead = 1e-320\n', "mass.fractions"),
+    ('[mass.fractions]\nhead = 0.9999999\n', "mass.fractions"),
+    ('[bones]\nhead = 5\n', "bone's name in quotes"),
     ('[bones\n', "not a valid TOML"),
 ])
 def test_bad_character_maps_fail_with_one_sentence(tmp_path, text, words):

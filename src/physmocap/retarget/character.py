@@ -112,6 +112,7 @@ def build_character(rig: Rig, config: CharacterConfig | None = None, default_mas
                              "set units_to_metres in a TOML map given with --character-map.")
         notes.append(f"length unit taken as {units:g} m")
     rotated = positions @ A.T * units
+    _check_height(rig, float(np.ptp(rotated[:, 2])))  # the joints' extent, before measuring anything in metres
     lowest = rotated[:, 2].min()
     if rig.vertices is not None and len(rig.vertices):
         lowest = float((rig.vertices @ A.T * units)[:, 2].min())
@@ -135,14 +136,19 @@ def build_character(rig: Rig, config: CharacterConfig | None = None, default_mas
 CHARACTER_HEIGHTS = (0.1, 20.0)  # m: the standing heights a character may have (a mouse to a giant)
 
 
-def _check_proportions(rig: Rig, lengths: SkeletonLengths) -> None:
-    """InputError unless the character stands CHARACTER_HEIGHTS tall and no length of its body exceeds its height
-    (an OFFSET or unit out of range would otherwise reach the body model as an infinite mass or inertia)."""
-    height = lengths.standing_height
+def _check_height(rig: Rig, height: float) -> None:
+    """InputError unless `height` (m) lies within CHARACTER_HEIGHTS."""
     low, high = CHARACTER_HEIGHTS
     if not low <= height <= high:
         raise InputError(f"{rig.path}: the character stands {height:.3g} m tall, outside {low:g}-{high:g} m; check its "
                          "OFFSETs or set units_to_metres in a TOML map given with --character-map.")
+
+
+def _check_proportions(rig: Rig, lengths: SkeletonLengths) -> None:
+    """InputError unless the character stands CHARACTER_HEIGHTS tall and no length of its body exceeds its height
+    (an OFFSET or unit out of range would otherwise reach the body model as an infinite mass or inertia)."""
+    height = lengths.standing_height
+    _check_height(rig, height)
     for name, value in vars(lengths).items():
         if not abs(value) <= height:
             raise InputError(f"{rig.path}: the character's {name} measures {value:.3g} m, more than its height of "

@@ -84,6 +84,17 @@ MASS_GROUPS = ("head", "trunk", "arms", "legs")
 MAPPABLE = ROLES + ("pelvis", "spine", "neck")
 
 
+MIN_MASS_FRACTION = 1e-3  # the smallest share of a group (a tenth of a human's hands'), so no segment is massless
+
+
+def _table(data: dict, key: str, path: Path, prefix: str = "") -> dict:
+    """data[key] as a TOML table ({} when absent); InputError when it is a plain value."""
+    value = data.get(key, {})
+    if not isinstance(value, dict):
+        raise InputError(f"{path}: {prefix}{key} must be a table ([{prefix}{key}] with keys below it), got {value!r}.")
+    return value
+
+
 def _is_number(value) -> bool:
     """An int or float of TOML; not a boolean (which Python counts as an int)."""
     return isinstance(value, (int, float)) and not isinstance(value, bool)
@@ -98,12 +109,15 @@ def load_character_config(path: str | os.PathLike | None) -> CharacterConfig:
     unknown = set(data) - {"bones", "units_to_metres", "mass"}
     if unknown:
         raise InputError(f"{path}: unknown key {sorted(unknown)[0]} (expected bones, units_to_metres, mass).")
-    bones = data.get("bones", {})
+    bones = _table(data, "bones", path)
     bad = [k for k in bones if k not in MAPPABLE]
     if bad:
         raise InputError(f"{path}: [bones] key {bad[0]} is not a body-model joint (one of {', '.join(MAPPABLE)}).")
-    mass = data.get("mass", {})
-    fractions = mass.get("fractions", {})
+    mass = _table(data, "mass", path)
+    fractions = _table(mass, "fractions", path, "mass.")
+    unnamed = [k for k, v in bones.items() if not isinstance(v, str) or not v]
+    if unnamed:
+        raise InputError(f"{path}: [bones] {unnamed[0]} must be a bone's name in quotes, got {bones[unnamed[0]]!r}.")
     bad = [k for k in fractions if k not in MASS_GROUPS]
     if bad:
         raise InputError(f"{path}: [mass.fractions] key {bad[0]} is not one of {', '.join(MASS_GROUPS)}.")
@@ -111,11 +125,12 @@ def load_character_config(path: str | os.PathLike | None) -> CharacterConfig:
     if total is not None and not (_is_number(total) and 1.0 <= total <= 2000.0):
         raise InputError(f"{path}: mass.total must be a number of kg between 1 and 2000, got {total!r}.")
     shares = list(fractions.values())
-    in_range = all(_is_number(v) and 0.0 < v < 1.0 for v in shares)
+    in_range = all(_is_number(v) and MIN_MASS_FRACTION <= v < 1.0 for v in shares)
     all_given = len(shares) == len(MASS_GROUPS)
-    if not in_range or (all_given and abs(sum(shares) - 1.0) > 1e-6) or (not all_given and sum(shares) >= 1.0):
-        raise InputError(f"{path}: mass.fractions must lie between 0 and 1 and add up to at most 1 (exactly 1 "
-                         "when all four groups are given).")
+    rest = 1.0 - sum(shares) if in_range else 0.0  # what the groups not given share
+    if not in_range or (all_given and abs(rest) > 1e-6) or (not all_given and rest < MIN_MASS_FRACTION):
+        raise InputError(f"{path}: mass.fractions must each lie between {MIN_MASS_FRACTION:g} and 1 and add up to 1 "
+                         f"when all four groups are given, to at most {1 - MIN_MASS_FRACTION:g} otherwise.")
     units = data.get("units_to_metres")
     if units is not None and not (_is_number(units) and 0 < units < float("inf")):
         raise InputError(f"{path}: units_to_metres must be a positive number, got {units!r}.")
