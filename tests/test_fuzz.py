@@ -86,6 +86,11 @@ def observations_files(draw):
     return arrays
 
 
+JUNK = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**12, 10**12), st.booleans(),
+                 st.text(max_size=8), st.lists(st.floats(-1e3, 1e3), max_size=5),
+                 st.lists(st.text(max_size=4), max_size=3))  # a TOML value of any type and range
+
+
 @st.composite
 def settings_files(draw):
     """A TOML settings file: known and unknown sections and keys, each value either near the setting's default
@@ -97,9 +102,7 @@ def settings_files(draw):
     defaults = {f.name: {g.name: getattr(getattr(Settings(), f.name), g.name)
                          for g in dataclasses.fields(getattr(Settings(), f.name))}
                 for f in dataclasses.fields(Settings) if dataclasses.is_dataclass(getattr(Settings(), f.name))}
-    junk = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**12, 10**12), st.booleans(),
-                     st.text(max_size=8), st.lists(st.floats(-1e3, 1e3), max_size=5),
-                     st.lists(st.text(max_size=4), max_size=3))
+    junk = JUNK
     lines = []
     for _ in range(draw(st.integers(1, 3))):
         section = draw(st.sampled_from(sorted(defaults) + ["nonsense"]))
@@ -331,3 +334,43 @@ def test_any_edited_character_ends_in_a_documented_exit(good_result, good_glb, d
         event(f"exit {code}")
         assert_clean(code, err)
         assert code != 1, (kind, err, _crash_log(out), _crash_log(Path(tmp)))
+
+
+@st.composite
+def character_maps(draw):
+    """A TOML character map (README "Your own character"): units, bones, total mass and mass fractions, each key
+    known or not, each value plausible (a bone of the rig, a share, a mass) or of any TOML type and range; now and
+    then a plain value where a table belongs."""
+    from physmocap.retarget.mapping import MAPPABLE, MASS_GROUPS
+
+    bone_names = re.findall(r"JOINT (\S+)\n", RIG.read_text())
+    lines = []
+    if draw(st.booleans()):
+        units = draw(st.one_of(st.sampled_from([0.01, 0.01, 0.001, 1.0, 1e-300, 1e300]), JUNK))
+        lines.append(f"units_to_metres = {_toml_value(units)}")
+    if draw(st.integers(0, 9)) == 0:
+        lines.append(f"{draw(st.sampled_from(['bones', 'mass']))} = {_toml_value(draw(JUNK))}")
+    for section, keys, plausible in (
+            ("bones", MAPPABLE, st.sampled_from(bone_names)),
+            ("mass", ("total",), st.floats(0.5, 3000.0)),
+            ("mass.fractions", MASS_GROUPS, st.floats(0.0, 1.0))):
+        if draw(st.booleans()):
+            lines.append(f"[{section}]")
+            for key in draw(st.lists(st.sampled_from(keys + ("unknown_key",)), min_size=1, max_size=4, unique=True)):
+                value = draw(plausible) if draw(st.integers(0, 9)) < 7 else draw(JUNK)
+                lines.append(f"{key} = {_toml_value(value)}")
+    return "\n".join(lines) + "\n"
+
+
+@settings(suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(character_maps())
+def test_any_character_map_ends_in_a_documented_exit(good_result, text):
+    with tempfile.TemporaryDirectory() as tmp:
+        character_map = Path(tmp) / "map.toml"
+        character_map.write_text(text)
+        out = Path(tmp) / "out"
+        code, _, err = run_cli("retarget", good_result, "--character", RIG, "--character-map", character_map, "-o",
+                               out, "--physics", "none")
+        event(f"exit {code}")
+        assert_clean(code, err)
+        assert code != 1, (text, err, _crash_log(out), _crash_log(Path(tmp)))

@@ -208,7 +208,12 @@ def _add_trunk(rig: Rig, found: dict[str, int]) -> None:
             found["spine"] = trunk[0] if trunk else found["pelvis"]
         else:  # the pelvis is a branch of its own (Character Creator): the spine starts beside it
             top = _common_ancestor(rig, [found["pelvis"], arms])
-            found["spine"] = _path_down(rig, top, arms)[0]
+            beside = _path_down(rig, top, arms)
+            if not beside:
+                raise InputError(f"{rig.path}: no spine found between the pelvis {rig.names[found['pelvis']]} and "
+                                 f"the shoulders; name it in a TOML map ([bones] spine = \"BoneName\") given with "
+                                 "--character-map.")
+            found["spine"] = beside[0]
     if "neck" not in found:
         chain = _path_down(rig, arms, found["head"])
         found["neck"] = chain[0] if chain else found["head"]
@@ -229,14 +234,20 @@ def map_bones(rig: Rig, config: CharacterConfig | None = None) -> dict[str, int]
     for toe, ankle in zip(toes, ("left_ankle", "right_ankle"), strict=True):
         if toe in found and int(rig.parents[found[toe]]) != found[ankle]:
             del found[toe]  # a "toe" that is not the foot's child is some other bone
+    _check_distinct(rig, found)  # before the trunk is sought between them
     _add_trunk(rig, found)
+    _check_distinct(rig, found)
+    return found
+
+
+def _check_distinct(rig: Rig, found: dict[str, int]) -> None:
+    """InputError where one bone plays two roles (the spine and neck may share one with another role)."""
     roles_of: dict[int, str] = {}
     for role, joint in found.items():
         if joint in roles_of and role not in ("neck", "spine") and roles_of[joint] not in ("neck", "spine"):
             raise InputError(f"{rig.path}: bone {rig.names[joint]} matches both {roles_of[joint]} and {role}; "
                              "set one of them in a TOML map given with --character-map.")
         roles_of.setdefault(joint, role)
-    return found
 
 
 def _sample(rig: Rig, count: int = 12) -> str:
