@@ -1,13 +1,12 @@
-"""Scoring a run: the metrics that need no ground truth (those of the run report) and, given a truth file, every
-pose, smoothness, floor and force metric of both papers against it. Backs `physmocap evaluate` and the
-synthetic benchmark.
+"""Scoring a run: the metrics that need no ground truth (those of the run report) and, given a truth file, every pose,
+smoothness, floor and force metric of both papers against it. Backs `physmocap evaluate` and the synthetic
+benchmark.
 
-A truth file holds at least joint_names (J,) (TRUTH_JOINTS among them), joints_world (T, J, 3) in its own world
-(Z up, floor z = 0, metres, finite), camera_R (3, 3) and camera_t (3,) of the camera that filmed it (world ->
-camera) and fps; `write_synthetic_case`
-in physmocap.mocap.synthetic writes such files. The run's points are brought into the truth's world through
-both cameras (run world -> camera -> truth world), so each side may choose its world freely; floor metrics then
-use the true floor and the true contacts (Rempe 3.2 labels of the true sole points).
+A truth file holds at least joint_names (J,) (TRUTH_JOINTS among them), joints_world (T, J, 3) in its own world (Z
+up, floor z = 0, metres, finite), camera_R (3, 3) and camera_t (3,) of the camera that filmed it (world -> camera)
+and fps; `write_synthetic_case` in physmocap.mocap.synthetic writes such files. The run's points are brought into
+the truth's world through both cameras (run world -> camera -> truth world), so each side may choose its world
+freely; floor metrics then use the true floor and the true contacts (Rempe 3.2 labels of the true sole points).
 """
 
 from __future__ import annotations

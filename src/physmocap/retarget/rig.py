@@ -187,6 +187,8 @@ def _is_index(value, size: int) -> bool:
 def _check_views(gltf, path: Path) -> None:
     """InputError unless every buffer view lies inside its buffer and every accessor names a view that exists
     (the reader reads them, and the writer copies every view when it adds the animation)."""
+    if len(gltf.buffers) > 1:  # pygltflib reads one binary buffer
+        raise InputError(f"{path}: the file holds {len(gltf.buffers)} buffers; export the character as one .glb.")
     blob_size = len(gltf.binary_blob() or b"")
     for i, view in enumerate(gltf.bufferViews):
         offset, length = view.byteOffset or 0, view.byteLength
@@ -236,6 +238,7 @@ def _node_parents(gltf, path) -> dict[int, int]:
 
 
 def _skin_rig(gltf, path) -> Rig:
+    """read_gltf_rig's work on the loaded document; may raise what indexing a broken document raises."""
     skin = gltf.skins[0]
     joints = list(skin.joints)
     if len(set(joints)) != len(joints):
