@@ -150,6 +150,21 @@ def _toml_value(value) -> str:
 FAST = ["--physics", "none", "--no-overlay"]
 
 
+def _ends_in_a_documented_exit(name: str, write, argv, context: tuple = ()) -> None:
+    """Write a generated file `name` into a fresh folder (`write(path)`), run the command line `argv(path, out)`
+    in-process and check its end: a documented exit code, no traceback, nothing half-written in `out`, and not 1
+    (a bug: its crash log and `context` go into the failure message)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path, out = Path(tmp) / name, Path(tmp) / "out"
+        write(path)
+        code, _, err = run_cli(*argv(path, out))
+        event(f"exit {code}")  # --hypothesis-show-statistics: the share of each exit code
+        if code == 1:
+            event(f"crash at {_crash_site(out) or _crash_site(Path(tmp))}")
+        assert_clean(code, err, out)
+        assert code != 1, (*context, err, _crash_log(out), _crash_log(Path(tmp)))
+
+
 def _crash_log(out: Path) -> str:
     """The traceback of the crash log a bug left in `out`, for the failure message."""
     return "\n".join(log.read_text()[-3000:] for log in out.glob("physmocap-crash-*.log"))
@@ -165,16 +180,8 @@ def _crash_site(out: Path) -> str:
 @given(observations_files(), st.sampled_from([FAST, FAST, FAST + ["--online"], ["--physics", "physcap",
                                                                                  "--no-overlay", "--online"]]))
 def test_any_observations_file_ends_in_a_documented_exit(arrays, options):
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "obs.npz"
-        np.savez(path, **arrays)
-        out = Path(tmp) / "out"
-        code, _, err = run_cli("capture", "--observations", path, "-o", out, *options)
-        event(f"exit {code}")  # --hypothesis-show-statistics: the share of each exit code
-        if code == 1:
-            event(f"crash at {_crash_site(out)}")
-        assert_clean(code, err, out)
-        assert code != 1, _crash_log(out)  # 1 is a bug: its crash log is in `out`
+    _ends_in_a_documented_exit("obs.npz", lambda path: np.savez(path, **arrays),
+                               lambda path, out: ["capture", "--observations", path, "-o", out, *options])
 
 
 @pytest.fixture(scope="module")
@@ -188,14 +195,8 @@ def good_observations(tmp_path_factory):
                                                                   HealthCheck.function_scoped_fixture])
 @given(settings_files())
 def test_any_settings_file_ends_in_a_documented_exit(good_observations, text):
-    with tempfile.TemporaryDirectory() as tmp:
-        config = Path(tmp) / "settings.toml"
-        config.write_text(text)
-        out = Path(tmp) / "out"
-        code, _, err = run_cli("capture", "--observations", good_observations, "-o", out, "--config", config, *FAST)
-        event(f"exit {code}")
-        assert_clean(code, err, out)
-        assert code != 1, _crash_log(out)
+    _ends_in_a_documented_exit("settings.toml", lambda path: path.write_text(text), lambda path, out: [
+        "capture", "--observations", good_observations, "-o", out, "--config", path, *FAST])
 
 
 @pytest.fixture(scope="module")
@@ -233,14 +234,10 @@ def test_any_edited_result_file_ends_in_a_documented_exit(good_result, data):
             arrays[key] = MUTATIONS[mutation](arrays[key])
         except (TypeError, ValueError, IndexError):  # e.g. a text array made negative: nothing to try
             return
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "result.npz"
-        np.savez(path, **arrays)
-        out = Path(tmp) / "out"
-        code, _, err = run_cli(command[0], path, *command[1:], *(["-o", out] if command[0] != "evaluate" else []))
-        event(f"exit {code}")
-        assert_clean(code, err)
-        assert code != 1, (key, mutation, err, _crash_log(out), _crash_log(Path(tmp)))
+    _ends_in_a_documented_exit(
+        "result.npz", lambda path: np.savez(path, **arrays),
+        lambda path, out: [command[0], path, *command[1:], *(["-o", out] if command[0] != "evaluate" else [])],
+        (key, mutation))
 
 
 NUMBER = re.compile(r"-?\d+(?:\.\d+)?(?:e-?\d+)?")
@@ -326,14 +323,8 @@ def test_any_edited_character_ends_in_a_documented_exit(good_result, good_glb, d
                 next(i for i, node in enumerate(document["nodes"]) if child in node.get("children", [])))
         content = _glb_bytes(document, rest)
     event(f"{name} {kind}")
-    with tempfile.TemporaryDirectory() as tmp:
-        character = Path(tmp) / name
-        character.write_bytes(content)
-        out = Path(tmp) / "out"
-        code, _, err = run_cli("retarget", good_result, "--character", character, "-o", out, "--physics", "none")
-        event(f"exit {code}")
-        assert_clean(code, err)
-        assert code != 1, (kind, err, _crash_log(out), _crash_log(Path(tmp)))
+    _ends_in_a_documented_exit(name, lambda path: path.write_bytes(content), lambda path, out: [
+        "retarget", good_result, "--character", path, "-o", out, "--physics", "none"], (kind,))
 
 
 @st.composite
@@ -365,12 +356,5 @@ def character_maps(draw):
 @settings(suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(character_maps())
 def test_any_character_map_ends_in_a_documented_exit(good_result, text):
-    with tempfile.TemporaryDirectory() as tmp:
-        character_map = Path(tmp) / "map.toml"
-        character_map.write_text(text)
-        out = Path(tmp) / "out"
-        code, _, err = run_cli("retarget", good_result, "--character", RIG, "--character-map", character_map, "-o",
-                               out, "--physics", "none")
-        event(f"exit {code}")
-        assert_clean(code, err)
-        assert code != 1, (text, err, _crash_log(out), _crash_log(Path(tmp)))
+    _ends_in_a_documented_exit("map.toml", lambda path: path.write_text(text), lambda path, out: [
+        "retarget", good_result, "--character", RIG, "--character-map", path, "-o", out, "--physics", "none"], (text,))
