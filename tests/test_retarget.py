@@ -207,6 +207,15 @@ def test_bad_character_maps_fail_with_one_sentence(tmp_path, text, words):
         load_character_config(path)
 
 
+def test_a_map_naming_one_bone_for_two_roles_is_an_input_error(tmp_path):
+    """On Character Creator's rig, whose pelvis is a branch of its own, before the trunk is sought."""
+    rig = read_rig(Path(__file__).parent / "data" / "rig_cc3_iclone.bvh")
+    toml = tmp_path / "map.toml"
+    toml.write_text('[bones]\nleft_hip = "CC_Base_Pelvis"\nright_shoulder = "CC_Base_Pelvis"\n')
+    with pytest.raises(InputError, match="matches both"):
+        map_bones(rig, load_character_config(toml))
+
+
 def test_a_map_naming_a_missing_bone_is_an_input_error(tmp_path):
     rig = read_rig(mixamo_rig(tmp_path / "m.bvh"))
     toml = tmp_path / "map.toml"
