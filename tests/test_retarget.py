@@ -283,6 +283,7 @@ def _first_child(document: dict) -> tuple[int, int]:
     (lambda d: d["nodes"][_first_child(d)[1]].setdefault("children", []).append(_first_child(d)[0]), "cycle"),
     (lambda d: d["nodes"][0].setdefault("children", []).append(_first_child(d)[1]), "two parents"),
     (lambda d: d["bufferViews"][0].update(byteLength=10**9), "buffer view 0 does not lie inside"),
+    (lambda d: d["buffers"][0].update(byteLength=10**9), "bytes it declares"),
     (lambda d: d["accessors"][0].update(bufferView=999), "accessor 0 names buffer view 999"),
     (lambda d: d["accessors"][0].update(count=1e308), "accessor 0 has a count"),
     (lambda d: d["nodes"][d["skins"][0]["joints"][1]].update(translation=[0.0, float("nan"), 0.0]), "JSON compliant"),
@@ -298,6 +299,16 @@ def test_gltf_characters_that_break_the_format_fail_in_one_sentence(tmp_path, ed
     path = _glb_edited(tmp_path / "c.glb", edit)
     with pytest.raises(InputError, match=words):
         build_character(read_rig(path))
+
+
+def test_a_gltf_whose_data_file_is_missing_fails_in_one_sentence(tmp_path):
+    glb = _glb_edited(tmp_path / "c.glb", lambda d: None)
+    document = pygltflib.GLTF2().load(str(glb))
+    document.convert_buffers(pygltflib.BufferFormat.DATAURI)
+    document.buffers[0].uri = "c.bin"  # never written
+    document.save(str(tmp_path / "c.gltf"))
+    with pytest.raises(InputError, match="c.gltf: its buffer holds 0 of the"):
+        read_rig(tmp_path / "c.gltf")
 
 
 # ---- the character's body model ----------------------------------------------------------------------------------

@@ -190,6 +190,10 @@ def _check_views(gltf, path: Path) -> None:
     if len(gltf.buffers) > 1:  # pygltflib reads one binary buffer
         raise InputError(f"{path}: the file holds {len(gltf.buffers)} buffers; export the character as one .glb.")
     blob_size = len(gltf.binary_blob() or b"")
+    declared = gltf.buffers[0].byteLength if gltf.buffers else 0
+    if isinstance(declared, int) and blob_size < declared:
+        raise InputError(f"{path}: its buffer holds {blob_size} of the {declared} bytes it declares (its data file is "
+                         "missing or unreadable, or the file is cut short).")
     for i, view in enumerate(gltf.bufferViews):
         offset, length = view.byteOffset or 0, view.byteLength
         if not (_is_index(view.buffer, len(gltf.buffers)) and _is_index(offset, blob_size + 1)
