@@ -215,7 +215,8 @@ def read_gltf_rig(path: str | os.PathLike) -> Rig:
     if not gltf.skins:
         raise InputError(f"{path}: the glTF file has no skin (a rigged character is needed).")
     try:
-        rig = _skin_rig(gltf, path)
+        with np.errstate(over="ignore", invalid="ignore"):  # _skin_rig refuses what is not finite, in one sentence
+            rig = _skin_rig(gltf, path)
     except InputError:
         raise
     except (IndexError, KeyError, TypeError, ValueError, AttributeError, OverflowError) as exc:  # indexing a broken one
