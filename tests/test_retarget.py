@@ -284,6 +284,7 @@ def _first_child(document: dict) -> tuple[int, int]:
     (lambda d: d["nodes"][0].setdefault("children", []).append(_first_child(d)[1]), "two parents"),
     (lambda d: d["bufferViews"][0].update(byteLength=10**9), "buffer view 0 does not lie inside"),
     (lambda d: d["buffers"][0].update(byteLength=10**9), "bytes it declares"),
+    (lambda d: d["buffers"].append(dict(d["buffers"][0])), "holds 2 buffers"),
     (lambda d: d["accessors"][0].update(bufferView=999), "accessor 0 names buffer view 999"),
     (lambda d: d["accessors"][0].update(count=1e308), "accessor 0 has a count"),
     (lambda d: d["nodes"][d["skins"][0]["joints"][1]].update(translation=[0.0, float("nan"), 0.0]), "JSON compliant"),
