@@ -155,6 +155,8 @@ CASES = [
      lambda p: ["batch", save_obs(p / "o.npz"), "-o", _symlink_loop(p) / "runs"], {4}, ["loop"]),
     ("a video name longer than any file system allows",
      lambda p: ["capture", p / ("v" * 5000 + ".mp4"), "-o", p / "out"], {2}, ["vvv", "too long"]),
+    ("live from a network stream", lambda p: ["live", "rtsp://127.0.0.1:1/cam"], {2}, ["rtsp://", "camera index"]),
+    ("capture of a URL", lambda p: ["capture", "https://example.com/v.mp4", "-o", p / "out"], {2}, ["url"]),
     ("a batch list with a NUL character", lambda p: ["batch", _text(p / "l.txt", "a.mp4\nb\0.mp4\n"), "-o",
                                                      p / "out"], {2}, ["l.txt", "NUL"]),
     # root writes into a folder without write permission anyway: then the run succeeds (exit 0)

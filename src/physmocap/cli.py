@@ -518,6 +518,8 @@ def cmd_live(args) -> int:
     if args.max_frames is not None and args.max_frames < 1:
         raise InputError(f"--max-frames must be at least 1, got {args.max_frames}.")
     source = args.source
+    if re.match(r"[a-zA-Z][a-zA-Z0-9+.-]+://", source):
+        raise InputError(f"{source}: network streams are not read; give a camera index (0, 1, ...) or a video file.")
     if not source.isdigit():
         from .io.video import probe_video
 

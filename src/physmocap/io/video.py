@@ -14,6 +14,7 @@ import contextlib
 import functools
 import os
 import queue
+import re
 import threading
 from collections.abc import Generator, Iterator, Sequence
 from dataclasses import dataclass
@@ -126,6 +127,8 @@ def _timeline(path: str | os.PathLike) -> _Timeline:
     """The timeline of `path`, read once per version of the file (a run probes its video several times)."""
     path = Path(path)
     if not path.exists():
+        if re.match(r"[a-zA-Z][a-zA-Z0-9+.-]+:/", str(path)):  # a URL (not a drive letter); Path folds its "//"
+            raise InputError(f"{path}: looks like a URL; network streams are not read: download the video first.")
         raise InputError(f"{path}: no such video file.")
     if path.is_dir():
         raise InputError(f"{path}: is a directory, not a video file.")
