@@ -105,6 +105,16 @@ def test_ray_batch_equals_capture_and_isolates_a_broken_input(inputs, tmp_path):
     assert_batch_complete(out, inputs, proc)
 
 
+@pytest.mark.parametrize("address", ["127.0.0.1:1", "no-such-host.invalid:6379", "127.0.0.1:port"])
+def test_a_cluster_address_nobody_answers_at_is_refused_at_once(inputs, tmp_path, address):
+    """Ray itself retries an address for minutes; a batch checks it first and stops with one sentence."""
+    pytest.importorskip("ray")
+    proc = physmocap("batch", inputs["obs"], "-o", tmp_path / "batch", "--ray", address, *FAST)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip().splitlines()[-1].startswith(f"physmocap: error: --ray: could not start or reach "
+                                                            f"the Ray cluster at {address}")
+
+
 def test_interrupted_batch_resumes_and_redoes_no_finished_run(inputs, tmp_path):
     out = tmp_path / "batch"
     more = tmp_path / "more.npz"

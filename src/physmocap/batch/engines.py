@@ -15,6 +15,7 @@ import logging
 import multiprocessing
 import os
 import signal
+import socket
 from concurrent.futures.process import BrokenProcessPool
 
 from .task import THREAD_ENV, BatchTask, capture_one, failed_record, limit_threads
@@ -111,6 +112,21 @@ class ProcessPoolEngine:
         self._executor.shutdown(wait=True)
 
 
+CLUSTER_CONNECT_TIMEOUT = 10.0  # s: a cluster's address must answer within this (Ray itself retries for minutes)
+
+
+def _check_reachable(address: str) -> None:
+    """ConnectionError unless host:port (or ray://host:port) accepts a TCP connection in CLUSTER_CONNECT_TIMEOUT."""
+    host, _, port = address.split("://")[-1].rpartition(":")
+    if not port.isdigit():
+        raise ValueError(f"{address} has no port number")
+    try:
+        with socket.create_connection((host, int(port)), timeout=CLUSTER_CONNECT_TIMEOUT):
+            pass
+    except OSError as exc:
+        raise ConnectionError(f"nothing answers there within {CLUSTER_CONNECT_TIMEOUT:g} s: {exc}") from None
+
+
 class RayEngine:
     """Each input a Ray task needing one CPU, retried `max_retries` times when its worker dies. `address` None
     starts a local Ray with `workers` CPUs (stopped by close()); "auto" or host:port joins a running cluster, whose
@@ -126,6 +142,8 @@ class RayEngine:
             self._local_node = _start_local_ray(workers)
             ray.init(address=self._local_node.address, log_to_driver=False, logging_level=logging.WARNING)
         else:  # a cluster's other nodes start their workers from their own environment
+            if address != "auto":
+                _check_reachable(address)
             ray.init(address=address, runtime_env={"env_vars": RAY_WORKER_ENV}, include_dashboard=False,
                      log_to_driver=False, logging_level=logging.WARNING)
         self._remote = ray.remote(capture_one).options(num_cpus=1, max_retries=max_retries, retry_exceptions=False)
