@@ -18,9 +18,11 @@ import numpy as np
 
 from . import metrics
 from .body.model import CONTACT_POINTS
+from .body.rotations import is_rotation
 from .errors import InputError
 from .io.atomic import read_npz
 from .io.finite import json_text
+from .result import UNIT_TOLERANCE
 
 # Joints whose definitions agree between the body model, MediaPipe and motion capture skeletons (pelvis, spine,
 # neck and head are placed differently by each and are left out of pose errors).
@@ -108,19 +110,19 @@ def load_truth(path: str | os.PathLike) -> dict[str, np.ndarray]:
     if names.ndim != 1 or missing:
         raise InputError(f"{path}: joint_names must list each of {', '.join(TRUTH_JOINTS)} once (first wrong: "
                          f"{missing[0] if missing else 'its shape'}).")
-    expected = {"joints_world": f"(T, {len(names)}, 3)", "camera_R": "(3, 3)", "camera_t": "(3,)", "fps": "()"}
-    for key, shape in expected.items():
+    shapes = {  # key -> (the shape as the message states it, whether an array has it)
+        "joints_world": (f"(T, {len(names)}, 3)",
+                         lambda v: v.ndim == 3 and len(v) > 0 and v.shape[1:] == (len(names), 3)),
+        "camera_R": ("(3, 3)", lambda v: v.shape == (3, 3)), "camera_t": ("(3,)", lambda v: v.shape == (3,)),
+        "fps": ("()", lambda v: v.size == 1)}
+    for key, (shape, has_shape) in shapes.items():
         value = truth[key]
-        size_ok = (value.shape == (3, 3) if key == "camera_R" else value.shape == (3,) if key == "camera_t"
-                   else value.size == 1 if key == "fps" else value.ndim == 3 and value.shape[1:] == (len(names), 3)
-                   and len(value) > 0)
-        if value.dtype.kind not in "fiu" or not size_ok:
+        if value.dtype.kind not in "fiu" or not has_shape(value):
             raise InputError(f"{path}: {key} must be numbers of shape {shape}, got {value.dtype} {value.shape}.")
         if not np.isfinite(value).all():
             raise InputError(f"{path}: {key} holds a value that is not a finite number.")
         truth[key] = value.astype(float).reshape(() if key == "fps" else value.shape)
-    R = truth["camera_R"]
-    if np.abs(R @ R.T - np.eye(3)).max() > 1e-3 or np.linalg.det(R) < 0:
+    if not is_rotation(truth["camera_R"], UNIT_TOLERANCE):
         raise InputError(f"{path}: camera_R is not a rotation.")
     if truth["fps"] <= 0:
         raise InputError(f"{path}: fps must be positive, got {float(truth['fps']):g}.")

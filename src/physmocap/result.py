@@ -20,6 +20,7 @@ from .body.model import (
     build_body_model,
     template_lengths,
 )
+from .body.rotations import is_rotation
 from .dynamics.stage import PhysicsMotion
 from .errors import InputError
 from .io.atomic import read_npz, save_npz
@@ -210,7 +211,7 @@ def _check_geometry(path: Path, result: dict[str, np.ndarray]) -> None:
             if np.any(np.abs(norms - 1.0) > UNIT_TOLERANCE):
                 raise InputError(f"{path}: {key} holds rotations that are not unit quaternions.")
     R = result["camera_R"]
-    if np.abs(R @ R.T - np.eye(3)).max() > UNIT_TOLERANCE or np.linalg.det(R) < 0:
+    if not is_rotation(R, UNIT_TOLERANCE):
         raise InputError(f"{path}: camera_R is not a rotation.")
     if abs(np.linalg.norm(result["floor"][:3]) - 1.0) > UNIT_TOLERANCE:
         raise InputError(f"{path}: floor's normal (its first three numbers) is not a unit vector.")

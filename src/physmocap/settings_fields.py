@@ -118,11 +118,15 @@ def _check_value(key: str, value, metadata) -> None:
         metadata["check"](key, value)
 
 
+def is_number(value) -> bool:
+    """An int or float read from TOML; not a boolean (which Python counts as an int)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
 def floor_plane(key: str, floor) -> None:
     """Four finite numbers nx,ny,nz,d with a non-zero normal not along the camera's x axis (the world's x axis is
     the camera's projected onto the floor; such a plane is a wall beside the camera)."""
-    numbers = isinstance(floor, (tuple, list)) and all(isinstance(x, (int, float)) and not isinstance(x, bool)
-                                                         for x in floor)
+    numbers = isinstance(floor, (tuple, list)) and all(is_number(x) for x in floor)
     if not numbers or len(floor) != 4 or not all(math.isfinite(x) for x in floor):
         raise SettingsError(f"{key} must be four finite numbers nx,ny,nz,d, got {floor}.")
     norm = math.sqrt(sum(x * x for x in floor[:3]))
@@ -145,7 +149,7 @@ def _has_type(value, hint) -> bool:
     if arms:
         return any(_has_type(value, arm) for arm in arms)
     if hint is float:
-        return isinstance(value, (int, float)) and not isinstance(value, bool)
+        return is_number(value)
     if hint is int or hint is str or hint is bool:
         return isinstance(value, hint) and (hint is bool or not isinstance(value, bool))
     if typing.get_origin(hint) is tuple:

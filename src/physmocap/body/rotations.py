@@ -122,3 +122,9 @@ def so3_right_jacobian_inverse(rotvec: np.ndarray) -> np.ndarray:
 def unit_vectors(v: np.ndarray) -> np.ndarray:
     """(..., 3) vectors scaled to length 1 along the last axis (zero vectors stay near zero)."""
     return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
+
+
+def is_rotation(R: np.ndarray, tolerance: float) -> bool:
+    """Whether the (3, 3) matrix R is a proper rotation: orthonormal to `tolerance` (largest entry of R R' - I)
+    and not a reflection."""
+    return bool(np.abs(R @ R.T - np.eye(3)).max() <= tolerance and np.linalg.det(R) > 0)

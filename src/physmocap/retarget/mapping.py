@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import InputError
-from ..settings_fields import read_toml
+from ..settings_fields import is_number, read_toml
 from .rig import Rig
 
 SIDES = ("left", "right")
@@ -95,11 +95,6 @@ def _table(data: dict, key: str, path: Path, prefix: str = "") -> dict:
     return value
 
 
-def _is_number(value) -> bool:
-    """An int or float of TOML; not a boolean (which Python counts as an int)."""
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-
 def load_character_config(path: str | os.PathLike | None) -> CharacterConfig:
     """Read the TOML map; InputError naming the file and the bad key."""
     if path is None:
@@ -122,17 +117,17 @@ def load_character_config(path: str | os.PathLike | None) -> CharacterConfig:
     if bad:
         raise InputError(f"{path}: [mass.fractions] key {bad[0]} is not one of {', '.join(MASS_GROUPS)}.")
     total = mass.get("total")
-    if total is not None and not (_is_number(total) and 1.0 <= total <= 2000.0):
+    if total is not None and not (is_number(total) and 1.0 <= total <= 2000.0):
         raise InputError(f"{path}: mass.total must be a number of kg between 1 and 2000, got {total!r}.")
     shares = list(fractions.values())
-    in_range = all(_is_number(v) and MIN_MASS_FRACTION <= v < 1.0 for v in shares)
+    in_range = all(is_number(v) and MIN_MASS_FRACTION <= v < 1.0 for v in shares)
     all_given = len(shares) == len(MASS_GROUPS)
     rest = 1.0 - sum(shares) if in_range else 0.0  # what the groups not given share
     if not in_range or (all_given and abs(rest) > 1e-6) or (not all_given and rest < MIN_MASS_FRACTION):
         raise InputError(f"{path}: mass.fractions must each lie between {MIN_MASS_FRACTION:g} and 1 and add up to 1 "
                          f"when all four groups are given, to at most {1 - MIN_MASS_FRACTION:g} otherwise.")
     units = data.get("units_to_metres")
-    if units is not None and not (_is_number(units) and 0 < units < float("inf")):
+    if units is not None and not (is_number(units) and 0 < units < float("inf")):
         raise InputError(f"{path}: units_to_metres must be a positive number, got {units!r}.")
     return CharacterConfig({k: str(v) for k, v in bones.items()}, None if units is None else float(units),
                            None if total is None else float(total), {k: float(v) for k, v in fractions.items()},
