@@ -7,7 +7,6 @@ CI runs the default profile (100 examples per test, well under a minute); `pytes
 
 from __future__ import annotations
 
-import json
 import re
 import tempfile
 from pathlib import Path
@@ -19,6 +18,7 @@ from hypothesis import HealthCheck, event, given, settings, strategies as st
 from physmocap.body.model import build_body_model, template_lengths
 from physmocap.io.glb import write_glb
 from test_bad_inputs import assert_clean, observation_arrays, run_cli
+from test_glb import glb_json, glb_with_json
 
 pytestmark = pytest.mark.slow  # hundreds of generated inputs through the command line
 
@@ -244,18 +244,6 @@ NUMBER = re.compile(r"-?\d+(?:\.\d+)?(?:e-?\d+)?")
 ODD_NUMBERS = ["nan", "inf", "-inf", "1e308", "-1e308", "0", "1e-300", "1e30", "x", ""]
 
 
-def _glb_parts(data: bytes) -> tuple[dict, bytes]:
-    size = int.from_bytes(data[12:16], "little")
-    return json.loads(data[20:20 + size]), data[20 + size:]
-
-
-def _glb_bytes(document: dict, rest: bytes) -> bytes:
-    text = json.dumps(document).encode()
-    text += b" " * (-len(text) % 4)
-    chunks = len(text).to_bytes(4, "little") + b"JSON" + text + rest
-    return b"glTF" + (2).to_bytes(4, "little") + (12 + len(chunks)).to_bytes(4, "little") + chunks
-
-
 def _leaves(value, path=()):
     """(path, value) of every number in a JSON document."""
     if isinstance(value, dict):
@@ -301,7 +289,7 @@ def test_any_edited_character_ends_in_a_documented_exit(good_result, good_glb, d
         content = text.encode()
     else:
         name = "character.glb"
-        document, rest = _glb_parts(good_glb.read_bytes())
+        document, rest = glb_json(good_glb.read_bytes())
         kind = data.draw(st.sampled_from(["number", "number", "number", "delete", "cycle"]))
         if kind == "number":
             path, _ = data.draw(st.sampled_from(list(_leaves(document))))
@@ -321,7 +309,7 @@ def test_any_edited_character_ends_in_a_documented_exit(good_result, good_glb, d
             child = data.draw(st.sampled_from([n for node in document["nodes"] for n in node.get("children", [])]))
             document["nodes"][child].setdefault("children", []).append(
                 next(i for i, node in enumerate(document["nodes"]) if child in node.get("children", [])))
-        content = _glb_bytes(document, rest)
+        content = glb_with_json(document, rest)
     event(f"{name} {kind}")
     _ends_in_a_documented_exit(name, lambda path: path.write_bytes(content), lambda path, out: [
         "retarget", good_result, "--character", path, "-o", out, "--physics", "none"], (kind,))

@@ -32,6 +32,21 @@ DTYPES = {5126: "<f4", 5123: "<u2", 5125: "<u4", 5121: "u1"}
 WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
 
 
+def glb_json(data: bytes) -> tuple[dict, bytes]:
+    """A GLB file's bytes -> its JSON document and the bytes after the JSON chunk (the binary chunk)."""
+    size = int.from_bytes(data[12:16], "little")
+    return json.loads(data[20:20 + size]), data[20 + size:]
+
+
+def glb_with_json(document: dict, rest: bytes) -> bytes:
+    """The GLB bytes of a JSON `document` followed by `rest` (as glb_json returned it), byte for byte otherwise:
+    tests write documents pygltflib would refuse to save."""
+    text = json.dumps(document).encode()
+    text += b" " * (-len(text) % 4)
+    chunks = len(text).to_bytes(4, "little") + b"JSON" + text + rest
+    return b"glTF" + (2).to_bytes(4, "little") + (12 + len(chunks)).to_bytes(4, "little") + chunks
+
+
 def read_accessor(gltf: pygltflib.GLTF2, index: int) -> np.ndarray:
     """(count, components) array of accessor `index`, tightly packed as the glTF spec allows without byteStride."""
     accessor = gltf.accessors[index]

@@ -31,7 +31,7 @@ from physmocap.retarget.mapping import load_character_config, map_bones, normali
 from physmocap.retarget.rig import read_accessor, read_rig
 from physmocap.retarget.solve import flights_at_full_gravity, follow_planted_feet, retarget_qpos, solve_feet
 from test_export import synthetic_result
-from test_glb import issue_counts, khronos_issues
+from test_glb import glb_json, glb_with_json, issue_counts, khronos_issues
 
 DATA = Path(__file__).parent / "data"
 DAZ_RIG = DATA / "rig_daz_cgspeed.bvh"  # hierarchy of ../shared/data/mocap/cmu_daz_cgspeed (no motion)
@@ -262,15 +262,9 @@ def _glb_edited(path: Path, edit) -> Path:
     otherwise (pygltflib would refuse to save some of these documents)."""
     body = build_body_model(template_lengths(1.7), 70.0)
     write_glb(path, body, body.rest_qpos[None], 30.0)
-    data = path.read_bytes()
-    size = int.from_bytes(data[12:16], "little")
-    document = json.loads(data[20:20 + size])
+    document, rest = glb_json(path.read_bytes())
     edit(document)
-    text = json.dumps(document).encode()
-    text += b" " * (-len(text) % 4)
-    binary = data[20 + size:]
-    body_bytes = len(text).to_bytes(4, "little") + b"JSON" + text + binary
-    path.write_bytes(b"glTF" + (2).to_bytes(4, "little") + (12 + len(body_bytes)).to_bytes(4, "little") + body_bytes)
+    path.write_bytes(glb_with_json(document, rest))
     return path
 
 
