@@ -10,10 +10,12 @@ from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS
 from physmocap.camera import Camera
 from physmocap.config import FitSettings
-from physmocap.kinematics.fit import MARKERS, FitTargets, KinematicFitter
+from physmocap.kinematics.fit import MARKERS, FitTargets, KinematicFitter, running_frames
 
+# Reweighting (robust data terms, E_ang's Huber pull) off: its weights are held within a linearisation, so the
+# cost's derivative would not be the assembled gradient.
 ALL_TERMS = FitSettings(weight_contact_velocity=10.0, weight_floor=10.0, weight_velocity=0.1,
-                        weight_angle_velocity=0.1, robust_2d=0, robust_3d=0)
+                        weight_angle_velocity=0.1, robust_2d=0, robust_3d=0, angle_speed_huber=0)
 
 
 @pytest.fixture(scope="module")
@@ -89,19 +91,56 @@ def test_velocity_and_angle_signal_jacobians_match_finite_differences(body, came
 
 def test_angle_speed_huber_weighs_only_the_fast_joints(body, camera):
     """Above angle_speed_huber a joint's angle-velocity residual is scaled by sqrt(huber / speed) (Huber's linear
-    pull), below it by 1; an online fitter keeps the plain quadratic term."""
+    pull), below it by 1; by default only where the body runs (its stances labelled), on every frame with
+    angle_speed_huber_frames "all"; an online fitter keeps the plain quadratic term."""
     q = np.repeat(body.rest_qpos[None], 3, axis=0)
     tab = kin.tables(body)
     hinge = tab.qadr[tab.hinge_bodies][0]
     q[1, hinge], q[2, hinge] = 0.05, 0.45  # 1.5 then 12 rad/s at 30 fps
-    settings = FitSettings(weight_angle_velocity=0.1, angle_speed_huber=3.0)
-    fitter = KinematicFitter(body, camera, settings, 30.0)
-    weights = fitter.temporal_signals(*fitter.evaluate(q), q)[-1][3]
-    column = weights.shape[1] - len(tab.hinge_bodies)
-    assert weights[0, column] == 1.0 and np.isclose(weights[1, column], np.sqrt(3.0 / 12.0))
-    assert np.all(np.delete(weights, column, axis=1) == 1.0)  # the other joints stand still
-    causal = KinematicFitter(body, camera, settings, 30.0, causal=True)
+    column = 3 * len(tab.ball_bodies)
+
+    def angle_weights(q, contacts=None, **fields):
+        fitter = KinematicFitter(body, camera, FitSettings(weight_angle_velocity=0.1, angle_speed_huber=3.0, **fields),
+                                 30.0)
+        return fitter.temporal_signals(*fitter.evaluate(q), q, fitter.huber_frames(q, contacts))[-1][3]
+
+    on_feet = np.ones((len(q), 4))
+    for weights in (angle_weights(q, angle_speed_huber_frames="all"), angle_weights(running_root(q, 4.0), on_feet)):
+        assert weights[0, column] == 1.0 and np.isclose(weights[1, column], np.sqrt(3.0 / 12.0))
+        assert np.all(np.delete(weights, column, axis=1) == 1.0)  # the other joints stand still
+    assert angle_weights(q, on_feet) is None  # standing: the quadratic pull
+    assert angle_weights(running_root(q, 1.4), on_feet) is None  # walking pace
+    assert angle_weights(running_root(q, 4.0)) is None  # no stance labelled: not known to run
+    causal = KinematicFitter(body, camera, FitSettings(weight_angle_velocity=0.1, angle_speed_huber_frames="all"),
+                             30.0, causal=True)
     assert causal.temporal_signals(*causal.evaluate(q), q)[-1][3] is None
+
+
+def running_root(q: np.ndarray, speed: float, fps: float = 30.0) -> np.ndarray:
+    """q (T, nq) with its root carried along x at `speed` m/s."""
+    moved = q.copy()
+    moved[:, 0] += speed * np.arange(len(q)) / fps
+    return moved
+
+
+def test_running_frames_are_those_faster_than_the_walk_run_transition():
+    """A leg of 0.9 m changes gait at sqrt(0.5 g 0.9) = 2.1 m/s: a run at 3 m/s (a stance every 0.35 s) that slows
+    to a walk is running on its first part only, at any frame rate; a detector's drift in place is not running, nor
+    is a fast path without a stance in each step (a body carried, or extrapolated where it is not seen)."""
+    for fps in (10.0, 30.0, 60.0):
+        t = np.arange(int(4 * fps)) / fps
+        speed = np.where(t < 2.0, 3.0, 1.4)
+        root = np.stack([np.concatenate([[0.0], np.cumsum(speed[1:]) / fps]), np.zeros_like(t)], axis=1)
+        stances = (t % 0.35) < 0.1
+        running = running_frames(root, stances, fps, 0.9)
+        assert running[t < 1.6].all() and not running[t > 2.4].any(), fps
+        unsupported = stances & ((t < 0.8) | (t > 1.6))  # 0.8 s in the air
+        assert not running_frames(root, unsupported, fps, 0.9)[(t > 1.15) & (t < 1.25)].any(), fps
+        cut = t < 1.0 + 0.3  # the clip ends in a flight: the next stance is not seen
+        assert running_frames(root[cut], stances[cut], fps, 0.9).all(), fps
+    rng = np.random.default_rng(0)
+    drift = np.cumsum(rng.normal(0.0, 0.02, (120, 2)), axis=0)  # 2 cm a frame at random
+    assert not running_frames(drift, np.ones(120, bool), 30.0, 0.9).any()
 
 
 def test_angle_signal_is_the_joint_angles(body, camera):

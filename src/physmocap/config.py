@@ -71,7 +71,9 @@ class FitSettings(Section):
     weight_floor: float = setting(0.0, "", (0.0, 1000.0), "Rempe's E_floor (B7): heel/toe height in contact (10)")
     weight_velocity: float = setting(0.0, "", (0.0, 1000.0), "Rempe's E_vel (B2): joint velocity (paper 0.1)")
     weight_angle_velocity: float = setting(0.0, "", (0.0, 1000.0), "Rempe's E_ang (B3): joint angle change (0.1)")
-    angle_speed_huber: float = setting(0.0, "rad/s", (0.0, 100.0), "E_ang pulls linearly on joints faster (0: off)")
+    angle_speed_huber: float = setting(2.0, "rad/s", (0.0, 100.0), "E_ang pulls linearly on joints faster (0: off)")
+    angle_speed_huber_frames: str = setting("running", choices=("running", "all"), help="frames where it does: "
+                                            "where the body runs (faster than the walk-run transition), or all")
     weight_com_acceleration: float = setting(0.0, "", (0.0, 1000.0), "acceleration of the centre of mass (ours)")
 
 

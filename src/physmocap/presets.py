@@ -35,15 +35,18 @@ PRESETS: dict[str, Preset] = {
         "is PhysCap's, whose test clips are mostly walking.",
     ),
     "running": Preset(
-        {"fit": {"weight_smooth": 0.03, "weight_depth": 0.01, "angle_speed_huber": 2.0},
+        {"fit": {"weight_smooth": 0.03, "weight_depth": 0.01, "angle_speed_huber": 2.0,
+                 "angle_speed_huber_frames": "all"},
          "physics": {"contact_height": 0.05, "balance_correction": False}},
         "Limbs accelerate hard, so a third of the smoothing keeps the swing peaks, and the refinement's joint-angle "
-        "velocity term pulls only linearly on joints turning faster than 2 rad/s, so it does not shrink the legs' "
-        "swing; stances are short and the feet pass close to the floor in flight, so a lower contact height keeps "
-        "flight frames free of contacts; a runner is never stationary, so balance correction is off.",
+        "velocity term pulls only linearly on joints turning faster than 2 rad/s on every frame (by default only "
+        "where the body runs), so it does not shrink the legs' swing; stances are short and the feet pass close to "
+        "the floor in flight, so a lower contact height keeps flight frames free of contacts; a runner is never "
+        "stationary, so balance correction is off.",
     ),
     "jumping": Preset(
-        {"fit": {"weight_smooth": 0.02, "weight_depth": 0.01, "angle_speed_huber": 2.0},
+        {"fit": {"weight_smooth": 0.02, "weight_depth": 0.01, "angle_speed_huber": 2.0,
+                 "angle_speed_huber_frames": "all"},
          "physics": {"contact_height": 0.05, "balance_correction": False}},
         "Take-off and landing are real impulses that acceleration smoothing would spread out, so it is the "
         "weakest, and the legs' fast extension is not shrunk (as running); flight must have no contact at all "

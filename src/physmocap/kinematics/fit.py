@@ -72,6 +72,12 @@ LM_TOLERANCE = 1e-3  # a Levenberg-Marquardt fit stops after a step that lowers 
 # a frame): the assembly's memory is bounded by this, not by the clip. See docs/decisions/fit-memory.md.
 ASSEMBLY_FRAMES = 256
 TEMPORAL_REACH = 2  # frames after a frame that its temporal residuals reach (the acceleration's three frames)
+# A body runs where its root travels faster than the walk-run transition, Froude number v^2 / (g leg) = 0.5
+# (Alexander 1989; measured 0.5 by Kram et al. 1997), over a running stride centred on the frame (two steps at about
+# 170 steps a minute), with a foot in contact in each step: the stride's net travel leaves out the bounce of each
+# step and a detector's drift, the stances a body carried, thrown or only extrapolated between observed frames.
+WALK_RUN_FROUDE = 0.5
+RUNNING_STRIDE = 0.7  # s
 # A temporal term: values (T, n), Jacobians (T, n, nv), coefficients of the difference, pair weights (T - 1, n) or None
 Signal = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]
 
@@ -124,6 +130,26 @@ class FitResult:
     iterations: int
     cost: float
     signals: list[np.ndarray] | None = None  # fit_frames: the temporal signals' values (T, n) at qpos
+
+
+def running_frames(root_xy: np.ndarray, on_feet: np.ndarray, fps: float, leg_length: float) -> np.ndarray:
+    """(T,) bool: frames where the body runs: its root's net travel along the floor over RUNNING_STRIDE s centred
+    on the frame (shorter at the clip's ends) is faster than the walk-run transition sqrt(WALK_RUN_FROUDE g leg),
+    and each half of that stride (a step) holds a frame with a foot in contact; a half that the clip's start or
+    end cuts short may hold none (its step is not seen), but not both.
+    root_xy: (T, 2) m, the root's position along the floor; on_feet: (T,) bool, a foot labelled in contact;
+    fps: frames per second; leg_length: m, hip height."""
+    T = len(root_xy)
+    half = max(1, round(RUNNING_STRIDE * fps / 2))
+    first = np.clip(np.arange(T) - half, 0, T - 1)
+    last = np.clip(np.arange(T) + half, 0, T - 1)
+    travel = np.linalg.norm(root_xy[last] - root_xy[first], axis=1)
+    fast = travel * fps / np.maximum(last - first, 1) > np.sqrt(WALK_RUN_FROUDE * GRAVITY * leg_length)
+    stances = np.concatenate([[0], np.cumsum(on_feet)])  # stances[b] - stances[a]: frames a .. b - 1 on feet
+    frames = np.arange(T)
+    before = (stances[frames + 1] > stances[first]) | (frames - half < 0)
+    after = (stances[last + 1] > stances[frames]) | (frames + half > T - 1)
+    return fast & before & after & (stances[last + 1] > stances[first])
 
 
 class KinematicFitter:
@@ -287,11 +313,12 @@ class KinematicFitter:
         norm = np.linalg.norm(residuals, axis=-1)
         return np.sqrt(np.minimum(1.0, threshold / np.maximum(norm, 1e-12)))
 
-    def temporal_signals(self, points, jac, qpos=None) -> list[Signal]:
+    def temporal_signals(self, points, jac, qpos=None, huber_frames=None) -> list[Signal]:
         """The quantities whose finite differences are penalised (Signal: values, Jacobians, coefficients of the
         difference, pair weights). Acceleration of joint positions and velocity of their depth; when their weights
         are set, velocity of the pelvis-relative joints (B2) and of the joint angles (B3, needs qpos (T, nq), with
-        `_angle_pair_weights`)."""
+        `_angle_pair_weights` on `huber_frames` (T,) bool, by default `self.huber_frames(qpos)`: a piece of a
+        clip passes its part of the whole clip's, which knows the contacts)."""
         jp, jj = points[:, self.joint_points], jac[:, self.joint_points]
         T, nv = len(points), self.body.nv
         s = self.settings
@@ -311,10 +338,11 @@ class KinematicFitter:
         if s.weight_angle_velocity > 0:
             if qpos is None:
                 raise ValueError("the joint-angle velocity term needs the poses (qpos)")
-            signals.append(self._angle_signal(qpos, np.sqrt(s.weight_angle_velocity) * self.velocity_scale))
+            frames = self.huber_frames(qpos) if huber_frames is None else huber_frames
+            signals.append(self._angle_signal(qpos, np.sqrt(s.weight_angle_velocity) * self.velocity_scale, frames))
         return signals
 
-    def _angle_signal(self, qpos: np.ndarray, weight: float) -> Signal:
+    def _angle_signal(self, qpos: np.ndarray, weight: float, huber_frames: np.ndarray) -> Signal:
         """Joint angles (T, 3 n_ball + n_hinge): the ball joints' rotation vectors from rest (the root excluded:
         its yaw wraps round) and the hinge angles; the derivative of log(q exp(d)) along a local step d is the
         inverse right Jacobian of SO(3). The vectors jump by up to 2 pi where a joint passes a half turn, which
@@ -331,22 +359,40 @@ class KinematicFitter:
         cols = (self.ball_vadr[:, None, None] + np.arange(3)[None, None, :]).repeat(3, axis=1)
         jacobians[:, rows, cols] = blocks
         jacobians[:, 3 * n_ball + np.arange(len(self.hinge_vadr)), self.hinge_vadr] = 1.0
-        return weight * values, weight * jacobians, np.array([-1.0, 1.0]), self._angle_pair_weights(values, n_ball)
+        return (weight * values, weight * jacobians, np.array([-1.0, 1.0]),
+                self._angle_pair_weights(values, n_ball, huber_frames))
 
-    def _angle_pair_weights(self, angles: np.ndarray, n_ball: int) -> np.ndarray | None:
+    def huber_frames(self, qpos: np.ndarray, contacts: np.ndarray | None = None) -> np.ndarray:
+        """(T,) bool: the frames of the poses qpos (T, nq) where E_ang pulls linearly on fast joints: none where
+        settings.angle_speed_huber is 0 or the fit causal (an online fit holds no pair weights); with
+        settings.angle_speed_huber_frames "running", those where the body runs (`running_frames` of the root's
+        path along the floor, world z up, and of the contact labels (T, 4): none without them); else all."""
+        if self.settings.angle_speed_huber <= 0 or self.causal:
+            return np.zeros(len(qpos), bool)
+        if self.settings.angle_speed_huber_frames == "all":
+            return np.ones(len(qpos), bool)
+        if contacts is None:
+            return np.zeros(len(qpos), bool)
+        lengths = self.body.lengths
+        return running_frames(qpos[:, :2], (contacts > 0.5).any(axis=1), self.fps,
+                              lengths.ankle_height + lengths.shank + lengths.thigh)
+
+    def _angle_pair_weights(self, angles: np.ndarray, n_ball: int, huber_frames: np.ndarray) -> np.ndarray | None:
         """Huber weights (T - 1, n) of the joint-angle velocity term's pairs of frames, from the angles (T, n):
-        rotation vectors of n_ball ball joints, then hinge angles. A joint turning faster than
-        settings.angle_speed_huber (rad/s) counts with weight huber / speed (a square root, as the weights scale
-        residuals), so that the term stills noise but shrinks a run's fast legs only linearly. None where off
-        or causal (an online fit holds no pair weights)."""
-        threshold = self.settings.angle_speed_huber
-        if threshold <= 0 or self.causal or len(angles) < 2:
+        rotation vectors of n_ball ball joints, then hinge angles. On pairs of two `huber_frames` (T,) bool, a
+        joint turning faster than settings.angle_speed_huber (rad/s) counts with weight huber / speed (a square
+        root, as the weights scale residuals), so that the term stills noise but shrinks a run's fast legs only
+        linearly. None where no pair is."""
+        pairs = huber_frames[:-1] & huber_frames[1:]
+        if not pairs.any():
             return None
+        threshold = self.settings.angle_speed_huber
         speed = np.abs(np.diff(angles, axis=0)) * self.fps  # (T - 1, n) rad/s
         T1 = len(speed)
         ball = np.linalg.norm(speed[:, :3 * n_ball].reshape(T1, n_ball, 3), axis=-1)
         per_joint = np.concatenate([np.repeat(ball, 3, axis=1), speed[:, 3 * n_ball:]], axis=1)
-        return np.sqrt(np.minimum(1.0, threshold / np.maximum(per_joint, 1e-12)))
+        weights = np.sqrt(np.minimum(1.0, threshold / np.maximum(per_joint, 1e-12)))
+        return np.where(pairs[:, None], weights, 1.0)
 
     def contact_signals(self, points, jac, targets: FitTargets):
         """Contact velocity (Rempe B6) as a weighted temporal signal: (values (T, 12), Jacobians (T, 12, nv),
@@ -390,17 +436,18 @@ class KinematicFitter:
         H[...] = 0.0
         g = np.zeros((T, nv))
         cost = 0.0
+        huber_frames = self.huber_frames(qpos, targets.contacts)  # the whole clip's: a chunk's is too short to judge
         for first in range(0, T, ASSEMBLY_FRAMES):
             last = min(first + ASSEMBLY_FRAMES, T)
-            cost += self._add_chunk(qpos, targets, first, last, g, H, scale)
+            cost += self._add_chunk(qpos, targets, first, last, g, H, huber_frames, scale)
             if progress:
                 progress(last)
         return cost, g, H
 
-    def _add_chunk(self, qpos, targets, first, last, g, H, scale=None) -> float:
+    def _add_chunk(self, qpos, targets, first, last, g, H, huber_frames, scale=None) -> float:
         """Add to g and H the terms of frames first .. last - 1 and the temporal residuals that start there (they
         reach up to two frames further, evaluated again by the next chunk), the frames' own terms' diagonal into
-        `scale` when given; returns their cost."""
+        `scale` when given; returns their cost. huber_frames: (T,) bool, the whole clip's (`huber_frames`)."""
         end = min(last + TEMPORAL_REACH, len(qpos))
         window = slice(first, end)
         points, jac = self.evaluate(qpos[window])
@@ -416,7 +463,8 @@ class KinematicFitter:
         F = end - first
         window_targets = targets.frames(window)
         # A signal of weight 0 (the IK's smoothness and depth) adds zeros to g and H: left out.
-        signals = [(v, j, c, w) for v, j, c, w in self.temporal_signals(points, jac, qpos[window])
+        signals = [(v, j, c, w) for v, j, c, w in self.temporal_signals(points, jac, qpos[window],
+                                                                                  huber_frames[window])
                    if v.any() or j.any()]
         for values, jacobians, coeffs, pair_weights in (signals + self.contact_signals(points, jac, window_targets)
                                                         + self.com_signals(points, jac, window_targets)):
