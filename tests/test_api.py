@@ -1,5 +1,9 @@
 """The public Python API, used only through `import physmocap` as a notebook would."""
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -58,3 +62,18 @@ def test_bad_arguments_are_one_sentence_input_errors(tmp_path):
     with pytest.raises(InputError, match="no such video"):
         physmocap.capture(tmp_path / "missing.mp4", tmp_path / "x")
     assert not (tmp_path / "x").exists()
+
+
+def test_importing_physmocap_after_numpy_still_gives_blas_one_thread():
+    """The thread variables act only before numpy loads; a program that loaded numpy first (and, say, let BLAS use
+    two threads) gets one thread from `import physmocap` too, so its results are the command line's. A variable
+    the user set is kept."""
+    program = ("import numpy, threadpoolctl; threadpoolctl.threadpool_limits(2, user_api='blas'); import physmocap; "
+               "print(sorted({i['num_threads'] for i in threadpoolctl.threadpool_info() if i['user_api'] == 'blas'}))")
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS",
+                                                              "MKL_NUM_THREADS")}
+    run = subprocess.run([sys.executable, "-c", program], env=env, capture_output=True, text=True, check=True)
+    assert run.stdout.strip() == "[1]"
+    kept = subprocess.run([sys.executable, "-c", program], env={**env, "OPENBLAS_NUM_THREADS": "2"},
+                          capture_output=True, text=True, check=True)
+    assert kept.stdout.strip() == "[2]"

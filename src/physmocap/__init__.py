@@ -9,10 +9,19 @@ See physmocap.api for the arguments and docs/architecture.md for how a capture f
 """
 
 import os
+import sys
 
 # The hot loops solve many small systems; BLAS threads only contend for the cores (8 ms instead of 0.1 ms per
-# 80x80 triangular solve when the detector keeps the other core busy). Must be set before numpy loads.
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+# 80x80 triangular solve when the detector keeps the other core busy), and they round differently, so a program
+# that loaded numpy first got other results than the command line (6 mm of joint position on the demo clip).
+# The variables act only before numpy loads; after it, threadpoolctl sets the loaded BLAS. A variable the user set
+# wins in both cases.
+_BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+if "numpy" in sys.modules and not any(_var in os.environ for _var in _BLAS_THREAD_VARIABLES):
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=1, user_api="blas")
+for _var in _BLAS_THREAD_VARIABLES:
     os.environ.setdefault(_var, "1")
 
 # The submodule physmocap.export is loaded first: loading it later would rebind the name `export` to the module,
