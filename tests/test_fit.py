@@ -471,11 +471,16 @@ def test_chunked_assembly_equals_the_dense_system(body, camera, monkeypatch, chu
     rng = np.random.default_rng(8)
     T = 9
     q = random_poses(body, T, rng, scale=0.3)
+    # Still, then off at 15 m/s: the whole clip runs (its stride spans all 9 frames), a chunk of the first frames
+    # alone would not; the Huber weights are judged on the whole clip.
+    q[:, :2] = 0.0
+    q[5:, 0] = 0.5 * np.arange(1, T - 4)
     settings = FitSettings(weight_contact_velocity=10.0, weight_floor=10.0, weight_velocity=0.1,
                            weight_angle_velocity=0.1, angle_speed_huber=4.0)  # some joints above it, some under
     targets = dataclasses.replace(_targets(body, q, camera, rng), contacts=rng.uniform(0, 1, (T, 4)),
                                   floor=np.array([0.0, 0.0, 1.0, 0.1]))
     fitter = KinematicFitter(body, camera, settings, 30.0)
+    assert fitter.huber_frames(q, targets.contacts).all()
     frames = []
     own = np.empty((T, body.nv))
     cost, g, H = fitter._offline_system(q, targets, progress=frames.append, scale=own)
