@@ -45,10 +45,14 @@ class SkeletonLengths:
     eye_width: float
 
     @property
+    def hip_height(self) -> float:
+        """Sole to hip joint when standing straight."""
+        return self.ankle_height + self.shank + self.thigh
+
+    @property
     def standing_height(self) -> float:
         """Sole to vertex when standing straight."""
-        return (self.ankle_height + self.shank + self.thigh + self.spine_low + self.spine_up + self.head_height
-                + self.head_top)
+        return self.hip_height + self.spine_low + self.spine_up + self.head_height + self.head_top
 
     def scaled(self, factor: float) -> SkeletonLengths:
         return SkeletonLengths(**{k: v * factor for k, v in self.__dict__.items()})
@@ -193,8 +197,7 @@ class BodyModel:
         """(nq,) the T-pose with the soles on the floor."""
         q = np.zeros(self.nq)
         q[self.quaternion_addresses] = 1.0
-        L = self.lengths
-        q[2] = L.ankle_height + L.shank + L.thigh
+        q[2] = self.lengths.hip_height
         return q
 
     @cached_property

@@ -373,9 +373,7 @@ class KinematicFitter:
             return np.ones(len(qpos), bool)
         if contacts is None:
             return np.zeros(len(qpos), bool)
-        lengths = self.body.lengths
-        return running_frames(qpos[:, :2], (contacts > 0.5).any(axis=1), self.fps,
-                              lengths.ankle_height + lengths.shank + lengths.thigh)
+        return running_frames(qpos[:, :2], (contacts > 0.5).any(axis=1), self.fps, self.body.lengths.hip_height)
 
     def _angle_pair_weights(self, angles: np.ndarray, n_ball: int, huber_frames: np.ndarray) -> np.ndarray | None:
         """Huber weights (T - 1, n) of the joint-angle velocity term's pairs of frames, from the angles (T, n):
