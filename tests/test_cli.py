@@ -213,6 +213,8 @@ def test_bad_settings_file(tmp_path):
     assert_clean_failure(physmocap_in_process(*run), "physics.floor_tilt_rate", "500")
     cfg.write_text("[physics]\nrotation_velocity_share = 2.0\n")  # a share, 0 .. 1
     assert_clean_failure(physmocap_in_process(*run), "physics.rotation_velocity_share", "2.0")
+    cfg.write_text('[fit]\nangle_speed_huber_frames = "sometimes"\n')  # "running" or "all"
+    assert_clean_failure(physmocap_in_process(*run), "fit.angle_speed_huber_frames", "sometimes", "running, all")
 
 
 def test_online_capture_of_a_video_streams_and_caches(tmp_path):
