@@ -58,7 +58,8 @@ class FitSettings(Section):
     robust_2d: float = setting(0.05, "m", (0.0, 1.0), "reprojection errors beyond this count linearly; 0: off")
     robust_3d: float = setting(0.10, "m", (0.0, 1.0), "weighted 3D landmark errors beyond this count linearly; 0: off")
     offline_iterations: int = setting(8, "", (1, 200), "Levenberg-Marquardt iterations over the whole clip")
-    online_iterations: int = setting(4, "", (1, 50), "Levenberg-Marquardt iterations per frame when causal")
+    online_iterations: int = setting(4, "", (1, 50), "Levenberg-Marquardt iterations per frame when causal, at "
+                                    "30 fps (lower rates: as many per second)")
     offline_start_iterations: int = setting(2, "", (1, 50), "the same for the causal fits the offline fit starts from")
     undo_foot_swaps: bool = setting(True, help="fit back feet the detector swapped left for right")
     rescale_landmark_depth: bool = setting(True, help="offline: undo the detector's per-frame depth stretch")

@@ -4,6 +4,7 @@ streams side by side, the offline fit's starting point."""
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -88,12 +89,22 @@ def causal_step(fitter: KinematicFitter, targets: FitTargets, past: CausalPast, 
     return result.qpos, CausalPast(past.poses[-1:] + [result.qpos], signals)
 
 
+def steps_per_frame(iterations: int, fps: float) -> int:
+    """Gauss-Newton steps per frame for `iterations` stated at 30 fps: below 30 fps as many more as the frames are
+    fewer (the same per second of video), since each frame's pose lies further from its prediction; above, the
+    same. With 2 at 10 fps the offline fit's start turned pelvises half round on frames of the synthetic set, and
+    the whole-clip fit kept them (docs/decisions/fit-steps-frame-rate.md)."""
+    return max(iterations, math.ceil(iterations * 30.0 / fps - 1e-9))
+
+
 def fit_streams(fitter: KinematicFitter, targets: FitTargets, valid: np.ndarray, chunk: int, iterations: int,
                 progress: Callable[[int, int], None] | None = None) -> np.ndarray:
     """The offline fit's starting point: the causal fit run over runs of at most `chunk` valid frames, all runs
     side by side (one batched step per frame of the longest), at a fraction of one stream's cost. A run also
     starts after every gap of invalid frames, which are interpolated between their fitted neighbours, not
-    extrapolated. valid: (T,) bool, at least one frame; returns qpos (T, nq)."""
+    extrapolated. valid: (T,) bool, at least one frame; returns qpos (T, nq). iterations: Gauss-Newton steps per
+    frame at 30 fps (`steps_per_frame`)."""
+    iterations = steps_per_frame(iterations, fitter.fps)
     frames = np.flatnonzero(valid)
     gap_ends = np.flatnonzero(np.diff(frames, prepend=-2) > 1)  # positions in `frames` where a run begins
     run_ends = np.append(gap_ends[1:], len(frames))
@@ -270,5 +281,6 @@ class OnlineFitter:
         depth = np.array([np.median(self._depths)])
         q = predicted_pose(fitter, self._past) if self._past.poses else None
         targets = make_targets(k2, k3, v, depth, self.camera, calibration, s.fit)
-        q, self._past = causal_step(fitter, targets, self._past, s.fit.online_iterations, prediction=q)
+        q, self._past = causal_step(fitter, targets, self._past, steps_per_frame(s.fit.online_iterations, self.fps),
+                                    prediction=q)
         return q[0]
