@@ -91,10 +91,10 @@ def causal_step(fitter: KinematicFitter, targets: FitTargets, past: CausalPast, 
 
 def steps_per_frame(iterations: int, fps: float) -> int:
     """Gauss-Newton steps per frame for `iterations` stated at 30 fps: below 30 fps as many more as the frames are
-    fewer (the same per second of video), since each frame's pose lies further from its prediction; above, the
-    same. With 2 at 10 fps the offline fit's start turned pelvises half round on frames of the synthetic set, and
-    the whole-clip fit kept them (docs/decisions/fit-steps-frame-rate.md)."""
-    return max(iterations, math.ceil(iterations * 30.0 / fps - 1e-9))
+    fewer (the same per second of video, to the nearest step), since each frame's pose lies further from its
+    prediction; above, the same. With 2 at 10 fps the offline fit's start turned pelvises half round on frames of
+    the synthetic set, and the whole-clip fit kept them (docs/decisions/fit-steps-frame-rate.md)."""
+    return max(iterations, math.floor(iterations * 30.0 / fps + 0.5))
 
 
 def fit_streams(fitter: KinematicFitter, targets: FitTargets, valid: np.ndarray, chunk: int, iterations: int,
