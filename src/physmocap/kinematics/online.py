@@ -90,10 +90,10 @@ def causal_step(fitter: KinematicFitter, targets: FitTargets, past: CausalPast, 
 
 
 def steps_per_frame(iterations: int, fps: float) -> int:
-    """Gauss-Newton steps per frame for `iterations` stated at 30 fps: below 30 fps as many more as the frames are
-    fewer (the same per second of video, to the nearest step), since each frame's pose lies further from its
-    prediction; above, the same. With 2 at 10 fps the offline fit's start turned pelvises half round on frames of
-    the synthetic set, and the whole-clip fit kept them (docs/decisions/fit-steps-frame-rate.md)."""
+    """Levenberg-Marquardt steps per frame for `iterations` stated at 30 fps: below 30 fps as many more as the
+    frames are fewer (the same per second of video, to the nearest step), since each frame's pose lies further
+    from its prediction; above, the same. With 2 at 10 fps the offline fit's start turned pelvises half round on
+    frames of the synthetic set, and the whole-clip fit kept them (docs/decisions/fit-steps-frame-rate.md)."""
     return max(iterations, math.floor(iterations * 30.0 / fps + 0.5))
 
 
@@ -102,8 +102,8 @@ def fit_streams(fitter: KinematicFitter, targets: FitTargets, valid: np.ndarray,
     """The offline fit's starting point: the causal fit run over runs of at most `chunk` valid frames, all runs
     side by side (one batched step per frame of the longest), at a fraction of one stream's cost. A run also
     starts after every gap of invalid frames, which are interpolated between their fitted neighbours, not
-    extrapolated. valid: (T,) bool, at least one frame; returns qpos (T, nq). iterations: Gauss-Newton steps per
-    frame at 30 fps (`steps_per_frame`)."""
+    extrapolated. valid: (T,) bool, at least one frame; returns qpos (T, nq). iterations: Levenberg-Marquardt
+    steps per frame at 30 fps (`steps_per_frame`)."""
     iterations = steps_per_frame(iterations, fitter.fps)
     frames = np.flatnonzero(valid)
     gap_ends = np.flatnonzero(np.diff(frames, prepend=-2) > 1)  # positions in `frames` where a run begins
