@@ -15,7 +15,7 @@ Validation clips (subjects other than the contact networks' held-out 6 and 131) 
 clips are bench_synthetic's (subjects 6 and 131 only).
 
     .venv/bin/python benchmarks/bench_floor_height.py [--part floor|height|both] [--set validation|test]
-        [--quick] [--json OUT.json]
+        [--quick] [--fps 10] [--json OUT.json]
     .venv/bin/python benchmarks/bench_floor_height.py --part real-height   # MediaPipe's metric scale, real video
     .venv/bin/python benchmarks/bench_floor_height.py --part detectors     # only COCO's 17 landmarks, or half
     .venv/bin/python benchmarks/bench_floor_height.py --part real-floor --observations OBS.npz ...
@@ -64,10 +64,10 @@ def tilt_degrees(normal: np.ndarray, true_normal: np.ndarray) -> float:
     return float(np.degrees(np.arccos(min(cosine, 1.0))))
 
 
-def synthetic_case(name: str, seed: int, height: float | None = None):
-    """Observations and truth of one clip seen by one random camera; with `height`, the skeleton is first scaled
-    (about the floor point below its first pelvis) to that standing height."""
-    clip = first_seconds(resample(load_mocap(MOCAP / name), FPS), SECONDS)
+def synthetic_case(name: str, seed: int, height: float | None = None, fps: float = FPS):
+    """Observations and truth of one clip filmed at `fps` by one random camera; with `height`, the skeleton is first
+    scaled (about the floor point below its first pelvis) to that standing height."""
+    clip = first_seconds(resample(load_mocap(MOCAP / name), fps), SECONDS)
     if height is not None:
         factor = height / model_height(landmarks_from_clip(clip))
         anchor = clip.positions[0, 0] * np.array([1.0, 1.0, 0.0])
@@ -78,8 +78,8 @@ def synthetic_case(name: str, seed: int, height: float | None = None):
     return obs, truth
 
 
-def floor_case(name: str, seed: int) -> dict:
-    obs, truth = synthetic_case(name, seed)
+def floor_case(name: str, seed: int, fps: float = FPS) -> dict:
+    obs, truth = synthetic_case(name, seed, fps=fps)
     true_normal = truth["floor"][:3]
     settings = Settings().replace("body", height=model_height(truth["landmarks_world"]))
     row = dict(clip=name.split("/")[-1], seed=seed)
@@ -218,17 +218,19 @@ def main(argv=None) -> dict:
     parser.add_argument("--quick", action="store_true", help="three clips, one seed")
     parser.add_argument("--observations", nargs="*", default=[], help="real-floor part: observations files")
     parser.add_argument("--landmarks", default="all,coco17,half", help="detectors part: which landmark sets")
+    parser.add_argument("--fps", type=float, default=FPS, help="floor part: the rate the clips are filmed at "
+                        "(results file floor_SET_<fps>fps.json where not 30)")
     parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
     clips = VALIDATION_CLIPS if args.set == "validation" else TEST_CLIPS
     clips = clips[:3] if args.quick else clips
     seeds = (0,) if args.quick else (0, 1)
-    out: dict = dict(set=args.set, clips=list(clips), seeds=list(seeds), machine=machine_description())
+    out: dict = dict(set=args.set, clips=list(clips), seeds=list(seeds), fps=args.fps, machine=machine_description())
     if args.part in ("floor", "both"):
         rows = []
         for name in clips:
             for seed in seeds:
-                row = floor_case(name, seed)
+                row = floor_case(name, seed, args.fps)
                 rows.append(row)
                 print(f"floor {row['clip']:>10} seed {seed}: offline {row['offline']:5.1f}, refined "
                       f"{row['refined']:5.1f}, online warm-up {row['online_warmup']:5.1f}, online physics "
@@ -272,7 +274,8 @@ def main(argv=None) -> dict:
         out["real_floor"] = real_floor(args.observations)
     if args.part == "real-height":
         out["real_height"] = real_height_scale()
-    path = Path(args.json) if args.json else RESULTS / f"{args.part.replace('-', '_')}_{args.set}.json"
+    rate = "" if args.fps == FPS else f"_{args.fps:g}fps"
+    path = Path(args.json) if args.json else RESULTS / f"{args.part.replace('-', '_')}_{args.set}{rate}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     write_text(path, json.dumps(out, indent=2))
     return out
