@@ -72,6 +72,7 @@ LM_TOLERANCE = 1e-3  # a Levenberg-Marquardt fit stops after a step that lowers 
 # a frame): the assembly's memory is bounded by this, not by the clip. See docs/decisions/fit-memory.md.
 ASSEMBLY_FRAMES = 256
 TEMPORAL_REACH = 2  # frames after a frame that its temporal residuals reach (the acceleration's three frames)
+STATED_FPS = 30.0  # frames per second at which FitSettings' temporal weights and steps per frame are stated
 # A body runs where its root travels faster than the walk-run transition, Froude number v^2 / (g leg) = 0.5
 # (Alexander 1989; measured 0.5 by Kram et al. 1997), over a running stride centred on the frame (two steps at about
 # 170 steps a minute), with a foot in contact in each step: the stride's net travel leaves out the bounce of each
@@ -194,7 +195,7 @@ class KinematicFitter:
         # also pull towards the last pose, weighted (fps / 30 - 1) times as much (`data_damping`): the damping
         # that 30 fps frames get from their coarse steps (docs/decisions/fit-frame-rate.md, "The online fit above 30
         # fps").
-        rate = fps / 30.0
+        rate = fps / STATED_FPS
         self.fps, self.causal = fps, causal
         if causal and rate > 1.0:
             self.accel_scale, self.velocity_scale, self.data_damping = rate, float(np.sqrt(rate)), rate - 1.0

@@ -21,7 +21,7 @@ from ..errors import ReconstructionError
 from ..landmarks import NUM_LANDMARKS
 from ..motion import Observations
 from .calibration import Calibration, calibrate, resolve_height
-from .fit import FitTargets, KinematicFitter, initial_qpos
+from .fit import STATED_FPS, FitTargets, KinematicFitter, initial_qpos
 from .floor import estimate_floor, move_world_to_floor, seen_sole_points
 from .targets import make_targets, raw_depth, refine_lengths, smooth_depth
 
@@ -94,7 +94,7 @@ def steps_per_frame(iterations: int, fps: float) -> int:
     frames are fewer (the same per second of video, to the nearest step), since each frame's pose lies further
     from its prediction; above, the same. With 2 at 10 fps the offline fit's start turned pelvises half round on
     frames of the synthetic set, and the whole-clip fit kept them (docs/decisions/fit-steps-frame-rate.md)."""
-    return max(iterations, math.floor(iterations * 30.0 / fps + 0.5))
+    return max(iterations, math.floor(iterations * STATED_FPS / fps + 0.5))
 
 
 def fit_streams(fitter: KinematicFitter, targets: FitTargets, valid: np.ndarray, chunk: int, iterations: int,
