@@ -987,14 +987,15 @@ def markdown(out: dict) -> str:
         for method in dict.fromkeys(r["method"] for r in rows):
             box = [r for r in rows if r["method"] == method and r["box"]]
             plain = [r for r in rows if r["method"] == method and not r["box"]]
-            recall = 100 * sum(r["recall_percent"] * r["truly_unexplained"] / 100 for r in box) / sum(
-                r["truly_unexplained"] for r in box)
+            box_truly = sum(r["truly_unexplained"] for r in box)  # a short validation clip may end before the box
+            recall = 100 * sum(r["recall_percent"] * r["truly_unexplained"] / 100 for r in box
+                               if r["truly_unexplained"]) / box_truly if box_truly else float("nan")
             resting = sum(r["truly_unexplained"] for r in plain)
             plain_recall = 100 * sum(r["recall_percent"] * r["truly_unexplained"] / 100 for r in plain
                                      if r["truly_unexplained"]) / resting if resting else float("nan")
             lines.append(f"| {method} | {recall:.1f} | {np.mean([r['false_flag_percent'] for r in box]):.1f} | "
                          f"{plain_recall:.1f} | {np.mean([r['false_flag_percent'] for r in plain]):.2f} | "
-                         f"{np.mean([r['root_error_in_box_mm'] for r in box]):.0f} | "
+                         f"{np.mean([r['root_error_in_box_mm'] for r in box if r['truly_unexplained']]):.0f} | "
                          f"{max(r['largest_force_bw'] for r in rows if r['method'] == method):.2f} |")
         lines.append("")
     if "online" in out:
