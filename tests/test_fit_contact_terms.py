@@ -8,6 +8,7 @@ import pytest
 from conftest import assert_frame_terms_jacobian, random_poses
 from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS
+from physmocap.body.support import RESTING_HEIGHT
 from physmocap.camera import Camera
 from physmocap.config import FitSettings
 from physmocap.kinematics.fit import MARKERS, FitTargets, KinematicFitter, running_frames
@@ -58,17 +59,40 @@ def test_floor_rows_appear_only_with_weight_floor_and_contacts(body, camera):
     no_floor = FitTargets(*[getattr(targets, f) for f in ("keypoints", "weight_2d", "targets_3d", "weight_3d",
                                                           "depth")], targets.contacts, None)
     assert with_floor.frame_terms(q, *with_floor.evaluate(q), no_floor)[0].shape == r0.shape
-    # The residual is sqrt(w) c (n . x + d) of the heel and toe sites.
+    # The residual is sqrt(w) h of the heel and toe sites labelled in contact, and of the others where they dip
+    # under the floor by less than RESTING_HEIGHT; h = n . x + d their heights.
     soles = kin.forward_kinematics(body, q).points[:, body.point_index(CONTACT_POINTS)]
-    expected = np.sqrt(10.0) * targets.contacts * (soles @ targets.floor[:3] + targets.floor[3])
+    height = soles @ targets.floor[:3] + targets.floor[3]
+    dipping = (height < 0) & (height > -RESTING_HEIGHT)
+    expected = np.sqrt(10.0) * np.where((targets.contacts > 0) | dipping, height, 0.0)
     assert np.allclose(r1[:, -4:], expected)
 
 
-def test_frame_terms_with_floor_jacobian_matches_finite_differences(body, camera):
+def test_floor_term_pushes_unlabelled_sites_up_only_from_a_dip(body, camera):
+    """A site not labelled in contact costs nothing above the floor, is pushed back up from a dip under it, and is
+    left alone deeper than RESTING_HEIGHT, where it stands on lower ground."""
+    rng = np.random.default_rng(4)
+    q = np.repeat(body.rest_qpos[None], 3, axis=0)
+    heights = kin.forward_kinematics(body, q).points[0, body.point_index(CONTACT_POINTS), 2]
+    q[:, 2] -= heights.mean()
+    assert np.ptp(heights) < 0.01  # the rest pose's soles are level
+    q[:, 2] += [-0.03, 0.10, -0.20]  # frame 0 dips 3 cm, frame 1 floats 10 cm, frame 2 stands 20 cm lower
+    targets = targets_for(body, q, camera, rng, contacts=np.zeros((3, 4)), floor=np.array([0, 0, 1.0, 0]))
+    fitter = KinematicFitter(body, camera, FitSettings(weight_floor=10.0), 30.0)
+    r, J = fitter.frame_terms(q, *fitter.evaluate(q), targets)
+    assert np.allclose(r[0, -4:], -np.sqrt(10.0) * 0.03, atol=np.sqrt(10.0) * 0.005)
+    # raising the root raises every site: the rows' Jacobian along the root's height is sqrt(w)
+    assert np.allclose(J[0, -4:, 2], np.sqrt(10.0))
+    assert np.all(r[1:, -4:] == 0.0) and np.all(J[1:, -4:] == 0.0)
+
+
+@pytest.mark.parametrize("labelled", [True, False])
+def test_frame_terms_with_floor_jacobian_matches_finite_differences(body, camera, labelled):
     rng = np.random.default_rng(1)
     q = random_poses(body, 3, rng, scale=0.5)
+    q[:, 2] -= 0.05  # some sites under the floor, where the one-sided rows of unlabelled sites act
     fitter = KinematicFitter(body, camera, ALL_TERMS, 30.0)
-    targets = targets_for(body, q, camera, rng, contacts=np.ones((3, 4)))
+    targets = targets_for(body, q, camera, rng, contacts=np.full((3, 4), float(labelled)))
     assert_frame_terms_jacobian(fitter, q, targets)
 
 
@@ -213,3 +237,23 @@ def test_contact_terms_plant_the_feet_on_the_floor(body, camera):
         results[name] = (np.abs(feet[..., 2]).mean(), np.linalg.norm(np.diff(feet, axis=0), axis=-1).mean())
     assert results["contact"][0] < 0.3 * results["plain"][0]
     assert results["contact"][1] < 0.5 * results["plain"][1]
+
+
+def test_floor_term_lifts_a_swinging_foot_out_of_the_floor(body, camera):
+    """Data that put a foot not labelled in contact 4 cm under the floor: the fit with the floor term brings it up
+    to the floor, as the physics that tracks this motion must; without the term it stays under."""
+    rng = np.random.default_rng(7)
+    T = 12
+    pose = body.rest_qpos.copy()
+    soles = body.point_index(CONTACT_POINTS)
+    pose[2] -= kin.forward_kinematics(body, pose).points[0, soles, 2].max() + 0.04  # every sole 4 cm or more under
+    truth = np.repeat(pose[None], T, axis=0)
+    contacts = np.zeros((T, 4))
+    targets = targets_for(body, truth, camera, rng, contacts=contacts, floor=np.array([0, 0, 1.0, 0]))
+    lowest = {}
+    for name, weight in (("without", 0.0), ("with", 10.0)):
+        settings = FitSettings(robust_2d=0, robust_3d=0, weight_floor=weight)
+        fitted = KinematicFitter(body, camera, settings, 30.0).fit_offline(truth, targets).qpos
+        lowest[name] = kin.forward_kinematics(body, fitted).points[:, soles, 2].min()
+    assert lowest["without"] < -0.03
+    assert lowest["with"] > -0.01

@@ -41,6 +41,7 @@ from ..body.rotations import (
     so3_right_jacobian_inverse,
     unwrap_rotation_vectors,
 )
+from ..body.support import RESTING_HEIGHT
 from ..camera import Camera
 from ..config import FitSettings
 from ..landmarks import LANDMARK_INDEX
@@ -290,11 +291,19 @@ class KinematicFitter:
 
     def _floor_terms(self, r: np.ndarray, J: np.ndarray, points: np.ndarray, jac: np.ndarray, plane: np.ndarray,
                      contacts: np.ndarray) -> None:
-        """Contact position (Rempe B7): c sqrt(w) (n . x + d) for the heel and toe sites, written into the
-        residual rows r (T, 4) and their Jacobians J (T, 4, nv)."""
+        """Contact position (Rempe B7) for the heel and toe sites: sqrt(w) h for a site labelled in contact (c = 1),
+        h = n . x + d its height; for one that is not, sqrt(w) h too where it lies under the floor by less than
+        RESTING_HEIGHT, else nothing. Written into the residual rows r (T, 4) and their Jacobians J (T, 4, nv). The
+        unlabelled half is ours, as Rempe's trajectory optimisation keeps every foot on or above the floor (C.2): B7
+        alone let a swinging foot dip under the floor, where the physics that tracks this motion cannot follow it. A
+        free foot deeper than that stands on lower ground, which the physics flags (body.support.under_the_floor),
+        and is left there (docs/decisions/b4-feet-above-floor.md)."""
         normal, offset = plane[:3], plane[3]
-        scale = np.sqrt(self.settings.weight_floor) * contacts  # (T, 4)
-        r[:] = scale * (points[:, self.contact_points] @ normal + offset)
+        height = points[:, self.contact_points] @ normal + offset  # (T, 4)
+        dipping = (height < 0.0) & (height > -RESTING_HEIGHT)
+        held = contacts + (1.0 - contacts) * dipping  # the sites whose height the term pulls to 0
+        scale = np.sqrt(self.settings.weight_floor) * held
+        r[:] = scale * height
         J[:] = scale[..., None] * (normal @ jac[:, self.contact_points])
 
     def _active_floor(self, targets: FitTargets) -> tuple[np.ndarray, np.ndarray] | None:
