@@ -390,7 +390,7 @@ HAND_SECTIONS = ("contacts_more_data", "physics_footage", "physics", "physics2",
                  "physics5", "trajopt6", "refine2", "contacts6", "trajopt_quiet15", "physics6", "contacts7", "trajopt_stall16", "merged16", "physics7", "trajopt_framerate17", "trajopt8", "retarget17", "contacts8", "merged17",
                  "trajopt9", "physics8", "trajopt10", "outputs2", "merged18",
                  "robustness19", "physics9", "contacts9", "robustness20", "trajopt10_real_videos", "physics_support21",
-                 "physics_planted22", "physics_resting23", "retarget_whole_clip24", "retarget_ease26", "repeats26", "frame_rates27", "online_rates28", "b4_com28", "balance29", "contacts29", "physics30", "contacts30", "physics31", "physics32", "physics33", "physics34", "clock35", "limits36", "retarget_flights36", "floor36", "b4_levels36", "levels37", "online_swaps37", "hard_inputs38", "online_forces38", "bench_refresh38", "lagfree39", "levels40", "seated40", "gains41", "seat41", "slip42", "trajopt42", "angle43", "noise44", "plant45", "takeoff46", "blend46", "running49", "fitsteps50")
+                 "physics_planted22", "physics_resting23", "retarget_whole_clip24", "retarget_ease26", "repeats26", "frame_rates27", "online_rates28", "b4_com28", "balance29", "contacts29", "physics30", "contacts30", "physics31", "physics32", "physics33", "physics34", "clock35", "limits36", "retarget_flights36", "floor36", "b4_levels36", "levels37", "online_swaps37", "hard_inputs38", "online_forces38", "bench_refresh38", "lagfree39", "levels40", "seated40", "gains41", "seat41", "slip42", "trajopt42", "angle43", "noise44", "plant45", "takeoff46", "blend46", "running49", "fitsteps50", "feetfloor51")
 
 
 def compose(seconds: dict[str, float]) -> str:

@@ -69,7 +69,7 @@ class FitSettings(Section):
     one_euro_min_cutoff: float = setting(1.5, "Hz", (0.01, 30.0), "the One-Euro filter's minimum cutoff")
     one_euro_beta: float = setting(0.3, "", (0.0, 10.0), "the One-Euro filter's speed coefficient")
     weight_contact_velocity: float = setting(0.0, "", (0.0, 1000.0), "Rempe's E_cont (B6): feet moving in contact (10)")
-    weight_floor: float = setting(0.0, "", (0.0, 1000.0), "Rempe's E_floor (B7): heel/toe height in contact (10)")
+    weight_floor: float = setting(0.0, "", (0.0, 1000.0), "Rempe's E_floor (B7), heel/toe in contact; ours: dips (10)")
     weight_velocity: float = setting(0.0, "", (0.0, 1000.0), "Rempe's E_vel (B2): joint velocity (paper 0.1)")
     weight_angle_velocity: float = setting(0.0, "", (0.0, 1000.0), "Rempe's E_ang (B3): joint angle change (0.1)")
     angle_speed_huber: float = setting(2.0, "rad/s", (0.0, 100.0), "E_ang pulls linearly on joints faster (0: off)")
