@@ -40,43 +40,14 @@ import json
 import sys
 import tempfile
 from collections.abc import Callable
-from fractions import Fraction
 from pathlib import Path
 
-import av
 import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_physics_videos import run_video  # noqa: E402
-from common import RESULTS, VIDEOS  # noqa: E402
-
-Pictures = list[np.ndarray]  # BGR (H, W, 3) uint8 pictures
-
-
-def read_clip(name: str, seconds: float) -> tuple[Pictures, float]:
-    """The first `seconds` of a shared video as BGR pictures, and its frame rate."""
-    with av.open(str(VIDEOS / name)) as container:
-        stream = container.streams.video[0]
-        fps = float(stream.average_rate)
-        pictures = []
-        for frame in container.decode(stream):
-            if len(pictures) >= round(seconds * fps):
-                break
-            pictures.append(frame.to_ndarray(format="bgr24"))
-    return pictures, fps
-
-
-def write_clip(path: Path, pictures: Pictures, fps: float) -> None:
-    """H.264 at `fps`, the pictures cut to even sizes (yuv420p)."""
-    height, width = (size - size % 2 for size in pictures[0].shape[:2])
-    with av.open(str(path), "w") as container:
-        stream = container.add_stream("libx264", rate=Fraction(fps).limit_denominator(1001))
-        stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
-        for picture in pictures:
-            frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(picture[:height, :width]), format="bgr24")
-            container.mux(stream.encode(frame))
-        container.mux(stream.encode())
+from common import RESULTS, Pictures, read_clip, write_clip  # noqa: E402
 
 
 def variants() -> dict[str, Callable[[], tuple[Pictures, float]]]:

@@ -8,11 +8,14 @@ median reprojection error and the Procrustes-aligned error against the detector'
 accuracies available without a 3D truth) also over the feet-only frames alone (valid, not flagged, and so their
 neighbours). --runs FOLDER keeps the run folders, whose caches a second run reuses (then
 only contacts, physics and the outputs run again). --online captures with the causal fit (`capture --online`);
-give it its own --runs folder, or a copy of an offline one to reuse its detections.
+give it its own --runs folder, or a copy of an offline one to reuse its detections. --reencoded runs the 10-12 fps
+inputs instead, each written again by H.264 at three qualities (REENCODED, CRFS; PyAV's libx264): how far the
+encoding alone moves a slow video's ratios to its input (docs/decisions/b4-feet-above-floor.md).
 
-    .venv/bin/python benchmarks/bench_physics_videos.py [--physics physcap] [--online] [--videos NAME ...]
+    .venv/bin/python benchmarks/bench_physics_videos.py [--physics physcap] [--online] [--videos NAME ... | --reencoded]
 
-Writes benchmarks/results/physics_videos.json and .md; runs go to a temporary folder.
+Writes benchmarks/results/physics_videos.json and .md (--reencoded: physics_videos_reencoded.json and .md); runs go
+to a temporary folder.
 """
 
 from __future__ import annotations
@@ -34,7 +37,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import REPO, RESULTS, VIDEOS  # noqa: E402
+from common import REPO, RESULTS, VIDEOS, read_clip, write_clip  # noqa: E402
 from physmocap import metrics  # noqa: E402
 from physmocap.body.model import CONTACT_POINTS  # noqa: E402
 from physmocap.landmarks import LANDMARK_INDEX  # noqa: E402
@@ -43,6 +46,11 @@ from physmocap.motion import Observations  # noqa: E402
 VIDEOS_RUN = ("hybrik_taiji.mp4", "intel_highcam_walk_stand.mp4", "mmhuman3d_single_person_demo.mp4",
               "sam2_soccer_juggling.mp4", "sports2d_demo.mp4", "pose2sim_demo_singleperson/cam01.mp4")
 GRAVITY = 9.81
+# The 10-12 fps inputs (video, every how many frames: its own file's rate or a subsampling's) and the H.264 constant
+# rate factors they are written again at (--reencoded): near-lossless, the encoder's default region, visibly lossy.
+REENCODED = (("intel_highcam_walk_stand.mp4", 1), ("mmhuman3d_single_person_demo.mp4", 1), ("sports2d_demo.mp4", 3),
+             ("hybrik_taiji.mp4", 2), ("sam2_soccer_juggling.mp4", 2))
+CRFS = (12, 20, 28)
 # The detector's 3D landmarks that are joints of the body (faces and hands left out: the detector's noisiest), with
 # the result point each one is fitted to.
 LIMB_LANDMARKS = tuple((side + part, side + part) for side in ("left_", "right_")
@@ -211,13 +219,24 @@ def main(argv=None) -> dict:
     parser.add_argument("--runs", default=None, help="keep the run folders here (default: a temporary folder)")
     parser.add_argument("--config", default=None, help="a TOML settings file passed to every capture")
     parser.add_argument("--online", action="store_true", help="capture --online (the causal fit and PhysCap)")
+    parser.add_argument("--reencoded", action="store_true",
+                        help="the 10-12 fps inputs written again by H.264 at crf 12 / 20 / 28, instead of the videos")
     args = parser.parse_args(argv)
+    if args.reencoded and args.json == parser.get_default("json"):
+        args.json = str(RESULTS / "physics_videos_reencoded.json")
     rows = []
     with tempfile.TemporaryDirectory() as folder:
         work = Path(args.runs or folder)
         work.mkdir(parents=True, exist_ok=True)  # the re-encode below writes into it first
         videos = [VIDEOS / name for name in (args.videos or VIDEOS_RUN)]
-        if args.videos is None:
+        if args.reencoded:
+            videos = []
+            for name, every in REENCODED:
+                pictures, fps = read_clip(name, every=every)
+                for crf in CRFS:
+                    videos.append(work / f"{Path(name).stem}_every{every}_crf{crf}.mp4")
+                    write_clip(videos[-1], pictures, fps, crf)
+        elif args.videos is None:
             slow = work / "sports2d_demo_10fps.mp4"
             reencode(VIDEOS / "sports2d_demo.mp4", slow, 3)
             videos.append(slow)
@@ -226,7 +245,8 @@ def main(argv=None) -> dict:
             rows.append(row)
             print(json.dumps(row), flush=True)
     out = dict(physics=args.physics, online=args.online, rows=rows, load_average=os.getloadavg()[0])
-    if args.videos is None and all(r["exit_code"] == 0 for r in rows if "sports2d_demo" in r["video"]):
+    if args.videos is None and not args.reencoded and all(r["exit_code"] == 0 for r in rows
+                                                           if "sports2d_demo" in r["video"]):
         out["sports2d_10fps_against_30fps"] = against_own_capture(work / "sports2d_demo_10fps", work / "sports2d_demo")
     RESULTS.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(out, indent=1))
@@ -250,6 +270,12 @@ def main(argv=None) -> dict:
                          f" / {r.get('grf_horizontal_9_frames_percent_bw', np.nan):.0f} |")
         else:
             lines.append(f"| {r['video']} | {r['exit_code']} | {r['wall_s']:.0f} | {r['last_line']} | | | | | | | | | | |")
+    scored = [r for r in rows if np.isfinite(r.get("feet_only_jitter", np.nan))]
+    if scored:
+        above = sum(r["feet_only_jitter"] > r["feet_only_kinematic_jitter"] for r in scored)
+        within = sum(r["feet_only_aligned_mm"] <= 1.05 * r["feet_only_kinematic_aligned_mm"] for r in scored)
+        lines += ["", f"Feet-only frames: jitter above the input on {above} of {len(scored)}; aligned error within 5% "
+                  f"of the input on {within} of {len(scored)}."]
     if "sports2d_10fps_against_30fps" in out:
         c = out["sports2d_10fps_against_30fps"]
         lines += ["", f"sports2d at 10 fps against its own 30 fps capture read on the same frames ({c['frames']} "

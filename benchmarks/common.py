@@ -11,8 +11,11 @@ import platform
 import statistics
 import subprocess
 import time
+from fractions import Fraction
 from pathlib import Path
 
+import av
+import cv2
 import numpy as np
 
 from physmocap.body import kinematics as kin
@@ -23,7 +26,39 @@ SHARED = Path(os.environ.get("PHYSMOCAP_SHARED", REPO.parent / "shared"))
 VIDEOS = SHARED / "data" / "videos"
 MOCAP = SHARED / "data" / "mocap"
 RESULTS = REPO / "benchmarks" / "results"
+Pictures = list[np.ndarray]  # BGR (H, W, 3) uint8 pictures
 
+
+
+def read_clip(name: str, seconds: float | None = None, every: int = 1) -> tuple[Pictures, float]:
+    """A shared video's pictures (its first `seconds`, default all), BGR, every `every`-th one, and their frame rate
+    (the video's / every: the true rate of that subsampling)."""
+    with av.open(str(VIDEOS / name)) as container:
+        stream = container.streams.video[0]
+        fps = float(stream.average_rate)
+        pictures = []
+        for index, frame in enumerate(container.decode(stream)):
+            if seconds is not None and index >= round(seconds * fps):
+                break
+            if index % every == 0:
+                pictures.append(frame.to_ndarray(format="bgr24"))
+    return pictures, fps / every
+
+
+def write_clip(path: Path, pictures: Pictures, fps: float, crf: int | None = None) -> None:
+    """H.264 at `fps`, the pictures cut to even sizes (yuv420p); crf: libx264's constant rate factor (0-51, lower is
+    better; None: its default, 23). The same pictures give the same bytes: one encoder thread, and the colour
+    conversion by OpenCV. With several threads, or with PyAV's own conversion, sports2d's pictures (1768 x 994)
+    came out as other bytes on most calls, and their detections and ratios moved with them."""
+    height, width = (size - size % 2 for size in pictures[0].shape[:2])
+    with av.open(str(path), "w") as container:
+        stream = container.add_stream("libx264", rate=Fraction(fps).limit_denominator(1001))
+        stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
+        stream.options = {"threads": "1"} | ({} if crf is None else {"crf": str(crf)})
+        for picture in pictures:
+            planes = cv2.cvtColor(np.ascontiguousarray(picture[:height, :width]), cv2.COLOR_BGR2YUV_I420)
+            container.mux(stream.encode(av.VideoFrame.from_ndarray(planes, format="yuv420p")))
+        container.mux(stream.encode())
 
 
 def truth_scores(motion, qpos: np.ndarray, truth: dict, grf=None, residual=None) -> dict:
