@@ -95,8 +95,12 @@ def feet_only_jitter(points: np.ndarray, fps: float, explained: np.ndarray) -> f
     inner = explained[1:-1] & explained[:-2] & explained[2:]
     if not inner.any():
         return float("nan")
-    second = points[2:] - 2 * points[1:-1] + points[:-2]
-    return float(np.linalg.norm(second[inner], axis=-1).mean() * fps ** 2)
+    return float(np.linalg.norm(accelerations(points, fps)[inner], axis=-1).mean())
+
+
+def accelerations(points: np.ndarray, fps: float) -> np.ndarray:
+    """(T - 2, ...) m/s^2: the central second differences of points (T, ...) m at the interior frames."""
+    return (points[2:] - 2 * points[1:-1] + points[:-2]) * fps ** 2
 
 
 def against_own_capture(slow: Path, full: Path, keep_every: int = 3) -> dict:
@@ -111,18 +115,14 @@ def against_own_capture(slow: Path, full: Path, keep_every: int = 3) -> dict:
     n = int(np.sum(frames < len(b["valid"])))
     explained = (a["valid"] & ~a["physics_unexplained"].astype(bool))[:n]
     inner = explained[1:-1] & explained[:-2] & explained[2:]
-
-    def second(points: np.ndarray) -> np.ndarray:
-        return (points[2:] - 2 * points[1:-1] + points[:-2]) * fps ** 2
-
-    reference = second(b["joints_world"][frames[:n]])
+    reference = accelerations(b["joints_world"][frames[:n]], fps)
     out = {}
     for label, points in (("slow_physics", a["joints_world"][:n]), ("slow_input", a["joints_world_kinematic"][:n]),
                           ("full_physics", b["joints_world"][frames[:n]]),
                           ("full_input", b["joints_world_kinematic"][frames[:n]])):
         out[f"{label}_jitter"] = feet_only_jitter(points, fps, explained)
         if label.startswith("slow"):
-            error = np.linalg.norm(second(points) - reference, axis=-1).mean(axis=1)
+            error = np.linalg.norm(accelerations(points, fps) - reference, axis=-1).mean(axis=1)
             out[f"{label}_acceleration_error"] = float(error[inner].mean())
     return out | dict(frames=int(inner.sum()))
 
@@ -214,12 +214,13 @@ def run_video(video: Path, out: Path, physics: str, config: str | None = None, o
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--physics", default="physcap")
-    parser.add_argument("--videos", nargs="*", default=None, help="names under the videos folder (default: all)")
+    chosen = parser.add_mutually_exclusive_group()
+    chosen.add_argument("--videos", nargs="*", default=None, help="names under the videos folder (default: all)")
     parser.add_argument("--json", default=str(RESULTS / "physics_videos.json"))
     parser.add_argument("--runs", default=None, help="keep the run folders here (default: a temporary folder)")
     parser.add_argument("--config", default=None, help="a TOML settings file passed to every capture")
     parser.add_argument("--online", action="store_true", help="capture --online (the causal fit and PhysCap)")
-    parser.add_argument("--reencoded", action="store_true",
+    chosen.add_argument("--reencoded", action="store_true",
                         help="the 10-12 fps inputs written again by H.264 at crf 12 / 20 / 28, instead of the videos")
     args = parser.parse_args(argv)
     if args.reencoded and args.json == parser.get_default("json"):
