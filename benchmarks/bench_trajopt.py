@@ -509,11 +509,11 @@ def one_window(seconds: float, first: int, last: int) -> dict:
     """Frames first..last of the looped dance of `long_scaling` (looped to `seconds`) as one window from a free
     start (its start velocity the input's), solved as run_trajopt solves a window: every IPOPT run's status,
     iterations and CPU seconds. The windows that cost most on long clips can be studied alone this way."""
+    from physmocap.contacts.flights import held_flights_in_runs
     from physmocap.trajopt.formulation import Window
     from physmocap.trajopt.phases import clean_flags, contact_phases, split_drifting
     from physmocap.trajopt.reduced import boundary_velocity, reduced_motion
     from physmocap.trajopt.solve import solve_window
-    from physmocap.trajopt.stage import _support_held_flights
 
     obs, truth, settings = observe(LONG_CLIP, 0, 10.0)
     motion = fit_motion(obs, settings)
@@ -524,7 +524,8 @@ def one_window(seconds: float, first: int, last: int) -> dict:
     red = reduced_motion(refined.motion.body, refined.motion.qpos[idx], obs.fps)
     min_frames = max(1, int(np.ceil(s.min_phase_seconds * obs.fps - 1e-9)))
     flags = np.stack([clean_flags(refined.contacts[idx, i], min_frames) for i in range(4)], axis=1)
-    flags = _support_held_flights(flags, red, np.ones(len(idx), bool), s)  # as run_trajopt relabels them
+    flags = held_flights_in_runs(flags, np.ones(len(idx), bool), red.com, red.feet, red.times, s.gravity,
+                                 np.repeat(red.foot_length, 2), "trajopt")[0]  # as run_trajopt relabels them
     flags = split_drifting(flags, red.feet[..., :2], s.contact_drift, min_frames)
     part = red.frames(slice(first, last + 1))
     window = Window(part, [contact_phases(flags[first:last + 1, i], part.times) for i in range(4)],

@@ -19,7 +19,7 @@ from physmocap.body import kinematics as kin
 from physmocap.body.model import CONTACT_POINTS, build_body_model, template_lengths
 from physmocap.body.support import STEP_HEIGHT, unexplained_frames
 from physmocap.config import TrajoptSettings
-from physmocap.contacts.flights import flight_support, support_held_flights
+from physmocap.contacts.flights import CONTACT_MAX_SPEED, flight_speeds, flight_support, support_held_flights
 from physmocap.errors import InputError
 from physmocap.trajopt import stage
 from physmocap.trajopt.formulation import (
@@ -232,6 +232,34 @@ def test_flight_support_is_a_point_that_stays_put():
     points[20:27, 3, 2] = points[20:27, 2, 2]
     out, changed, unsupported = support_held_flights(flags, com, points, times, G, 0.5, drift=0.05)
     assert changed == [] and [(a, b) for a, b, _ in unsupported] == [(20, 27)]
+
+
+def test_flight_support_is_no_faster_than_a_contact():
+    """A run's short flight: the toe that pushed off swings on at 1.8 m/s, within its foot's length over four frames
+    at 30 fps, so drift alone would hold the body on it. Faster than a contact may move, it holds nothing up: the
+    flight is unexplained. A toe that creeps at half a metre a second still holds the same flight up."""
+    fps, frames = 30.0, 40
+    times = np.arange(frames) / fps
+    points = np.zeros((frames, 4, 3))
+    points[:, :, 0] = [-0.05, 0.15, -0.05, 0.15]
+    points[:, :, 1] = [0.4, 0.4, -0.1, -0.1]
+    points[:24, :2, 0] -= 0.06 * (24 - np.arange(24))[:, None]  # the left foot swings in to land on frame 24
+    flags = np.zeros((frames, 4), bool)
+    flags[:20, 3] = flags[24:, :2] = True  # the right toe pushes off, the left foot lands four frames later
+    com = np.zeros((frames, 3))
+    com[:, 2] = 0.95  # the input's centre of mass does not fall
+    points[20:, 3, 0] += np.minimum(0.06 * np.arange(1, frames - 19), 0.3)  # 6 cm a frame
+    assert flight_speeds(points, times, 20, 24)[3] == pytest.approx(1.8)
+    assert not flight_speeds(points, times, 20, 22).any()  # two frames: one step, no speed told from noise
+    out, changed, unsupported = support_held_flights(flags, com, points, times, G, 0.5, drift=0.21)
+    assert [(a, b, p) for a, b, p, _ in changed] == [(20, 24, 3)] and unsupported == []
+    out, changed, unsupported = support_held_flights(flags, com, points, times, G, 0.5, drift=0.21,
+                                                     max_speed=CONTACT_MAX_SPEED)
+    assert changed == [] and [(a, b) for a, b, _ in unsupported] == [(20, 24)] and np.array_equal(out, flags)
+    points[20:, 3, 0] = 0.15 + np.minimum(0.5 / fps * np.arange(1, frames - 19), 0.3)
+    out, changed, unsupported = support_held_flights(flags, com, points, times, G, 0.5, drift=0.21,
+                                                     max_speed=CONTACT_MAX_SPEED)
+    assert [(a, b, p) for a, b, p, _ in changed] == [(20, 24, 3)] and unsupported == []
 
 
 @pytest.mark.slow

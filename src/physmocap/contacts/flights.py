@@ -12,6 +12,7 @@ import numpy as np
 from ..body.model import CONTACT_POINTS
 from ..body.support import STEP_HEIGHT
 from ..motion import valid_runs
+from .labels import LabelSettings
 
 log = logging.getLogger("physmocap")
 
@@ -20,6 +21,8 @@ log = logging.getLogger("physmocap")
 # subjects 1, 2, 5, 7 (docs/decisions/trajopt-false-flights.md); 0 .. 1
 STANDING_SUPPORT = 0.5
 EASE_TIME = 0.1  # s: a held point eases onto and off its spot over this (a step's touch-down); planting, retargeting
+# m/s: a point moving faster than a contact may (the labels' own definition) holds nothing up through a flight
+CONTACT_MAX_SPEED = LabelSettings.contact_max_speed
 
 
 def runs(flags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -77,6 +80,16 @@ def flight_support(com_height: np.ndarray, times: np.ndarray, start: int, stop: 
     return float("nan") if parabola is None else 1.0 + 2.0 * float(parabola[0][0]) / gravity
 
 
+def flight_speeds(points: np.ndarray, times: np.ndarray, start: int, stop: int) -> np.ndarray:
+    """The median speed (P,) m/s of each of points (T, P, 3) at `times` (T,) s over the intervals between the
+    frames of the flight [start, stop); zeros for a flight of fewer than three frames, too short to tell a point's
+    speed from one noisy step (the intervals to its take-off and landing are the stance's)."""
+    if stop - start < 3:
+        return np.zeros(points.shape[1])
+    steps = np.linalg.norm(np.diff(points[start:stop], axis=0), axis=-1) / np.diff(times[start:stop])[:, None]
+    return np.median(steps, axis=0)
+
+
 def _bridge(flags: np.ndarray, a: int, b: int) -> tuple[int, int]:
     """[a, b) widened to the point's own contacts (flags (T,)) before and after when they resume within the
     flight's length (b - a): a hand-over from one point to another with no frame of both would again leave the
@@ -88,8 +101,8 @@ def _bridge(flags: np.ndarray, a: int, b: int) -> tuple[int, int]:
 
 
 def support_held_flights(flags: np.ndarray, com: np.ndarray, points: np.ndarray, times: np.ndarray,
-                         gravity: float, max_support: float,
-                         drift: np.ndarray | float = np.inf) -> tuple[np.ndarray, list[tuple], list[tuple]]:
+                         gravity: float, max_support: float, drift: np.ndarray | float = np.inf,
+                         max_speed: float = np.inf) -> tuple[np.ndarray, list[tuple], list[tuple]]:
     """(T, P) contact flags in which every whole-body flight (no point in contact; one at the clip's first or
     last frame too, judged by its own frames) that the input motion does not fall through is given back a
     support: a flight whose COM (T, 3) needs more than `max_support` body weights (`flight_support`) is the
@@ -97,11 +110,13 @@ def support_held_flights(flags: np.ndarray, com: np.ndarray, points: np.ndarray,
     never shows. The support is the point, of those in contact on the frame before or after the flight, nearest
     below the COM on average (points (T, P, 3), world on the floor z = 0; a support far to one side would turn the
     body) whose input stays within `drift` m (a number, or one per point (P,)) of its median position along the
-    floor over the flight (a held contact does not travel; 0: no limit) and within STEP_HEIGHT of the floor (a toe
-    climbing a ladder's rungs held nothing on the floor);
-    its contact continues through the flight. Returns the flags, (start, stop, point, support) of each
-    relabelled flight, [start, stop) the frames put in contact, and (start, stop, support) of each flight that
-    no point could hold up (every candidate travels): the contact model cannot explain it."""
+    floor over the flight (a held contact does not travel; 0: no limit), within STEP_HEIGHT of the floor (a toe
+    climbing a ladder's rungs held nothing on the floor) and whose median speed over the flight is at most
+    `max_speed` m/s (`flight_speeds`: a toe swinging off at a run's take-off travels too, though a short flight
+    leaves it no time to leave its foot's length); its contact continues through the flight. Returns the flags,
+    (start, stop, point, support) of each relabelled flight, [start, stop) the frames put in contact, and
+    (start, stop, support) of each flight that no point could hold up (every candidate travels): the contact
+    model cannot explain it."""
     flags = np.asarray(flags, bool).copy()
     changed, unsupported = [], []
     starts, lengths = runs(flags.any(axis=1))
@@ -117,8 +132,11 @@ def support_held_flights(flags: np.ndarray, com: np.ndarray, points: np.ndarray,
         candidates = (flags[s - 1] if s > 0 else none) | (flags[s + n] if s + n < len(flags) else none)
         if not candidates.any():
             continue
+        slow = flight_speeds(points, times, int(s), int(s + n)) <= max_speed
         reach = np.linalg.norm(points[s:s + n, :, :2] - com[s:s + n, None, :2], axis=-1).mean(axis=0)
         for point in np.argsort(np.where(candidates, reach, np.inf))[:int(candidates.sum())]:
+            if not slow[point]:
+                continue
             a, b = _bridge(flags[:, point], int(s), int(s + n))
             p = points[a:b, point, :2]
             limit = np.broadcast_to(drift, (flags.shape[1],))[point]
@@ -137,15 +155,16 @@ def support_held_flights(flags: np.ndarray, com: np.ndarray, points: np.ndarray,
 def held_flights_in_runs(flags: np.ndarray, valid: np.ndarray, com: np.ndarray, points: np.ndarray,
                          times: np.ndarray, gravity: float, drift: np.ndarray | float,
                          method: str) -> tuple[np.ndarray, np.ndarray]:
-    """support_held_flights (max_support STANDING_SUPPORT) within each run of valid frames (T,) of flags (T, 4),
-    com (T, 3), points (T, 4, 3) (CONTACT_POINTS) at times (T,) s; each point put in contact, and each flight that
-    no point can hold up, logged as `method`'s ("physics", "trajopt"). Returns the flags and (T,) bool the frames
-    of the flights no point can hold: the contact model cannot explain them, and both methods keep the kinematic
-    motion there."""
+    """support_held_flights (max_support STANDING_SUPPORT, max_speed CONTACT_MAX_SPEED) within each run of valid
+    frames (T,) of flags (T, 4), com (T, 3), points (T, 4, 3) (CONTACT_POINTS) at times (T,) s; each point put in
+    contact, and each flight that no point can hold up, logged as `method`'s ("physics", "trajopt"). Returns the
+    flags and (T,) bool the frames of the flights no point can hold: the contact model cannot explain them, and
+    both methods keep the kinematic motion there."""
     flags, unheld = np.asarray(flags, bool).copy(), np.zeros(len(flags), bool)
     for first, end in valid_runs(valid):
         flags[first:end], changed, unsupported = support_held_flights(
-            flags[first:end], com[first:end], points[first:end], times[first:end], gravity, STANDING_SUPPORT, drift)
+            flags[first:end], com[first:end], points[first:end], times[first:end], gravity, STANDING_SUPPORT, drift,
+            CONTACT_MAX_SPEED)
         for start, stop, point, support in changed:
             log.warning("%s: around frames %d-%d the labels give a flight, but the motion's centre of mass needs "
                         "%.0f%% of body weight there: the %s is kept in contact over these frames.", method,

@@ -693,12 +693,12 @@ def offline_unexplainable(body: BodyModel, qpos: np.ndarray, fps: float, contact
                           valid: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """What the whole B.4-refined input (T, nq) shows before any tracking, within its valid frames (T,) (None:
     all): (T, 4) contacts in which each whole-body flight of the labels that the motion's centre of mass does not
-    fall through is held up by a point that stays within its foot's length (contacts.flights, the rule trajopt
-    applies to the same labels), and (T,) bool the frames the contact model cannot explain, which both physics
-    methods keep kinematic: a COM below the floor or a body resting off its feet (support.unexplained_frames), and
-    such flights that no point can hold (every candidate travels). B.4 leaves such flights where the kinematic feet
-    hover over the floor: on one video 0.1 s needing 0.7 body weights, through which the character free-fell and
-    landed at 4-5 body weights. Each stretch is logged."""
+    fall through is held up by a point that stays within its foot's length and moves no faster than a contact
+    (contacts.flights, the rule trajopt applies to the same labels), and (T,) bool the frames the contact model
+    cannot explain, which both physics methods keep kinematic: a COM below the floor or a body resting off its
+    feet (support.unexplained_frames), and such flights that no point can hold (every candidate travels). B.4
+    leaves such flights where the kinematic feet hover over the floor: on one video 0.1 s needing 0.7 body
+    weights, through which the character free-fell and landed at 4-5 body weights. Each stretch is logged."""
     mask = np.ones(len(qpos), bool) if valid is None else np.array(valid, bool)  # a copy: narrowed below
     pose = kin.forward_kinematics(body, qpos)
     com, points = kin.center_of_mass(body, pose), pose.points[:, body.point_index(CONTACT_POINTS)]
