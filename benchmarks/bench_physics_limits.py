@@ -242,14 +242,6 @@ def resample_motion(body, qpos: np.ndarray, fps: float, new_fps: float) -> tuple
     return out, lower
 
 
-def explained_jitter(points: np.ndarray, fps: float, explained: np.ndarray) -> float:
-    """m/s^2: mean joint acceleration (central second differences) at the frames that are, with both neighbours,
-    not flagged (bench_physics_videos' feet-only jitter)."""
-    inner = explained[1:-1] & explained[:-2] & explained[2:]
-    second = points[2:] - 2 * points[1:-1] + points[:-2]
-    return float(np.linalg.norm(second[inner], axis=-1).mean() * fps ** 2) if inner.any() else float("nan")
-
-
 def against_reference(run: dict, reference: dict) -> tuple[list[int], list[int], np.ndarray, np.ndarray]:
     """A rate's run against the 60 fps one (each with "times" (T,) s and joint "points" (T, J, 3) m), at the
     times both hold from 0.5 s on: the run's frames there, the reference's matching frames, and per common time
@@ -280,8 +272,9 @@ def part_framerate(clips) -> dict:
             explained = ~physics.unexplained if physics.unexplained is not None else np.ones(len(qpos), bool)
             runs[fps] = dict(times=np.arange(len(qpos)) / fps, physics=physics, points=points,
                              to_input=to_input[np.arange(len(qpos)) / fps >= 0.5],
-                             jitter=explained_jitter(points, fps, explained),
-                             input_jitter=explained_jitter(kin.forward_kinematics(body, qpos).points, fps, explained))
+                             jitter=metrics.explained_acceleration(points, fps, explained),
+                             input_jitter=metrics.explained_acceleration(kin.forward_kinematics(body, qpos).points,
+                                                                         fps, explained))
         reference = runs[60.0]
         for fps in RATES:
             run, physics = runs[fps], runs[fps]["physics"]

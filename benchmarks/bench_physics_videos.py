@@ -89,40 +89,27 @@ def mean_acceleration(points: np.ndarray, fps: float) -> float:
     return metrics.mean_acceleration(points, fps) if len(points) >= 3 else float("nan")
 
 
-def feet_only_jitter(points: np.ndarray, fps: float, explained: np.ndarray) -> float:
-    """m/s^2: mean joint acceleration (central second differences) at the frames whose neighbours and themselves
-    are all `explained` (valid and not flagged: where only the feet carry the body, as far as the physics knows)."""
-    inner = explained[1:-1] & explained[:-2] & explained[2:]
-    if not inner.any():
-        return float("nan")
-    return float(np.linalg.norm(accelerations(points, fps)[inner], axis=-1).mean())
-
-
-def accelerations(points: np.ndarray, fps: float) -> np.ndarray:
-    """(T - 2, ...) m/s^2: the central second differences of points (T, ...) m at the interior frames."""
-    return (points[2:] - 2 * points[1:-1] + points[:-2]) * fps ** 2
-
-
 def against_own_capture(slow: Path, full: Path, keep_every: int = 3) -> dict:
     """The re-encode `slow` (every `keep_every`-th frame of the video captured in `full`, run folders) against that
-    capture read on the same frames: over the slow run's feet-only frames (feet_only_jitter's), the jitter of each
-    motion read at the slow rate (m/s^2) and the slow motions' acceleration error against the full capture's physics
-    (mean over joints of the difference of second differences). The full capture sees three times the pictures:
-    whatever the slow motions lack of its acceleration is real motion smoothed away, not noise removed."""
+    capture read on the same frames: over the slow run's feet-only frames (metrics.explained_acceleration's), the
+    jitter of each motion read at the slow rate (m/s^2) and the slow motions' acceleration error against the full
+    capture's physics (mean over joints of the difference of second differences). The full capture sees three times
+    the pictures: whatever the slow motions lack of its acceleration is real motion smoothed away, not noise
+    removed."""
     a, b = (dict(np.load(folder / "result.npz", allow_pickle=False)) for folder in (slow, full))
     fps = float(a["fps"])
     frames = keep_every * np.arange(len(a["valid"]))
     n = int(np.sum(frames < len(b["valid"])))
     explained = (a["valid"] & ~a["physics_unexplained"].astype(bool))[:n]
     inner = explained[1:-1] & explained[:-2] & explained[2:]
-    reference = accelerations(b["joints_world"][frames[:n]], fps)
+    reference = metrics.accelerations(b["joints_world"][frames[:n]], fps)
     out = {}
     for label, points in (("slow_physics", a["joints_world"][:n]), ("slow_input", a["joints_world_kinematic"][:n]),
                           ("full_physics", b["joints_world"][frames[:n]]),
                           ("full_input", b["joints_world_kinematic"][frames[:n]])):
-        out[f"{label}_jitter"] = feet_only_jitter(points, fps, explained)
+        out[f"{label}_jitter"] = metrics.explained_acceleration(points, fps, explained)
         if label.startswith("slow"):
-            error = np.linalg.norm(accelerations(points, fps) - reference, axis=-1).mean(axis=1)
+            error = np.linalg.norm(metrics.accelerations(points, fps) - reference, axis=-1).mean(axis=1)
             out[f"{label}_acceleration_error"] = float(error[inner].mean())
     return out | dict(frames=int(inner.sum()))
 
@@ -161,6 +148,10 @@ def score(result_path: Path) -> dict:
     measured = result["reprojection_measured"].astype(bool) if "reprojection_measured" in result else np.isfinite(
         result["reprojection_error"])
     measured &= explained
+
+    def feet_only(points: np.ndarray) -> float:  # m/s^2: jitter where only the feet carry the body
+        return metrics.explained_acceleration(points, fps, explained)
+
     observations = Observations.load(result_path.parent / "cache" / "observations.npz")
     return dict(frames=int(len(valid)), fps=fps, valid_frames=int(valid.sum()), all_finite=not non_finite,
                 non_finite_keys=non_finite,
@@ -171,8 +162,8 @@ def score(result_path: Path) -> dict:
                 largest_residual_force_bw=float(np.linalg.norm(result["residual_root_force"][:, :3], axis=-1).max()
                                                 / weight),
                 jitter=mean_acceleration(final, fps), kinematic_jitter=mean_acceleration(kinematic, fps),
-                feet_only_jitter=feet_only_jitter(result["joints_world"], fps, explained),
-                feet_only_kinematic_jitter=feet_only_jitter(result["joints_world_kinematic"], fps, explained),
+                feet_only_jitter=feet_only(result["joints_world"]),
+                feet_only_kinematic_jitter=feet_only(result["joints_world_kinematic"]),
                 feet_only_reprojection_px=float(np.median(result["reprojection_error_final"][measured])),
                 feet_only_kinematic_reprojection_px=float(np.median(result["reprojection_error"][measured])),
                 feet_only_aligned_mm=aligned_error_mm(result["joints_world"], names, observations, explained),

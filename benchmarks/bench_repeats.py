@@ -42,7 +42,7 @@ import av
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from bench_physics_limits import VALIDATION_CLIPS, explained_jitter  # noqa: E402
+from bench_physics_limits import VALIDATION_CLIPS  # noqa: E402
 from bench_synthetic import CLIPS, SECONDS, first_seconds, model_height  # noqa: E402
 from common import MOCAP, REPO, RESULTS, VIDEOS, machine_description  # noqa: E402
 from physmocap import metrics  # noqa: E402
@@ -167,7 +167,7 @@ def part_videos(src: Path, work: Path) -> list[dict]:
                     row[kind] = dict(
                         flagged_percent=100 * float(np.mean(r["physics_unexplained"][valid])),
                         fallback_percent=100 * float(np.mean(r["physics_fallback"][valid])),
-                        jitter=explained_jitter(r["joints_world"], float(r["fps"]), valid),
+                        jitter=metrics.explained_acceleration(r["joints_world"], float(r["fps"]), valid),
                         seconds=runs[kind]["seconds"])
                 row.update(repeats_found_percent=100 * float(np.mean(found[1::2][: len(second)][second])),
                            new_pictures_marked=int(found[0::2].sum()),

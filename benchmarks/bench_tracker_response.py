@@ -30,8 +30,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from bench_physics_videos import feet_only_jitter  # noqa: E402
 from common import RESULTS  # noqa: E402
+from physmocap import metrics  # noqa: E402
 from physmocap.config import PhysicsSettings  # noqa: E402
 from physmocap.dynamics.physcap import feedforward_shares, integration_steps, tracking_gains  # noqa: E402
 
@@ -78,7 +78,7 @@ def root_paths(result_path: Path) -> dict:
     model = linear_tracker(kinematic, fps, PhysicsSettings())
 
     def jitter(path: np.ndarray) -> float:
-        return feet_only_jitter(path[:, None, :], fps, explained)
+        return metrics.explained_acceleration(path[:, None, :], fps, explained)
 
     return dict(video=result_path.parent.name, fps=fps, input=jitter(kinematic), physics=jitter(physics),
                 linear_tracker=jitter(model))

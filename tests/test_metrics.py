@@ -219,6 +219,19 @@ def test_mean_acceleration_of_free_fall():
     assert metrics.mean_acceleration(points, fps=10.0) == pytest.approx(9.81)
 
 
+def test_explained_acceleration_counts_only_frames_explained_with_both_neighbours():
+    times = np.arange(8) / 10.0
+    points = np.zeros((8, 1, 3))
+    points[:, 0, 2] = -0.5 * 9.81 * times**2
+    points[5, 0, 2] += 1.0  # a jump on a flagged frame
+    explained = np.ones(8, bool)
+    explained[5] = False
+    # frames 4, 5 and 6 each have frame 5 beside or on them; the others see the free fall alone
+    assert metrics.explained_acceleration(points, 10.0, explained) == pytest.approx(9.81)
+    assert metrics.explained_acceleration(points, 10.0, np.ones(8, bool)) > 9.81 + 50.0
+    assert np.isnan(metrics.explained_acceleration(points, 10.0, np.arange(8) % 2 == 0))
+
+
 # ----- Feet and floor --------------------------------------------------------------------------------------
 
 

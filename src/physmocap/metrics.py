@@ -303,9 +303,10 @@ def e_smooth(pred: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     return float(deviation.mean()), float(deviation.std())
 
 
-def _second_difference(points: np.ndarray) -> np.ndarray:
-    """(T, ...) -> (T-2, ...): p[t+1] - 2 p[t] + p[t-1] for the interior frames."""
-    return points[2:] - 2.0 * points[1:-1] + points[:-2]
+def accelerations(points: np.ndarray, fps: float) -> np.ndarray:
+    """(T, ...) m -> (T-2, ...) m/s^2: central second differences (p[t+1] - 2 p[t] + p[t-1]) fps^2 at the interior
+    frames."""
+    return (points[2:] - 2.0 * points[1:-1] + points[:-2]) * fps**2
 
 
 def acceleration_error(pred: np.ndarray, truth: np.ndarray, fps: float) -> float:
@@ -316,8 +317,7 @@ def acceleration_error(pred: np.ndarray, truth: np.ndarray, fps: float) -> float
     """
     pred, truth = _matching_points(pred, truth)
     _min_frames(pred, 3, "acceleration_error")
-    difference = _second_difference(pred) - _second_difference(truth)
-    return float(np.linalg.norm(difference, axis=-1).mean() * fps**2)
+    return float(np.linalg.norm(accelerations(pred, fps) - accelerations(truth, fps), axis=-1).mean())
 
 
 def mean_acceleration(points: np.ndarray, fps: float) -> float:
@@ -326,7 +326,18 @@ def mean_acceleration(points: np.ndarray, fps: float) -> float:
     """
     points = _points(points, "points")
     _min_frames(points, 3, "mean_acceleration")
-    return float(np.linalg.norm(_second_difference(points), axis=-1).mean() * fps**2)
+    return float(np.linalg.norm(accelerations(points, fps), axis=-1).mean())
+
+
+def explained_acceleration(points: np.ndarray, fps: float, explained: np.ndarray) -> float:
+    """Mean joint acceleration magnitude, m/s^2, at the frames that are `explained` (T,) bool with both neighbours
+    (valid and not flagged: where only the feet carry the body, as far as the physics knows); nan where none is.
+    points: (T, J, 3) metres."""
+    explained = np.asarray(explained, bool)
+    inner = explained[1:-1] & explained[:-2] & explained[2:]
+    if not inner.any():
+        return float("nan")
+    return float(np.linalg.norm(accelerations(np.asarray(points, float), fps)[inner], axis=-1).mean())
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -447,7 +458,7 @@ def implied_grf(com: np.ndarray, body_mass: float, fps: float, gravity: float = 
         raise ValueError(f"com must have shape (T, 3), got {positions.shape}")
     if positions.shape[0] < 3:
         raise ValueError(f"implied_grf needs at least 3 frames, got {positions.shape[0]}")
-    acceleration = np.pad(_second_difference(positions) * fps**2, ((1, 1), (0, 0)), mode="edge")
+    acceleration = np.pad(accelerations(positions, fps), ((1, 1), (0, 0)), mode="edge")
     return body_mass * (acceleration + np.array([0.0, 0.0, gravity]))
 
 
