@@ -29,6 +29,7 @@ BENCHMARKS = {  # name: (script, arguments)
     "synthetic_runs": ("bench_synthetic.py", ["--set", "runs"]),  # held-out runs (a known limit), about 1 min
     "synthetic_runs_running": ("bench_synthetic.py", ["--set", "runs", "--preset", "running"]),  # the same, 1 min
     "synthetic_variety": ("bench_synthetic.py", ["--set", "variety"]),  # sixteen other motions, offline, 1-2 min
+    "runs_breakdown": ("bench_runs_breakdown.py", ["--trajopt"]),  # both run sets, eight cameras, about 1 min
     "physics_speed": ("bench_physics.py", []),
     "physics_ablation": ("bench_physics_ablation.py", []),
     "physics_real": ("bench_physics_real.py", []),  # after kinematics_real: it reads its cached detections
@@ -467,6 +468,15 @@ def compose(seconds: dict[str, float]) -> str:
         "docs/decisions/mocap-cc3-gravity.md), and the physics, falling at g, lands about a frame after them.",
         "",
         *synthetic_variety_section(),
+        "",
+        "### Runs: where the default capture's excess over its input sits",
+        "",
+        "Both run sets of `bench_synthetic.py` seen by eight cameras each, the default capture against its B.4 "
+        "input (issue 17's 3% target) and trajopt on the same input; the legs' error by each foot's phase in the "
+        "truth's labels; the touchdowns of the physics' own contacts before planting "
+        "(docs/decisions/refine-short-runs.md, fifty-third session).",
+        "",
+        *include("runs_breakdown"),
         "",
         "## Physics speed",
         "",
