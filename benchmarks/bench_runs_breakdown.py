@@ -4,7 +4,8 @@ cameras as asked, as bench_synthetic's "physcap on offline" row runs them (the B
 `run_physcap(refined_input=True)`).
 
 Per set:
-- root-relative error (mm) of B.4 and of the default capture over all cases, and trajopt's with `--trajopt`;
+- root-relative error (mm) of B.4 and of the default capture over all cases, and with `--trajopt` trajopt's and the
+  share of its frames flagged (not converged);
 - the legs' excess (knee, ankle, heel, toe; mm per joint and frame) by the phase of each foot in the truth's contact
   labels: in contact, the three frames before a touchdown, the three after a lift-off, the rest of the swing, and
   frames with no foot down;
@@ -149,8 +150,9 @@ def breakdown_case(name: str, seed: int, with_trajopt: bool, overrides: dict) ->
                phases=phases, touchdowns=touchdowns(body, motion.qpos, unplanted.qpos, unplanted.contacts),
                truth_flight_support=truth_flight_support(truth, refined.contacts))
     if with_trajopt:
-        row["trajopt_mm"] = 1000 * float(errors(run_trajopt(body, motion.qpos, FPS, refined.contacts,
-                                                            settings.trajopt).qpos).mean())
+        trajopt = run_trajopt(body, motion.qpos, FPS, refined.contacts, settings.trajopt)
+        row.update(trajopt_mm=1000 * float(errors(trajopt.qpos).mean()),
+                   trajopt_flagged_percent=100 * float(np.mean(trajopt.qp_failures > 0)))
     print(f"{row['clip']} seed {seed}: B.4 {row['b4_mm']:.2f}, default {row['default_mm']:.2f} mm", flush=True)
     return row
 
@@ -178,7 +180,8 @@ def _pooled(rows: list[dict]) -> dict:
                truth_flight_support_range=[float(np.min(support)), float(np.max(support))] if support else [])
     if "trajopt_mm" in rows[0]:
         trajopt = np.mean([r["trajopt_mm"] for r in rows])
-        out.update(trajopt_mm=trajopt, trajopt_over_b4_percent=100 * (trajopt / b4 - 1))
+        out.update(trajopt_mm=trajopt, trajopt_over_b4_percent=100 * (trajopt / b4 - 1),
+                   trajopt_flagged_percent=float(np.mean([r["trajopt_flagged_percent"] for r in rows])))
     return out
 
 
@@ -186,7 +189,8 @@ def summary_lines(name: str, s: dict) -> list[str]:
     """The set's summary as markdown lines."""
     lines: list[str] = []
     add = lines.append
-    trajopt = (f", trajopt {s['trajopt_mm']:.2f} ({s['trajopt_over_b4_percent']:+.1f}%)" if "trajopt_mm" in s else "")
+    trajopt = (f", trajopt {s['trajopt_mm']:.2f} ({s['trajopt_over_b4_percent']:+.1f}%; "
+               f"{s['trajopt_flagged_percent']:.0f}% of frames flagged)" if "trajopt_mm" in s else "")
     add(f"**{name}** ({s['cases']} cases): B.4 {s['b4_mm']:.2f} mm, default {s['default_mm']:.2f} "
         f"({s['default_over_b4_percent']:+.1f}%){trajopt}")
     add("")
