@@ -69,7 +69,9 @@ def root_relative(points: np.ndarray, names, truth: dict) -> np.ndarray:
 
 
 def foot_phases(labels: np.ndarray) -> dict[str, np.ndarray]:
-    """(T,) phase names (PHASES) of each foot ("left", "right") from contact labels (T, 4) in CONTACT_POINTS order."""
+    """(T,) phase names (PHASES) of each foot ("left", "right") from contact labels (T, 4) in CONTACT_POINTS order.
+    The frames beside a contact take its edge's phase over swing and no foot down; a frame both before a touchdown
+    and after a lift-off is before the touchdown."""
     flight = ~labels.any(axis=1)
     out = {}
     for side in ("left", "right"):
@@ -84,12 +86,15 @@ def foot_phases(labels: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def touchdowns(body, qpos_input: np.ndarray, qpos_output: np.ndarray, held: np.ndarray) -> list[list[float]]:
-    """Per touchdown of the held contacts (T, 4) after at least two free frames: the point's misplacement relative to
-    the pelvis along the floor (input minus output, m) on the frame before and on the first held frame, and the
-    output's lead over the input along the input pelvis' track there (pelvis, point; m)."""
+    """Per touchdown of the held contacts (T, 4) from frame 2 on: the point's misplacement relative to the pelvis
+    along the floor (|input minus output|, m) on the frame before and on the first held frame, and the output's lead
+    over the input along the input pelvis' track there (pelvis, point; m)."""
     feet, pelvis = body.point_index(CONTACT_POINTS), body.point_index(("pelvis",))[0]
     out_points, in_points = (kin.forward_kinematics(body, q).points for q in (qpos_output, qpos_input))
-    relative = lambda p: p[:, feet, :2] - p[:, pelvis, None, :2]  # noqa: E731
+
+    def relative(points: np.ndarray) -> np.ndarray:  # (T, 4, 2) m: the contact points from the pelvis
+        return points[:, feet, :2] - points[:, pelvis, None, :2]
+
     misplaced = np.linalg.norm(relative(in_points) - relative(out_points), axis=-1)
     track = np.gradient(in_points[:, pelvis, :2], axis=0)
     track /= np.maximum(np.linalg.norm(track, axis=1, keepdims=True), 1e-9)
