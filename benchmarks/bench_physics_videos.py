@@ -101,7 +101,7 @@ def against_own_capture(slow: Path, full: Path, keep_every: int = 3) -> dict:
     frames = keep_every * np.arange(len(a["valid"]))
     n = int(np.sum(frames < len(b["valid"])))
     explained = (a["valid"] & ~a["physics_unexplained"].astype(bool))[:n]
-    inner = explained[1:-1] & explained[:-2] & explained[2:]
+    inner = metrics.explained_interior(explained)
     reference = metrics.accelerations(b["joints_world"][frames[:n]], fps)
     out = {}
     for label, points in (("slow_physics", a["joints_world"][:n]), ("slow_input", a["joints_world_kinematic"][:n]),

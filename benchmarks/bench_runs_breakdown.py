@@ -35,21 +35,18 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_physics_limits import settings_overrides  # noqa: E402
-from bench_synthetic import CLIP_SETS, FPS, SECONDS, first_seconds, model_height  # noqa: E402
-from common import MOCAP, RESULTS  # noqa: E402
+from bench_synthetic import CLIP_SETS, FPS, SECONDS  # noqa: E402
+from bench_trajopt import observe  # noqa: E402
+from common import RESULTS  # noqa: E402
 from physmocap.body import kinematics as kin  # noqa: E402
 from physmocap.body.model import CONTACT_POINTS  # noqa: E402
-from physmocap.config import Settings  # noqa: E402
 from physmocap.contacts.flights import flight_support, runs  # noqa: E402
-from physmocap.contacts.noise import MEDIAPIPE_NOISE  # noqa: E402
 from physmocap.contacts.predict import predict_contacts  # noqa: E402
 from physmocap.dynamics.stage import run_physcap  # noqa: E402
 from physmocap.evaluation import EVAL_JOINTS, to_truth_world, true_contact_labels  # noqa: E402
 from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
 from physmocap.kinematics.stage import fit_motion  # noqa: E402
-from physmocap.metrics import GRAVITY  # noqa: E402
-from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
-from physmocap.mocap.synthetic import make_observations, random_camera, resample  # noqa: E402
+from physmocap.metrics import GRAVITY, joint_errors  # noqa: E402
 from physmocap.motion import valid_runs  # noqa: E402
 from physmocap.trajopt.stage import run_trajopt  # noqa: E402
 
@@ -59,13 +56,14 @@ LEG_JOINTS = ("knee", "ankle", "heel", "toe")
 
 
 def root_relative(points: np.ndarray, names, truth: dict) -> np.ndarray:
-    """(T, J) m: each EVAL_JOINTS joint's distance to the truth's after both hips' midpoints are subtracted."""
+    """(T, J) m: each EVAL_JOINTS joint's error after both hips' midpoints are subtracted, as
+    evaluation.score_against_truth's root-relative error takes it (its mean over joints and frames)."""
     names, true_names = [str(n) for n in names], [str(n) for n in truth["joint_names"]]
     pred = points[:, [names.index(j) for j in EVAL_JOINTS]]
     true = truth["joints_world"][:, [true_names.index(j) for j in EVAL_JOINTS]]
     hips = [EVAL_JOINTS.index("left_hip"), EVAL_JOINTS.index("right_hip")]
-    return np.linalg.norm((pred - pred[:, hips].mean(1, keepdims=True)) - (true - true[:, hips].mean(1, keepdims=True)),
-                          axis=-1)
+    with_root = [np.concatenate([p[:, hips].mean(axis=1, keepdims=True), p], axis=1) for p in (pred, true)]
+    return joint_errors(*with_root, align="root", joints=range(1, len(EVAL_JOINTS) + 1))
 
 
 def foot_phases(labels: np.ndarray) -> dict[str, np.ndarray]:
@@ -122,10 +120,7 @@ def truth_flight_support(truth: dict, labels: np.ndarray) -> list[float]:
 def breakdown_case(name: str, seed: int, with_trajopt: bool, overrides: dict) -> dict:
     """One run seen by the camera of `seed`: the figures of the module's docstring, the physics with `overrides`
     (PhysicsSettings fields)."""
-    clip = first_seconds(resample(load_mocap(MOCAP / name), FPS), SECONDS)
-    rng = np.random.default_rng(seed)
-    obs, truth = make_observations(clip, *random_camera(clip, rng), rng, MEDIAPIPE_NOISE)
-    settings = Settings().replace("body", height=model_height(truth["landmarks_world"]))
+    obs, truth, settings = observe(name, seed, SECONDS)
     fitted = fit_motion(obs, settings.replace(None, online=False))
     contacts, stationary = predict_contacts(obs, "centred")[:2]
     refined = refine_kinematics(obs, fitted, contacts, settings.fit, settings.trajopt)

@@ -329,12 +329,18 @@ def mean_acceleration(points: np.ndarray, fps: float) -> float:
     return float(np.linalg.norm(accelerations(points, fps), axis=-1).mean())
 
 
+def explained_interior(explained: np.ndarray) -> np.ndarray:
+    """(T - 2,) bool: the interior frames of `explained` (T,) bool that are explained with both neighbours, those
+    whose central second difference (`accelerations`) reads explained frames only."""
+    explained = np.asarray(explained, bool)
+    return explained[1:-1] & explained[:-2] & explained[2:]
+
+
 def explained_acceleration(points: np.ndarray, fps: float, explained: np.ndarray) -> float:
     """Mean joint acceleration magnitude, m/s^2, at the frames that are `explained` (T,) bool with both neighbours
     (valid and not flagged: where only the feet carry the body, as far as the physics knows); nan where none is.
     points: (T, J, 3) metres."""
-    explained = np.asarray(explained, bool)
-    inner = explained[1:-1] & explained[:-2] & explained[2:]
+    inner = explained_interior(explained)
     if not inner.any():
         return float("nan")
     return float(np.linalg.norm(accelerations(np.asarray(points, float), fps)[inner], axis=-1).mean())
