@@ -33,7 +33,7 @@ from scipy.ndimage import gaussian_filter1d
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_synthetic import CLIPS, FPS, SECONDS, first_seconds, model_height  # noqa: E402
-from common import MOCAP, RESULTS  # noqa: E402
+from common import MOCAP, NOISE_FREE, RESULTS  # noqa: E402
 from physmocap.body import kinematics as kin  # noqa: E402
 from physmocap.config import PhysicsSettings, Settings  # noqa: E402
 from physmocap.contacts.noise import MEDIAPIPE_NOISE  # noqa: E402
@@ -84,8 +84,6 @@ COLUMNS = (("mpjpe_root_mm", "root-rel. mm"), ("global_root_mm", "global root mm
 ZERO_LAG_SIGMA = 1.0  # frames: the sigma with the lowest e_smooth (first seed; online fit 1: 7.05, 2: 7.27, 3: 8.83 mm;
 # B.4-refined fit 1: 4.8, 2: 6.0, 3: 7.8 mm)
 SMOOTHED = f"input smoothed without lag (Gaussian, sigma {ZERO_LAG_SIGMA:g} frame; a bound)"
-NOISE_FREE = NoiseModel(keypoint_sd=0.0, keypoint_drift_sd=0.0, landmark_sd=0.0, landmark_drift_sd=0.0,
-                        depth_scale_sd=0.0, confidence_sd=0.0, dropout_per_second=0.0, foot_swaps_per_second=0.0)
 
 
 def case_rows(name: str, seed: int, online: bool, noise: NoiseModel) -> dict[str, dict]:

@@ -15,8 +15,12 @@ Per set:
 - the truth's pelvis read over the labels' flights as the vertical force it needs (`contacts.flights.flight_support`,
   body weights: 0 a free fall, 1 held up).
 
-    .venv/bin/python benchmarks/bench_runs_breakdown.py [--set runs runs_validation] [--seeds 0 1 ... 7] [--trajopt]
-        [--physics NAME=VALUE ...]   # PhysicsSettings values tried in place of the defaults
+    .venv/bin/python benchmarks/bench_runs_breakdown.py [--set runs runs_validation validation] [--seeds 0 1 ... 7]
+        [--trajopt] [--noise free] [--physics NAME=VALUE ...]   # PhysicsSettings values tried in place of the defaults
+
+`--set validation` scores bench_physics_limits's validation clips (walks, a jump, a dance, a scoop) the same way,
+for comparison. `--noise free` gives the pipeline the observations exactly as the camera sees the truth (no detector
+error): what the physics costs over B.4 with a perfect detector, the method's own share of the excess.
 """
 
 from __future__ import annotations
@@ -34,13 +38,14 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from bench_physics_limits import settings_overrides  # noqa: E402
+from bench_physics_limits import VALIDATION_CLIPS, settings_overrides  # noqa: E402
 from bench_synthetic import CLIP_SETS, FPS, SECONDS  # noqa: E402
 from bench_trajopt import observe  # noqa: E402
-from common import RESULTS  # noqa: E402
+from common import NOISE_FREE, RESULTS  # noqa: E402
 from physmocap.body import kinematics as kin  # noqa: E402
 from physmocap.body.model import CONTACT_POINTS  # noqa: E402
 from physmocap.contacts.flights import flight_support, runs  # noqa: E402
+from physmocap.contacts.noise import MEDIAPIPE_NOISE  # noqa: E402
 from physmocap.contacts.predict import predict_contacts  # noqa: E402
 from physmocap.dynamics.stage import run_physcap  # noqa: E402
 from physmocap.evaluation import EVAL_JOINTS, to_truth_world, true_contact_labels  # noqa: E402
@@ -50,6 +55,8 @@ from physmocap.metrics import GRAVITY, joint_errors  # noqa: E402
 from physmocap.motion import valid_runs  # noqa: E402
 from physmocap.trajopt.stage import run_trajopt  # noqa: E402
 
+SETS = {"runs": CLIP_SETS["runs"], "runs_validation": CLIP_SETS["runs_validation"], "validation": VALIDATION_CLIPS}
+NOISE = {"mediapipe": MEDIAPIPE_NOISE, "free": NOISE_FREE}
 PHASES = ("contact", "before touchdown", "after lift-off", "swing", "no foot down")
 EDGE_FRAMES = 3  # frames before a touchdown and after a lift-off counted as their own phase
 LEG_JOINTS = ("knee", "ankle", "heel", "toe")
@@ -117,10 +124,10 @@ def truth_flight_support(truth: dict, labels: np.ndarray) -> list[float]:
             if not labels[s].any() and s > 0 and s + n < len(labels)]
 
 
-def breakdown_case(name: str, seed: int, with_trajopt: bool, overrides: dict) -> dict:
-    """One run seen by the camera of `seed`: the figures of the module's docstring, the physics with `overrides`
-    (PhysicsSettings fields)."""
-    obs, truth, settings = observe(name, seed, SECONDS)
+def breakdown_case(name: str, seed: int, with_trajopt: bool, overrides: dict, noise: str = "mediapipe") -> dict:
+    """One run seen by the camera of `seed` through the detector errors NOISE[noise]: the figures of the module's
+    docstring, the physics with `overrides` (PhysicsSettings fields)."""
+    obs, truth, settings = observe(name, seed, SECONDS, noise=NOISE[noise])
     fitted = fit_motion(obs, settings.replace(None, online=False))
     contacts, stationary = predict_contacts(obs, "centred")[:2]
     refined = refine_kinematics(obs, fitted, contacts, settings.fit, settings.trajopt)
@@ -192,7 +199,7 @@ def summary_lines(name: str, s: dict) -> list[str]:
     trajopt = (f", trajopt {s['trajopt_mm']:.2f} ({s['trajopt_over_b4_percent']:+.1f}%; "
                f"{s['trajopt_flagged_percent']:.0f}% of frames flagged)" if "trajopt_mm" in s else "")
     add(f"**{name}** ({s['cases']} cases): B.4 {s['b4_mm']:.2f} mm, default {s['default_mm']:.2f} "
-        f"({s['default_over_b4_percent']:+.1f}%){trajopt}")
+        f"({s['default_over_b4_percent']:+.1f}%, {s['default_mm'] - s['b4_mm']:+.2f} mm){trajopt}")
     add("")
     add("| the foot's phase (truth's labels) | joint-frames | B.4 mm | default mm | share of the legs' excess |")
     add("|---|---|---|---|---|")
@@ -214,24 +221,29 @@ def summary_lines(name: str, s: dict) -> list[str]:
         add("|---|---|---|---|---|")
     for clip, c in s["clips"].items():
         touch = " / ".join(f"{v:.1f}" for v in c["touchdown_median_mm"])
-        add(f"| {clip} | {c['b4_mm']:.2f} | {c['default_mm']:.2f} ({c['default_over_b4_percent']:+.1f}%) | {touch} | "
+        add(f"| {clip} | {c['b4_mm']:.2f} | {c['default_mm']:.2f} ({c['default_over_b4_percent']:+.1f}%, "
+            f"{c['default_mm'] - c['b4_mm']:+.2f} mm) | {touch} | "
             f"{c['truth_flight_support_median']:.2f} |")
     return lines
 
 
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--set", nargs="+", choices=("runs", "runs_validation"), default=["runs_validation", "runs"])
+    parser.add_argument("--set", nargs="+", choices=tuple(SETS), default=["runs_validation", "runs"])
     parser.add_argument("--seeds", type=int, nargs="+", default=list(range(8)), help="the cameras (default 0-7)")
     parser.add_argument("--trajopt", action="store_true", help="score trajopt on the same input too")
     parser.add_argument("--physics", nargs="*", default=[], metavar="NAME=VALUE",
                         help="PhysicsSettings values in place of the defaults (e.g. plant_reach=0)")
-    parser.add_argument("--json", default=str(RESULTS / "runs_breakdown.json"))
+    parser.add_argument("--noise", choices=tuple(NOISE), default="mediapipe",
+                        help="the detector's errors: MediaPipe's as measured, or none (free)")
+    parser.add_argument("--json", help="default: results/runs_breakdown.json, or runs_breakdown_noise_free.json")
     args = parser.parse_args(argv)
+    args.json = args.json or str(RESULTS / ("runs_breakdown.json" if args.noise == "mediapipe"
+                                            else "runs_breakdown_noise_free.json"))
     out, text = {}, [f"`.venv/bin/python benchmarks/bench_runs_breakdown.py {' '.join(argv or sys.argv[1:])}`", ""]
     overrides = settings_overrides(args.physics)
     for set_name in args.set:
-        rows = [breakdown_case(name, seed, args.trajopt, overrides) for name in CLIP_SETS[set_name]
+        rows = [breakdown_case(name, seed, args.trajopt, overrides, args.noise) for name in SETS[set_name]
                 for seed in args.seeds]
         out[set_name] = dict(summary=summarise(rows), rows=rows, seeds=args.seeds)
         text += [*summary_lines(set_name, out[set_name]["summary"]), ""]

@@ -67,7 +67,7 @@ from physmocap.io.atomic import write_text  # noqa: E402
 from physmocap.kinematics.refine import refine_kinematics  # noqa: E402
 from physmocap.kinematics.stage import fit_motion  # noqa: E402
 from physmocap.mocap.bvh_reader import load_mocap  # noqa: E402
-from physmocap.mocap.synthetic import make_observations, random_camera, resample  # noqa: E402
+from physmocap.mocap.synthetic import NoiseModel, make_observations, random_camera, resample  # noqa: E402
 from physmocap.trajopt import run_trajopt  # noqa: E402
 
 METHODS = ("kinematic offline", "kinematic refined (B.4)", "physcap on offline", "trajopt",
@@ -87,11 +87,13 @@ KEYS = ("global_mpjpe_mm", "first_frame_aligned_mm", "mpjpe_root_mm", "floating_
         "skate_percent", "grf_mean_percent_bw", "grf_max_percent_bw", "grf_ballistic_percent_bw", "e_smooth_mm")
 
 
-def observe(name: str, seed: int, seconds: float, fps: float = FPS):
+def observe(name: str, seed: int, seconds: float, fps: float = FPS, noise: NoiseModel = MEDIAPIPE_NOISE):
+    """(observations, truth, settings at the truth's height): the clip's first `seconds` at `fps`, seen by the camera
+    of `seed` through the detector errors `noise`."""
     clip = first_seconds(resample(load_mocap(MOCAP / name), fps), seconds)
     rng = np.random.default_rng(seed)
     K, R, t = random_camera(clip, rng)
-    obs, truth = make_observations(clip, K, R, t, rng, MEDIAPIPE_NOISE)
+    obs, truth = make_observations(clip, K, R, t, rng, noise)
     settings = Settings().replace("body", height=model_height(truth["landmarks_world"]))
     return obs, truth, settings
 

@@ -20,12 +20,16 @@ import numpy as np
 
 from physmocap.body import kinematics as kin
 from physmocap.evaluation import score_against_truth, to_truth_world
+from physmocap.mocap.synthetic import NoiseModel
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("PHYSMOCAP_SHARED", REPO.parent / "shared"))
 VIDEOS = SHARED / "data" / "videos"
 MOCAP = SHARED / "data" / "mocap"
 RESULTS = REPO / "benchmarks" / "results"
+# Observations exactly as the synthetic camera sees the truth: what a method costs with a perfect detector.
+NOISE_FREE = NoiseModel(keypoint_sd=0.0, keypoint_drift_sd=0.0, landmark_sd=0.0, landmark_drift_sd=0.0,
+                        depth_scale_sd=0.0, confidence_sd=0.0, dropout_per_second=0.0, foot_swaps_per_second=0.0)
 Pictures = list[np.ndarray]  # BGR (H, W, 3) uint8 pictures
 
 
