@@ -13,7 +13,8 @@ Per set:
   minus the unplanted output's, along the floor, mm) on the frame before and the first held frame, and how far the
   output's pelvis and point lead the input's along the track there;
 - the truth's pelvis read over the labels' flights as the vertical force it needs (`contacts.flights.flight_support`,
-  body weights: 0 a free fall, 1 held up).
+  body weights: 0 a free fall, 1 held up);
+- how far the truth's contact points stray from their contact's median spot over its labelled contact frames.
 
     .venv/bin/python benchmarks/bench_runs_breakdown.py [--set runs runs_validation validation] [--seeds 0 1 ... 7]
         [--trajopt] [--noise free] [--physics NAME=VALUE ...]   # PhysicsSettings values tried in place of the defaults
@@ -113,6 +114,20 @@ def touchdowns(body, qpos_input: np.ndarray, qpos_output: np.ndarray, held: np.n
     return rows
 
 
+def truth_contact_spread(truth: dict, labels: np.ndarray) -> list[float]:
+    """Per labelled contact frame of each point (labels (T, 4), the truth's), how far along the floor the truth's
+    point lies from its contact's median spot (m): what any output that holds each contact on one spot must differ
+    from the truth by."""
+    names = [str(n) for n in truth["joint_names"]]
+    points = truth["joints_world"][:, [names.index(n) for n in CONTACT_POINTS], :2]
+    spread: list[float] = []
+    for k in range(len(CONTACT_POINTS)):
+        for start, end in valid_runs(labels[:, k]):
+            path = points[start:end, k]
+            spread += np.linalg.norm(path - np.median(path, axis=0), axis=1).tolist()
+    return spread
+
+
 def truth_flight_support(truth: dict, labels: np.ndarray) -> list[float]:
     """The truth's pelvis height read over each whole-body flight of the labels (T, 4) inside the clip (BW)."""
     names = [str(n) for n in truth["joint_names"]]
@@ -155,7 +170,8 @@ def breakdown_case(name: str, seed: int, with_trajopt: bool, overrides: dict, no
             phases[phase][2] += int(frames.sum()) * len(legs)
     row = dict(clip=name.split("/")[-1], seed=seed, b4_mm=1000 * float(b4.mean()), default_mm=1000 * float(out.mean()),
                phases=phases, touchdowns=touchdowns(body, motion.qpos, unplanted.qpos, unplanted.contacts),
-               truth_flight_support=truth_flight_support(truth, refined.contacts))
+               truth_flight_support=truth_flight_support(truth, refined.contacts),
+               truth_contact_spread_mm=1000 * float(np.mean(truth_contact_spread(truth, labels) or [np.nan])))
     if with_trajopt:
         trajopt = run_trajopt(body, motion.qpos, FPS, refined.contacts, settings.trajopt)
         row.update(trajopt_mm=1000 * float(errors(trajopt.qpos).mean()),
@@ -184,6 +200,7 @@ def _pooled(rows: list[dict]) -> dict:
                touchdowns=len(touch),
                touchdown_median_mm=(1000 * np.median(touch, axis=0)).tolist() if len(touch) else [],
                truth_flight_support_median=float(np.median(support)) if support else float("nan"),
+               truth_contact_spread_mm=float(np.nanmean([r["truth_contact_spread_mm"] for r in rows])),
                truth_flight_support_range=[float(np.min(support)), float(np.max(support))] if support else [])
     if "trajopt_mm" in rows[0]:
         trajopt = np.mean([r["trajopt_mm"] for r in rows])
@@ -211,6 +228,9 @@ def summary_lines(name: str, s: dict) -> list[str]:
         add(f"{s['touchdowns']} touchdowns, medians: misplacement relative to the pelvis {before:.1f} mm the frame "
             f"before, {onset:.1f} mm on the first held frame; the output leads the input along the track there by "
             f"{pelvis:.1f} mm (pelvis) and {point:.1f} mm (the point).")
+    add(f"The truth's contact points lie {s['truth_contact_spread_mm']:.1f} mm from their contact's median spot along "
+        "the floor (mean over its labelled contact frames): about what an output that holds each contact on one spot "
+        "differs from it by there.")
     low, high = s["truth_flight_support_range"] or [float("nan")] * 2
     add(f"The truth's pelvis over the labels' flights: median {s['truth_flight_support_median']:.2f} BW "
         f"({low:.2f} to {high:.2f}).")
