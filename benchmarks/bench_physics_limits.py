@@ -82,7 +82,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from bench_physics_videos import LIMB_LANDMARKS, aligned_error_mm, aligned_to_mm  # noqa: E402
 from bench_synthetic import CLIPS, FPS, SECONDS, WALKING, first_seconds, model_height  # noqa: E402
 from bench_trajopt import implied_vertical_force, observe  # noqa: E402
-from common import MOCAP, RESULTS, truth_scores  # noqa: E402
+from common import MOCAP, RESULTS, settings_overrides, truth_scores  # noqa: E402
 from physmocap import metrics  # noqa: E402
 from physmocap.body import kinematics as kin  # noqa: E402
 from physmocap.body.model import CONTACT_POINTS  # noqa: E402
@@ -1072,18 +1072,6 @@ def markdown(out: dict) -> str:
                 f"{s['flagged_percent']:.2f} | {s['seconds_per_second']:.2f} |")
         lines.append("")
     return "\n".join(lines)
-
-
-def settings_overrides(pairs: list[str]) -> dict:
-    """NAME=VALUE pairs -> PhysicsSettings fields (None, True, False, a number or else the word itself)."""
-    words = {"None": None, "True": True, "False": False}
-
-    def value_of(text: str):
-        try:
-            return words[text] if text in words else float(text)
-        except ValueError:
-            return text
-    return {name: value_of(value) for name, value in (pair.split("=", 1) for pair in pairs)}
 
 
 def main(argv=None) -> dict:

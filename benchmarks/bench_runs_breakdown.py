@@ -39,10 +39,10 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from bench_physics_limits import VALIDATION_CLIPS, settings_overrides  # noqa: E402
+from bench_physics_limits import VALIDATION_CLIPS  # noqa: E402
 from bench_synthetic import CLIP_SETS, FPS, SECONDS  # noqa: E402
 from bench_trajopt import observe  # noqa: E402
-from common import NOISE_FREE, RESULTS  # noqa: E402
+from common import NOISE_FREE, RESULTS, settings_overrides  # noqa: E402
 from physmocap.body import kinematics as kin  # noqa: E402
 from physmocap.body.model import CONTACT_POINTS  # noqa: E402
 from physmocap.contacts.flights import flight_support, runs  # noqa: E402

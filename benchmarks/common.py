@@ -6,11 +6,15 @@ import physmocap  # noqa: F401 - first: pins BLAS to one thread before numpy loa
 
 # isort: split
 
+import dataclasses
+import json
 import os
 import platform
 import statistics
 import subprocess
+import tempfile
 import time
+import tomllib
 from fractions import Fraction
 from pathlib import Path
 
@@ -19,8 +23,11 @@ import cv2
 import numpy as np
 
 from physmocap.body import kinematics as kin
+from physmocap.config import PhysicsSettings, Settings
+from physmocap.errors import InputError, SettingsError
 from physmocap.evaluation import score_against_truth, to_truth_world
 from physmocap.mocap.synthetic import NoiseModel
+from physmocap.settings_fields import load_toml, nearest
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("PHYSMOCAP_SHARED", REPO.parent / "shared"))
@@ -136,3 +143,38 @@ def gil_probe(work, label: str) -> list[dict]:
                          counter_mcounts_per_s=round(counted["n"] / counted["wall"] / 1e6, 2),
                          load=os.getloadavg()[0]))
     return rows
+
+
+def settings_overrides(pairs: list[str]) -> dict:
+    """NAME=VALUE pairs (a benchmark's --physics) -> the PhysicsSettings fields they set, each VALUE read and checked
+    as a settings file's [physics] table would be (true, 0.5, "never"; a bare word is read as text; None switches off
+    a setting that allows it). SystemExit with one sentence for the first bad pair."""
+    texts = {}
+    for pair in pairs:
+        name, sep, text = pair.partition("=")
+        if not sep:
+            raise SystemExit(f"--physics {pair}: expected NAME=VALUE.")
+        texts[name] = text
+    known = [f.name for f in dataclasses.fields(PhysicsSettings)]
+    for name in texts:
+        if name not in known:
+            raise SystemExit(f"--physics: unknown setting physics.{name}{nearest(name, known, 'physics.')}.")
+    off = [name for name, text in texts.items() if text in ("None", "none")]
+    lines = ["[physics]"] + [f"{name} = {_toml_value(text)}" for name, text in texts.items() if name not in off]
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "physics.toml"
+        path.write_text("\n".join(lines) + "\n")
+        try:
+            physics = load_toml(Settings, path).physics.replace(**dict.fromkeys(off)).check()
+        except (InputError, SettingsError) as exc:
+            raise SystemExit("--physics: " + str(exc).replace(f"{path}: ", "")) from None
+    return {name: getattr(physics, name) for name in texts}
+
+
+def _toml_value(text: str) -> str:
+    """A --physics VALUE as TOML: as written where it is TOML (true, 0.5, "never"), else quoted as text."""
+    try:
+        tomllib.loads(f"v = {text}")
+        return text
+    except tomllib.TOMLDecodeError:
+        return json.dumps(text)
