@@ -16,11 +16,11 @@ Per set:
   body weights: 0 a free fall, 1 held up);
 - how far the truth's contact points stray from their contact's median spot over its labelled contact frames.
 
-    .venv/bin/python benchmarks/bench_runs_breakdown.py [--set runs runs_validation validation] [--seeds 0 1 ... 7]
+    .venv/bin/python benchmarks/bench_runs_breakdown.py [--set runs runs_validation validation test] [--seeds 0 1 ... 7]
         [--trajopt] [--noise free] [--physics NAME=VALUE ...]   # PhysicsSettings values tried in place of the defaults
 
-`--set validation` scores bench_physics_limits's validation clips (walks, a jump, a dance, a scoop) the same way,
-for comparison. `--noise free` gives the pipeline the observations exactly as the camera sees the truth (no detector
+`--set validation` scores bench_physics_limits's validation clips (walks, a jump, a dance, a bend and scoop) the same
+way, for comparison, and `--set test` bench_synthetic's test set (held-out subjects 6 and 131). `--noise free` gives the pipeline the observations exactly as the camera sees the truth (no detector
 error): what the physics costs over B.4 with a perfect detector, the method's own share of the excess.
 """
 
@@ -56,7 +56,8 @@ from physmocap.metrics import GRAVITY, joint_errors  # noqa: E402
 from physmocap.motion import valid_runs  # noqa: E402
 from physmocap.trajopt.stage import run_trajopt  # noqa: E402
 
-SETS = {"runs": CLIP_SETS["runs"], "runs_validation": CLIP_SETS["runs_validation"], "validation": VALIDATION_CLIPS}
+SETS = {"runs": CLIP_SETS["runs"], "runs_validation": CLIP_SETS["runs_validation"], "validation": VALIDATION_CLIPS,
+        "test": CLIP_SETS["issue3"]}
 NOISE = {"mediapipe": MEDIAPIPE_NOISE, "free": NOISE_FREE}
 PHASES = ("contact", "before touchdown", "after lift-off", "swing", "no foot down")
 EDGE_FRAMES = 3  # frames before a touchdown and after a lift-off counted as their own phase

@@ -34,6 +34,10 @@ BENCHMARKS = {  # name: (script, arguments)
                                                               "benchmarks/results/runs_breakdown_validation.json"]),  # 1 min
     "runs_breakdown_noise_free": ("bench_runs_breakdown.py", ["--noise", "free", "--set", "runs_validation", "runs",
                                                               "validation"]),  # a perfect detector, 2 min
+    "runs_breakdown_test": ("bench_runs_breakdown.py", ["--set", "test", "--json",
+                                                        "benchmarks/results/runs_breakdown_test.json"]),  # 3 min
+    "runs_breakdown_test_noise_free": ("bench_runs_breakdown.py", [
+        "--set", "test", "--noise", "free", "--json", "benchmarks/results/runs_breakdown_test_noise_free.json"]),
     "physics_speed": ("bench_physics.py", []),
     "physics_ablation": ("bench_physics_ablation.py", []),
     "physics_real": ("bench_physics_real.py", []),  # after kinematics_real: it reads its cached detections
@@ -486,6 +490,10 @@ def compose(seconds: dict[str, float]) -> str:
         "",
         *include("runs_breakdown_validation"),
         "",
+        "The test set (held-out subjects 6 and 131) scored the same way:",
+        "",
+        *include("runs_breakdown_test"),
+        "",
         "### What the physics costs with a perfect detector",
         "",
         "The same sets from observations exactly as the camera sees the truth (`--noise free`). Given a perfect "
@@ -496,6 +504,8 @@ def compose(seconds: dict[str, float]) -> str:
         "(docs/decisions/refine-short-runs.md, fifty-fourth session).",
         "",
         *include("runs_breakdown_noise_free"),
+        "",
+        *include("runs_breakdown_test_noise_free"),
         "",
         "## Physics speed",
         "",
