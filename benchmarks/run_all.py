@@ -497,8 +497,9 @@ def compose(seconds: dict[str, float]) -> str:
         "### What the physics costs with a perfect detector",
         "",
         "The same sets from observations exactly as the camera sees the truth (`--noise free`). Given a perfect "
-        "detector's input the default is 1.1-2.1 mm further from the truth than its B.4 input on every set: the price "
-        "of the body and contact model, which the motion capture does not obey exactly. With MediaPipe's errors it "
+        "detector's input the default is 1.1-2.1 mm further from the truth than its B.4 input on every set: mostly the "
+        "tracker's own response to its targets (a freely actuated root still costs 1.45 of the validation's 1.70 mm), "
+        "then the dynamics, which the motion capture does not obey exactly. With MediaPipe's errors it "
         "costs less on every set (above), because its tracking also removes part of them. A target relative to the "
         "input therefore tightens as the detector improves, while this cost does not "
         "(docs/decisions/refine-short-runs.md, fifty-fourth session).",
