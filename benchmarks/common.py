@@ -12,7 +12,6 @@ import os
 import platform
 import statistics
 import subprocess
-import tempfile
 import time
 import tomllib
 from fractions import Fraction
@@ -27,7 +26,7 @@ from physmocap.config import PhysicsSettings, Settings
 from physmocap.errors import InputError, SettingsError
 from physmocap.evaluation import score_against_truth, to_truth_world
 from physmocap.mocap.synthetic import NoiseModel
-from physmocap.settings_fields import load_toml, nearest
+from physmocap.settings_fields import from_table, nearest
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("PHYSMOCAP_SHARED", REPO.parent / "shared"))
@@ -38,7 +37,6 @@ RESULTS = REPO / "benchmarks" / "results"
 NOISE_FREE = NoiseModel(keypoint_sd=0.0, keypoint_drift_sd=0.0, landmark_sd=0.0, landmark_drift_sd=0.0,
                         depth_scale_sd=0.0, confidence_sd=0.0, dropout_per_second=0.0, foot_swaps_per_second=0.0)
 Pictures = list[np.ndarray]  # BGR (H, W, 3) uint8 pictures
-
 
 
 def read_clip(name: str, seconds: float | None = None, every: int = 1) -> tuple[Pictures, float]:
@@ -160,14 +158,15 @@ def settings_overrides(pairs: list[str]) -> dict:
         if name not in known:
             raise SystemExit(f"--physics: unknown setting physics.{name}{nearest(name, known, 'physics.')}.")
     off = [name for name, text in texts.items() if text in ("None", "none")]
-    lines = ["[physics]"] + [f"{name} = {_toml_value(text)}" for name, text in texts.items() if name not in off]
-    with tempfile.TemporaryDirectory() as folder:
-        path = Path(folder) / "physics.toml"
-        path.write_text("\n".join(lines) + "\n")
-        try:
-            physics = load_toml(Settings, path).physics.replace(**dict.fromkeys(off)).check()
-        except (InputError, SettingsError) as exc:
-            raise SystemExit("--physics: " + str(exc).replace(f"{path}: ", "")) from None
+    table = tomllib.loads("\n".join(f"{name} = {_toml_value(text)}" for name, text in texts.items() if name not in off))
+    try:
+        physics = from_table(Settings, {"physics": table}, "--physics").physics
+    except (InputError, SettingsError) as exc:
+        raise SystemExit(str(exc)) from None
+    try:
+        physics = physics.replace(**dict.fromkeys(off)).check()
+    except SettingsError as exc:
+        raise SystemExit(f"--physics: {exc}") from None
     return {name: getattr(physics, name) for name in texts}
 
 

@@ -13,7 +13,7 @@ import pytest
 from physmocap.cli import build_parser
 from physmocap.config import Settings, load_settings
 from physmocap.errors import InputError, SettingsError
-from physmocap.settings_fields import Section, describe
+from physmocap.settings_fields import Section, describe, from_table
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -113,6 +113,18 @@ def test_an_unknown_setting_names_the_nearest_known_one(tmp_path):
     path.write_text("[physics]\nzzz = 1\n")
     with pytest.raises(InputError, match=r"unknown setting physics.zzz\.$"):
         load_settings(path)
+
+
+def test_a_table_is_read_and_checked_as_a_settings_file_naming_its_source():
+    settings = from_table(Settings, {"physics": {"kp_joint": 3000, "balance_correction": False}}, "--physics")
+    assert type(settings.physics.kp_joint) is float and settings.physics.balance_correction is False
+    with pytest.raises(SettingsError, match=r"^--physics: setting physics.balance_correction must be true or false, "
+                                            r"got 'false'\.$"):
+        from_table(Settings, {"physics": {"balance_correction": "false"}}, "--physics")
+    with pytest.raises(SettingsError, match=r"^--physics: physics.slide_speed = 5 is out of range"):
+        from_table(Settings, {"physics": {"slide_speed": 5}}, "--physics")
+    with pytest.raises(InputError, match=r"^--physics: unknown setting physics.balance_corection \(did you mean "):
+        from_table(Settings, {"physics": {"balance_corection": True}}, "--physics")
 
 
 def test_help_of_capture_options_comes_from_the_declarations():

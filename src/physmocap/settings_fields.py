@@ -202,14 +202,14 @@ def _as_declared(value, hint):
     return value
 
 
-def _typed(path: Path, owner: type, values: dict) -> dict:
-    """`values` for fields of the dataclass `owner` (lists as tuples); SettingsError naming the file and the first
-    value of the wrong type."""
+def _typed(source: str, owner: type, values: dict) -> dict:
+    """`values` for fields of the dataclass `owner` (lists as tuples); SettingsError naming the source (a file) and
+    the first value of the wrong type."""
     hints = _hints(owner)
     values = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
     for name, item in values.items():
         if not _has_type(item, hints[name]):
-            raise SettingsError(f"{path}: setting {owner().key(name)} must be {_type_name(hints[name])}, "
+            raise SettingsError(f"{source}: setting {owner().key(name)} must be {_type_name(hints[name])}, "
                                 f"got {item!r}.")
     return values
 
@@ -229,25 +229,32 @@ def _as_declared_section(section):
 def load_toml(root: type, path: Path):
     """root()'s defaults overridden by the TOML file `path` ([section] tables and top-level keys), checked;
     InputError naming the file and the first unknown section or setting, or wrong value."""
+    return from_table(root, read_toml(path, "settings"), str(path))
+
+
+def from_table(root: type, data: dict, source: str):
+    """root()'s defaults overridden by `data` as a settings file's TOML reads ([section] tables and top-level keys),
+    checked; InputError or SettingsError naming `source` (the file, or whatever gave the values) and the first
+    unknown section or setting, or wrong value."""
     settings = root()
-    data = read_toml(path, "settings")
     sections = {f.name for f in dataclasses.fields(root) if isinstance(getattr(settings, f.name), Section)}
     top_level = {f.name for f in dataclasses.fields(root)} - sections
     for key, value in data.items():
         if isinstance(value, dict):
             if key not in sections:
-                raise InputError(f"{path}: unknown settings section [{key}].")
+                raise InputError(f"{source}: unknown settings section [{key}].")
             names = [f.name for f in dataclasses.fields(getattr(settings, key))]
             unknown = set(value) - set(names)
             if unknown:
                 name = sorted(unknown)[0]
-                raise InputError(f"{path}: unknown setting {key}.{name}{nearest(name, names, key + '.')}.")
-            settings = settings.replace(key, **_typed(path, type(getattr(settings, key)), value))
+                raise InputError(f"{source}: unknown setting {key}.{name}{nearest(name, names, key + '.')}.")
+            settings = settings.replace(key, **_typed(source, type(getattr(settings, key)), value))
         elif key not in top_level:
-            raise InputError(f"{path}: unknown setting '{key}'{nearest(key, sorted(top_level | sections))}.")
-    settings = settings.replace(None, **_typed(path, root, {k: v for k, v in data.items() if not isinstance(v, dict)}))
+            raise InputError(f"{source}: unknown setting '{key}'{nearest(key, sorted(top_level | sections))}.")
+    top_values = {k: v for k, v in data.items() if not isinstance(v, dict)}
+    settings = settings.replace(None, **_typed(source, root, top_values))
     try:
         settings.check()  # on the values as written, which its messages quote
     except SettingsError as exc:
-        raise SettingsError(f"{path}: {exc}") from None
+        raise SettingsError(f"{source}: {exc}") from None
     return _as_declared_section(settings)
